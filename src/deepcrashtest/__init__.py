@@ -1,0 +1,3 @@
+"""DeepCrashTest: dashcam crash video -> reproducible, parameterised virtual crash test."""
+
+__version__ = "0.1.0"

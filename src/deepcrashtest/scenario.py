@@ -1,0 +1,427 @@
+"""The versioned Scenario model: the one contract between extraction and everything after it.
+
+A Scenario is what stage 1 (extraction) and stage 2 (trajectory processing) hand to the
+simulator, the search, the exporters and the viewer. It is stored as JSON with a
+``schema_version``; users edit, share and re-run these files.
+
+Frames and units (everywhere in this file):
+
+* World frame: origin at the ego vehicle's position at the first observed sample, x forward
+  (the ego's initial heading), y left, z up. Metres.
+* Time ``t``: seconds from the start of the scenario (t = 0 is the first simulated instant).
+* ``yaw``: heading in the world frame, radians, counter-clockwise from +x, unwrapped.
+* ``speed``: m/s along the heading, >= 0.
+* Trajectories describe each vehicle's geometric centre on the ground (the centre of its
+  bounding box, projected onto the road plane).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from deepcrashtest import __version__
+from deepcrashtest.errors import ScenarioError
+from deepcrashtest.fileio import atomic_write_text, require_file
+
+SCHEMA_VERSION = "1.0"
+"""Major.minor. A file with another major, or a newer minor, is refused."""
+
+#: Physical limits used by validation. Stated, never clipped silently.
+MAX_SPEED_MPS = 90.0  # 324 km/h: above any road vehicle
+MAX_ACCEL_MPS2 = 15.0  # ~1.5 g: above any tyre-limited braking/acceleration (impacts are cut away)
+
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+
+VehicleCategory = Literal["car", "van", "truck", "bus", "motorcycle", "bicycle"]
+TrajectoryClass = Literal["D0T1", "D0T2", "D0T3", "D1T1", "D1T2", "D1T3", "D1T4"]
+TRAJECTORY_CLASSES: tuple[str, ...] = ("D0T1", "D0T2", "D0T3", "D1T1", "D1T2", "D1T3", "D1T4")
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", validate_assignment=False)
+
+
+class VideoSource(_Model):
+    """Where the scenario came from."""
+
+    kind: Literal["video", "image_folder", "kitti_labels", "synthetic"] = "video"
+    path: str = Field(description="Path of the video file, image folder or label file, as given by the user")
+    fps: PositiveFloat = Field(description="Frames per second used to turn frame numbers into seconds")
+    frame_count: int = Field(ge=0, description="Number of frames read")
+    width: int = Field(gt=0, description="Frame width, pixels")
+    height: int = Field(gt=0, description="Frame height, pixels")
+    sha256: str | None = Field(default=None, description="SHA-256 of the source file, hex")
+    frame_rate_note: str | None = Field(
+        default=None,
+        description="Caveat on the frame rate (uploaded videos may be re-timed: relative speed trends are "
+        "what extraction gets right; absolute speeds scale with the true frame rate)",
+    )
+
+
+class Camera(_Model):
+    """Pinhole camera. Camera frame: x right, y down, z forward (metres); image u right, v down (pixels)."""
+
+    fx: PositiveFloat = Field(description="Focal length along u, pixels")
+    fy: PositiveFloat = Field(description="Focal length along v, pixels")
+    cx: FiniteFloat = Field(description="Principal point u, pixels")
+    cy: FiniteFloat = Field(description="Principal point v, pixels")
+    distortion: list[FiniteFloat] = Field(
+        default_factory=list, description="OpenCV distortion coefficients k1,k2,p1,p2[,k3]"
+    )
+    height_m: PositiveFloat = Field(default=1.3, description="Camera height above the road, metres")
+    pitch_rad: FiniteFloat = Field(default=0.0, description="Downward pitch of the optical axis, radians")
+    roll_rad: FiniteFloat = Field(default=0.0, description="Roll about the optical axis, radians")
+    forward_offset_m: FiniteFloat = Field(
+        default=0.5, description="Camera position ahead of the ego vehicle's centre, metres"
+    )
+    intrinsics_source: Literal["user", "chessboard", "fov", "default", "kitti_calib"] = "default"
+    pitch_source: Literal["user", "vanishing_point", "flow_foe", "default", "kitti_calib"] = "default"
+    height_source: Literal["user", "default", "kitti_calib"] = "default"
+
+    def matrix(self) -> np.ndarray:
+        """3x3 intrinsic matrix K."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+
+class SplineParams(_Model):
+    """A 2D B-spline in time: x(t), y(t) = BSpline(knots, cx|cy, degree). The search perturbs cx, cy."""
+
+    knots: list[FiniteFloat] = Field(description="Knot vector, seconds (scipy.interpolate.BSpline layout)")
+    cx: list[FiniteFloat] = Field(description="Control-point x coordinates, metres (world frame)")
+    cy: list[FiniteFloat] = Field(description="Control-point y coordinates, metres (world frame)")
+    degree: int = Field(default=3, ge=1, le=5)
+
+    @model_validator(mode="after")
+    def _shape(self) -> SplineParams:
+        n = len(self.knots) - self.degree - 1
+        if n < self.degree + 1 or len(self.cx) != n or len(self.cy) != n:
+            raise ValueError(
+                f"spline needs len(cx) == len(cy) == len(knots) - degree - 1 >= degree + 1 "
+                f"(got knots={len(self.knots)}, cx={len(self.cx)}, cy={len(self.cy)}, degree={self.degree})"
+            )
+        if any(b < a for a, b in zip(self.knots, self.knots[1:], strict=False)):
+            raise ValueError("spline knots must be non-decreasing")
+        return self
+
+
+class Trajectory(_Model):
+    """Time-indexed states of one vehicle's centre, column-wise (all lists have the same length)."""
+
+    t: list[FiniteFloat] = Field(description="Time, seconds, strictly increasing")
+    x: list[FiniteFloat] = Field(description="World x (forward), metres")
+    y: list[FiniteFloat] = Field(description="World y (left), metres")
+    yaw: list[FiniteFloat] = Field(description="Heading, radians CCW from world +x, unwrapped")
+    speed: list[NonNegFloat] = Field(description="Speed along the heading, m/s")
+    observed: list[bool] | None = Field(
+        default=None, description="Per sample: true where seen in the video, false where extrapolated"
+    )
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Trajectory:
+        n = len(self.t)
+        if n == 0:
+            raise ValueError("trajectory has no samples")
+        for name in ("x", "y", "yaw", "speed"):
+            if len(getattr(self, name)) != n:
+                raise ValueError(f"{name} has {len(getattr(self, name))} samples but t has {n}")
+        if self.observed is not None and len(self.observed) != n:
+            raise ValueError(f"observed has {len(self.observed)} samples but t has {n}")
+        t = np.asarray(self.t)
+        bad = np.nonzero(np.diff(t) <= 0)[0]
+        if bad.size:
+            i = int(bad[0]) + 1
+            raise ValueError(f"t must increase strictly: t[{i}]={t[i]} follows t[{i - 1}]={t[i - 1]}")
+        v = np.asarray(self.speed)
+        if v.size and v.max() > MAX_SPEED_MPS:
+            i = int(v.argmax())
+            raise ValueError(f"speed[{i}]={v[i]:.1f} m/s exceeds the physical limit {MAX_SPEED_MPS} m/s")
+        return self
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Columns as float64 arrays: t, x, y, yaw, speed."""
+        return {k: np.asarray(getattr(self, k), dtype=float) for k in ("t", "x", "y", "yaw", "speed")}
+
+    @classmethod
+    def from_arrays(
+        cls,
+        t: Any,
+        x: Any,
+        y: Any,
+        yaw: Any,
+        speed: Any,
+        observed: Any | None = None,
+    ) -> Trajectory:
+        """Build from array-likes (converted to plain Python floats)."""
+
+        def fl(a: Any) -> list[float]:
+            return [float(v) for v in np.asarray(a, dtype=float).ravel()]
+
+        return cls(
+            t=fl(t),
+            x=fl(x),
+            y=fl(y),
+            yaw=fl(yaw),
+            speed=fl(speed),
+            observed=None if observed is None else [bool(b) for b in np.asarray(observed).ravel()],
+        )
+
+    def max_abs_accel(self) -> tuple[float, int]:
+        """Largest |dv/dt| between consecutive samples (m/s^2) and the index where it occurs."""
+        if len(self.t) < 2:
+            return 0.0, 0
+        a = np.abs(np.diff(np.asarray(self.speed)) / np.diff(np.asarray(self.t)))
+        i = int(a.argmax())
+        return float(a[i]), i + 1
+
+    def state_at(self, t: float) -> dict[str, float]:
+        """Linearly interpolated state at time ``t`` (clamped to the trajectory's span)."""
+        a = self.arrays()
+        yaw = np.interp(t, a["t"], a["yaw"])
+        return {
+            "t": float(t),
+            "x": float(np.interp(t, a["t"], a["x"])),
+            "y": float(np.interp(t, a["t"], a["y"])),
+            "yaw": float(yaw),
+            "speed": float(np.interp(t, a["t"], a["speed"])),
+        }
+
+
+class Vehicle(_Model):
+    """One vehicle (the ego or an agent) with its size, class and trajectory."""
+
+    id: int = Field(ge=0, description="Unique within the scenario; the ego is 0")
+    category: VehicleCategory = "car"
+    length: PositiveFloat = Field(default=4.5, description="Metres")
+    width: PositiveFloat = Field(default=1.8, description="Metres")
+    height: PositiveFloat = Field(default=1.5, description="Metres")
+    confidence: float = Field(default=1.0, ge=0.0, le=1.0, description="Mean detection confidence")
+    trajectory_class: TrajectoryClass | None = Field(
+        default=None, description="D0T1..D1T4 for agents (see trajectory.classify); None for the ego"
+    )
+    first_frame: int = Field(default=0, ge=0, description="First video frame where the vehicle is observed")
+    last_frame: int = Field(default=0, ge=0, description="Last video frame where the vehicle is observed")
+    start_delay_s: NonNegFloat = Field(
+        default=0.0, description="Seconds after t=0 at which the vehicle enters the simulation"
+    )
+    trajectory: Trajectory
+    spline: SplineParams | None = Field(
+        default=None, description="Spline parameterisation of the path (perturbed by the search)"
+    )
+
+    @model_validator(mode="after")
+    def _frames(self) -> Vehicle:
+        if self.last_frame < self.first_frame:
+            raise ValueError(f"last_frame {self.last_frame} is before first_frame {self.first_frame}")
+        return self
+
+
+class LaneTimeline(_Model):
+    """The ego's lane over time, from the lane stage."""
+
+    t: list[FiniteFloat] = Field(description="Seconds")
+    lane_index: list[int] = Field(description="0 = rightmost lane")
+    lateral_offset: list[FiniteFloat] = Field(description="Ego centre left of its lane centre, metres")
+
+    @model_validator(mode="after")
+    def _same_length(self) -> LaneTimeline:
+        if not (len(self.t) == len(self.lane_index) == len(self.lateral_offset)):
+            raise ValueError("t, lane_index and lateral_offset must have the same length")
+        return self
+
+
+class Road(_Model):
+    """Road centre line and lanes, world frame."""
+
+    centerline_x: list[FiniteFloat] = Field(description="Waypoint x, metres")
+    centerline_y: list[FiniteFloat] = Field(description="Waypoint y, metres")
+    lane_width: PositiveFloat = Field(default=3.5, description="Metres")
+    lane_count: int = Field(default=2, ge=1, le=12)
+    ego_lane: int = Field(default=0, ge=0, description="Lane of the ego at t=0, 0 = rightmost")
+    source: Literal["ego_path", "ego_path+oncoming", "lanes", "user"] = "ego_path"
+    lane_timeline: LaneTimeline | None = None
+
+    @model_validator(mode="after")
+    def _waypoints(self) -> Road:
+        if len(self.centerline_x) != len(self.centerline_y):
+            raise ValueError("centerline_x and centerline_y must have the same length")
+        if len(self.centerline_x) < 2:
+            raise ValueError("road needs at least 2 centre-line waypoints")
+        if self.ego_lane >= self.lane_count:
+            raise ValueError(f"ego_lane {self.ego_lane} is outside lane_count {self.lane_count}")
+        return self
+
+    def centerline(self) -> np.ndarray:
+        """(N, 2) array of waypoints, metres."""
+        return np.column_stack([self.centerline_x, self.centerline_y]).astype(float)
+
+
+class Collision(_Model):
+    """The collision seen in the video (or found by the simulator)."""
+
+    time_s: FiniteFloat = Field(description="Seconds, scenario time")
+    agent_id: int = Field(ge=0, description="The agent the ego hits (or the second vehicle)")
+    other_id: int = Field(default=0, ge=0, description="The first vehicle (the ego unless stated)")
+    x: FiniteFloat | None = Field(default=None, description="Impact point x, metres")
+    y: FiniteFloat | None = Field(default=None, description="Impact point y, metres")
+    relative_speed: NonNegFloat | None = Field(default=None, description="m/s at first contact")
+
+
+class Provenance(_Model):
+    """How the scenario was made, so it can be made again."""
+
+    package_version: str = __version__
+    command: str = ""
+    parameters: dict[str, Any] = Field(default_factory=dict)
+    seed: int = 0
+    history: list[str] = Field(default_factory=list, description="Edits applied after creation, in order")
+
+
+class Scenario(_Model):
+    """A crash scenario: source, camera, ego, agents, road, collision, provenance."""
+
+    schema_version: str = SCHEMA_VERSION
+    name: str = "scenario"
+    stage: Literal["raw", "processed"] = Field(
+        default="processed",
+        description="raw = world-frame tracks straight from extraction; processed = after stage 2",
+    )
+    source: VideoSource
+    camera: Camera
+    ego: Vehicle
+    agents: list[Vehicle] = Field(default_factory=list)
+    road: Road
+    collision: Collision | None = None
+    provenance: Provenance = Field(default_factory=Provenance)
+    warnings: list[str] = Field(default_factory=list, description="Caveats a user should read")
+
+    @field_validator("schema_version")
+    @classmethod
+    def _version(cls, v: str) -> str:
+        check_schema_version(v)
+        return v
+
+    @model_validator(mode="after")
+    def _ids_and_physics(self) -> Scenario:
+        ids = [self.ego.id] + [a.id for a in self.agents]
+        if len(set(ids)) != len(ids):
+            dup = sorted({i for i in ids if ids.count(i) > 1})
+            raise ValueError(f"vehicle ids must be unique (duplicated: {dup})")
+        if self.stage == "processed":
+            for label, veh in [("ego", self.ego)] + [(f"agents[id={a.id}]", a) for a in self.agents]:
+                amax, i = veh.trajectory.max_abs_accel()
+                if amax > MAX_ACCEL_MPS2:
+                    raise ValueError(
+                        f"{label}.trajectory: |acceleration| {amax:.1f} m/s^2 at sample {i} exceeds the "
+                        f"physical limit {MAX_ACCEL_MPS2} m/s^2"
+                    )
+        if self.collision is not None and self.collision.agent_id not in ids:
+            raise ValueError(f"collision.agent_id {self.collision.agent_id} is not a vehicle of this scenario")
+        return self
+
+    # ------------------------------------------------------------------ access
+    def vehicles(self) -> list[Vehicle]:
+        """Ego first, then agents."""
+        return [self.ego, *self.agents]
+
+    def vehicle(self, vehicle_id: int) -> Vehicle:
+        for v in self.vehicles():
+            if v.id == vehicle_id:
+                return v
+        raise KeyError(vehicle_id)
+
+    def duration(self) -> float:
+        """Last sample time over all vehicles, seconds."""
+        return max(v.trajectory.t[-1] for v in self.vehicles())
+
+    # ------------------------------------------------------------------ I/O
+    def to_json(self) -> str:
+        return self.model_dump_json(indent=1) + "\n"
+
+    def save(self, path: str | os.PathLike[str], force: bool = False) -> Path:
+        """Write JSON atomically; refuse to overwrite an existing file unless ``force``."""
+        return atomic_write_text(path, self.to_json(), force=force)
+
+    @classmethod
+    def from_dict(cls, data: Any, origin: str = "scenario") -> Scenario:
+        """Validate a decoded JSON object; errors name the field (``agents.2.trajectory.t: ...``)."""
+        if not isinstance(data, dict):
+            raise ScenarioError(f"{origin}: expected a JSON object, got {type(data).__name__}")
+        if "schema_version" not in data:
+            raise ScenarioError(f"{origin}: missing schema_version (not a DeepCrashTest scenario?)")
+        try:
+            check_schema_version(str(data["schema_version"]))
+            return cls.model_validate(data)
+        except ValidationError as exc:
+            raise ScenarioError(f"{origin}: {format_validation_error(exc)}") from None
+        except ValueError as exc:
+            raise ScenarioError(f"{origin}: {exc}") from None
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> Scenario:
+        """Read and validate a Scenario JSON file."""
+        p = require_file(path, "scenario file")
+        try:
+            text = p.read_text(encoding="utf-8")
+        except UnicodeDecodeError:
+            raise ScenarioError(f"{p}: not a text file") from None
+        try:
+            data = json.loads(text, parse_constant=_reject_constant)
+        except json.JSONDecodeError as exc:
+            raise ScenarioError(f"{p}: invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
+        except ValueError as exc:
+            raise ScenarioError(f"{p}: {exc}") from None
+        return cls.from_dict(data, origin=str(p))
+
+
+def _reject_constant(name: str) -> float:
+    raise ValueError(f"non-finite number {name} is not allowed")
+
+
+def check_schema_version(version: str) -> None:
+    """Raise ValueError unless ``version`` can be read by this package."""
+    try:
+        major, minor = (int(p) for p in version.split("."))
+    except ValueError:
+        raise ValueError(f"schema_version {version!r} is not of the form MAJOR.MINOR") from None
+    cur_major, cur_minor = (int(p) for p in SCHEMA_VERSION.split("."))
+    if major != cur_major or minor > cur_minor:
+        raise ValueError(
+            f"schema_version {version} is not supported (this deepcrashtest {__version__} reads "
+            f"{cur_major}.0-{SCHEMA_VERSION})"
+        )
+
+
+def format_validation_error(exc: ValidationError, limit: int = 3) -> str:
+    """One line naming the field(s): ``ego.trajectory.t.3: Input should be a finite number``."""
+    parts = []
+    for err in exc.errors()[:limit]:
+        loc = ".".join(str(p) for p in err["loc"]) or "(root)"
+        msg = err["msg"].removeprefix("Value error, ")
+        parts.append(f"{loc}: {msg}")
+    more = exc.error_count() - limit
+    return "; ".join(parts) + (f" (+{more} more)" if more > 0 else "")
+
+
+def json_schema() -> dict[str, Any]:
+    """The JSON Schema of the Scenario file."""
+    schema = Scenario.model_json_schema()
+    schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
+    schema["title"] = f"DeepCrashTest Scenario {SCHEMA_VERSION}"
+    return schema
+
+
+def wrap_angle(a: Any) -> Any:
+    """Wrap radians to (-pi, pi]."""
+    return (np.asarray(a) + math.pi) % (2 * math.pi) - math.pi

@@ -1,0 +1,124 @@
+"""The Scenario contract: round trip, validation messages, schema version, atomic save."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from deepcrashtest.errors import ScenarioError, UserError
+from deepcrashtest.scenario import SCHEMA_VERSION, Scenario, Trajectory, json_schema
+
+
+def test_round_trip_is_lossless(kitti8_raw, tmp_path):
+    path = kitti8_raw.save(tmp_path / "s.json")
+    again = Scenario.load(path)
+    assert again == kitti8_raw
+    assert again.to_json() == kitti8_raw.to_json()
+
+
+def test_save_refuses_overwrite_without_force(kitti8_raw, tmp_path):
+    path = tmp_path / "s.json"
+    path.write_text("precious")
+    with pytest.raises(UserError, match="already exists"):
+        kitti8_raw.save(path)
+    assert path.read_text() == "precious"
+    kitti8_raw.save(path, force=True)
+    assert Scenario.load(path).name == "kitti_0008"
+    assert [p.name for p in tmp_path.iterdir()] == ["s.json"]  # no temp file left behind
+
+
+def test_failed_save_leaves_old_file(kitti8_raw, tmp_path, monkeypatch):
+    path = tmp_path / "s.json"
+    path.write_text("old")
+
+    def boom(self):
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(Scenario, "to_json", boom)
+    with pytest.raises(RuntimeError):
+        kitti8_raw.save(path, force=True)
+    assert path.read_text() == "old"
+    assert [p.name for p in tmp_path.iterdir()] == ["s.json"]
+
+
+def _mutated(sc: Scenario, fn) -> dict:
+    d = json.loads(sc.to_json())
+    fn(d)
+    return d
+
+
+@pytest.mark.parametrize(
+    ("mutate", "message"),
+    [
+        (lambda d: d["ego"]["trajectory"]["x"].__setitem__(3, math.nan), r"ego\.trajectory\.x\.3"),
+        (lambda d: d["ego"]["trajectory"]["t"].__setitem__(5, 0.0), r"t must increase strictly"),
+        (lambda d: d["ego"]["trajectory"]["speed"].__setitem__(2, -1.0), r"ego\.trajectory\.speed\.2"),
+        (lambda d: d["ego"]["trajectory"]["speed"].__setitem__(2, 120.0), r"physical limit 90"),
+        (lambda d: d["ego"]["trajectory"]["y"].pop(), r"y has .* samples but t has"),
+        (lambda d: d["source"].__setitem__("fps", -5), r"source\.fps"),
+        (lambda d: d["source"].__setitem__("fps", 0), r"source\.fps"),
+        (lambda d: d.__setitem__("schema_version", "2.0"), r"schema_version 2\.0 is not supported"),
+        (lambda d: d.__setitem__("schema_version", "1.9"), r"schema_version 1\.9 is not supported"),
+        (lambda d: d.pop("schema_version"), r"missing schema_version"),
+        (lambda d: d["agents"][0].__setitem__("id", 0), r"ids must be unique"),
+        (lambda d: d["road"].__setitem__("centerline_x", [0.0]), r"road"),
+        (lambda d: d.__setitem__("unknown_field", 1), r"unknown_field"),
+        (lambda d: d["agents"][1].__setitem__("trajectory_class", "D9T9"), r"agents\.1\.trajectory_class"),
+    ],
+)
+def test_validation_names_the_field(kitti8_raw, mutate, message):
+    with pytest.raises(ScenarioError, match=message):
+        Scenario.from_dict(_mutated(kitti8_raw, mutate))
+
+
+def test_processed_scenarios_enforce_acceleration_limit(kitti8_raw):
+    def spike(d):
+        d["stage"] = "processed"
+        d["agents"] = []
+        d["ego"]["trajectory"]["speed"][10] += 5.0  # +5 m/s within 0.1 s = 50 m/s^2
+
+    with pytest.raises(ScenarioError, match=r"ego.trajectory: \|acceleration\| 50.* exceeds the physical limit"):
+        Scenario.from_dict(_mutated(kitti8_raw, spike))
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ("", "empty"),
+        ("{not json", "invalid JSON at line 1"),
+        ("[1, 2]", "expected a JSON object"),
+        ('{"schema_version": "1.0", "x": NaN}', "non-finite number NaN"),
+    ],
+)
+def test_load_bad_files(tmp_path, content, message):
+    p = tmp_path / "bad.json"
+    p.write_text(content)
+    with pytest.raises(UserError, match=message):
+        Scenario.load(p)
+
+
+def test_load_directory_and_missing(tmp_path):
+    with pytest.raises(UserError, match="is a directory"):
+        Scenario.load(tmp_path)
+    with pytest.raises(UserError, match="no such"):
+        Scenario.load(tmp_path / "nope.json")
+
+
+def test_trajectory_helpers():
+    tr = Trajectory.from_arrays([0, 1, 2], [0, 10, 20], [0, 0, 0], [0, 0, 0], [10, 10, 10])
+    assert tr.state_at(1.5)["x"] == pytest.approx(15.0)
+    assert tr.max_abs_accel() == (0.0, 1)
+
+
+def test_json_schema_validates_real_file_and_rejects_bad(kitti8_raw):
+    import jsonschema  # an independent validator of the exported schema
+
+    schema = json_schema()
+    assert schema["title"].endswith(SCHEMA_VERSION)
+    data = json.loads(kitti8_raw.to_json())
+    jsonschema.validate(data, schema)
+    data["ego"]["trajectory"]["speed"][0] = -3.0
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate(data, schema)
