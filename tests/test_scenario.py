@@ -27,6 +27,7 @@ def test_save_refuses_overwrite_without_force(kitti8_raw, tmp_path):
     kitti8_raw.save(path, force=True)
     assert Scenario.load(path).name == "kitti_0008"
     assert [p.name for p in tmp_path.iterdir()] == ["s.json"]  # no temp file left behind
+    assert path.stat().st_mode & 0o044 == 0o044  # readable by others, like any file the user writes
 
 
 def test_failed_save_leaves_old_file(kitti8_raw, tmp_path, monkeypatch):

@@ -16,6 +16,12 @@ from pathlib import Path
 from deepcrashtest.errors import UserError
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def check_writable(path: str | os.PathLike[str], force: bool = False) -> Path:
     """Return ``path`` as a Path after checking that writing it will not destroy anything unasked."""
     p = Path(path)
@@ -38,6 +44,7 @@ def atomic_path(path: str | os.PathLike[str], force: bool = False, suffix: str |
     target = check_writable(path, force)
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=suffix or target.suffix, dir=target.parent)
     os.close(fd)
+    os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; outputs get the usual permissions
     tmp_path = Path(tmp)
     try:
         yield tmp_path
