@@ -45,6 +45,29 @@ OBSTACLE_ID_BASE = 1000
 GOAL_LENGTH_M = 10.0
 GOAL_AHEAD_M = 15.0
 
+
+def _protobuf_guard() -> None:
+    """Let commonroad-io load under a protobuf newer than the 3.20 it was generated for.
+
+    commonroad-io 2024.3 pins protobuf 3.20.2; installing e.g. Ray beside it upgrades protobuf,
+    and then importing commonroad fails ("Descriptors cannot be created directly") unless the
+    pure-Python protobuf implementation is selected before protobuf is first imported.
+    """
+    import sys
+    from importlib.metadata import PackageNotFoundError, version
+
+    if "google.protobuf" in sys.modules:
+        return
+    try:
+        major = int(version("protobuf").split(".")[0])
+    except (PackageNotFoundError, ValueError):
+        return
+    if major > 3:
+        os.environ.setdefault("PROTOCOL_BUFFERS_PYTHON_IMPLEMENTATION", "python")
+
+
+_protobuf_guard()
+
 _OBSTACLE_TYPE = {
     "car": "CAR",
     "van": "CAR",
