@@ -160,29 +160,55 @@ def test_asam_qc_reports_a_broken_file(exported, qc, tmp_path):
 
 
 # --------------------------------------------------------------------------- OpenSCENARIO replay
-def test_xosc_replay_matches_scenario(exported):
-    """Every vehicle's polyline, replayed by time, is within 5 cm of the Scenario at every sample."""
-    sc, out = exported
-    ents = read_xosc(out / "scenario.xosc")
+def _replay_error(sc: Scenario, xosc_path: Path) -> float:
+    """Max distance (m) between the replayed polylines and the Scenario at its samples; checks triggers."""
+    ents = read_xosc(xosc_path)
     assert set(ents) == {entity_name(v, sc.ego.id) for v in sc.vehicles()}
     worst = 0.0
     for veh in sc.vehicles():
         ent = ents[entity_name(veh, sc.ego.id)]
         t_enter = entry_time(veh)
-        a = veh.trajectory.arrays()
-        keep = a["t"] >= t_enter - 1e-9
-        if keep.sum() < 2:
-            continue
-        got = ent.centre_at(a["t"][keep])
-        err = np.hypot(got[:, 0] - a["x"][keep], got[:, 1] - a["y"][keep])
-        worst = max(worst, float(err.max()))
-        assert ent.start_rule == "greaterOrEqual"
-        assert ent.start_trigger == pytest.approx(t_enter)
         if veh.id != sc.ego.id and t_enter > 0:
             assert ent.deleted_at_init and ent.added_at is not None and ent.init_teleport is None
         else:
             assert ent.init_teleport is not None and not ent.deleted_at_init
+        a = veh.trajectory.arrays()
+        keep = a["t"] >= t_enter - 1e-9
+        if ent.times.size < 2:
+            assert keep.sum() < 2
+            continue
+        assert ent.start_rule == "greaterOrEqual"
+        assert ent.start_trigger == pytest.approx(t_enter)
+        assert ent.times[0] == pytest.approx(t_enter)
+        got = ent.centre_at(a["t"][keep])
+        err = np.hypot(got[:, 0] - a["x"][keep], got[:, 1] - a["y"][keep])
+        worst = max(worst, float(err.max()))
+    return worst
+
+
+def test_xosc_replay_matches_scenario(exported):
+    """Every vehicle's polyline, replayed by time, is within 5 cm of the Scenario at every sample."""
+    sc, out = exported
+    worst = _replay_error(sc, out / "scenario.xosc")
     assert worst < POS_TOL_M, f"max replay position error {worst:.4f} m"
+
+
+def test_xosc_replay_off_grid_times_and_start_delays(kitti8_raw, tmp_path, xsd):
+    """Trajectories on a 30 Hz grid and start delays between samples (as stage 2 may produce)."""
+    sc = copy.deepcopy(kitti8_raw)
+    for veh in sc.vehicles():
+        a = veh.trajectory.arrays()
+        t = np.arange(a["t"][0], a["t"][-1] + 1e-9, 1 / 30)
+        if len(t) < 2:
+            continue
+        veh.trajectory = type(veh.trajectory).from_arrays(
+            t, *(np.interp(t, a["t"], a[k]) for k in ("x", "y", "yaw", "speed"))
+        )
+        if veh.id != sc.ego.id and t[-1] - t[0] > 0.2:
+            veh.start_delay_s = float(t[0] + 0.05)  # between two samples
+    export_scenario(sc, "openscenario", tmp_path)
+    xsd["xosc"].validate(str(tmp_path / "scenario.xosc"))
+    assert _replay_error(sc, tmp_path / "scenario.xosc") < POS_TOL_M
 
 
 def test_xosc_ego_start_parameters_shift_the_ego(exported):
