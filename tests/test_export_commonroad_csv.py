@@ -67,9 +67,9 @@ def first_contact_s(ego: Vehicle, agent: Vehicle, step: float = 0.005) -> float 
     return None
 
 
-@pytest.fixture(scope="module")
-def crash_scenario(kitti8_raw) -> Scenario:
-    sc = copy.deepcopy(kitti8_raw)
+def make_crash_scenario(kitti8: Scenario) -> Scenario:
+    """KITTI 0008 with agent MEET_AGENT_ID shifted into a head-on crash (see the module doc)."""
+    sc = copy.deepcopy(kitti8)
     agent = sc.vehicle(MEET_AGENT_ID)
     e = sc.ego.trajectory.state_at(MEET_T_S)
     a = agent.trajectory.state_at(MEET_T_S)
@@ -86,6 +86,11 @@ def crash_scenario(kitti8_raw) -> Scenario:
     assert all(t is None for t in others), "real KITTI agents must not touch the ego"
     sc.collision = Collision(time_s=t_hit, agent_id=MEET_AGENT_ID, other_id=sc.ego.id)
     return sc
+
+
+@pytest.fixture(scope="module")
+def crash_scenario(kitti8_raw) -> Scenario:
+    return make_crash_scenario(kitti8_raw)
 
 
 @pytest.mark.parametrize("seq", [3, 8, 10])
