@@ -3,8 +3,11 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
+# The ASAM Quality Checkers pin numpy<2 and lxml<6: they get their own environment (tests run them)
+QCVENV  := .venv-qc
+QCSTAMP := $(QCVENV)/.installed
 
-.PHONY: demo test lint typecheck unit setup clean bench
+.PHONY: demo test lint typecheck unit setup qc-setup clean bench
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -16,6 +19,13 @@ $(STAMP): pyproject.toml
 
 setup: $(STAMP)
 
+$(QCSTAMP):
+	$(PYTHON) -m venv $(QCVENV)
+	$(QCVENV)/bin/python -m pip install --quiet "asam-qc-openscenarioxml==1.0.0" "asam-qc-opendrive==1.0.0"
+	touch $(QCSTAMP)
+
+qc-setup: $(QCSTAMP)
+
 demo: $(STAMP)
 	$(BIN)/deepcrashtest demo -o out/demo
 
@@ -26,7 +36,7 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
-unit: $(STAMP)
+unit: $(STAMP) $(QCSTAMP)
 	$(BIN)/python -m pytest -q
 
 test: lint typecheck unit
@@ -35,4 +45,4 @@ bench: $(STAMP)
 	for f in bench/*.py; do $(BIN)/python $$f || exit 1; done
 
 clean:
-	rm -rf $(VENV) out .pytest_cache .mypy_cache .ruff_cache
+	rm -rf $(VENV) $(QCVENV) out .pytest_cache .mypy_cache .ruff_cache

@@ -231,12 +231,16 @@ def export(
     scenario: Path = typer.Argument(..., help="Scenario JSON file."),
     fmt: str = typer.Option(..., "--format", help="openscenario | commonroad | csv"),
     output: Path = typer.Option(..., "-o", "--output", help="Output folder."),
+    ego_free: bool = typer.Option(
+        False, "--ego-free", help="OpenSCENARIO: no trajectory for the ego (your system under test drives it)."
+    ),
     force: bool = ForceOpt,
     as_json: bool = JsonOpt,
 ) -> None:
     """Export a Scenario to OpenSCENARIO + OpenDRIVE, CommonRoad or CSV."""
-    _load(scenario)
-    raise NotImplementedYet("export: not implemented yet")
+    from deepcrashtest.export import export_scenario
+
+    emit(export_scenario(_load(scenario), fmt, output, ego_free=ego_free, force=force), as_json)
 
 
 @evaluate_app.command("kitti")

@@ -41,4 +41,19 @@ def run_demo(output: str | Path, video: str | Path | None = None) -> dict[str, A
             pass
         path = sc.save(out / "kitti_0008" / "scenario.json") if ensure_output_dir(out / "kitti_0008") else None
         summary["steps"].append({"step": "scenario from-kitti 8", "scenario": str(path), "agents": len(sc.agents)})
+        _step_export(out, summary)
     return summary
+
+
+def _step_export(out: Path, summary: dict) -> None:
+    """Export the KITTI 0008 scenario written above to OpenSCENARIO + OpenDRIVE, CommonRoad and CSV."""
+    from deepcrashtest.export import FORMATS, export_scenario
+    from deepcrashtest.scenario import Scenario
+
+    src = out / "kitti_0008" / "scenario.json"
+    if not src.exists():
+        return
+    sc = Scenario.load(src)
+    for fmt in FORMATS:
+        res = export_scenario(sc, fmt, out / "export")
+        summary["steps"].append({"step": f"export {fmt}", "files": res["files"], "seconds": res["seconds"]})
