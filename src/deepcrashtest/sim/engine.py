@@ -26,7 +26,7 @@ from deepcrashtest.sim.loop import Contact, LoopOutput, run_loop
 from deepcrashtest.sim.reference import PathSet, build_reference
 from deepcrashtest.sim.world import World, build_world
 
-CHUNK = 1024
+CHUNK = 2048
 
 
 def _rng(seed: int, chunk: int) -> np.random.Generator:
