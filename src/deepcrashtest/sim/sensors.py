@@ -6,8 +6,8 @@ is inside the field of view and the detection range; association is ideal (by ve
 
 * radar (middle of the front bumper): range, range-rate (line-of-sight relative speed, negative when closing),
   azimuth; Gaussian noise; field of view and range as configured;
-* camera (modelled at the radar's position, so both see the same nearest point): detection with a per-frame probability, azimuth (accurate) and a monocular
-  range estimate (noise proportional to range);
+* camera (modelled at the radar's position, so both see the same nearest point): detection with a
+  per-frame probability, azimuth (accurate) and a monocular range estimate (noise proportional to range);
 * GNSS/IMU: position, heading, speed, yaw rate and longitudinal acceleration with noise.
 """
 
