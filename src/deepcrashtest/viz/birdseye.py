@@ -85,7 +85,7 @@ def render_frames(scenario: Scenario, result: Any, stride: int | None = None) ->
     trail_n = int(round(TRAIL_S / dt))
     first = result.collision
     hit_ids = {i for c in result.collisions for i in c["vehicles"]}
-    hit_times = {}
+    hit_times: dict[int, float] = {}
     for c in result.collisions:
         for i in c["vehicles"]:
             hit_times.setdefault(i, c["time"])
