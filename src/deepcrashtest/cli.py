@@ -228,6 +228,7 @@ def search(
     engine: str = typer.Option("local", "--engine", help="local | ray"),
     boundary_directions: int = typer.Option(16, "--boundary-directions", help="Rays of the boundary scan (0: none)."),
     max_scenarios: int = typer.Option(32, "--max-scenarios", help="Safe variants written as Scenario files."),
+    duration: float | None = typer.Option(None, "--duration", help="Seconds simulated (default: whole scenario)."),
     no_video: bool = typer.Option(False, "--no-video", help="Skip the bird's-eye comparison video."),
     force: bool = ForceOpt,
     seed: int = SeedOpt,
@@ -249,6 +250,7 @@ def search(
         boundary_directions=boundary_directions,
         max_scenarios=max_scenarios,
         video=not no_video,
+        duration=duration,
     )
     emit(run_search(sc, output, cfg, engine=engine, workers=workers, force=force), as_json, _search_human)
 

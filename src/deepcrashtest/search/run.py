@@ -39,6 +39,7 @@ class SearchConfig:
     boundary_directions: int = 16  # rays of the boundary scan (0: no scan)
     max_scenarios: int = 32  # safe variants written as Scenario files (least change first)
     video: bool = True
+    duration: float | None = None  # seconds simulated per variant (None: the whole scenario)
 
     def check(self) -> None:
         if self.method not in METHODS:
@@ -47,6 +48,8 @@ class SearchConfig:
             raise UserError(f"--starts and --noise-variants must be >= 1 (got {self.starts}, {self.noise_variants})")
         if self.boundary_directions < 0 or self.max_scenarios < 0:
             raise UserError("--boundary-directions and --max-scenarios must be >= 0")
+        if self.duration is not None and not (math.isfinite(self.duration) and self.duration > 0):
+            raise UserError(f"--duration must be a positive number of seconds (got {self.duration})")
 
 
 def run_search(
@@ -67,7 +70,7 @@ def run_search(
     log = Log()
     cem_best: np.ndarray | None = None
     boundary = None
-    with Evaluator(scenario, space, cfg.controller, cfg.seed, engine, workers) as ev:
+    with Evaluator(scenario, space, cfg.controller, cfg.seed, engine, workers, cfg.duration) as ev:
         original = ev(np.zeros((1, space.dim)))
         log.add("original", 0, np.zeros((1, space.dim)), original)
         if cfg.method in ("random", "both"):

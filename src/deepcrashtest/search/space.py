@@ -33,7 +33,7 @@ class SearchSpace:
 
     spline: SplineParams
     yaw0: float  # ego heading at t=0, radians (world)
-    t: tuple[float, ...]  # times of the reference waypoints handed to the simulator, seconds
+    t: tuple[float, ...]  # the ego trajectory's sample times, seconds
     box_lateral: float = 4.0
     box_longitudinal: float = 8.0
     noise_sigma: float = 0.3
@@ -123,9 +123,13 @@ class SearchSpace:
         noise[:, 1:, :] = th[:, 2:].reshape(len(th), self.n_ctrl - 1, 2)
         return base[None] + self.offsets_world(th)[:, None, :] + noise
 
+    def sim_times(self) -> np.ndarray:
+        """(K,) times of the waypoints handed to the simulator: K equally spaced over the ego's span."""
+        return np.linspace(self.t[0], self.t[-1], len(self.t))
+
     def paths(self, theta: np.ndarray) -> np.ndarray:
-        """(B, K, 2) reference waypoints of each variant at the times ``self.t``."""
-        return evaluate_paths(self.spline, self.control_points(theta), np.asarray(self.t))
+        """(B, K, 2) reference waypoints of each variant (start offset included) at ``sim_times()``."""
+        return evaluate_paths(self.spline, self.control_points(theta), self.sim_times())
 
     def variant_spline(self, theta: np.ndarray) -> SplineParams:
         """The spline of one variant (for its Scenario file)."""
