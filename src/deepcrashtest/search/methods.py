@@ -107,43 +107,46 @@ def cem_search(ev: Evaluator, log: Log, rng: np.random.Generator, cfg: CemConfig
     scale = space.scale()
     mean = np.zeros(space.dim)
     std = scale.copy()
-    n_elite = max(2, int(round(cfg.population * cfg.elite_fraction)))
     best: np.ndarray | None = None
     best_change = np.inf
-    cem_budget = max(cfg.population, cfg.budget - cfg.line_search)
-    it = 0
-    while len([m for m in log.method if m == "cem"]) + cfg.population <= cem_budget:
-        theta = space.clip(mean + std * rng.normal(size=(cfg.population, space.dim)))
+    used, it = 0, 0
+    while True:
+        # keep ``line_search`` simulations for the end once a safe variant exists
+        n = min(cfg.population, cfg.budget - used - (cfg.line_search if best is not None else 0))
+        if n < 2:
+            break
+        theta = space.clip(mean + std * rng.normal(size=(n, space.dim)))
         out = ev(theta)
         log.add("cem", it, theta, out)
+        used += n
         safe = is_safe(out, cfg.margin)
         if safe.any():
             i = int(np.flatnonzero(safe)[np.argmin(out["change"][safe])])
             if out["change"][i] < best_change:
                 best, best_change = theta[i].copy(), float(out["change"][i])
-        elite = theta[np.argsort(-score(out, cfg.margin))[:n_elite]]
+        elite = theta[np.argsort(-score(out, cfg.margin))[: max(2, int(round(n * cfg.elite_fraction)))]]
         mean = cfg.smoothing * elite.mean(axis=0) + (1 - cfg.smoothing) * mean
         std = cfg.smoothing * elite.std(axis=0) + (1 - cfg.smoothing) * std
         std = np.maximum(std, cfg.min_std * scale)
         it += 1
-    if best is not None and cfg.line_search > 0:
-        best = _shrink(ev, log, best, cfg, it)
+    if best is not None and cfg.budget - used > 0:
+        best = _shrink(ev, log, best, cfg.budget - used, cfg.margin, it)
     return best
 
 
-def _shrink(ev: Evaluator, log: Log, theta: np.ndarray, cfg: CemConfig, it: int) -> np.ndarray:
+def _shrink(ev: Evaluator, log: Log, theta: np.ndarray, budget: int, margin: float, it: int) -> np.ndarray:
     """Scale a safe theta towards 0 on a grid, then once more inside the bracket; keep the smallest safe."""
     lo, hi = 0.0, 1.0
-    n1 = max(1, cfg.line_search // 2)
+    n1 = max(1, budget // 2)
     best = theta
-    for rnd, n in enumerate((n1, cfg.line_search - n1)):
+    for rnd, n in enumerate((n1, budget - n1)):
         if n < 1:
             continue
         s = np.linspace(lo, hi, n + 2)[1:-1]
         cand = s[:, None] * theta[None, :]
         out = ev(cand)
         log.add("cem", it + rnd, cand, out)
-        safe = is_safe(out, cfg.margin)
+        safe = is_safe(out, margin)
         if safe.any():
             j = int(np.flatnonzero(safe)[0])  # smallest safe scale
             best = cand[j]
