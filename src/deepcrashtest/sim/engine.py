@@ -1,0 +1,306 @@
+"""Public entry points: ``simulate`` (one run, full states) and ``simulate_batch`` (many ego variants).
+
+Both share one vectorised loop (:mod:`deepcrashtest.sim.loop`). Differences:
+
+* ``simulate`` runs one variant and keeps going after an impact: colliding vehicles slide under
+  Box2D to rest, the others continue their replay; all states are returned.
+* ``simulate_batch`` runs ``B`` variants together; a variant ends at its first collision (its
+  delta-v comes from a two-body Box2D impact). Chunks of ``CHUNK`` variants may run in worker
+  processes; noise of chunk ``c`` is seeded with ``(seed, c)`` whatever the number of workers, so
+  results do not depend on ``workers``. ``simulate`` uses the stream of chunk 0.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from deepcrashtest.errors import UserError
+from deepcrashtest.scenario import Scenario
+from deepcrashtest.sim.controllers import controller_name, resolve_controller
+from deepcrashtest.sim.loop import Contact, LoopOutput, run_loop
+from deepcrashtest.sim.reference import PathSet, build_reference
+from deepcrashtest.sim.world import World, build_world
+
+CHUNK = 1024
+
+
+def _rng(seed: int, chunk: int) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence([int(seed), int(chunk)]))
+
+
+def _num(v: float) -> float | None:
+    """A plain float, or None for NaN/inf (JSON has neither)."""
+    return float(v) if np.isfinite(v) else None
+
+
+@dataclass
+class SimResult:
+    """One simulation run.
+
+    ``states[t, i]`` = x, y, yaw, speed of ``vehicle_ids[i]`` at ``times[t]`` (NaN where absent;
+    ``present`` says where it exists). ``collisions``: every contact in time order, with the
+    vehicles, impact point (m), relative speed (m/s) and delta-v per vehicle (m/s).
+    """
+
+    metrics: dict[str, Any]
+    times: np.ndarray
+    vehicle_ids: list[int]
+    states: np.ndarray
+    present: np.ndarray
+    collisions: list[dict[str, Any]] = field(default_factory=list)
+    controller: str = "replay"
+    dt: float = 0.02
+
+    @property
+    def collision(self) -> dict[str, Any] | None:
+        """The first collision involving the ego, or None."""
+        ego = self.vehicle_ids[0]
+        return next((c for c in self.collisions if ego in c["vehicles"]), None)
+
+
+@dataclass
+class BatchResult:
+    """Per-variant metrics of a batch, arrays of shape (B,). NaN/inf where not applicable.
+
+    ``collision_agent`` is the id of the vehicle hit (-1 none); ``robustness`` is the minimum
+    separation between the ego and any other vehicle (m), negative (minus penetration) on collision.
+    """
+
+    collided: np.ndarray
+    collision_time: np.ndarray
+    collision_agent: np.ndarray
+    relative_speed: np.ndarray
+    min_distance: np.ndarray
+    min_ttc: np.ndarray
+    robustness: np.ndarray
+    aeb_time: np.ndarray
+    warning_time: np.ndarray
+    delta_v_ego: np.ndarray
+    delta_v_other: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.collided)
+
+    def variant(self, i: int) -> dict[str, Any]:
+        """Metrics of variant ``i`` as plain Python values."""
+        out: dict[str, Any] = {}
+        for name in self.__dataclass_fields__:
+            v = getattr(self, name)[i]
+            out[name] = bool(v) if v.dtype == bool else int(v) if v.dtype.kind == "i" else _num(float(v))
+        return out
+
+
+# --------------------------------------------------------------------------- ego variants
+def _ego_frame_offsets(world: World, offsets: np.ndarray) -> np.ndarray:
+    yaw0 = float(world.refs[0].init[2])
+    c, s = np.cos(yaw0), np.sin(yaw0)
+    return np.column_stack([c * offsets[:, 0] - s * offsets[:, 1], s * offsets[:, 0] + c * offsets[:, 1]])
+
+
+def _ego_variants(
+    world: World, ego_offsets: np.ndarray, ego_paths: np.ndarray | None
+) -> tuple[PathSet, np.ndarray, np.ndarray, np.ndarray]:
+    """PathSet, path index per variant, world offset per variant and initial states (B, 4)."""
+    off = _ego_frame_offsets(world, ego_offsets)
+    B = len(off)
+    if ego_paths is None:
+        ref = world.refs[0]
+        init = np.tile(ref.init, (B, 1))
+        init[:, :2] += off
+        return PathSet.stack([ref], world.dt), np.zeros(B, np.intp), off, init
+    traj = world.scenario.ego.trajectory
+    t = np.linspace(traj.t[0], traj.t[-1], ego_paths.shape[1])
+    yaw = np.interp(t, traj.t, traj.yaw)
+    refs = [build_reference(t, p, yaw, world.times, world.dt, smooth=False) for p in ego_paths]
+    init = np.stack([r.init for r in refs])
+    init[:, :2] += off
+    return PathSet.stack(refs, world.dt), np.arange(B, dtype=np.intp), off, init
+
+
+def _check_batch_inputs(ego_offsets: Any, ego_paths: Any) -> tuple[np.ndarray, np.ndarray | None]:
+    off = np.asarray(ego_offsets, dtype=float)
+    if off.ndim != 2 or off.shape[1] != 2 or len(off) == 0:
+        raise UserError(f"ego_offsets must have shape (B, 2), got {off.shape}")
+    if not np.isfinite(off).all():
+        raise UserError("ego_offsets contains non-finite values")
+    if ego_paths is None:
+        return off, None
+    paths = np.asarray(ego_paths, dtype=float)
+    if paths.ndim != 3 or paths.shape[0] != len(off) or paths.shape[2] != 2 or paths.shape[1] < 2:
+        raise UserError(f"ego_paths must have shape ({len(off)}, K>=2, 2), got {paths.shape}")
+    if not np.isfinite(paths).all():
+        raise UserError("ego_paths contains non-finite values")
+    return off, paths
+
+
+# --------------------------------------------------------------------------- single run
+def simulate(
+    scenario: Scenario,
+    controller: Any = "replay",
+    dt: float = 0.02,
+    seed: int = 0,
+    duration: float | None = None,
+) -> SimResult:
+    """Simulate ``scenario`` once with the ego driven by ``controller`` (see :mod:`.controllers`)."""
+    world = build_world(scenario, dt, duration)
+    ctrl = resolve_controller(controller)
+    paths, q, off, init = _ego_variants(world, np.zeros((1, 2)), None)
+    out = run_loop(world, paths, q, off, init, ctrl, _rng(seed, 0), physics_mode=True, seed=seed)
+    assert out.states is not None and out.present is not None
+    return SimResult(
+        metrics=_metrics(world, out),
+        times=world.times.copy(),
+        vehicle_ids=list(world.ids),
+        states=out.states,
+        present=out.present,
+        collisions=[_contact_dict(world, c) for c in out.contacts],
+        controller=controller_name(controller),
+        dt=world.dt,
+    )
+
+
+def _contact_dict(world: World, c: Contact) -> dict[str, Any]:
+    return {
+        "time": round(c.time, 4),
+        "vehicles": [world.ids[c.a], world.ids[c.b]],
+        "point": None if c.point is None else [float(c.point[0]), float(c.point[1])],
+        "relative_speed": _num(c.relative_speed),
+        "delta_v": {str(world.ids[k]): _num(v) for k, v in c.delta_v.items()},
+    }
+
+
+def _metrics(world: World, out: LoopOutput) -> dict[str, Any]:
+    collided = bool(out.collided[0])
+    j = int(out.collision_agent[0])
+    return {
+        "collided": collided,
+        "collision_time": _num(out.collision_time[0]),
+        "collision_vehicle": world.ids[j] if j >= 0 else None,
+        "relative_speed": _num(out.relative_speed[0]),
+        "delta_v_ego": _num(out.delta_v_ego[0]),
+        "delta_v_other": _num(out.delta_v_other[0]),
+        "min_distance": _num(max(out.min_distance[0], 0.0)),
+        "min_ttc": _num(out.min_ttc[0]),
+        "robustness": _num(out.min_distance[0]),
+        "aeb_time": _num(out.aeb_time[0]),
+        "warning_time": _num(out.warning_time[0]),
+        "n_collisions": len(out.contacts),
+    }
+
+
+# --------------------------------------------------------------------------- batch
+_JOB: dict[str, Any] = {}
+
+
+def _run_chunk(c: int) -> LoopOutput:
+    job = _JOB
+    lo, hi = c * CHUNK, min((c + 1) * CHUNK, job["B"])
+    paths, q, off, init = job["variants"]
+    sub_q = q[lo:hi] if paths.path.shape[0] == 1 else q[lo:hi]
+    ctrl = resolve_controller(job["controller"])
+    return run_loop(
+        job["world"],
+        paths,
+        sub_q,
+        off[lo:hi],
+        init[lo:hi],
+        ctrl,
+        _rng(job["seed"], c),
+        physics_mode=False,
+        seed=job["seed"],
+    )
+
+
+def simulate_batch(
+    scenario: Scenario,
+    ego_offsets: Any,
+    ego_paths: Any = None,
+    controller: Any = "replay",
+    seed: int = 0,
+    dt: float = 0.02,
+    duration: float | None = None,
+    workers: int = 1,
+) -> BatchResult:
+    """Simulate ``B`` ego variants of ``scenario`` together.
+
+    ``ego_offsets`` (B, 2): start offsets (longitudinal, lateral) in metres in the ego's initial
+    frame (x forward, y left); the whole ego reference is translated by it (the ego drives the same
+    manoeuvre from a shifted start). ``ego_paths`` (B, K, 2), optional: perturbed ego reference
+    positions (world frame, metres) at K times equally spaced over the ego trajectory's span
+    ``[t[0], t[-1]]``; the ego follows them in time. ``workers`` > 1 runs chunks of
+    ``CHUNK`` variants in that many processes (fork).
+    """
+    off, paths = _check_batch_inputs(ego_offsets, ego_paths)
+    world = build_world(scenario, dt, duration)
+    resolve_controller(controller)  # fail early on a bad spec
+    B = len(off)
+    _JOB.clear()
+    _JOB.update(world=world, variants=_ego_variants(world, off, paths), controller=controller, seed=seed, B=B)
+    chunks = list(range((B + CHUNK - 1) // CHUNK))
+    try:
+        if workers > 1 and len(chunks) > 1:
+            ctx = multiprocessing.get_context("fork")
+            with ProcessPoolExecutor(max_workers=min(workers, len(chunks)), mp_context=ctx) as pool:
+                outs = list(pool.map(_run_chunk, chunks))
+        else:
+            outs = [_run_chunk(c) for c in chunks]
+    finally:
+        _JOB.clear()
+
+    def cat(name: str) -> np.ndarray:
+        return np.concatenate([getattr(o, name) for o in outs])
+
+    agent = cat("collision_agent")
+    ids = np.array(world.ids)
+    md = cat("min_distance")
+    return BatchResult(
+        collided=cat("collided"),
+        collision_time=cat("collision_time"),
+        collision_agent=np.where(agent >= 0, ids[np.maximum(agent, 0)], -1),
+        relative_speed=cat("relative_speed"),
+        min_distance=np.maximum(md, 0.0),
+        min_ttc=cat("min_ttc"),
+        robustness=md,
+        aeb_time=cat("aeb_time"),
+        warning_time=cat("warning_time"),
+        delta_v_ego=cat("delta_v_ego"),
+        delta_v_other=cat("delta_v_other"),
+    )
+
+
+# --------------------------------------------------------------------------- replay error
+def replay_error(scenario: Scenario, result: SimResult, until_collision: bool = True) -> dict[str, Any]:
+    """RMS distance (m) between simulated centres and the scenario's samples, per vehicle and overall.
+
+    Compared at every sample time inside the run where the vehicle exists (and, by default,
+    before the first collision). Returns ``{"ego": m, "agents": m, "all": m, "per_vehicle": {id: m}}``.
+    """
+    t_stop = result.times[-1]
+    if until_collision and result.collisions:
+        t_stop = min(c["time"] for c in result.collisions)
+    per: dict[str, float] = {}
+    sq_all: list[np.ndarray] = []
+    sq_agents: list[np.ndarray] = []
+    for i, v in enumerate(scenario.vehicles()):
+        a = v.trajectory.arrays()
+        k = np.rint(a["t"] / result.dt).astype(int)
+        ok = (k >= 0) & (k < len(result.times)) & (a["t"] <= t_stop)
+        k, xs, ys = k[ok], a["x"][ok], a["y"][ok]
+        pres = result.present[k, i]
+        if not pres.any():
+            continue
+        d2 = (result.states[k[pres], i, 0] - xs[pres]) ** 2 + (result.states[k[pres], i, 1] - ys[pres]) ** 2
+        per[str(v.id)] = float(np.sqrt(d2.mean()))
+        sq_all.append(d2)
+        if i > 0:
+            sq_agents.append(d2)
+
+    def rms(parts: list[np.ndarray]) -> float | None:
+        return float(np.sqrt(np.concatenate(parts).mean())) if parts else None
+
+    return {"ego": per.get(str(scenario.ego.id)), "agents": rms(sq_agents), "all": rms(sq_all), "per_vehicle": per}

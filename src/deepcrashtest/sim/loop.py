@@ -1,0 +1,409 @@
+"""The time-stepping loop, vectorised over ego variants, shared by ``simulate`` and ``simulate_batch``.
+
+Rows: ``B`` ego variants and the ``M`` agents. Agents do not depend on the ego (they replay), so
+they are stepped once and shared by all variants. Each step (k -> k+1):
+
+1. replay commands (Stanley + PID) for ego variants and agents; the ego controller (with sensor
+   observations when it needs them) may override the ego's;
+2. actuator limits and the kinematic bicycle step give candidate states at k+1;
+3. collision test (vectorised separating axes) of every ego variant against every present agent,
+   and between agents; the first contact time inside the step is found by bisection;
+4. vehicles that touch leave the kinematic model for Box2D, starting from their pre-contact state
+   (``physics`` mode, one variant) - or, in ``batch`` mode, the variant ends at its first collision
+   and a two-body Box2D impact gives its delta-v;
+5. metrics (distance, time to collision) for the variants still driving.
+
+Contacts between boxes that already overlap when the pair first co-exists (label noise of parked
+cars, a vehicle appearing in another) are ignored until the pair has separated once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from deepcrashtest.sim.boxes import contact_fraction, sat_gap, signed_distance, time_to_collision
+from deepcrashtest.sim.follow import Follower
+from deepcrashtest.sim.physics import PhysicsWorld, impact_delta_v, pair_key
+from deepcrashtest.sim.reference import PathSet
+from deepcrashtest.sim.sensors import SensorConfig, sense
+from deepcrashtest.sim.vehicle import VehicleLimits, bicycle_step, limit_commands, velocity_xy, yaw_rate
+from deepcrashtest.sim.world import World
+
+NEAR_M = 10.0  # exact box distances are computed below this separating-axis gap
+INTERVENTION_MPS2 = 1.0  # a user controller "brakes" when it asks 1 m/s^2 more than the driver
+
+
+@dataclass
+class Contact:
+    """A collision found by the loop."""
+
+    time: float
+    a: int  # vehicle index (0 = ego)
+    b: int
+    relative_speed: float
+    point: tuple[float, float] | None = None
+    delta_v: dict[int, float] = field(default_factory=dict)
+
+
+@dataclass
+class LoopOutput:
+    collided: np.ndarray
+    collision_time: np.ndarray
+    collision_agent: np.ndarray  # vehicle index, -1 none
+    relative_speed: np.ndarray
+    delta_v_ego: np.ndarray
+    delta_v_other: np.ndarray
+    min_distance: np.ndarray
+    min_ttc: np.ndarray
+    aeb_time: np.ndarray
+    warning_time: np.ndarray
+    states: np.ndarray | None = None  # (T, N, 4) in physics mode
+    present: np.ndarray | None = None  # (T, N)
+    contacts: list[Contact] = field(default_factory=list)
+
+
+def run_loop(
+    world: World,
+    ego_paths: PathSet,
+    ego_q: np.ndarray,
+    ego_offset: np.ndarray,
+    ego_init: np.ndarray,
+    controller: Any,
+    rng: np.random.Generator,
+    physics_mode: bool,
+    seed: int = 0,
+    limits: VehicleLimits | None = None,
+    sensors: SensorConfig | None = None,
+) -> LoopOutput:
+    """Run one batch of ``B = len(ego_init)`` ego variants through the whole time grid."""
+    lim = limits or VehicleLimits()
+    cfg = sensors or SensorConfig()
+    dt, times = world.dt, world.times
+    T, B, M = len(times), len(ego_init), world.n_agents
+    half = world.half
+    eh, ah = half[0], half[1:]
+    ego_size = (float(world.length[0]), float(world.width[0]))
+    wb_e = np.full(B, world.wheelbase[0])
+    ego = np.array(ego_init, float)
+    e_steer, e_accel = np.zeros(B), np.zeros(B)
+    ego_follow = Follower(ego_paths, ego_q, ego_offset, wb_e)
+    active = np.ones(B, dtype=bool)
+
+    a_start = np.array([r.start for r in world.refs[1:]], dtype=int)
+    a_end = np.array([r.end for r in world.refs[1:]], dtype=int)
+    a_static = np.array([r.static for r in world.refs[1:]], dtype=bool)
+    agents = np.array([r.init for r in world.refs[1:]], float).reshape(M, 4)
+    a_steer = np.zeros(M)
+    a_phys = np.zeros(M, dtype=bool)
+    a_vel_phys = np.zeros((M, 2))
+    a_omega_phys = np.zeros(M)
+    agent_follow = (
+        Follower(world.agent_paths, np.arange(M), np.zeros((M, 2)), world.wheelbase[1:])
+        if world.agent_paths is not None
+        else None
+    )
+    phys: PhysicsWorld | None = None
+    ego_in_phys = False
+    ids = world.ids
+
+    needs_sensors = bool(getattr(controller, "needs_sensors", True))
+    if hasattr(controller, "reset"):
+        controller.reset(B, dt, seed)
+    is_replay = type(controller).__name__ == "ReplayController"
+
+    out = LoopOutput(
+        collided=np.zeros(B, bool),
+        collision_time=np.full(B, np.nan),
+        collision_agent=np.full(B, -1),
+        relative_speed=np.full(B, np.nan),
+        delta_v_ego=np.full(B, np.nan),
+        delta_v_other=np.full(B, np.nan),
+        min_distance=np.full(B, np.inf),
+        min_ttc=np.full(B, np.inf),
+        aeb_time=np.full(B, np.nan),
+        warning_time=np.full(B, np.nan),
+    )
+    if physics_mode:
+        out.states = np.full((T, M + 1, 4), np.nan)
+        out.present = np.zeros((T, M + 1), dtype=bool)
+    pre_contact: dict[int, tuple[np.ndarray, np.ndarray, float, int, np.ndarray, np.ndarray, float]] = {}
+
+    def presence(k: int) -> np.ndarray:
+        return a_phys | ((a_start <= k) & (k <= a_end))
+
+    def agent_velocity() -> tuple[np.ndarray, np.ndarray]:
+        v = velocity_xy(agents[:, 2], agents[:, 3], a_steer)
+        w = yaw_rate(agents[:, 3], a_steer, world.wheelbase[1:])
+        return np.where(a_phys[:, None], a_vel_phys, v), np.where(a_phys, a_omega_phys, w)
+
+    def gaps(e: np.ndarray, ag: np.ndarray) -> np.ndarray:
+        return sat_gap(
+            e[:, None, 0], e[:, None, 1], e[:, None, 2], eh[0], eh[1],
+            ag[None, :, 0], ag[None, :, 1], ag[None, :, 2], ah[None, :, 0], ah[None, :, 1],
+        )  # fmt: skip
+
+    def update_metrics(
+        gap: np.ndarray,
+        pres: np.ndarray,
+        rows: np.ndarray,
+        e_all: np.ndarray,
+        es_all: np.ndarray,
+        ag: np.ndarray,
+        av: np.ndarray,
+    ) -> None:
+        """Distance and TTC of the ego rows ``rows`` at one instant (states ``e_all``, agents ``ag``)."""
+        if M == 0 or not rows.any():
+            return
+        g = np.where(pres[None, :], gap, np.inf)[rows]
+        e = e_all[rows]
+        near = (g > 0) & (g < NEAR_M)
+        if near.any():
+            bi, mi = np.nonzero(near)
+            g[bi, mi] = signed_distance(e[bi, :3], ag[mi, :3], eh[None, :], ah[mi])
+        out.min_distance[rows] = np.minimum(out.min_distance[rows], g.min(axis=1))
+        ev = velocity_xy(e[:, 2], e[:, 3], es_all[rows])
+        ttc = time_to_collision(
+            ag[None, :, 0] - e[:, None, 0], ag[None, :, 1] - e[:, None, 1],
+            av[None, :, 0] - ev[:, None, 0], av[None, :, 1] - ev[:, None, 1],
+            e[:, None, 2], eh[0], eh[1], ag[None, :, 2], ah[None, :, 0], ah[None, :, 1],
+        )  # fmt: skip
+        ttc = np.where(np.isfinite(g) & (g > 0), ttc, np.inf)
+        out.min_ttc[rows] = np.minimum(out.min_ttc[rows], ttc.min(axis=1))
+
+    def record(k: int) -> None:
+        if out.states is None or out.present is None:
+            return
+        out.states[k, 0] = ego[0]
+        out.present[k, 0] = True
+        pres = presence(k)
+        out.states[k, 1:][pres] = agents[pres]
+        out.present[k, 1:] = pres
+
+    def to_physics(idx: int, pose: np.ndarray, vel: np.ndarray, omega: float) -> None:
+        nonlocal phys
+        if phys is None:
+            phys = PhysicsWorld()
+            phys.time = float(times[k])
+        if idx in phys.bodies:
+            return
+        phys.add(idx, pose[:3], vel, omega, float(world.length[idx]), float(world.width[idx]), float(world.mass[idx]))
+
+    # ---- step 0: initial overlaps are ignored; metrics of the initial state
+    k = 0
+    pres_prev = presence(0)
+    gap0 = gaps(ego, agents) if M else np.zeros((B, 0))
+    ignore_e = (gap0 <= 0) & pres_prev[None, :]
+    if M > 1:
+        gap_aa = _agent_gaps(agents, ah)
+        ignore_aa = (gap_aa <= 0) & pres_prev[:, None] & pres_prev[None, :]
+    else:
+        ignore_aa = np.zeros((M, M), bool)
+    update_metrics(gap0, pres_prev, active, ego, e_steer, agents, agent_velocity()[0])
+    record(0)
+
+    for k in range(T - 1):
+        # ---- 1. commands
+        if agent_follow is not None:
+            a_acc, a_str = agent_follow.command(agents, k, dt)
+            a_acc = np.where(a_static, -lim.max_brake, a_acc)
+        e_acc_r, e_str_r = ego_follow.command(ego, k, dt)
+        if active.any() and not is_replay:
+            if needs_sensors:
+                av, _ = agent_velocity()
+                obs = sense(
+                    cfg, rng, float(times[k]), dt, ego,
+                    velocity_xy(ego[:, 2], ego[:, 3], e_steer), yaw_rate(ego[:, 3], e_steer, wb_e), e_accel,
+                    ego_size, agents, av, ah, presence(k), (e_acc_r, e_str_r), ids[1:],
+                )  # fmt: skip
+            else:
+                obs = sense(
+                    cfg, rng, float(times[k]), dt, ego, np.zeros((B, 2)), np.zeros(B), e_accel, ego_size,
+                    agents[:0], np.zeros((0, 2)), ah[:0], np.zeros(0, bool), (e_acc_r, e_str_r), [],
+                )  # fmt: skip
+            res = controller(obs)
+            e_acc_c, e_str_c = (np.broadcast_to(np.asarray(r, float), (B,)) for r in res)
+            level = getattr(controller, "brake_level", None)
+            if level is not None and len(level) == B:
+                lv = np.asarray(level)
+                warn, brake = lv >= 1, lv >= 2
+            else:
+                brake = (e_acc_c < e_acc_r - INTERVENTION_MPS2) & (e_acc_c < -INTERVENTION_MPS2)
+                warn = brake
+            out.warning_time = np.where(np.isnan(out.warning_time) & warn & active, times[k], out.warning_time)
+            out.aeb_time = np.where(np.isnan(out.aeb_time) & brake & active, times[k], out.aeb_time)
+        else:
+            e_acc_c, e_str_c = e_acc_r, e_str_r
+        # ---- 2. kinematics -> candidate states at k+1
+        acc, e_steer_new = limit_commands(e_acc_c, e_str_c, e_steer, dt, lim)
+        ego_new = bicycle_step(ego, acc, e_steer_new, wb_e, dt)
+        ego_new = np.where(active[:, None], ego_new, ego)
+        if M:
+            moving = (a_start <= k) & (k < a_end) & ~a_phys
+            a_acc_l, a_steer_new = limit_commands(a_acc, a_str, a_steer, dt, lim)
+            agents_new = np.where(
+                moving[:, None], bicycle_step(agents, a_acc_l, a_steer_new, world.wheelbase[1:], dt), agents
+            )
+            a_steer_new = np.where(moving, a_steer_new, a_steer)
+            if phys is not None:
+                for idx in phys.bodies:
+                    if idx > 0:
+                        s, v, w = phys.state(idx)
+                        agents_new[idx - 1] = [s[0] + v[0] * dt, s[1] + v[1] * dt, s[2] + w * dt, s[3]]
+            pres = presence(k + 1)
+            # ---- 3. contacts between agents (shared by all variants)
+            if M > 1:
+                g_aa = _agent_gaps(agents_new, ah)
+                both = pres[:, None] & pres[None, :]
+                newly = both & ~(pres_prev[:, None] & pres_prev[None, :])
+                ignore_aa |= newly & (g_aa <= 0)
+                ignore_aa &= ~(g_aa > 0)
+                hit = both & (g_aa <= 0) & ~ignore_aa & ~(a_phys[:, None] & a_phys[None, :])
+                hit = np.triu(hit, 1)
+                for i, j in zip(*np.nonzero(hit), strict=True):
+                    _join_pair(
+                        world, i + 1, j + 1, agents, agents_new, a_steer, k, times, out, to_physics, physics_mode
+                    )
+                    a_phys[[i, j]] = True
+            # ---- ego contacts
+            g_e = gaps(ego_new, agents_new)
+            newly_e = pres[None, :] & ~pres_prev[None, :]
+            ignore_e |= newly_e & (g_e <= 0)
+            ignore_e &= ~(g_e > 0)
+            hit_e = active[:, None] & pres[None, :] & (g_e <= 0) & ~ignore_e
+            rows_hit = np.nonzero(hit_e.any(axis=1))[0]
+            if len(rows_hit):
+                j = np.argmin(np.where(hit_e[rows_hit], g_e[rows_hit], np.inf), axis=1)
+                e0, e1 = ego[rows_hit, :3], ego_new[rows_hit, :3]
+                frac = contact_fraction(e0, e1, agents[j, :3], agents_new[j, :3], np.tile(eh, (len(j), 1)), ah[j])
+                ev = velocity_xy(ego[rows_hit, 2], ego[rows_hit, 3], e_steer[rows_hit])
+                av, aw = agent_velocity()
+                out.collided[rows_hit] = True
+                out.collision_time[rows_hit] = times[k] + frac * dt
+                out.collision_agent[rows_hit] = j + 1
+                out.relative_speed[rows_hit] = np.hypot(*(ev - av[j]).T)
+                for n, (b, jj) in enumerate(zip(rows_hit, j, strict=True)):
+                    ew = float(yaw_rate(ego[b : b + 1, 3], e_steer[b : b + 1], wb_e[b : b + 1])[0])
+                    pre_contact[int(b)] = (
+                        ego[b].copy(),
+                        ev[n],
+                        ew,
+                        int(jj),
+                        agents[jj].copy(),
+                        av[jj].copy(),
+                        float(aw[jj]),
+                    )
+                if physics_mode:
+                    b0, j0 = int(rows_hit[0]), int(j[0])
+                    _, ev0, ew0, _, ap, av0, aw0 = pre_contact[b0]
+                    to_physics(0, ego[0], ev0, ew0)
+                    to_physics(j0 + 1, ap, av0, aw0)
+                    a_phys[j0] = True
+                    ego_in_phys = True
+                    out.contacts.append(
+                        Contact(float(out.collision_time[b]), 0, int(jj) + 1, float(out.relative_speed[b]))
+                    )
+            av_new = np.where(a_phys[:, None], a_vel_phys, velocity_xy(agents_new[:, 2], agents_new[:, 3], a_steer_new))
+            update_metrics(g_e, pres, active, ego_new, e_steer_new, agents_new, av_new)
+            if physics_mode and ego_in_phys:
+                # the sliding ego pushes kinematic agents it touches into the physics world
+                touch = pres & ~a_phys & (g_e[0] <= 0) & ~ignore_e[0]
+                for jj in np.nonzero(touch)[0]:
+                    vel = velocity_xy(agents[jj : jj + 1, 2], agents[jj : jj + 1, 3], a_steer[jj : jj + 1])[0]
+                    om = float(
+                        yaw_rate(agents[jj : jj + 1, 3], a_steer[jj : jj + 1], world.wheelbase[jj + 1 : jj + 2])[0]
+                    )
+                    to_physics(int(jj) + 1, agents[jj], vel, om)
+                    a_phys[jj] = True
+            if not physics_mode:
+                active[rows_hit] = False
+            elif ego_in_phys:
+                active[:] = False
+            pres_prev = pres
+        # ---- 4. physics step and commit
+        if phys is not None:
+            phys.step(dt)
+            for idx in phys.bodies:
+                s, v, w = phys.state(idx)
+                if idx == 0:
+                    ego_new[0] = s
+                    e_steer_new[0] = 0.0
+                else:
+                    agents_new[idx - 1] = s
+                    a_vel_phys[idx - 1], a_omega_phys[idx - 1] = v, w
+                    a_steer_new[idx - 1] = 0.0
+        # ego physics contacts with other agents are detected in the next step via predicted states
+        ego, e_steer, e_accel = ego_new, e_steer_new, acc
+        if M:
+            agents, a_steer = agents_new, a_steer_new
+        record(k + 1)
+        if not physics_mode and not active.any():
+            break
+
+    if physics_mode:
+        _finish_contacts(out, phys)
+        if out.contacts:
+            first = min(out.contacts, key=lambda c: c.time)
+            if first.a == 0 or first.b == 0:
+                other = first.b if first.a == 0 else first.a
+                out.delta_v_ego[0] = first.delta_v.get(0, np.nan)
+                out.delta_v_other[0] = first.delta_v.get(other, np.nan)
+    else:
+        for row, (e_pose, e_vel, e_om, agent, a_pose, a_vel, a_om) in pre_contact.items():
+            size_a = (float(world.length[agent + 1]), float(world.width[agent + 1]), float(world.mass[agent + 1]))
+            size_e = (ego_size[0], ego_size[1], float(world.mass[0]))
+            dv_e, dv_o, _ = impact_delta_v(e_pose[:3], e_vel, e_om, size_e, a_pose[:3], a_vel, a_om, size_a)
+            out.delta_v_ego[row], out.delta_v_other[row] = dv_e, dv_o
+    return out
+
+
+def _agent_gaps(ag: np.ndarray, ah: np.ndarray) -> np.ndarray:
+    return sat_gap(
+        ag[:, None, 0], ag[:, None, 1], ag[:, None, 2], ah[:, None, 0], ah[:, None, 1],
+        ag[None, :, 0], ag[None, :, 1], ag[None, :, 2], ah[None, :, 0], ah[None, :, 1],
+    )  # fmt: skip
+
+
+def _join_pair(
+    world: World,
+    a: int,
+    b: int,
+    agents: np.ndarray,
+    agents_new: np.ndarray,
+    a_steer: np.ndarray,
+    k: int,
+    times: np.ndarray,
+    out: LoopOutput,
+    to_physics: Any,
+    physics_mode: bool,
+) -> None:
+    """Two agents touch: both continue under Box2D from their pre-contact states."""
+    half = world.half
+    i, j = a - 1, b - 1
+    frac = contact_fraction(
+        agents[[i], :3], agents_new[[i], :3], agents[[j], :3], agents_new[[j], :3], half[[a]], half[[b]]
+    )
+    vel = velocity_xy(agents[[i, j], 2], agents[[i, j], 3], a_steer[[i, j]])
+    om = yaw_rate(agents[[i, j], 3], a_steer[[i, j]], world.wheelbase[[a, b]])
+    to_physics(a, agents[i], vel[0], float(om[0]))
+    to_physics(b, agents[j], vel[1], float(om[1]))
+    if physics_mode:
+        out.contacts.append(Contact(float(times[k] + frac[0] * world.dt), a, b, float(np.hypot(*(vel[0] - vel[1])))))
+
+
+def _finish_contacts(out: LoopOutput, phys: PhysicsWorld | None) -> None:
+    """Add delta-v and impact points from Box2D; add contacts only Box2D saw (between sliding bodies)."""
+    if phys is None:
+        return
+    seen = {pair_key(c.a, c.b) for c in out.contacts}
+    for pair, ep in phys.episodes.items():
+        if pair not in seen:
+            out.contacts.append(Contact(ep.begin_time, int(pair[0]), int(pair[1]), ep.relative_speed))
+    for c in out.contacts:
+        found = phys.episodes.get(pair_key(c.a, c.b))
+        if found is not None:
+            c.point = found.point
+            c.delta_v = {int(k): v for k, v in phys.delta_v(c.a, c.b).items()}
+    out.contacts.sort(key=lambda c: c.time)

@@ -1,0 +1,74 @@
+"""The simulated world of a Scenario: time grid, vehicle sizes and masses, reference motions.
+
+Existence convention: a vehicle exists from its ``trajectory.t[0]`` to ``trajectory.t[-1]``
+(rounded to the grid) and is absent outside that span: after its last sample it leaves the world,
+because nothing observed says where it went (a vehicle kept alive at constant velocity could cause
+collisions that never happened). Two exceptions: the ego exists for the whole run (it is the
+system under test; past its last sample it holds its last heading and speed), and a vehicle that
+has collided stays in the world, sliding under Box2D physics, to the end of the run.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from deepcrashtest.errors import UserError
+from deepcrashtest.scenario import Scenario
+from deepcrashtest.sim.reference import PathSet, Reference, reference_from_trajectory
+from deepcrashtest.sim.vehicle import CATEGORY_MASS_KG, WHEELBASE_FRACTION
+
+MAX_DURATION_S = 600.0
+
+
+@dataclass
+class World:
+    """Everything about a scenario the simulation loop needs (index 0 is the ego)."""
+
+    scenario: Scenario
+    dt: float
+    times: np.ndarray  # (T,) s
+    ids: list[int]
+    length: np.ndarray  # (N,) m
+    width: np.ndarray  # (N,) m
+    wheelbase: np.ndarray  # (N,) m
+    mass: np.ndarray  # (N,) kg
+    refs: list[Reference]
+    agent_paths: PathSet | None
+
+    @property
+    def n_agents(self) -> int:
+        return len(self.ids) - 1
+
+    @property
+    def half(self) -> np.ndarray:
+        """(N, 2) half length, half width."""
+        return 0.5 * np.column_stack([self.length, self.width])
+
+
+def build_world(scenario: Scenario, dt: float = 0.02, duration: float | None = None) -> World:
+    """Resample every vehicle's trajectory into references on a uniform grid of step ``dt``."""
+    if not (np.isfinite(dt) and 0.001 <= dt <= 0.1):
+        raise UserError(f"time step dt={dt} s is outside 0.001-0.1 s")
+    dur = scenario.duration() if duration is None else float(duration)
+    if not (np.isfinite(dur) and 0.0 < dur <= MAX_DURATION_S):
+        raise UserError(f"duration {dur} s must be > 0 and <= {MAX_DURATION_S:.0f} s")
+    times = np.arange(int(round(dur / dt)) + 1) * dt
+    if len(times) < 2:
+        raise UserError(f"duration {dur} s is shorter than one time step ({dt} s)")
+    vehicles = scenario.vehicles()
+    refs = [reference_from_trajectory(v.trajectory, times, dt) for v in vehicles]
+    length = np.array([v.length for v in vehicles], float)
+    return World(
+        scenario=scenario,
+        dt=float(dt),
+        times=times,
+        ids=[v.id for v in vehicles],
+        length=length,
+        width=np.array([v.width for v in vehicles], float),
+        wheelbase=WHEELBASE_FRACTION * length,
+        mass=np.array([CATEGORY_MASS_KG[v.category] for v in vehicles], float),
+        refs=refs,
+        agent_paths=PathSet.stack(refs[1:], dt) if len(refs) > 1 else None,
+    )
