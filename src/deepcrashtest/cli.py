@@ -326,6 +326,7 @@ def batch(
     noise_variants: int = typer.Option(4, "--noise-variants", help="Noisy ego paths per start."),
     method: str = typer.Option("both", "--method", help="random | cem | both"),
     controller: str = typer.Option("replay", "--controller", help="Ego controller."),
+    duration: float | None = typer.Option(None, "--duration", help="Seconds simulated (default: whole scenario)."),
     force: bool = ForceOpt,
     seed: int = SeedOpt,
     as_json: bool = JsonOpt,
@@ -335,7 +336,13 @@ def batch(
     from deepcrashtest.search.run import SearchConfig
 
     cfg = SearchConfig(
-        starts=starts, noise_variants=noise_variants, method=method, controller=controller, seed=seed, video=False
+        starts=starts,
+        noise_variants=noise_variants,
+        method=method,
+        controller=controller,
+        seed=seed,
+        video=False,
+        duration=duration,
     )
     emit(run_batch(videos, output, cfg, engine=engine, workers=workers, resume=resume, force=force), as_json)
 

@@ -40,7 +40,7 @@ def simulate_chunk(
 
     Module-level (and taking the scenario as JSON) so that process pools and Ray can ship it.
     """
-    from deepcrashtest.sim import simulate_batch  # type: ignore[attr-defined]
+    from deepcrashtest.sim import simulate_batch
 
     sc = _scenario_cache(scenario_json)
     res = simulate_batch(sc, ego_offsets=offsets, ego_paths=paths, controller=controller, seed=seed, duration=duration)
