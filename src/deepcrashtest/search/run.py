@@ -131,8 +131,16 @@ def run_search(
         "video": None,
     }
     if cfg.video and best_sc is not None:
+        r = summary["best_safe"]
         summary["outputs"]["video"] = outputs.write_video(
-            scenario, best_sc, out_dir / "best_vs_original.mp4", cfg.controller, cfg.seed, force
+            scenario,
+            best_sc,
+            out_dir / "best_vs_original.mp4",
+            cfg.controller,
+            cfg.seed,
+            force,
+            cfg.duration,
+            f"variant {r['variant']}: start ({r['d_lon_m']:+.2f}, {r['d_lat_m']:+.2f}) m, change {r['change_m']:.2f} m",
         )
     outputs.write_summary(summary, out_dir / "summary.json", force)
     return summary
