@@ -175,7 +175,7 @@ def write_video(
             stream.width, stream.height, stream.pix_fmt = 2 * w, h, "yuv420p"
             stream.options = {"crf": "26", "preset": "veryfast"}
             left, right = render_frames(original, runs[0], stride), render_frames(best, runs[1], stride)
-            last = [None, None]
+            last: list[Any] = [None, None]
             while True:
                 pair = [next(left, None), next(right, None)]
                 if pair[0] is None and pair[1] is None:
