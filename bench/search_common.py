@@ -1,4 +1,4 @@
-"""Shared set-up of the search benchmarks: KITTI 0008 with the oncoming car 10 shifted onto the ego."""
+"""Shared set-up of the search benchmarks: KITTI 0008 with the oncoming car 10 moved to meet the ego."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ DURATION_S = 11.0  # the crash happens at ~8.7 s
 
 
 def crash_scenario() -> Scenario:
-    from deepcrashtest.search.crash import inject_crash
+    from deepcrashtest.sim.testcases import meet_ego
     from deepcrashtest.trajectory.from_kitti import scenario_from_kitti
 
     if not KITTI.exists():
         raise SystemExit(f"real data not found: {KITTI}")
-    return inject_crash(scenario_from_kitti(KITTI, 8), 10, 8.8)
+    return meet_ego(scenario_from_kitti(KITTI, 8), 10, 8.8)

@@ -1,4 +1,4 @@
-"""The search on a real KITTI drive with one real agent shifted into the ego's path (a head-on crash).
+"""The search on a real KITTI drive with one real oncoming car shifted to meet the ego (a head-on crash).
 
 Everything runs through the real simulator; the checks re-simulate what the search reports
 (safe variants, the boundary, the shrunk CEM variant) instead of trusting it.
@@ -21,11 +21,11 @@ if not hasattr(sim, "simulate_batch"):
     pytest.skip("the simulator (deepcrashtest.sim.simulate_batch) is not in this build", allow_module_level=True)
 
 from deepcrashtest.scenario import Scenario  # noqa: E402
-from deepcrashtest.search.crash import inject_crash  # noqa: E402
 from deepcrashtest.search.evaluate import Evaluator  # noqa: E402
 from deepcrashtest.search.methods import is_safe  # noqa: E402
 from deepcrashtest.search.run import SearchConfig, run_search  # noqa: E402
 from deepcrashtest.search.space import SearchSpace  # noqa: E402
+from deepcrashtest.sim.testcases import meet_ego  # noqa: E402
 
 DURATION = 10.0  # s: the injected crash happens at ~8.7 s
 SMALL = SearchConfig(
@@ -35,8 +35,8 @@ SMALL = SearchConfig(
 
 @pytest.fixture(scope="module")
 def crash(kitti8_raw):
-    """KITTI 0008 with the oncoming car 10 (observed 7.9-9.7 s) shifted onto the ego at t = 8.8 s."""
-    return inject_crash(kitti8_raw, 10, 8.8)
+    """KITTI 0008 with the oncoming car 10 (observed 7.9-9.7 s) meeting the ego front to front at t = 8.8 s."""
+    return meet_ego(kitti8_raw, 10, 8.8)
 
 
 @pytest.fixture(scope="module")

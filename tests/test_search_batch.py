@@ -19,8 +19,8 @@ if not hasattr(sim, "simulate_batch"):
     pytest.skip("the simulator (deepcrashtest.sim.simulate_batch) is not in this build", allow_module_level=True)
 
 from deepcrashtest.search.batch import list_inputs, process_video, read_manifest, run_batch  # noqa: E402
-from deepcrashtest.search.crash import inject_crash  # noqa: E402
 from deepcrashtest.search.run import SearchConfig  # noqa: E402
+from deepcrashtest.sim.testcases import meet_ego  # noqa: E402
 
 SMALL = ["--starts", "4", "--noise-variants", "2", "--method", "random", "--duration", "13"]
 #: Oncoming cars of KITTI 0008 and a time inside each one's observed span (s).
@@ -32,7 +32,7 @@ def inputs(kitti8_raw, tmp_path_factory) -> Path:
     """Four real crash scenarios (KITTI 0008, one oncoming car shifted onto the ego each) + one broken file."""
     d = tmp_path_factory.mktemp("inputs")
     for name, (agent, t) in CRASHES.items():
-        inject_crash(kitti8_raw, agent, t).save(d / f"{name}.json")
+        meet_ego(kitti8_raw, agent, t).save(d / f"{name}.json")
     (d / "e_broken.json").write_text('{"schema_version": "1.0", "name": 3}')
     (d / "notes.txt").write_text("not an input")
     return d
@@ -106,7 +106,7 @@ def test_a_video_without_the_extract_stage_is_recorded_as_failed(kitti8_raw, kit
     folder = tmp_path / "videos"
     folder.mkdir()
     (folder / clip.name).symlink_to(clip)
-    inject_crash(kitti8_raw, 10, 8.8).save(folder / "kitti8_crash.json")
+    meet_ego(kitti8_raw, 10, 8.8).save(folder / "kitti8_crash.json")
     cfg = SearchConfig(starts=2, noise_variants=2, method="random", duration=10.0, video=False, max_scenarios=1)
     res = run_batch(folder, tmp_path / "out", cfg)
     assert res["done"] == 1 and res["failed"] == 1

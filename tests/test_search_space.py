@@ -1,14 +1,12 @@
-"""The search space on a real KITTI drive: spline fit, variant sampling, paths, crash injection."""
+"""The search space on a real KITTI drive: spline fit, variant sampling, paths."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 from scipy.interpolate import BSpline
-from shapely.geometry import Polygon
 
 from deepcrashtest.errors import UserError
-from deepcrashtest.search.crash import inject_crash, pick_agent
 from deepcrashtest.search.space import SearchSpace
 from deepcrashtest.search.spline import evaluate_paths, fit_spline
 
@@ -70,28 +68,3 @@ def test_fit_spline_refuses_too_few_samples():
         fit_spline(np.array([0.0, 0.1, 0.2]), np.zeros((3, 2)))
     sp = fit_spline(np.linspace(0, 3, 31), np.column_stack([np.linspace(0, 30, 31), np.zeros(31)]))
     np.testing.assert_allclose(evaluate_paths(sp, np.column_stack([sp.cx, sp.cy]), np.array([1.5]))[0], [15, 0])
-
-
-def test_inject_crash_puts_a_real_agent_on_the_ego(kitti8_raw):
-    agent_id, t_c = pick_agent(kitti8_raw)
-    assert agent_id == 9  # the lead car, observed for the whole drive
-    sc = inject_crash(kitti8_raw, 10, 8.8)  # an oncoming car (agent 10, observed 7.9-9.7 s)
-    assert sc.collision is not None and sc.collision.agent_id == 10 and sc.collision.time_s == 8.8
-    assert "crash injected" in sc.provenance.history[-1] and any("synthetic crash" in w for w in sc.warnings)
-    before, after = kitti8_raw.vehicle(10).trajectory.arrays(), sc.vehicle(10).trajectory.arrays()
-    shift = np.column_stack([after["x"] - before["x"], after["y"] - before["y"]])
-    assert np.allclose(shift, shift[0])  # rigid translation: the real motion is kept
-    np.testing.assert_array_equal(after["speed"], before["speed"])
-
-    def box(v, t):
-        s = v.trajectory.state_at(t)
-        c, si = np.cos(s["yaw"]), np.sin(s["yaw"])
-        corners = [(a * v.length / 2, b * v.width / 2) for a, b in ((1, 1), (1, -1), (-1, -1), (-1, 1))]
-        return Polygon([(s["x"] + c * u - si * w, s["y"] + si * u + c * w) for u, w in corners])
-
-    assert box(sc.ego, 8.8).intersects(box(sc.vehicle(10), 8.8))
-    assert not box(kitti8_raw.ego, 8.8).intersects(box(kitti8_raw.vehicle(10), 8.8))
-    with pytest.raises(UserError, match="not at"):
-        inject_crash(kitti8_raw, 10, 20.0)
-    with pytest.raises(UserError, match="no agent"):
-        inject_crash(kitti8_raw, 999, 1.0)

@@ -202,15 +202,60 @@ def extract(
 @app.command()
 def simulate(
     scenario: Path = typer.Argument(..., help="Scenario JSON file."),
-    controller: str = typer.Option("replay", "--controller", help="replay | aeb | module:callable"),
+    controller: str = typer.Option("replay", "--controller", help="replay | aeb | module:callable | file.py:callable"),
     video: Path | None = typer.Option(None, "--video", help="Write a bird's-eye video (H.264 mp4)."),
+    duration: float | None = typer.Option(None, "--duration", help="Seconds to simulate (default: the scenario's)."),
+    dt: float = typer.Option(0.02, "--dt", help="Time step, seconds."),
     force: bool = ForceOpt,
     seed: int = SeedOpt,
     as_json: bool = JsonOpt,
 ) -> None:
     """Replay a Scenario in the built-in simulator and report the outcome."""
-    _load(scenario)
-    raise NotImplementedYet("simulate: not implemented yet")
+    from deepcrashtest.fileio import check_writable
+    from deepcrashtest.sim import replay_error
+    from deepcrashtest.sim import simulate as run_sim
+
+    sc = _load(scenario)
+    if video is not None:
+        check_writable(video, force)
+    res = run_sim(sc, controller=controller, dt=dt, seed=seed, duration=duration)
+    out: dict[str, Any] = {
+        "scenario": str(scenario),
+        "controller": res.controller,
+        "seed": seed,
+        "dt": res.dt,
+        "duration_s": round(float(res.times[-1]), 3),
+        "vehicles": len(res.vehicle_ids),
+        "metrics": res.metrics,
+        "collisions": res.collisions,
+        "replay_rms_m": replay_error(sc, res),
+    }
+    if video is not None:
+        from deepcrashtest.viz.birdseye import write_birdseye
+
+        out["video"] = write_birdseye(sc, res, video, force=force)
+    emit(out, as_json, _print_sim)
+
+
+def _print_sim(r: dict[str, Any]) -> None:
+    m = r["metrics"]
+    typer.echo(f"{r['scenario']}: {r['vehicles']} vehicles, {r['duration_s']} s, controller {r['controller']}")
+    if m["collided"]:
+        typer.echo(
+            f"collision at {m['collision_time']:.2f} s with vehicle {m['collision_vehicle']}: relative speed "
+            f"{m['relative_speed']:.1f} m/s, ego delta-v {_fmt(m['delta_v_ego'])} m/s"
+        )
+    else:
+        typer.echo("no collision of the ego")
+    typer.echo(f"min distance {_fmt(m['min_distance'])} m, min TTC {_fmt(m['min_ttc'])} s, AEB {_fmt(m['aeb_time'])} s")
+    rms = r["replay_rms_m"]
+    typer.echo(f"replay RMS error: ego {_fmt(rms['ego'])} m, agents {_fmt(rms['agents'])} m")
+    if "video" in r:
+        typer.echo(f"video: {r['video']}")
+
+
+def _fmt(v: float | None) -> str:
+    return "-" if v is None else f"{v:.2f}"
 
 
 @app.command()

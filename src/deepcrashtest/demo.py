@@ -41,28 +41,49 @@ def run_demo(output: str | Path, video: str | Path | None = None) -> dict[str, A
             pass
         path = sc.save(out / "kitti_0008" / "scenario.json") if ensure_output_dir(out / "kitti_0008") else None
         summary["steps"].append({"step": "scenario from-kitti 8", "scenario": str(path), "agents": len(sc.agents)})
+        _step_sim(out, summary)
         _step_search(out, summary)
     return summary
+
+
+def _step_sim(out: Path, summary: dict[str, Any]) -> None:
+    """Simulate KITTI 0008 (replay, aeb) and a crash made from it; bird's-eye videos in out/sim."""
+    from deepcrashtest.sim import replay_error, simulate
+    from deepcrashtest.sim.testcases import meet_ego
+    from deepcrashtest.trajectory.from_kitti import scenario_from_kitti
+    from deepcrashtest.viz.birdseye import write_birdseye
+
+    folder = ensure_output_dir(out / "sim")
+    base = scenario_from_kitti(KITTI_TRACKING, 8)
+    # agent 11 (a real oncoming car) moved to meet the ego at t = 10 s: a crash that KITTI lacks
+    crash = meet_ego(base, 11, 10.0)
+    crash.save(folder / "kitti_0008_crash_scenario.json")
+    runs = []
+    for name, sc, duration in (("kitti_0008", base, None), ("kitti_0008_crash", crash, 14.0)):
+        for ctrl in ("replay", "aeb"):
+            res = simulate(sc, controller=ctrl, duration=duration)
+            entry = {"scenario": name, "controller": ctrl, **res.metrics, "replay_rms_m": replay_error(sc, res)["all"]}
+            if name == "kitti_0008_crash":
+                entry["video"] = write_birdseye(sc, res, folder / f"{name}_{ctrl}.mp4")
+            runs.append(entry)
+    summary["steps"].append({"step": "simulate", "runs": runs})
 
 
 def _step_search(out: Path, summary: dict[str, Any]) -> None:
     """128 random variants + CEM + boundary scan on the demo's KITTI scenario with a crash injected.
 
-    KITTI drives have no crash: the oncoming car 10 is shifted onto the ego at t = 8.8 s
-    (``search.crash.inject_crash``; recorded in the scenario's provenance and warnings).
+    KITTI drives have no crash: the oncoming car 10 is shifted to meet the ego front to front at
+    t = 8.8 s (``sim.testcases.meet_ego``; recorded in the scenario's provenance and warnings).
     """
     from deepcrashtest.scenario import Scenario
-    from deepcrashtest.search.crash import inject_crash
     from deepcrashtest.search.run import SearchConfig, run_search
+    from deepcrashtest.sim.testcases import meet_ego
 
     src = out / "kitti_0008" / "scenario.json"
     if not src.exists():
         return
     base = Scenario.load(src)
-    try:
-        sc = inject_crash(base, 10, 8.8)
-    except UserError:  # another build of the scenario: fall back to the default crash partner
-        sc = inject_crash(base)
+    sc = meet_ego(base, 10, 8.8)
     folder = ensure_output_dir(out / "search")
     sc.save(folder / "crash_scenario.json")
     res = run_search(sc, folder, SearchConfig(duration=(sc.collision.time_s if sc.collision else 0.0) + 2.5))

@@ -9,6 +9,8 @@ Interface (vectorised over ``n`` variants stepped together)::
         def __call__(self, obs):      # obs: deepcrashtest.sim.sensors.Observation
             return accel, steer       # (n,) arrays: m/s^2 (negative = braking), road-wheel angle rad
         brake_level: np.ndarray       # optional (n,) int: 0 none, 1 warning, 2 partial, 3 full braking
+        def select(self, keep):       # optional: keep the state of rows ``keep`` (index array) only;
+            ...                       # lets a batch drop finished variants (faster)
 
 A plain function ``f(obs) -> (accel, steer)`` works too. Commands are clipped to the vehicle's
 limits (steering angle and rate, +4 / -9 m/s^2). ``obs.replay_accel`` / ``obs.replay_steer`` are the
@@ -80,6 +82,10 @@ class AebController:
         self.brake_level = np.zeros(n, dtype=int)
         self._count = np.zeros((3, n), dtype=int)
         self._latched = np.zeros(n, dtype=bool)
+
+    def select(self, keep: np.ndarray) -> None:
+        """Keep the state of rows ``keep`` only (the engine drops finished variants)."""
+        self.brake_level, self._count, self._latched = self.brake_level[keep], self._count[:, keep], self._latched[keep]
 
     def __call__(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
         if len(self.brake_level) != obs.n:

@@ -26,7 +26,7 @@ from deepcrashtest.sim.loop import Contact, LoopOutput, run_loop
 from deepcrashtest.sim.reference import PathSet, build_reference
 from deepcrashtest.sim.world import World, build_world
 
-CHUNK = 1024
+CHUNK = 2048
 
 
 def _rng(seed: int, chunk: int) -> np.random.Generator:
@@ -199,14 +199,14 @@ _JOB: dict[str, Any] = {}
 
 def _run_chunk(c: int) -> LoopOutput:
     job = _JOB
-    lo, hi = c * CHUNK, min((c + 1) * CHUNK, job["B"])
+    size = job["chunk"]
+    lo, hi = c * size, min((c + 1) * size, job["B"])
     paths, q, off, init = job["variants"]
-    sub_q = q[lo:hi] if paths.path.shape[0] == 1 else q[lo:hi]
     ctrl = resolve_controller(job["controller"])
     return run_loop(
         job["world"],
         paths,
-        sub_q,
+        q[lo:hi],
         off[lo:hi],
         init[lo:hi],
         ctrl,
@@ -225,6 +225,7 @@ def simulate_batch(
     dt: float = 0.02,
     duration: float | None = None,
     workers: int = 1,
+    chunk_size: int = CHUNK,
 ) -> BatchResult:
     """Simulate ``B`` ego variants of ``scenario`` together.
 
@@ -233,15 +234,18 @@ def simulate_batch(
     manoeuvre from a shifted start). ``ego_paths`` (B, K, 2), optional: perturbed ego reference
     positions (world frame, metres) at K times equally spaced over the ego trajectory's span
     ``[t[0], t[-1]]``; the ego follows them in time. ``workers`` > 1 runs chunks of
-    ``CHUNK`` variants in that many processes (fork).
+    ``chunk_size`` variants in that many processes (fork); results do not depend on ``workers``.
     """
     off, paths = _check_batch_inputs(ego_offsets, ego_paths)
     world = build_world(scenario, dt, duration)
     resolve_controller(controller)  # fail early on a bad spec
     B = len(off)
     _JOB.clear()
-    _JOB.update(world=world, variants=_ego_variants(world, off, paths), controller=controller, seed=seed, B=B)
-    chunks = list(range((B + CHUNK - 1) // CHUNK))
+    if chunk_size < 1:
+        raise UserError(f"chunk_size must be >= 1 (got {chunk_size})")
+    variants = _ego_variants(world, off, paths)
+    _JOB.update(world=world, variants=variants, controller=controller, seed=seed, B=B, chunk=chunk_size)
+    chunks = list(range((B + chunk_size - 1) // chunk_size))
     try:
         if workers > 1 and len(chunks) > 1:
             ctx = multiprocessing.get_context("fork")

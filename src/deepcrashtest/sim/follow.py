@@ -3,8 +3,8 @@
 Each row (a vehicle in one variant) follows one reference of a :class:`PathSet` (``q[row]``),
 optionally translated by ``offset[row]`` (metres, world frame). Per step:
 
-* the front axle (centre + wheelbase/2 ahead) is projected onto the path (searching a short window
-  ahead of the previous projection, so following is O(rows));
+* the front axle (centre + wheelbase/2 ahead) is projected onto the path, starting from the previous
+  projection and moving the index by the along-track offset (two updates; O(rows), no search);
 * steering (Stanley with curvature feed-forward):
   ``delta = atan(wheelbase * kappa) + (path_heading - yaw) - atan(K_E * e / (v + V_SOFT))``,
   ``e`` = lateral offset of the front axle, left positive;
@@ -26,7 +26,6 @@ K_S = 1.0  # 1/s, station -> speed
 V_CORR = 3.0  # m/s, largest station correction
 K_P = 3.0  # 1/s
 K_I = 0.5  # 1/s^2
-WINDOW = np.arange(-2, 14)  # path points searched around the previous projection
 
 
 class Follower:
@@ -40,6 +39,9 @@ class Follower:
         self.idx = np.zeros(len(self.q), dtype=np.intp)
         self.integral = np.zeros(len(self.q))
         self.n_points = paths.path.shape[1]
+        self._px, self._py = paths.path[..., 0].ravel(), paths.path[..., 1].ravel()
+        self._h, self._kappa = paths.heading.ravel(), paths.curvature.ravel()
+        self._ch, self._sh = np.cos(self._h), np.sin(self._h)
 
     def select(self, keep: np.ndarray) -> None:
         """Keep only the rows ``keep`` (boolean or index array)."""
@@ -53,26 +55,29 @@ class Follower:
         cy, sy = np.cos(yaw), np.sin(yaw)
         fx = x + half * cy - self.offset[:, 0]
         fy = y + half * sy - self.offset[:, 1]
-        win = np.clip(self.idx[:, None] + WINDOW, 0, self.n_points - 2)
-        qq = self.q[:, None]
-        pts = self.paths.path[qq, win]
-        d2 = (pts[..., 0] - fx[:, None]) ** 2 + (pts[..., 1] - fy[:, None]) ** 2
-        i = win[np.arange(len(win)), d2.argmin(axis=1)]
+        # projection: two updates of the path index from the along-track offset (flat gathers)
+        base = self.q * self.n_points
+        last = self.n_points - 2
+        i = self.idx
+        px, py, ch, sh = self._px, self._py, self._ch, self._sh
+        for _ in range(2):
+            f = base + i
+            along = (fx - px[f]) * ch[f] + (fy - py[f]) * sh[f]
+            i = np.minimum(np.maximum(i + np.rint(along / PATH_DS_M).astype(np.intp), 0), last)
         self.idx = i
+        f = base + i
+        dx, dy, c, s = fx - px[f], fy - py[f], ch[f], sh[f]
+        along = dx * c + dy * s
+        lateral = -dx * s + dy * c
+        h = self._h[f]
         q = self.q
-        h = self.paths.heading[q, i]
-        ch, sh = np.cos(h), np.sin(h)
-        px, py = self.paths.path[q, i, 0], self.paths.path[q, i, 1]
-        dx, dy = fx - px, fy - py
-        along = dx * ch + dy * sh
-        lateral = -dx * sh + dy * ch
-        kappa = self.paths.curvature[q, i]
-        head_err = np.angle(np.exp(1j * (h - yaw)))
+        kappa = self._kappa[f]
+        head_err = (h - yaw + np.pi) % (2 * np.pi) - np.pi
         steer = np.arctan(self.wheelbase * kappa) + head_err - np.arctan(K_E * lateral / (v + V_SOFT))
         s_centre = i * PATH_DS_M + along - half
-        s_ref = self.paths.s_ref[q, k]
-        v_cmd = self.paths.v_ref[q, k] + np.clip(K_S * (s_ref - s_centre), -V_CORR, V_CORR)
+        s_ref = self.paths.s_ref[:, k][q]
+        v_cmd = self.paths.v_ref[:, k][q] + np.minimum(np.maximum(K_S * (s_ref - s_centre), -V_CORR), V_CORR)
         err = np.maximum(v_cmd, 0.0) - v
-        self.integral = np.clip(self.integral + err * dt, -2.0, 2.0)
-        accel = self.paths.a_ref[q, k] + K_P * err + K_I * self.integral
+        self.integral = np.minimum(np.maximum(self.integral + err * dt, -2.0), 2.0)
+        accel = self.paths.a_ref[:, k][q] + K_P * err + K_I * self.integral
         return accel, steer

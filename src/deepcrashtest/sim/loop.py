@@ -33,6 +33,8 @@ from deepcrashtest.sim.vehicle import VehicleLimits, bicycle_step, limit_command
 from deepcrashtest.sim.world import World
 
 NEAR_M = 10.0  # exact box distances are computed below this separating-axis gap
+CONTROL_PERIOD_S = 0.04  # the ego controller (and its sensors) run at 25 Hz; commands are held between
+TTC_EVERY = 5  # steps between time-to-collision evaluations (0.1 s at dt = 0.02 s)
 INTERVENTION_MPS2 = 1.0  # a user controller "brakes" when it asks 1 m/s^2 more than the driver
 
 
@@ -91,6 +93,7 @@ def run_loop(
     e_steer, e_accel = np.zeros(B), np.zeros(B)
     ego_follow = Follower(ego_paths, ego_q, ego_offset, wb_e)
     active = np.ones(B, dtype=bool)
+    orig = np.arange(B)  # variant index of each row (rows of finished variants are dropped)
 
     a_start = np.array([r.start for r in world.refs[1:]], dtype=int)
     a_end = np.array([r.end for r in world.refs[1:]], dtype=int)
@@ -113,6 +116,9 @@ def run_loop(
     if hasattr(controller, "reset"):
         controller.reset(B, dt, seed)
     is_replay = type(controller).__name__ == "ReplayController"
+    compactable = not physics_mode and (is_replay or hasattr(controller, "select"))
+    period = max(1, int(round(CONTROL_PERIOD_S / dt)))
+    held: tuple[np.ndarray, np.ndarray] | None = None
 
     out = LoopOutput(
         collided=np.zeros(B, bool),
@@ -139,11 +145,17 @@ def run_loop(
         w = yaw_rate(agents[:, 3], a_steer, world.wheelbase[1:])
         return np.where(a_phys[:, None], a_vel_phys, v), np.where(a_phys, a_omega_phys, w)
 
-    def gaps(e: np.ndarray, ag: np.ndarray) -> np.ndarray:
-        return sat_gap(
-            e[:, None, 0], e[:, None, 1], e[:, None, 2], eh[0], eh[1],
-            ag[None, :, 0], ag[None, :, 1], ag[None, :, 2], ah[None, :, 0], ah[None, :, 1],
-        )  # fmt: skip
+    def gaps(e: np.ndarray, ag: np.ndarray, pres: np.ndarray) -> np.ndarray:
+        """(B, M) separating-axis gaps ego-agent; +inf for absent agents."""
+        out_g = np.full((len(e), M), np.inf)
+        cols = np.nonzero(pres)[0]
+        if len(cols):
+            a, h = ag[cols], ah[cols]
+            out_g[:, cols] = sat_gap(
+                e[:, None, 0], e[:, None, 1], e[:, None, 2], eh[0], eh[1],
+                a[None, :, 0], a[None, :, 1], a[None, :, 2], h[None, :, 0], h[None, :, 1],
+            )  # fmt: skip
+        return out_g
 
     def update_metrics(
         gap: np.ndarray,
@@ -153,25 +165,33 @@ def run_loop(
         es_all: np.ndarray,
         ag: np.ndarray,
         av: np.ndarray,
+        with_ttc: bool,
     ) -> None:
-        """Distance and TTC of the ego rows ``rows`` at one instant (states ``e_all``, agents ``ag``)."""
-        if M == 0 or not rows.any():
+        """Distance (every step) and TTC (when ``with_ttc``) of ego rows ``rows`` against present agents."""
+        cols = np.nonzero(pres)[0]
+        if len(cols) == 0 or not rows.any():
             return
-        g = np.where(pres[None, :], gap, np.inf)[rows]
-        e = e_all[rows]
-        near = (g > 0) & (g < NEAR_M)
+        ridx = np.nonzero(rows)[0]
+        g = gap[np.ix_(ridx, cols)]
+        e = e_all[ridx]
+        ag, av, ahc = ag[cols], av[cols], ah[cols]
+        o = orig[ridx]
+        # the separating-axis gap is a lower bound of the distance: refine only where it may lower the minimum
+        near = (g > 0) & (g < NEAR_M) & (g < out.min_distance[o][:, None])
         if near.any():
             bi, mi = np.nonzero(near)
-            g[bi, mi] = signed_distance(e[bi, :3], ag[mi, :3], eh[None, :], ah[mi])
-        out.min_distance[rows] = np.minimum(out.min_distance[rows], g.min(axis=1))
-        ev = velocity_xy(e[:, 2], e[:, 3], es_all[rows])
+            g[bi, mi] = signed_distance(e[bi, :3], ag[mi, :3], eh[None, :], ahc[mi])
+        out.min_distance[o] = np.minimum(out.min_distance[o], g.min(axis=1))
+        if not with_ttc:
+            return
+        ev = velocity_xy(e[:, 2], e[:, 3], es_all[ridx])
         ttc = time_to_collision(
             ag[None, :, 0] - e[:, None, 0], ag[None, :, 1] - e[:, None, 1],
             av[None, :, 0] - ev[:, None, 0], av[None, :, 1] - ev[:, None, 1],
-            e[:, None, 2], eh[0], eh[1], ag[None, :, 2], ah[None, :, 0], ah[None, :, 1],
+            e[:, None, 2], eh[0], eh[1], ag[None, :, 2], ahc[None, :, 0], ahc[None, :, 1],
         )  # fmt: skip
-        ttc = np.where(np.isfinite(g) & (g > 0), ttc, np.inf)
-        out.min_ttc[rows] = np.minimum(out.min_ttc[rows], ttc.min(axis=1))
+        ttc = np.where(g > 0, ttc, np.inf)
+        out.min_ttc[o] = np.minimum(out.min_ttc[o], ttc.min(axis=1))
 
     def record(k: int) -> None:
         if out.states is None or out.present is None:
@@ -194,14 +214,14 @@ def run_loop(
     # ---- step 0: initial overlaps are ignored; metrics of the initial state
     k = 0
     pres_prev = presence(0)
-    gap0 = gaps(ego, agents) if M else np.zeros((B, 0))
+    gap0 = gaps(ego, agents, pres_prev)
     ignore_e = (gap0 <= 0) & pres_prev[None, :]
     if M > 1:
         gap_aa = _agent_gaps(agents, ah)
         ignore_aa = (gap_aa <= 0) & pres_prev[:, None] & pres_prev[None, :]
     else:
         ignore_aa = np.zeros((M, M), bool)
-    update_metrics(gap0, pres_prev, active, ego, e_steer, agents, agent_velocity()[0])
+    update_metrics(gap0, pres_prev, active, ego, e_steer, agents, agent_velocity()[0], True)
     record(0)
 
     for k in range(T - 1):
@@ -210,7 +230,7 @@ def run_loop(
             a_acc, a_str = agent_follow.command(agents, k, dt)
             a_acc = np.where(a_static, -lim.max_brake, a_acc)
         e_acc_r, e_str_r = ego_follow.command(ego, k, dt)
-        if active.any() and not is_replay:
+        if active.any() and not is_replay and (k % period == 0 or held is None):
             if needs_sensors:
                 av, _ = agent_velocity()
                 obs = sense(
@@ -220,20 +240,24 @@ def run_loop(
                 )  # fmt: skip
             else:
                 obs = sense(
-                    cfg, rng, float(times[k]), dt, ego, np.zeros((B, 2)), np.zeros(B), e_accel, ego_size,
+                    cfg, rng, float(times[k]), dt, ego, np.zeros((len(ego), 2)), np.zeros(len(ego)), e_accel, ego_size,
                     agents[:0], np.zeros((0, 2)), ah[:0], np.zeros(0, bool), (e_acc_r, e_str_r), [],
                 )  # fmt: skip
             res = controller(obs)
-            e_acc_c, e_str_c = (np.broadcast_to(np.asarray(r, float), (B,)) for r in res)
+            e_acc_c, e_str_c = (np.broadcast_to(np.asarray(r, float), (len(ego),)) for r in res)
             level = getattr(controller, "brake_level", None)
-            if level is not None and len(level) == B:
+            if level is not None and len(level) == len(ego):
                 lv = np.asarray(level)
                 warn, brake = lv >= 1, lv >= 2
             else:
                 brake = (e_acc_c < e_acc_r - INTERVENTION_MPS2) & (e_acc_c < -INTERVENTION_MPS2)
                 warn = brake
-            out.warning_time = np.where(np.isnan(out.warning_time) & warn & active, times[k], out.warning_time)
-            out.aeb_time = np.where(np.isnan(out.aeb_time) & brake & active, times[k], out.aeb_time)
+            wt, at = out.warning_time[orig], out.aeb_time[orig]
+            out.warning_time[orig] = np.where(np.isnan(wt) & warn & active, times[k], wt)
+            out.aeb_time[orig] = np.where(np.isnan(at) & brake & active, times[k], at)
+            held = (e_acc_c, e_str_c)
+        elif held is not None and not is_replay:
+            e_acc_c, e_str_c = held
         else:
             e_acc_c, e_str_c = e_acc_r, e_str_r
         # ---- 2. kinematics -> candidate states at k+1
@@ -268,7 +292,7 @@ def run_loop(
                     )
                     a_phys[[i, j]] = True
             # ---- ego contacts
-            g_e = gaps(ego_new, agents_new)
+            g_e = gaps(ego_new, agents_new, pres)
             newly_e = pres[None, :] & ~pres_prev[None, :]
             ignore_e |= newly_e & (g_e <= 0)
             ignore_e &= ~(g_e > 0)
@@ -280,13 +304,14 @@ def run_loop(
                 frac = contact_fraction(e0, e1, agents[j, :3], agents_new[j, :3], np.tile(eh, (len(j), 1)), ah[j])
                 ev = velocity_xy(ego[rows_hit, 2], ego[rows_hit, 3], e_steer[rows_hit])
                 av, aw = agent_velocity()
-                out.collided[rows_hit] = True
-                out.collision_time[rows_hit] = times[k] + frac * dt
-                out.collision_agent[rows_hit] = j + 1
-                out.relative_speed[rows_hit] = np.hypot(*(ev - av[j]).T)
+                o_hit = orig[rows_hit]
+                out.collided[o_hit] = True
+                out.collision_time[o_hit] = times[k] + frac * dt
+                out.collision_agent[o_hit] = j + 1
+                out.relative_speed[o_hit] = np.hypot(*(ev - av[j]).T)
                 for n, (b, jj) in enumerate(zip(rows_hit, j, strict=True)):
                     ew = float(yaw_rate(ego[b : b + 1, 3], e_steer[b : b + 1], wb_e[b : b + 1])[0])
-                    pre_contact[int(b)] = (
+                    pre_contact[int(orig[b])] = (
                         ego[b].copy(),
                         ev[n],
                         ew,
@@ -303,10 +328,10 @@ def run_loop(
                     a_phys[j0] = True
                     ego_in_phys = True
                     out.contacts.append(
-                        Contact(float(out.collision_time[b]), 0, int(jj) + 1, float(out.relative_speed[b]))
+                        Contact(float(out.collision_time[b0]), 0, j0 + 1, float(out.relative_speed[b0]))
                     )
             av_new = np.where(a_phys[:, None], a_vel_phys, velocity_xy(agents_new[:, 2], agents_new[:, 3], a_steer_new))
-            update_metrics(g_e, pres, active, ego_new, e_steer_new, agents_new, av_new)
+            update_metrics(g_e, pres, active, ego_new, e_steer_new, agents_new, av_new, (k + 1) % TTC_EVERY == 0)
             if physics_mode and ego_in_phys:
                 # the sliding ego pushes kinematic agents it touches into the physics world
                 touch = pres & ~a_phys & (g_e[0] <= 0) & ~ignore_e[0]
@@ -341,6 +366,15 @@ def run_loop(
         record(k + 1)
         if not physics_mode and not active.any():
             break
+        if compactable and active.sum() <= 0.5 * len(active):
+            keep = np.nonzero(active)[0]
+            ego, e_steer, e_accel, wb_e = ego[keep], e_steer[keep], e_accel[keep], wb_e[keep]
+            ego_follow.select(keep)
+            ignore_e, orig, active = ignore_e[keep], orig[keep], active[keep]
+            if held is not None:
+                held = (held[0][keep], held[1][keep])
+            if hasattr(controller, "select"):
+                controller.select(keep)
 
     if physics_mode:
         _finish_contacts(out, phys)

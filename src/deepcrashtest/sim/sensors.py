@@ -4,10 +4,10 @@ Targets are the other vehicles' boxes. For every (variant, target) pair a sensor
 of the target's box nearest to the sensor (range, azimuth in the ego frame, left positive) when it
 is inside the field of view and the detection range; association is ideal (by vehicle).
 
-* radar (front bumper): range, range-rate (line-of-sight relative speed, negative when closing),
+* radar (middle of the front bumper): range, range-rate (line-of-sight relative speed, negative when closing),
   azimuth; Gaussian noise; field of view and range as configured;
-* camera (windscreen): detection with a per-frame probability, azimuth (accurate) and a monocular
-  range estimate (noise proportional to range);
+* camera (modelled at the radar's position, so both see the same nearest point): detection with a
+  per-frame probability, azimuth (accurate) and a monocular range estimate (noise proportional to range);
 * GNSS/IMU: position, heading, speed, yaw rate and longitudinal acceleration with noise.
 """
 
@@ -86,8 +86,8 @@ def _nearest_point(sensor: np.ndarray, agents: np.ndarray, half: np.ndarray) -> 
     c, s = np.cos(agents[:, 2]), np.sin(agents[:, 2])
     dx = sensor[:, None, 0] - agents[None, :, 0]
     dy = sensor[:, None, 1] - agents[None, :, 1]
-    lx = np.clip(dx * c + dy * s, -half[:, 0], half[:, 0])
-    ly = np.clip(-dx * s + dy * c, -half[:, 1], half[:, 1])
+    lx = np.minimum(np.maximum(dx * c + dy * s, -half[:, 0]), half[:, 0])
+    ly = np.minimum(np.maximum(-dx * s + dy * c, -half[:, 1]), half[:, 1])
     return np.stack([agents[None, :, 0] + lx * c - ly * s, agents[None, :, 1] + lx * s + ly * c], axis=-1)
 
 
@@ -116,23 +116,36 @@ def sense(
     replay: tuple[np.ndarray, np.ndarray],
     agent_ids: list[int],
 ) -> Observation:
-    """One noisy observation for ``B`` ego variants (ego (B, 4), ego_vel (B, 2)) of ``M`` agents."""
+    """One noisy observation for ``B`` ego variants (ego (B, 4), ego_vel (B, 2)) of ``M`` agents.
+
+    Radar and camera both sit at the middle of the front bumper. Only present agents are measured
+    (absent ones are invalid columns).
+    """
     B, M = len(ego), len(agents)
     yaw = ego[:, 2]
-    fwd = np.stack([np.cos(yaw), np.sin(yaw)], axis=-1)
-    radar_pos = ego[:, :2] + 0.5 * ego_size[0] * fwd
-    cam_pos = ego[:, :2] + 0.25 * ego_size[0] * fwd
-    n = rng.standard_normal((6, B, M))
-    pts = _nearest_point(radar_pos, agents, agent_half)
-    r_rng, r_az, d = _polar(radar_pos, yaw, pts)
-    rel_v = agent_vel[None, :, :] - ego_vel[:, None, :]
-    r_rate = np.sum(rel_v * d, axis=-1) / np.maximum(r_rng, 1e-6)
-    r_ok = present[None, :] & (np.abs(r_az) <= cfg.radar_fov / 2) & (r_rng <= cfg.radar_range)
-    pts_c = _nearest_point(cam_pos, agents, agent_half)
-    c_rng, c_az, _ = _polar(cam_pos, yaw, pts_c)
-    c_ok = present[None, :] & (np.abs(c_az) <= cfg.camera_fov / 2) & (c_rng <= cfg.camera_range)
-    c_ok &= rng.random((B, M)) < cfg.camera_p_detect
-    nan = np.nan
+    sensor = ego[:, :2] + 0.5 * ego_size[0] * np.stack([np.cos(yaw), np.sin(yaw)], axis=-1)
+    cols = np.nonzero(present)[0]
+    P = len(cols)
+    noise = rng.standard_normal((5, B, P))
+    det = rng.random((B, P))
+    pts = _nearest_point(sensor, agents[cols], agent_half[cols])
+    rng_, az, d = _polar(sensor, yaw, pts)
+    rel_v = agent_vel[None, cols, :] - ego_vel[:, None, :]
+    rate = np.sum(rel_v * d, axis=-1) / np.maximum(rng_, 1e-6)
+    in_fov = np.abs(az)
+    r_ok = (in_fov <= cfg.radar_fov / 2) & (rng_ <= cfg.radar_range)
+    c_ok = (in_fov <= cfg.camera_fov / 2) & (rng_ <= cfg.camera_range) & (det < cfg.camera_p_detect)
+
+    def full(values: np.ndarray, ok: np.ndarray) -> np.ndarray:
+        out = np.full((B, M), np.nan)
+        out[:, cols] = np.where(ok, values, np.nan)
+        return out
+
+    def mask(ok: np.ndarray) -> np.ndarray:
+        out = np.zeros((B, M), dtype=bool)
+        out[:, cols] = ok
+        return out
+
     e = rng.standard_normal((7, B))
     return Observation(
         t=t,
@@ -145,13 +158,13 @@ def sense(
         speed=np.maximum(ego[:, 3] + cfg.speed_sigma * e[3], 0.0),
         yaw_rate=ego_yaw_rate + cfg.yaw_rate_sigma * e[4],
         accel=ego_accel + cfg.accel_sigma * e[5],
-        radar_valid=r_ok,
-        radar_range=np.where(r_ok, r_rng + cfg.radar_range_sigma * n[0], nan),
-        radar_range_rate=np.where(r_ok, r_rate + cfg.radar_range_rate_sigma * n[1], nan),
-        radar_azimuth=np.where(r_ok, r_az + cfg.radar_azimuth_sigma * n[2], nan),
-        camera_valid=c_ok,
-        camera_range=np.where(c_ok, c_rng * (1.0 + cfg.camera_range_rel_sigma * n[3]), nan),
-        camera_azimuth=np.where(c_ok, c_az + cfg.camera_azimuth_sigma * n[4], nan),
+        radar_valid=mask(r_ok),
+        radar_range=full(rng_ + cfg.radar_range_sigma * noise[0], r_ok),
+        radar_range_rate=full(rate + cfg.radar_range_rate_sigma * noise[1], r_ok),
+        radar_azimuth=full(az + cfg.radar_azimuth_sigma * noise[2], r_ok),
+        camera_valid=mask(c_ok),
+        camera_range=full(rng_ * (1.0 + cfg.camera_range_rel_sigma * noise[3]), c_ok),
+        camera_azimuth=full(az + cfg.camera_azimuth_sigma * noise[4], c_ok),
         replay_accel=replay[0],
         replay_steer=replay[1],
         truth=Truth(ego=ego, agents=agents, agent_present=present, agent_ids=agent_ids),

@@ -52,10 +52,10 @@ def limit_commands(
     accel_cmd: np.ndarray, steer_cmd: np.ndarray, steer: np.ndarray, dt: float, limits: VehicleLimits
 ) -> tuple[np.ndarray, np.ndarray]:
     """Clip commanded acceleration and steering to the actuator limits; returns (accel, new steer)."""
-    accel = np.clip(np.nan_to_num(accel_cmd, nan=0.0), -limits.max_brake, limits.max_accel)
-    target = np.clip(np.nan_to_num(steer_cmd, nan=0.0), -limits.max_steer, limits.max_steer)
+    accel = np.minimum(np.maximum(np.nan_to_num(accel_cmd, nan=0.0), -limits.max_brake), limits.max_accel)
+    target = np.minimum(np.maximum(np.nan_to_num(steer_cmd, nan=0.0), -limits.max_steer), limits.max_steer)
     rate = limits.max_steer_rate * dt
-    return accel, steer + np.clip(target - steer, -rate, rate)
+    return accel, steer + np.minimum(np.maximum(target - steer, -rate), rate)
 
 
 def bicycle_step(
