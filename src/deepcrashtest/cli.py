@@ -262,13 +262,66 @@ def _fmt(v: float | None) -> str:
 def search(
     scenario: Path = typer.Argument(..., help="Scenario JSON file."),
     output: Path = typer.Option(..., "-o", "--output", help="Output folder."),
+    starts: int = typer.Option(32, "--starts", help="Random ego start positions in the box."),
+    noise_variants: int = typer.Option(4, "--noise-variants", help="Noisy ego paths per start."),
+    box_lateral: float = typer.Option(4.0, "--box-lateral", help="Start box width, metres (+-half)."),
+    box_longitudinal: float = typer.Option(8.0, "--box-longitudinal", help="Start box length, metres (+-half)."),
+    noise_sigma: float = typer.Option(0.3, "--noise-sigma", help="Std of the control-point noise, metres."),
+    controller: str = typer.Option("replay", "--controller", help="Ego controller: replay | aeb | module:callable"),
+    method: str = typer.Option("both", "--method", help="random | cem | both"),
+    workers: int = typer.Option(1, "--workers", help="Processes (local) or Ray CPUs."),
+    engine: str = typer.Option("local", "--engine", help="local | ray"),
+    boundary_directions: int = typer.Option(16, "--boundary-directions", help="Rays of the boundary scan (0: none)."),
+    max_scenarios: int = typer.Option(32, "--max-scenarios", help="Safe variants written as Scenario files."),
+    duration: float | None = typer.Option(None, "--duration", help="Seconds simulated (default: whole scenario)."),
+    no_video: bool = typer.Option(False, "--no-video", help="Skip the bird's-eye comparison video."),
     force: bool = ForceOpt,
     seed: int = SeedOpt,
     as_json: bool = JsonOpt,
 ) -> None:
     """Search perturbed ego starts and trajectories for variants that avoid the crash."""
-    _load(scenario)
-    raise NotImplementedYet("search: not implemented yet")
+    from deepcrashtest.search.run import SearchConfig, run_search
+
+    sc = _load(scenario)
+    cfg = SearchConfig(
+        starts=starts,
+        noise_variants=noise_variants,
+        box_lateral=box_lateral,
+        box_longitudinal=box_longitudinal,
+        noise_sigma=noise_sigma,
+        controller=controller,
+        method=method,
+        seed=seed,
+        boundary_directions=boundary_directions,
+        max_scenarios=max_scenarios,
+        video=not no_video,
+        duration=duration,
+    )
+    emit(run_search(sc, output, cfg, engine=engine, workers=workers, force=force), as_json, _search_human)
+
+
+def _search_human(s: dict[str, Any]) -> None:
+    o = s["original"]
+    typer.echo(
+        f"scenario {s['scenario']} (controller {s['controller']}, seed {s['seed']}): original "
+        f"{'collides' if o['collided'] else 'does not collide'} (robustness {o['robustness']} m)"
+    )
+    for name, m in s["methods"].items():
+        typer.echo(
+            f"  {name:8s} {m['safe']:4d} of {m['simulations']:4d} safe; first safe after "
+            f"{m['first_safe_at']} simulations; least change {m['min_change_safe_m']} m"
+        )
+    b = s["best_safe"]
+    if b:
+        typer.echo(
+            f"  best safe: variant {b['variant']} ({b['method']}), start ({b['d_lon_m']}, {b['d_lat_m']}) m, "
+            f"change {b['change_m']} m, robustness {b['robustness']} m"
+        )
+    typer.echo(
+        f"  {s['simulations']} simulations in {s['elapsed_s']} s ({s['variants_per_s']} variants/s, "
+        f"{s['engine']} x{s['workers']})"
+    )
+    typer.echo(f"  outputs: {Path(s['outputs']['results_csv']).parent}")
 
 
 @app.command()
@@ -313,14 +366,34 @@ def evaluate_egomotion(
 
 @app.command()
 def batch(
-    videos: Path = typer.Argument(..., help="Folder of videos."),
+    videos: Path = typer.Argument(..., help="Folder of videos (and/or Scenario *.json files)."),
     output: Path = typer.Option(..., "-o", "--output", help="Output folder (one subfolder per video)."),
+    engine: str = typer.Option("local", "--engine", help="local | ray"),
+    workers: int = typer.Option(1, "--workers", help="Processes (local) or Ray CPUs for each search."),
+    resume: bool = typer.Option(False, "--resume", help="Skip the inputs the manifest marks done."),
+    starts: int = typer.Option(32, "--starts", help="Random ego start positions per video."),
+    noise_variants: int = typer.Option(4, "--noise-variants", help="Noisy ego paths per start."),
+    method: str = typer.Option("both", "--method", help="random | cem | both"),
+    controller: str = typer.Option("replay", "--controller", help="Ego controller."),
+    duration: float | None = typer.Option(None, "--duration", help="Seconds simulated (default: whole scenario)."),
+    force: bool = ForceOpt,
+    seed: int = SeedOpt,
     as_json: bool = JsonOpt,
 ) -> None:
-    """Run extract -> scenario -> search over a folder of videos."""
-    if not videos.is_dir():
-        raise UserError(f"{videos}: video folder not found")
-    raise NotImplementedYet("batch: not implemented yet")
+    """Run extract -> scenario -> search over a folder of videos (resumable; manifest.json)."""
+    from deepcrashtest.search.batch import run_batch
+    from deepcrashtest.search.run import SearchConfig
+
+    cfg = SearchConfig(
+        starts=starts,
+        noise_variants=noise_variants,
+        method=method,
+        controller=controller,
+        seed=seed,
+        video=False,
+        duration=duration,
+    )
+    emit(run_batch(videos, output, cfg, engine=engine, workers=workers, resume=resume, force=force), as_json)
 
 
 @app.command()

@@ -1,0 +1,208 @@
+"""What a search writes: results.csv, variant Scenario files, the start-position plot, the video."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from deepcrashtest.errors import ScenarioError
+from deepcrashtest.fileio import atomic_path, atomic_write_text
+from deepcrashtest.scenario import Provenance, Scenario
+from deepcrashtest.search.evaluate import OUTCOME_FIELDS
+from deepcrashtest.search.space import SearchSpace
+
+
+def results_table(
+    space: SearchSpace, theta: np.ndarray, out: dict[str, np.ndarray], methods: list[str], iters: list[int], safe
+) -> pd.DataFrame:
+    """One row per simulated variant: id, method, iteration, per-method simulation number, params, outcome."""
+    df = pd.DataFrame({"variant": np.arange(len(methods)), "method": methods, "iteration": iters})
+    df["simulation"] = df.groupby("method").cumcount() + 1
+    df["safe"] = np.asarray(safe, bool)
+    df["change_m"] = out["change"]
+    for k in OUTCOME_FIELDS:
+        df[k] = out[k]
+    params = pd.DataFrame(theta, columns=space.names()) if len(theta) else pd.DataFrame(columns=space.names())
+    return pd.concat([df, params], axis=1)
+
+
+def write_csv(df: pd.DataFrame, path: Path, force: bool) -> Path:
+    return atomic_write_text(path, df.to_csv(index=False, float_format="%.6g"), force=force)
+
+
+def variant_scenario(
+    scenario: Scenario, space: SearchSpace, theta: np.ndarray, variant: int, meta: dict[str, Any]
+) -> Scenario:
+    """The scenario with the ego's trajectory (and spline) replaced by variant ``theta``'s.
+
+    Provenance records the variant's parameters, the search settings (``meta``) and the seed.
+    Raises ScenarioError when the variant breaks the Scenario's physical limits.
+    """
+    ego = scenario.ego.model_copy(
+        update={"trajectory": space.variant_trajectory(theta), "spline": space.variant_spline(theta)}
+    )
+    params = {
+        "variant": int(variant),
+        "source_scenario": scenario.name,
+        "d_lon_m": float(theta[0]),
+        "d_lat_m": float(theta[1]),
+        "control_point_noise_m": [round(float(v), 6) for v in theta[2:]],
+        "change_m": float(space.change(theta)[0]),
+        **meta,
+    }
+    prov = Provenance(
+        command="search",
+        parameters=params,
+        seed=int(meta.get("seed", 0)),
+        history=[
+            *scenario.provenance.history,
+            f"search variant {variant}: ego start moved ({theta[0]:.3f}, {theta[1]:.3f}) m (forward, left), "
+            f"control points perturbed (RMS {float(np.sqrt(np.mean(theta[2:] ** 2))) if len(theta) > 2 else 0:.3f} m)",
+        ],
+    )
+    data = scenario.model_copy(
+        update={"name": f"{scenario.name}_variant{variant:04d}", "ego": ego, "collision": None, "provenance": prov}
+    ).model_dump(mode="json")
+    return Scenario.from_dict(data, origin=f"variant {variant}")
+
+
+def write_variants(
+    scenario: Scenario,
+    space: SearchSpace,
+    df: pd.DataFrame,
+    theta: np.ndarray,
+    folder: Path,
+    meta: dict[str, Any],
+    limit: int,
+    force: bool,
+) -> tuple[list[str], list[str]]:
+    """Write the ``limit`` safe variants with the least change as Scenario files; returns (paths, problems)."""
+    safe = df[df["safe"]].sort_values(["change_m", "variant"]).head(limit)
+    paths, problems = [], []
+    for vid, method in zip(safe["variant"], safe["method"], strict=True):
+        try:
+            sc = variant_scenario(scenario, space, theta[int(vid)], int(vid), {**meta, "method": method})
+        except ScenarioError as exc:
+            problems.append(f"variant {vid}: {exc}")
+            continue
+        paths.append(str(sc.save(folder / f"variant_{int(vid):04d}.json", force=force)))
+    return paths, problems
+
+
+def plot_starts(
+    df: pd.DataFrame, space: SearchSpace, boundary: dict | None, best: int | None, path: Path, force: bool, title: str
+) -> Path:
+    """Start offsets (lateral, longitudinal) coloured by outcome; CEM samples, boundary and best safe marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 7.0), dpi=110)
+    hb = space.half_box
+    ax.add_patch(plt.Rectangle((-hb[1], -hb[0]), 2 * hb[1], 2 * hb[0], fill=False, ls="--", color="0.5"))
+    styles = {"random": ("o", 36, 0.85), "cem": ("^", 22, 0.6)}
+    for method, (marker, size, alpha) in styles.items():
+        d = df[df["method"] == method]
+        for safe, colour, label in ((False, "tab:red", "collision / unsafe"), (True, "tab:green", "safe")):
+            e = d[d["safe"] == safe]
+            if len(e):
+                ax.scatter(
+                    e["d_lat"], e["d_lon"], c=colour, marker=marker, s=size, alpha=alpha, label=f"{method}: {label}"
+                )
+    if boundary is not None:
+        r = np.array([np.nan if v is None else v for v in boundary["radius_m"]], dtype=float)
+        a = np.radians(boundary["angle_deg"])
+        ax.plot(
+            np.append(r, r[:1]) * np.sin(np.append(a, a[:1])),
+            np.append(r, r[:1]) * np.cos(np.append(a, a[:1])),
+            "k-",
+            lw=1.2,
+            label="safe/unsafe boundary (no noise)",
+        )
+    ax.scatter([0], [0], marker="x", c="k", s=60, label="original start")
+    if best is not None:
+        row = df[df["variant"] == best].iloc[0]
+        ax.scatter([row["d_lat"]], [row["d_lon"]], marker="*", c="gold", edgecolors="k", s=220, label="best safe")
+    ax.set_xlim(hb[1] * 1.15, -hb[1] * 1.15)  # left (positive lateral) drawn on the left
+    ax.set_ylim(-hb[0] * 1.15, hb[0] * 1.15)
+    ax.set_aspect("equal")
+    ax.set_xlabel("lateral start offset (m, left +)")
+    ax.set_ylabel("longitudinal start offset (m, forward +)")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=2)
+    fig.tight_layout()
+    with atomic_path(path, force=force) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+    return path
+
+
+def write_video(
+    original: Scenario,
+    best: Scenario,
+    path: Path,
+    controller: str,
+    seed: int,
+    force: bool,
+    duration: float | None = None,
+    label: str = "best safe variant",
+) -> str | None:
+    """Bird's-eye H.264 video: the original run (left) beside the best safe variant (right).
+
+    Both are simulated with ``deepcrashtest.sim.simulate`` and drawn by ``deepcrashtest.viz.birdseye``;
+    returns None when the renderer is not in this build.
+    """
+    try:
+        from deepcrashtest.viz.birdseye import FPS, render_frames
+    except ImportError:
+        return None
+    import av
+    import cv2
+
+    from deepcrashtest.sim import simulate
+
+    runs = [simulate(sc, controller, seed=seed, duration=duration) for sc in (original, best)]
+    stride = max(1, int(round(1.0 / (FPS * float(runs[0].dt)))))
+    w, h = 640, 360
+    with atomic_path(path, force, suffix=".mp4") as tmp:
+        container = av.open(str(tmp), mode="w", format="mp4")
+        try:
+            stream = container.add_stream("libx264", rate=round(1.0 / (stride * float(runs[0].dt))))
+            stream.width, stream.height, stream.pix_fmt = 2 * w, h, "yuv420p"
+            stream.options = {"crf": "26", "preset": "veryfast"}
+            left, right = render_frames(original, runs[0], stride), render_frames(best, runs[1], stride)
+            last: list[Any] = [None, None]
+            while True:
+                pair = [next(left, None), next(right, None)]
+                if pair[0] is None and pair[1] is None:
+                    break
+                last = [p if p is not None else q for p, q in zip(pair, last, strict=True)]
+                tiles = [cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA) for img in last]
+                for img, text in zip(tiles, ("original", label), strict=True):
+                    cv2.putText(img, text, (10, h - 40), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 1, cv2.LINE_AA)
+                frame = av.VideoFrame.from_ndarray(np.hstack(tiles), format="bgr24")
+                for packet in stream.encode(frame):
+                    container.mux(packet)
+            for packet in stream.encode():
+                container.mux(packet)
+        finally:
+            container.close()
+    return str(path)
+
+
+def write_summary(summary: dict[str, Any], path: Path, force: bool) -> Path:
+    import json
+
+    return atomic_write_text(path, json.dumps(summary, indent=1, allow_nan=False, default=_plain) + "\n", force=force)
+
+
+def _plain(o: Any) -> Any:
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(type(o).__name__)

@@ -1,0 +1,206 @@
+"""``deepcrashtest search``: run the random reference experiment and/or the adaptive search on one scenario."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from deepcrashtest.errors import UserError
+from deepcrashtest.fileio import check_writable, ensure_output_dir
+from deepcrashtest.scenario import Scenario
+from deepcrashtest.search import outputs
+from deepcrashtest.search.evaluate import Evaluator
+from deepcrashtest.search.methods import CemConfig, Log, boundary_scan, cem_search, first_safe, is_safe, random_search
+from deepcrashtest.search.space import SearchSpace
+
+METHODS = ("random", "cem", "both")
+OUTPUT_FILES = ("results.csv", "summary.json", "starts.png")
+
+
+@dataclass(frozen=True)
+class SearchConfig:
+    """Everything that decides a search's result (recorded in summary.json and in each variant's provenance)."""
+
+    starts: int = 32
+    noise_variants: int = 4
+    box_lateral: float = 4.0  # metres, full width of the start box (+-2 m)
+    box_longitudinal: float = 8.0  # metres, full length of the start box (+-4 m)
+    noise_sigma: float = 0.3  # metres, std of the control-point noise
+    controller: str = "replay"
+    method: str = "both"
+    seed: int = 0
+    margin: float = 0.0  # metres: safe means no collision and robustness > margin
+    cem_budget: int | None = None  # simulations for CEM (default: as many as the random experiment)
+    boundary_directions: int = 16  # rays of the boundary scan (0: no scan)
+    max_scenarios: int = 32  # safe variants written as Scenario files (least change first)
+    video: bool = True
+    duration: float | None = None  # seconds simulated per variant (None: the whole scenario)
+
+    def check(self) -> None:
+        if self.method not in METHODS:
+            raise UserError(f"--method must be one of {', '.join(METHODS)} (got {self.method!r})")
+        if self.starts < 1 or self.noise_variants < 1:
+            raise UserError(f"--starts and --noise-variants must be >= 1 (got {self.starts}, {self.noise_variants})")
+        if self.boundary_directions < 0 or self.max_scenarios < 0:
+            raise UserError("--boundary-directions and --max-scenarios must be >= 0")
+        if self.duration is not None and not (math.isfinite(self.duration) and self.duration > 0):
+            raise UserError(f"--duration must be a positive number of seconds (got {self.duration})")
+
+
+def run_search(
+    scenario: Scenario,
+    output: str | Path,
+    cfg: SearchConfig,
+    engine: str = "local",
+    workers: int = 1,
+    force: bool = False,
+) -> dict[str, Any]:
+    """Search variants of ``scenario``, write the outputs under ``output``, return the summary."""
+    cfg.check()
+    out_dir = ensure_output_dir(output)
+    for name in OUTPUT_FILES:
+        check_writable(out_dir / name, force)
+    space = SearchSpace.for_scenario(scenario, cfg.box_lateral, cfg.box_longitudinal, cfg.noise_sigma)
+    t0 = time.perf_counter()
+    log = Log()
+    cem_best: np.ndarray | None = None
+    boundary = None
+    with Evaluator(scenario, space, cfg.controller, cfg.seed, engine, workers, cfg.duration) as ev:
+        original = ev(np.zeros((1, space.dim)))
+        log.add("original", 0, np.zeros((1, space.dim)), original)
+        if cfg.method in ("random", "both"):
+            random_search(ev, log, np.random.default_rng([cfg.seed, 1]), cfg.starts, cfg.noise_variants)
+        if cfg.method in ("cem", "both"):
+            budget = cfg.cem_budget or cfg.starts * cfg.noise_variants
+            cem_cfg = CemConfig(budget=budget, margin=cfg.margin, line_search=min(16, budget // 4))
+            cem_best = cem_search(ev, log, np.random.default_rng([cfg.seed, 2]), cem_cfg)
+            if cfg.boundary_directions:
+                boundary = boundary_scan(ev, log, cfg.boundary_directions, margin=cfg.margin)
+        n_sims = ev.simulations
+    elapsed = time.perf_counter() - t0
+
+    theta, res = log.arrays()
+    safe = is_safe(res, cfg.margin)
+    df = outputs.results_table(space, theta, res, log.method, log.iteration, safe)
+    outputs.write_csv(df, out_dir / "results.csv", force)
+    meta = {**asdict(cfg), "engine": engine}
+    meta.pop("video")
+    scen_paths, problems = outputs.write_variants(
+        scenario, space, df, theta, out_dir / "safe_variants", meta, cfg.max_scenarios, force
+    )
+    best_id = _best_safe(df)
+    summary: dict[str, Any] = {
+        "scenario": scenario.name,
+        "controller": cfg.controller,
+        "seed": cfg.seed,
+        "engine": engine,
+        "workers": workers,
+        "original": {"collided": bool(original["collided"][0]), **_metrics(original, 0)},
+        "simulations": n_sims,
+        "elapsed_s": round(elapsed, 3),
+        "variants_per_s": round(n_sims / elapsed, 1) if elapsed > 0 else None,
+        "methods": _method_summaries(df, res, log.method, cfg, cem_best, space),
+        "boundary": boundary,
+        "best_safe": _row(df, best_id),
+        "config": meta,
+    }
+    best_sc = None
+    if best_id is not None:
+        best_sc = outputs.variant_scenario(scenario, space, theta[best_id], best_id, meta)
+    summary["outputs"] = {
+        "results_csv": str(out_dir / "results.csv"),
+        "safe_scenarios": scen_paths,
+        "scenario_problems": problems,
+        "plot": str(
+            outputs.plot_starts(
+                df,
+                space,
+                boundary,
+                best_id,
+                out_dir / "starts.png",
+                force,
+                f"{scenario.name}: {int(safe[np.array(log.method) == 'random'].sum())} of "
+                f"{int((np.array(log.method) == 'random').sum())} random variants safe",
+            )
+        ),
+        "video": None,
+    }
+    if cfg.video and best_sc is not None:
+        r = summary["best_safe"]
+        summary["outputs"]["video"] = outputs.write_video(
+            scenario,
+            best_sc,
+            out_dir / "best_vs_original.mp4",
+            cfg.controller,
+            cfg.seed,
+            force,
+            cfg.duration,
+            f"variant {r['variant']}: start ({r['d_lon_m']:+.2f}, {r['d_lat_m']:+.2f}) m, change {r['change_m']:.2f} m",
+        )
+    outputs.write_summary(summary, out_dir / "summary.json", force)
+    return summary
+
+
+def _best_safe(df: Any) -> int | None:
+    safe = df[df["safe"]]
+    if safe.empty:
+        return None
+    return int(safe.sort_values(["change_m", "variant"]).iloc[0]["variant"])
+
+
+def _finite(v: Any) -> float | None:
+    f = float(v)
+    return round(f, 4) if math.isfinite(f) else None
+
+
+def _metrics(res: dict[str, np.ndarray], i: int) -> dict[str, Any]:
+    keys = ("robustness", "min_distance", "collision_time", "min_ttc", "aeb_time", "delta_v_ego")
+    return {k: _finite(res[k][i]) for k in keys}
+
+
+def _row(df: Any, vid: int | None) -> dict[str, Any] | None:
+    if vid is None:
+        return None
+    r = df[df["variant"] == vid].iloc[0]
+    return {
+        "variant": int(vid),
+        "method": str(r["method"]),
+        "d_lon_m": _finite(r["d_lon"]),
+        "d_lat_m": _finite(r["d_lat"]),
+        "change_m": _finite(r["change_m"]),
+        "robustness": _finite(r["robustness"]),
+        "min_distance": _finite(r["min_distance"]),
+    }
+
+
+def _method_summaries(
+    df: Any, res: dict[str, np.ndarray], methods: list[str], cfg: SearchConfig, cem_best: Any, space: SearchSpace
+) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for m in ("random", "cem", "boundary"):
+        d = df[df["method"] == m]
+        if d.empty:
+            continue
+        s = d[d["safe"]]
+        out[m] = {
+            "simulations": len(d),
+            "safe": len(s),
+            "safe_fraction": round(len(s) / len(d), 4),
+            "first_safe_at": first_safe(res, methods, m, cfg.margin),
+            "min_change_safe_m": _finite(s["change_m"].min()) if len(s) else None,
+            "max_robustness": _finite(d["robustness"].max()),
+        }
+    if "random" in out:
+        out["random"]["starts"] = cfg.starts
+        out["random"]["noise_variants"] = cfg.noise_variants
+        r = df[df["method"] == "random"]
+        start_index = (r["simulation"] - 1) // cfg.noise_variants
+        out["random"]["starts_with_a_safe_variant"] = int(r.groupby(start_index)["safe"].any().sum())
+    if "cem" in out and cem_best is not None:
+        out["cem"]["best_change_m"] = _finite(space.change(cem_best)[0])
+    return out

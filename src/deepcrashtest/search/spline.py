@@ -1,0 +1,93 @@
+"""The ego path as a time B-spline, its perturbation, and the trajectory of a perturbed path.
+
+Frames and units: world frame (x forward at t=0, y left), metres, seconds, radians. The spline is
+``x(t), y(t) = BSpline(knots, cx | cy, degree)`` exactly as stored in ``Vehicle.spline``
+(``scenario.SplineParams``). Scenarios from stage 2 carry it; for raw scenarios (KITTI ground
+truth, ``Vehicle.spline is None``) a least-squares cubic B-spline is fitted here with SciPy.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.interpolate import BSpline, make_lsq_spline
+
+from deepcrashtest.errors import UserError
+from deepcrashtest.scenario import SplineParams, Trajectory, Vehicle
+
+#: Spacing of the interior knots of a fitted ego spline, seconds (one control point per ~second).
+DEFAULT_KNOT_SPACING_S = 1.0
+
+
+def fit_spline(t: np.ndarray, xy: np.ndarray, knot_spacing_s: float = DEFAULT_KNOT_SPACING_S, degree: int = 3):
+    """Least-squares clamped B-spline through ``xy`` (K, 2) sampled at times ``t`` (K,), seconds.
+
+    Interior knots are spaced ``knot_spacing_s`` apart (fewer when the samples are too few for
+    the Schoenberg-Whitney conditions). Returns a ``SplineParams``.
+    """
+    t = np.asarray(t, dtype=float)
+    xy = np.asarray(xy, dtype=float)
+    if len(t) < degree + 1:
+        raise UserError(f"ego trajectory has {len(t)} samples; a degree-{degree} spline needs >= {degree + 1}")
+    span = t[-1] - t[0]
+    n_interior = max(0, min(int(span / knot_spacing_s) - 1, len(t) - degree - 1))
+    interior = np.linspace(t[0], t[-1], n_interior + 2)[1:-1]
+    knots = np.concatenate([np.full(degree + 1, t[0]), interior, np.full(degree + 1, t[-1])])
+    sx = make_lsq_spline(t, xy[:, 0], knots, k=degree)
+    sy = make_lsq_spline(t, xy[:, 1], knots, k=degree)
+    return SplineParams(knots=knots.tolist(), cx=sx.c.tolist(), cy=sy.c.tolist(), degree=degree)
+
+
+def ego_spline(ego: Vehicle, knot_spacing_s: float = DEFAULT_KNOT_SPACING_S) -> SplineParams:
+    """The ego's stored spline, or one fitted to its trajectory when the scenario has none."""
+    if ego.spline is not None:
+        return ego.spline
+    a = ego.trajectory.arrays()
+    return fit_spline(a["t"], np.column_stack([a["x"], a["y"]]), knot_spacing_s)
+
+
+def control_points(sp: SplineParams) -> np.ndarray:
+    """(M, 2) control points, metres."""
+    return np.column_stack([sp.cx, sp.cy]).astype(float)
+
+
+def evaluate_paths(sp: SplineParams, ctrl: np.ndarray, t: np.ndarray, nu: int = 0) -> np.ndarray:
+    """Evaluate the spline (or its ``nu``-th time derivative) for many control-point sets.
+
+    ``ctrl`` is (B, M, 2) (or (M, 2)); returns (B, K, 2) (or (K, 2)) at times ``t`` (K,), clamped
+    to the knot span. One basis-matrix product, so thousands of variants cost one matmul.
+    """
+    knots = np.asarray(sp.knots, dtype=float)
+    tt = np.clip(np.asarray(t, dtype=float), knots[0], knots[-1])
+    basis = basis_matrix(knots, sp.degree, tt, nu)  # (K, M)
+    return np.einsum("km,...md->...kd", basis, ctrl)
+
+
+def basis_matrix(knots: np.ndarray, degree: int, t: np.ndarray, nu: int = 0) -> np.ndarray:
+    """(K, M) matrix of B-spline basis functions (or their derivatives) at times ``t``."""
+    m = len(knots) - degree - 1
+    eye = np.eye(m)
+    spl = BSpline(knots, eye, degree, extrapolate=False)
+    out = spl.derivative(nu)(t) if nu else spl(t)
+    return np.nan_to_num(np.asarray(out, dtype=float))
+
+
+def trajectory_from_path(sp: SplineParams, ctrl: np.ndarray, t: np.ndarray, min_speed_mps: float = 0.05) -> Trajectory:
+    """Trajectory (x, y, yaw, speed) of the spline with control points ``ctrl`` (M, 2) at times ``t``.
+
+    Speed is |d(x, y)/dt|; yaw is the direction of motion, unwrapped, held over samples slower
+    than ``min_speed_mps`` (a standing vehicle keeps its heading).
+    """
+    xy = evaluate_paths(sp, ctrl, t)
+    vel = evaluate_paths(sp, ctrl, t, nu=1)
+    speed = np.hypot(vel[:, 0], vel[:, 1])
+    yaw = np.arctan2(vel[:, 1], vel[:, 0])
+    moving = speed >= min_speed_mps
+    if moving.any():
+        idx = np.where(moving, np.arange(len(t)), 0)
+        idx = np.maximum.accumulate(idx)
+        first = int(np.argmax(moving))
+        idx[:first] = first
+        yaw = yaw[idx]
+    else:
+        yaw = np.zeros(len(t))
+    return Trajectory.from_arrays(t, xy[:, 0], xy[:, 1], np.unwrap(yaw), speed)

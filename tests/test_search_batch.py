@@ -1,0 +1,117 @@
+"""``deepcrashtest batch`` on real KITTI scenarios: manifest, failures, --resume, and kill -9."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from deepcrashtest.errors import UserError
+
+sim = pytest.importorskip("deepcrashtest.sim")
+if not hasattr(sim, "simulate_batch"):
+    pytest.skip("the simulator (deepcrashtest.sim.simulate_batch) is not in this build", allow_module_level=True)
+
+from deepcrashtest.search.batch import list_inputs, process_video, read_manifest, run_batch  # noqa: E402
+from deepcrashtest.search.run import SearchConfig  # noqa: E402
+from deepcrashtest.sim.testcases import meet_ego  # noqa: E402
+
+SMALL = ["--starts", "4", "--noise-variants", "2", "--method", "random", "--duration", "13"]
+#: Oncoming cars of KITTI 0008 and a time inside each one's observed span (s).
+CRASHES = {"a_car10": (10, 8.8), "b_car11": (11, 9.5), "c_car12": (12, 11.0), "d_car13": (13, 12.0)}
+
+
+@pytest.fixture(scope="module")
+def inputs(kitti8_raw, tmp_path_factory) -> Path:
+    """Four real crash scenarios (KITTI 0008, one oncoming car shifted onto the ego each) + one broken file."""
+    d = tmp_path_factory.mktemp("inputs")
+    for name, (agent, t) in CRASHES.items():
+        meet_ego(kitti8_raw, agent, t).save(d / f"{name}.json")
+    (d / "e_broken.json").write_text('{"schema_version": "1.0", "name": 3}')
+    (d / "notes.txt").write_text("not an input")
+    return d
+
+
+def batch(*args: str) -> subprocess.Popen[str]:
+    cmd = [sys.executable, "-m", "deepcrashtest.cli", "--quiet", "batch", *args]
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def test_lists_videos_and_scenarios_only(inputs, tmp_path):
+    assert [p.name for p in list_inputs(inputs)] == [*(f"{n}.json" for n in CRASHES), "e_broken.json"]
+    with pytest.raises(UserError, match="no videos"):
+        list_inputs(tmp_path)
+
+
+def test_kill_9_loses_nothing_finished_and_resume_completes(inputs, tmp_path):
+    out = tmp_path / "out"
+    proc = batch(str(inputs), "-o", str(out), *SMALL)
+    manifest = out / "manifest.json"
+    deadline = time.time() + 240
+    done: list[str] = []
+    while time.time() < deadline and proc.poll() is None:
+        if manifest.exists():
+            items = json.loads(manifest.read_text())["items"]  # atomic writes: always whole JSON
+            done = [n for n, e in items.items() if e["status"] == "done"]
+            if done:
+                break
+        time.sleep(0.02)
+    assert proc.poll() is None, f"batch ended before it could be killed: {proc.communicate()}"
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait(timeout=30)
+    assert proc.returncode == -signal.SIGKILL
+    killed = read_manifest(manifest)["items"]
+    finished = {n for n, e in killed.items() if e["status"] == "done"}
+    assert finished and len(finished) < len(CRASHES), killed
+    stamps = {}
+    for n in finished:  # everything a finished input wrote is complete
+        s = json.loads((out / n / "search" / "summary.json").read_text())
+        assert s["methods"]["random"]["simulations"] == 8
+        assert len((out / n / "search" / "results.csv").read_text().splitlines()) == 1 + 1 + 8
+        stamps[n] = (out / n / "search" / "summary.json").stat().st_mtime_ns
+    # without --resume the batch refuses to touch the existing output
+    again = batch(str(inputs), "-o", str(out), *SMALL)
+    _, err = again.communicate(timeout=120)
+    assert again.returncode == 2 and "--resume" in err
+    resumed = batch(str(inputs), "-o", str(out), *SMALL, "--resume", "--json")
+    stdout, err = resumed.communicate(timeout=300)
+    assert resumed.returncode == 0, err
+    res = json.loads(stdout)
+    assert res["done"] == len(CRASHES) and res["failed"] == 1 and res["skipped"] == len(finished)
+    assert "e_broken" in res["errors"] and "name" in res["errors"]["e_broken"]
+    items = read_manifest(manifest)["items"]
+    for n in CRASHES:
+        assert items[n]["status"] == "done" and items[n]["result"]["original_collided"] is True
+    for n, stamp in stamps.items():  # finished inputs were skipped, not redone
+        assert (out / n / "search" / "summary.json").stat().st_mtime_ns == stamp
+
+
+def test_a_video_without_the_extract_stage_is_recorded_as_failed(kitti8_raw, kitti_root, tmp_path):
+    try:
+        from deepcrashtest.extract import extract_video  # type: ignore[attr-defined]  # noqa: F401
+    except ImportError:
+        pass
+    else:
+        pytest.skip("the extract stage is in this build: videos are processed, not refused")
+    dad = kitti_root.parent / "crash_dad"
+    if not dad.is_dir():
+        pytest.skip(f"real data not found: {dad}")
+    clip = sorted(dad.glob("*.mp4"))[0]
+    folder = tmp_path / "videos"
+    folder.mkdir()
+    (folder / clip.name).symlink_to(clip)
+    meet_ego(kitti8_raw, 10, 8.8).save(folder / "kitti8_crash.json")
+    cfg = SearchConfig(starts=2, noise_variants=2, method="random", duration=10.0, video=False, max_scenarios=1)
+    res = run_batch(folder, tmp_path / "out", cfg)
+    assert res["done"] == 1 and res["failed"] == 1
+    assert "extract" in res["errors"][clip.stem] and "NotImplementedYet" in res["errors"][clip.stem]
+    summary = json.loads((tmp_path / "out" / "kitti8_crash" / "search" / "summary.json").read_text())
+    assert summary["original"]["collided"] is True
+    with pytest.raises(UserError, match="not available"):
+        process_video(clip, tmp_path / "one", cfg)
