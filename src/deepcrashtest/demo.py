@@ -41,4 +41,16 @@ def run_demo(output: str | Path, video: str | Path | None = None) -> dict[str, A
             pass
         path = sc.save(out / "kitti_0008" / "scenario.json") if ensure_output_dir(out / "kitti_0008") else None
         summary["steps"].append({"step": "scenario from-kitti 8", "scenario": str(path), "agents": len(sc.agents)})
+        _step_report(out, summary)
     return summary
+
+
+def _step_report(out: Path, summary: dict[str, Any]) -> None:
+    """report.html of the KITTI 0008 scenario (with the annotated video and search table when present)."""
+    from deepcrashtest.viz.report import build_report
+
+    scenario = out / "kitti_0008" / "scenario.json"
+    if not scenario.exists():
+        return
+    res = build_report(scenario, out / "report.html")
+    summary["steps"].append({"step": "report", "report": res["report"], "sections": len(res["sections"])})
