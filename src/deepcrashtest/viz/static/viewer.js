@@ -433,6 +433,7 @@
     if (i !== null) {
       const v = vehicleById(S.selected);
       S.wp = i;
+      setTime(v.trajectory.t[i]); // the video frame and every box at the waypoint's time
       S.drag = { index: i, x: v.trajectory.x[i], y: v.trajectory.y[i], px, py, moved: false };
       refreshPanels();
       draw();
