@@ -46,11 +46,19 @@ def run_demo(output: str | Path, video: str | Path | None = None) -> dict[str, A
 
 
 def _step_report(out: Path, summary: dict[str, Any]) -> None:
-    """report.html of the KITTI 0008 scenario (with the annotated video and search table when present)."""
+    """report.html of the KITTI 0008 scenario (+ its replay in the simulator, files beside it when present)."""
     from deepcrashtest.viz.report import build_report
 
     scenario = out / "kitti_0008" / "scenario.json"
     if not scenario.exists():
         return
-    res = build_report(scenario, out / "report.html")
+    metrics = None
+    try:  # the simulation outcome too, when this build has the simulator
+        from deepcrashtest.scenario import Scenario
+        from deepcrashtest.sim import simulate  # type: ignore[attr-defined]
+
+        metrics = simulate(Scenario.load(scenario), controller="replay", seed=0).metrics
+    except ImportError:
+        pass
+    res = build_report(scenario, out / "report.html", sim_metrics=metrics)
     summary["steps"].append({"step": "report", "report": res["report"], "sections": len(res["sections"])})

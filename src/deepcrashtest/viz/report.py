@@ -494,8 +494,11 @@ def build_report(
     sim: str | Path | None = None,
     search: str | Path | None = None,
     force: bool = False,
+    sim_metrics: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Write the report of a scenario file; optional inputs default to the files beside it.
+
+    ``sim_metrics`` (a metrics dict from a run made by the caller) takes the place of ``sim``.
 
     Beside the scenario: ``annotated.mp4`` (contact sheet), ``simulation.json`` (metrics, e.g.
     ``deepcrashtest simulate --json`` output), ``results.csv`` or ``search/results.csv`` (search table).
@@ -507,7 +510,7 @@ def build_report(
     sc = Scenario.load(sc_path)
     folder = sc_path.resolve().parent
     video_p = Path(video) if video is not None else _beside(folder, BESIDE_VIDEO)
-    sim_p = Path(sim) if sim is not None else _beside(folder, BESIDE_SIM)
+    sim_p = Path(sim) if sim is not None else None if sim_metrics is not None else _beside(folder, BESIDE_SIM)
     search_p = Path(search) if search is not None else _beside(folder, BESIDE_SEARCH)
     if video_p is not None:
         require_file(video_p, "video")
@@ -516,7 +519,7 @@ def build_report(
     sections = scenario_sections(
         sc,
         video=video_p,
-        sim_metrics=load_sim_metrics(sim_p) if sim_p is not None else None,
+        sim_metrics=load_sim_metrics(sim_p) if sim_p is not None else sim_metrics,
         search=search_p,
     )
     path = write_report(output, *sections, title=f"DeepCrashTest report: {sc.name}", force=force)
@@ -524,7 +527,7 @@ def build_report(
         "report": str(path),
         "sections": [s.title for s in sections],
         "video": None if video_p is None else str(video_p),
-        "simulation": None if sim_p is None else str(sim_p),
+        "simulation": str(sim_p) if sim_p is not None else "given" if sim_metrics is not None else None,
         "search": None if search_p is None else str(search_p),
         "bytes": path.stat().st_size,
     }
