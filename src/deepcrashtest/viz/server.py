@@ -28,7 +28,7 @@ from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import atomic_write_text
-from deepcrashtest.scenario import Scenario
+from deepcrashtest.scenario import Scenario, _reject_constant
 from deepcrashtest.viz.edit import apply_edit
 from deepcrashtest.viz.road import lane_lines
 from deepcrashtest.viz.video_frames import VideoFrames, jpeg_bytes
@@ -127,10 +127,6 @@ def _simulator() -> Any | None:
     except ImportError:
         return None
     return simulate
-
-
-def _reject_constant(name: str) -> float:
-    raise ValueError(f"non-finite number {name} is not allowed")
 
 
 async def json_body(request: Request) -> dict[str, Any]:
