@@ -35,7 +35,7 @@ from deepcrashtest.viz.video_frames import VideoFrames, jpeg_bytes
 
 VIDEO_NAME = "annotated.mp4"
 STATIC_FILES = {"viewer.js": "text/javascript", "viewer.css": "text/css"}
-LOOPBACK_HOSTS = ["127.0.0.1", "localhost", "[::1]"]
+LOOPBACK_HOSTS = ["127.0.0.1", "localhost", "::1", "[::1]"]
 MAX_BODY_BYTES = 64 * 1024 * 1024
 #: At most this many time samples of a simulation are sent to the page.
 MAX_SIM_SAMPLES = 800
