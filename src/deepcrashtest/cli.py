@@ -397,6 +397,44 @@ def batch(
 
 
 @app.command()
+def view(
+    scenario: Path = typer.Argument(..., help="Scenario JSON file (its folder is the only one read or written)."),
+    port: int = typer.Option(8765, "--port", help="TCP port."),
+    host: str = typer.Option("127.0.0.1", "--host", help="Address to bind (loopback by default)."),
+) -> None:
+    """Open a Scenario in the browser viewer: inspect, edit waypoints, simulate, save as a new file."""
+    from deepcrashtest.viz.server import serve
+
+    if not 0 < port < 65536:
+        raise UserError(f"--port must be 1-65535 (got {port})")
+    _load(scenario)
+    if host not in ("127.0.0.1", "localhost", "::1"):
+        console_err().print(f"warning: binding {host}: anyone who can reach it can read and write {scenario.parent}")
+    console_err().print(f"viewer on http://{'[' + host + ']' if ':' in host else host}:{port}/ (Ctrl+C to stop)")
+    serve(scenario, host=host, port=port)
+
+
+@app.command()
+def report(
+    scenario: Path = typer.Argument(..., help="Scenario JSON file."),
+    output: Path = typer.Option(..., "-o", "--output", help="The HTML file to write."),
+    video: Path | None = typer.Option(None, "--video", help="Annotated video (default: annotated.mp4 beside)."),
+    sim: Path | None = typer.Option(
+        None, "--sim", help="Simulation metrics JSON, e.g. `simulate --json` output (default: simulation.json beside)."
+    ),
+    search_table: Path | None = typer.Option(
+        None, "--search", help="Search results CSV with dx, dy, collided, robustness (default: results.csv beside)."
+    ),
+    force: bool = ForceOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """Write one self-contained report.html of a scenario (+ video, simulation, search beside it)."""
+    from deepcrashtest.viz.report import build_report
+
+    emit(build_report(scenario, output, video=video, sim=sim, search=search_table, force=force), as_json)
+
+
+@app.command()
 def demo(
     output: Path = typer.Option(Path("out/demo"), "-o", "--output", help="Output folder."),
     video: Path | None = typer.Option(None, "--video", help="Video to use instead of the bundled sample."),

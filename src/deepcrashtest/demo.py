@@ -44,6 +44,7 @@ def run_demo(output: str | Path, video: str | Path | None = None) -> dict[str, A
         _step_export(out, summary)
         _step_sim(out, summary)
         _step_search(out, summary)
+        _step_report(out, summary)
     return summary
 
 
@@ -112,3 +113,22 @@ def _step_search(out: Path, summary: dict[str, Any]) -> None:
             "best_change_m": (res["best_safe"] or {}).get("change_m"),
         }
     )
+
+
+def _step_report(out: Path, summary: dict[str, Any]) -> None:
+    """report.html of the KITTI 0008 scenario (+ its replay in the simulator, files beside it when present)."""
+    from deepcrashtest.viz.report import build_report
+
+    scenario = out / "kitti_0008" / "scenario.json"
+    if not scenario.exists():
+        return
+    metrics = None
+    try:  # the simulation outcome too, when this build has the simulator
+        from deepcrashtest.scenario import Scenario
+        from deepcrashtest.sim import simulate  # type: ignore[attr-defined]
+
+        metrics = simulate(Scenario.load(scenario), controller="replay", seed=0).metrics
+    except ImportError:
+        pass
+    res = build_report(scenario, out / "report.html", sim_metrics=metrics)
+    summary["steps"].append({"step": "report", "report": res["report"], "sections": len(res["sections"])})

@@ -1,0 +1,212 @@
+"""Small edits to a Scenario's trajectories: move one waypoint, or shift a whole trajectory.
+
+These are the fixes the reference paper's editing tools make before simulating (a bad initial
+position, two boxes that overlap): minor lateral/longitudinal displacements of waypoints.
+
+Every edit keeps the rest of the vehicle consistent with its new positions, over the same times:
+
+* speed and yaw change by exactly as much as the motion derived from the positions changes
+  (central differences, as in :mod:`deepcrashtest.trajectory.from_kitti`). A trajectory whose speed
+  was derived from its positions therefore stays derived from them; measured details (label yaw,
+  smoothed speeds) are kept where nothing moved. Yaw only follows the motion where the vehicle
+  moves (>= :data:`MOVING_MPS` before and after the edit): a parked car keeps its heading.
+* a spline parameterisation (:class:`~deepcrashtest.scenario.SplineParams`, same knots and degree)
+  gets the least-squares change of its control points that reproduces the displacement of the samples.
+* the edit is appended, as one readable line, to ``provenance.history``.
+
+The result is validated as a whole Scenario (:meth:`Scenario.from_dict`), so an edit that breaks
+the physical limits is refused with a :class:`~deepcrashtest.errors.ScenarioError` naming the field.
+
+Frames: world frame (x forward, y left, metres). "Vehicle frame" means each sample's own heading:
+``d_lon`` along ``yaw``, ``d_lat`` to the left of it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from deepcrashtest.errors import UserError
+from deepcrashtest.scenario import Scenario, Vehicle, wrap_angle
+
+#: Below this speed (m/s) the direction of motion is noise: yaw is not changed there.
+MOVING_MPS = 0.5
+#: Largest displacement an edit accepts, metres (these are minor fixes, not new scenarios).
+MAX_DISPLACEMENT_M = 200.0
+#: Default half-width of the smooth falloff of a waypoint drag, seconds.
+DEFAULT_FALLOFF_S = 0.5
+
+
+class EditError(UserError, ValueError):
+    """An edit request that cannot be applied (unknown vehicle, bad index, non-finite number...)."""
+
+
+def apply_edit(scenario: Scenario, edit: Mapping[str, Any]) -> Scenario:
+    """Apply one edit given as a JSON object and return the new (validated) Scenario.
+
+    ``{"kind": "move_waypoint", "vehicle_id": 3, "index": 12, "x": 10.0, "y": -2.0, "falloff_s": 0.5}``
+    or ``{"kind": "shift", "vehicle_id": 3, "d_lon": 1.0, "d_lat": -0.5}``.
+    """
+    if not isinstance(edit, Mapping):
+        raise EditError(f"edit: expected a JSON object, got {type(edit).__name__}")
+    kind = edit.get("kind")
+    if kind == "move_waypoint":
+        _only(edit, {"kind", "vehicle_id", "index", "x", "y", "falloff_s"})
+        return move_waypoint(
+            scenario,
+            _int(edit, "vehicle_id"),
+            _int(edit, "index"),
+            _num(edit, "x"),
+            _num(edit, "y"),
+            falloff_s=_num(edit, "falloff_s", DEFAULT_FALLOFF_S),
+        )
+    if kind == "shift":
+        _only(edit, {"kind", "vehicle_id", "d_lon", "d_lat"})
+        return shift_trajectory(scenario, _int(edit, "vehicle_id"), _num(edit, "d_lon", 0.0), _num(edit, "d_lat", 0.0))
+    raise EditError(f"edit.kind must be 'move_waypoint' or 'shift' (got {kind!r})")
+
+
+def move_waypoint(
+    scenario: Scenario, vehicle_id: int, index: int, x: float, y: float, falloff_s: float = DEFAULT_FALLOFF_S
+) -> Scenario:
+    """Move sample ``index`` of a vehicle to world ``(x, y)``; neighbours within ``falloff_s`` follow.
+
+    The neighbours move by the same displacement times a raised-cosine weight of their time
+    distance (1 at the waypoint, 0 at ``falloff_s`` seconds), so a drag does not create a jump
+    that no car could drive; ``falloff_s = 0`` moves the single waypoint.
+    """
+    veh = _vehicle(scenario, vehicle_id)
+    a = veh.trajectory.arrays()
+    n = len(a["t"])
+    if not 0 <= index < n:
+        raise EditError(f"edit.index {index} is outside vehicle {vehicle_id}'s {n} samples")
+    _finite(x=x, y=y, falloff_s=falloff_s)
+    if falloff_s < 0:
+        raise EditError(f"edit.falloff_s must be >= 0 (got {falloff_s})")
+    dx, dy = x - a["x"][index], y - a["y"][index]
+    _limit(math.hypot(dx, dy))
+    w = falloff_weights(a["t"], index, falloff_s)
+    note = (
+        f"move_waypoint vehicle={vehicle_id} index={index} t={a['t'][index]:.3f}s to ({x:.3f}, {y:.3f}) m "
+        f"[d=({dx:+.3f}, {dy:+.3f}) m, falloff {falloff_s:g} s]"
+    )
+    return _replace(scenario, veh, a["x"] + w * dx, a["y"] + w * dy, note)
+
+
+def shift_trajectory(scenario: Scenario, vehicle_id: int, d_lon: float, d_lat: float) -> Scenario:
+    """Shift every sample by ``d_lon`` along its own heading and ``d_lat`` to its left (metres).
+
+    On a straight path this is a translation (speed and yaw unchanged); on a curve the lateral
+    shift gives the parallel path, whose length, and so speed, is recomputed.
+    """
+    veh = _vehicle(scenario, vehicle_id)
+    _finite(d_lon=d_lon, d_lat=d_lat)
+    _limit(math.hypot(d_lon, d_lat))
+    a = veh.trajectory.arrays()
+    c, s = np.cos(a["yaw"]), np.sin(a["yaw"])
+    x = a["x"] + d_lon * c - d_lat * s
+    y = a["y"] + d_lon * s + d_lat * c
+    note = f"shift vehicle={vehicle_id} d_lon={d_lon:+.3f} m d_lat={d_lat:+.3f} m (vehicle frame)"
+    return _replace(scenario, veh, x, y, note)
+
+
+def falloff_weights(t: np.ndarray, index: int, falloff_s: float) -> np.ndarray:
+    """Raised-cosine weights in time around sample ``index``: 1 there, 0 beyond ``falloff_s`` seconds."""
+    w = np.zeros(len(t))
+    if falloff_s <= 0:
+        w[index] = 1.0
+        return w
+    d = np.abs(np.asarray(t, float) - t[index]) / falloff_s
+    inside = d < 1.0
+    w[inside] = 0.5 * (1.0 + np.cos(np.pi * d[inside]))
+    return w
+
+
+def motion(t: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Speed (m/s) and direction of motion (rad) from positions, central differences in time."""
+    if len(t) < 2:
+        return np.zeros(len(t)), np.zeros(len(t))
+    vx, vy = np.gradient(x, t), np.gradient(y, t)
+    return np.hypot(vx, vy), np.arctan2(vy, vx)
+
+
+def _replace(scenario: Scenario, veh: Vehicle, x: np.ndarray, y: np.ndarray, note: str) -> Scenario:
+    """The scenario with ``veh``'s positions replaced; yaw, speed and spline follow; validated."""
+    a = veh.trajectory.arrays()
+    v_old, h_old = motion(a["t"], a["x"], a["y"])
+    v_new, h_new = motion(a["t"], x, y)
+    speed = np.maximum(a["speed"] + (v_new - v_old), 0.0)
+    moving = (v_old >= MOVING_MPS) & (v_new >= MOVING_MPS)
+    yaw = a["yaw"] + np.where(moving, wrap_angle(h_new - h_old), 0.0)
+    data = scenario.model_dump(mode="json")
+    vdata = data["ego"] if veh.id == scenario.ego.id else next(v for v in data["agents"] if v["id"] == veh.id)
+    traj = vdata["trajectory"]
+    traj["x"], traj["y"] = x.tolist(), y.tolist()
+    traj["yaw"], traj["speed"] = yaw.tolist(), speed.tolist()
+    if veh.spline is not None:
+        dcx, dcy = spline_control_shift(veh, x - a["x"], y - a["y"])
+        vdata["spline"]["cx"] = (np.asarray(veh.spline.cx) + dcx).tolist()
+        vdata["spline"]["cy"] = (np.asarray(veh.spline.cy) + dcy).tolist()
+    data["provenance"]["history"] = [*data["provenance"]["history"], note]
+    return Scenario.from_dict(data, origin="edited scenario")
+
+
+def spline_control_shift(veh: Vehicle, dx: np.ndarray, dy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares (minimum-norm) change of the spline's control points matching sample displacements.
+
+    The spline is x(t), y(t) = BSpline(knots, cx|cy, degree); samples outside the knots' base
+    interval are clamped onto it. A constant displacement moves every control point it constrains
+    by that constant (B-splines sum to one).
+    """
+    from scipy.interpolate import BSpline
+
+    sp = veh.spline
+    assert sp is not None
+    knots, k = np.asarray(sp.knots, float), sp.degree
+    t = np.clip(np.asarray(veh.trajectory.t, float), knots[k], knots[-k - 1])
+    basis = BSpline.design_matrix(t, knots, k).toarray()
+    sol = np.linalg.lstsq(basis, np.column_stack([dx, dy]), rcond=None)[0]
+    return sol[:, 0], sol[:, 1]
+
+
+def _vehicle(scenario: Scenario, vehicle_id: int) -> Vehicle:
+    try:
+        return scenario.vehicle(vehicle_id)
+    except KeyError:
+        ids = [v.id for v in scenario.vehicles()]
+        raise EditError(f"edit.vehicle_id {vehicle_id} is not a vehicle of this scenario (ids: {ids})") from None
+
+
+def _only(edit: Mapping[str, Any], allowed: set[str]) -> None:
+    extra = sorted(set(edit) - allowed)
+    if extra:
+        raise EditError(f"edit: unknown field(s) {extra} for kind {edit.get('kind')!r}")
+
+
+def _int(edit: Mapping[str, Any], key: str) -> int:
+    v = edit.get(key)
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise EditError(f"edit.{key} must be an integer (got {v!r})")
+    return v
+
+
+def _num(edit: Mapping[str, Any], key: str, default: float | None = None) -> float:
+    v = edit.get(key, default)
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        raise EditError(f"edit.{key} must be a number (got {v!r})")
+    _finite(**{key: float(v)})
+    return float(v)
+
+
+def _finite(**values: float) -> None:
+    for name, v in values.items():
+        if not math.isfinite(v):
+            raise EditError(f"edit.{name} must be a finite number (got {v})")
+
+
+def _limit(d: float) -> None:
+    if d > MAX_DISPLACEMENT_M:
+        raise EditError(f"edit moves a waypoint {d:.1f} m: more than the {MAX_DISPLACEMENT_M:g} m allowed")

@@ -1,0 +1,38 @@
+"""Lane lines of a Scenario's road, for drawing (the viewer's canvas and the report's plots).
+
+Layout (as the exporters read it): on an ``ego_path*`` road the centre line is the ego's path, so
+it is the centre of lane ``ego_lane``; on any other road it is the centre of the carriageway.
+Lane 0 is the rightmost. World frame, metres.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from deepcrashtest.scenario import Road
+
+
+def offset_polyline(xy: np.ndarray, offset: float) -> np.ndarray:
+    """The polyline ``xy`` (N, 2) moved ``offset`` metres to its left (negative: right)."""
+    d = np.gradient(xy, axis=0)
+    n = np.hypot(d[:, 0], d[:, 1])
+    n[n == 0] = 1.0
+    left = np.column_stack([-d[:, 1], d[:, 0]]) / n[:, None]
+    return xy + offset * left
+
+
+def boundary_offsets(road: Road) -> np.ndarray:
+    """Lateral offsets (m, left positive) of the lane boundaries from the centre line, right to left."""
+    j = np.arange(road.lane_count + 1, dtype=float)
+    if road.source.startswith("ego_path"):
+        return (j - road.ego_lane - 0.5) * road.lane_width
+    return (j - road.lane_count / 2.0) * road.lane_width
+
+
+def lane_lines(road: Road) -> dict[str, list[list[list[float]]]]:
+    """``{"center": [[x, y], ...], "boundaries": [[[x, y], ...], ...]}``: outer boundaries first and last."""
+    xy = road.centerline()
+    return {
+        "center": xy.tolist(),
+        "boundaries": [offset_polyline(xy, float(o)).tolist() for o in boundary_offsets(road)],
+    }

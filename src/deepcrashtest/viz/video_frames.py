@@ -1,0 +1,111 @@
+"""Random access to the frames of a video by time (PyAV), for the viewer and the report.
+
+Seeking goes to the key frame at or before the requested time and decodes forward; a request a
+little after the previous one (playback) decodes on from where the last one stopped.
+"""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from deepcrashtest.errors import UserError
+
+#: Decode on instead of seeking when the requested time is at most this far ahead (seconds).
+_DECODE_AHEAD_S = 2.0
+
+
+class VideoFrames:
+    """Frames of one video file by time in seconds (thread-safe; one decoder)."""
+
+    def __init__(self, path: str | Path) -> None:
+        import av
+
+        self.path = Path(path)
+        try:
+            self._container: Any = av.open(str(self.path))
+        except (av.error.FFmpegError, OSError) as exc:  # type: ignore[attr-defined]
+            raise UserError(f"{self.path}: cannot open video ({exc})") from None
+        if not self._container.streams.video:
+            self._container.close()
+            raise UserError(f"{self.path}: has no video stream")
+        self._stream = self._container.streams.video[0]
+        rate = self._stream.average_rate or self._stream.guessed_rate
+        self.fps = float(rate) if rate else 25.0
+        tb = self._stream.time_base
+        if self._stream.duration is not None and tb is not None:
+            self.duration_s = float(self._stream.duration * tb)
+        elif self._container.duration is not None:
+            self.duration_s = self._container.duration / 1_000_000
+        else:
+            self.duration_s = (self._stream.frames or 0) / self.fps
+        self.frame_count = int(self._stream.frames or round(self.duration_s * self.fps))
+        self.width = int(self._stream.codec_context.width)
+        self.height = int(self._stream.codec_context.height)
+        self._lock = threading.Lock()
+        self._frames: Any = None
+        self._last: tuple[float, np.ndarray] | None = None
+
+    def info(self) -> dict[str, Any]:
+        return {
+            "path": self.path.name,
+            "fps": self.fps,
+            "duration_s": self.duration_s,
+            "frame_count": self.frame_count,
+            "width": self.width,
+            "height": self.height,
+        }
+
+    def frame_at(self, t: float) -> np.ndarray:
+        """The RGB frame (H, W, 3) uint8 shown at time ``t`` seconds (clamped to the video)."""
+        t = min(max(float(t), 0.0), max(self.duration_s - 0.5 / self.fps, 0.0))
+        with self._lock:
+            if self._last is not None and abs(self._last[0] - t) <= 0.5 / self.fps:
+                return self._last[1]
+            last_t = self._last[0] if self._last is not None else None
+            if self._frames is None or last_t is None or not (last_t < t <= last_t + _DECODE_AHEAD_S):
+                self._seek(t)
+            img = self._decode_until(t)
+            return img
+
+    def _seek(self, t: float) -> None:
+        tb = self._stream.time_base
+        self._container.seek(int(t / tb) if tb else 0, stream=self._stream, backward=True, any_frame=False)
+        self._frames = self._container.decode(self._stream)
+        self._last = None
+
+    def _decode_until(self, t: float) -> np.ndarray:
+        """Decode forward to the frame nearest ``t``: the first one starting at or after ``t`` - half a frame."""
+        last: Any = None
+        for frame in self._frames:
+            last = frame
+            ft = float(frame.time) if frame.time is not None else 0.0
+            if ft >= t - 0.5 / self.fps:
+                self._last = (ft, frame.to_ndarray(format="rgb24"))
+                return self._last[1]
+        self._frames = None  # end of stream: the next request seeks
+        if last is not None:
+            self._last = (float(last.time or 0.0), last.to_ndarray(format="rgb24"))
+        if self._last is None:
+            raise UserError(f"{self.path}: no frame could be decoded at {t:.3f} s")
+        return self._last[1]
+
+    def close(self) -> None:
+        with self._lock:
+            self._container.close()
+
+
+def jpeg_bytes(rgb: np.ndarray, max_width: int = 960, quality: int = 85) -> bytes:
+    """Encode an RGB frame as JPEG, scaled down to at most ``max_width`` pixels wide."""
+    import cv2
+
+    h, w = rgb.shape[:2]
+    if w > max_width:
+        rgb = cv2.resize(rgb, (max_width, round(h * max_width / w)), interpolation=cv2.INTER_AREA)
+    ok, buf = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:  # pragma: no cover - OpenCV always encodes uint8 RGB
+        raise RuntimeError("JPEG encoding failed")
+    return bytes(buf)
