@@ -84,12 +84,12 @@ def iou_3d(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
-def camera_box_corners(bottom_centre: np.ndarray, l: float, w: float, h: float, ry: float) -> np.ndarray:  # noqa: E741
+def camera_box_corners(bottom_centre: np.ndarray, length: float, width: float, height: float, ry: float) -> np.ndarray:
     """(8, 3) corners of a KITTI 3D box in the camera frame (x right, y down, z forward), metres."""
     c, s = np.cos(ry), np.sin(ry)
-    x = np.array([1, 1, -1, -1, 1, 1, -1, -1]) * l / 2
-    z = np.array([1, -1, -1, 1, 1, -1, -1, 1]) * w / 2
-    y = np.array([0, 0, 0, 0, -1, -1, -1, -1]) * h
+    x = np.array([1, 1, -1, -1, 1, 1, -1, -1]) * length / 2
+    z = np.array([1, -1, -1, 1, 1, -1, -1, 1]) * width / 2
+    y = np.array([0, 0, 0, 0, -1, -1, -1, -1]) * height
     rot = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
     return (rot @ np.vstack([x, y, z])).T + np.asarray(bottom_centre, dtype=float)
 
@@ -97,15 +97,15 @@ def camera_box_corners(bottom_centre: np.ndarray, l: float, w: float, h: float, 
 def project_box(
     P: np.ndarray,
     bottom_centre: np.ndarray,
-    l: float,
-    w: float,
-    h: float,
+    length: float,
+    width: float,
+    height: float,
     ry: float,
-    image_size: tuple[int, int],  # noqa: E741
+    image_size: tuple[int, int],
 ) -> np.ndarray:
     """The 2D box (pixels, clipped to the image) around a camera-frame 3D box; NaNs when the box is
     behind the camera or wholly outside the image (the rule KITTI's own 2D boxes follow)."""
-    corners = camera_box_corners(bottom_centre, l, w, h, ry)
+    corners = camera_box_corners(bottom_centre, length, width, height, ry)
     if np.any(corners[:, 2] < 0.1):
         return np.full(4, np.nan)
     uvw = np.hstack([corners, np.ones((8, 1))]) @ P.T

@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from deepcrashtest.eval.compat import motmetrics, trackeval_metrics
 from deepcrashtest.eval.kitti_rules import EvalFrame, MatchRule
-from deepcrashtest.eval.motmetrics_compat import motmetrics
 
 _MM_METRICS = [
     "num_frames", "num_objects", "num_detections", "num_false_positives", "num_misses", "num_switches",
@@ -83,10 +83,9 @@ def _trackeval_data(seq: EvalSequence) -> dict[str, Any]:
 
 
 def _trackeval_metrics(rule: MatchRule) -> list[Any]:
-    from trackeval.metrics import CLEAR, HOTA, Identity
-
+    m = trackeval_metrics()
     cfg = {"THRESHOLD": rule.threshold, "PRINT_CONFIG": False}
-    return [CLEAR(cfg), HOTA(), Identity(cfg)]
+    return [m.CLEAR(cfg), m.HOTA(), m.Identity(cfg)]
 
 
 def evaluate_sequences(seqs: Sequence[EvalSequence], rule: MatchRule) -> dict[str, dict[str, Any]]:
@@ -161,3 +160,12 @@ def _row(mm_row: Any, te: dict[str, dict[str, Any]], modp_terms: np.ndarray, rul
         mean_sim = float(clear["MOTP"])
         row["mean_distance_m"] = round((1.0 - mean_sim) * rule.max_distance_m, 3) if tp else None
     return row
+
+
+def clear_only(seqs: Sequence[EvalSequence], rule: MatchRule) -> dict[str, dict[str, Any]]:
+    """TrackEval's CLEAR-MOT alone (fast; for tuning): raw TrackEval fields per sequence and
+    ``"combined"``."""
+    clear = trackeval_metrics().CLEAR({"THRESHOLD": rule.threshold, "PRINT_CONFIG": False})
+    res = {s.name: clear.eval_sequence(_trackeval_data(s)) for s in seqs}
+    res["combined"] = clear.combine_sequences(res)
+    return res

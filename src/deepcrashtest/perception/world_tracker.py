@@ -8,9 +8,11 @@ velocity model holds for every car whatever the ego does. Per frame:
    acceleration ``accel_std``);
 2. detections below ``min_score`` are dropped; the rest are assigned to tracks by the Hungarian
    algorithm (``scipy.optimize.linear_sum_assignment``) on the ground-plane distance between the
-   predicted centre and the detection, pairs farther than ``gate_m`` forbidden;
-3. matched tracks are corrected; unmatched detections start tentative tracks; unmatched tracks
-   age and are deleted after ``max_age`` frames without a detection.
+   predicted centre and the detection, pairs farther than ``gate_m`` forbidden; confident
+   detections (score >= ``birth_score``) are assigned first, the weaker ones then only to the
+   tracks still free (they extend tracks but never start one);
+3. matched tracks are corrected; unmatched confident detections start tentative tracks; unmatched
+   tracks age and are deleted after ``max_age`` frames without a detection.
 
 Track lifecycle (:class:`TrackLifecycle`, generic: no geometry in it): *tentative* until
 ``min_hits`` consecutive detections, then *confirmed*; *deleted* after ``max_age`` misses
@@ -84,6 +86,7 @@ class WorldTrackerConfig:
 
     dt: float = 0.1
     min_score: float = 0.0
+    birth_score: float = 0.0
     gate_m: float = 2.0
     min_hits: int = 2
     max_age: int = 3
@@ -119,6 +122,18 @@ class TrackOutput:
     detected: bool
 
 
+@dataclass(frozen=True)
+class TrackHistory:
+    """A track's filtered boxes (n, 7) in the n frames where a detection updated it, with that
+    detection's score and index in its frame's :class:`WorldDetections` (-1: none, interpolated)."""
+
+    track_id: int
+    frames: np.ndarray
+    boxes: np.ndarray
+    scores: np.ndarray
+    detections: np.ndarray
+
+
 @dataclass
 class _Track:
     track_id: int
@@ -129,7 +144,23 @@ class _Track:
     yaw: float
     score: float
     life: TrackLifecycle
-    history: list[int] = field(default_factory=list)
+    detection: int = -1
+    frames: list[int] = field(default_factory=list)
+    detections: list[int] = field(default_factory=list)
+    boxes: list[np.ndarray] = field(default_factory=list)
+    detected: list[bool] = field(default_factory=list)
+    scores: list[float] = field(default_factory=list)
+
+    def box(self) -> np.ndarray:
+        return np.array([self.x[0], self.x[1], self.z, *self.size, self.yaw])
+
+    def record(self, frame: int) -> None:
+        """Remember this frame's estimate (for the offline pass)."""
+        self.frames.append(frame)
+        self.boxes.append(self.box())
+        self.detected.append(self.life.time_since_update == 0)
+        self.detections.append(self.detection if self.life.time_since_update == 0 else -1)
+        self.scores.append(self.score if self.life.time_since_update == 0 else np.nan)
 
 
 class WorldTracker:
@@ -145,6 +176,7 @@ class WorldTracker:
         self._H = np.hstack([np.eye(2), np.zeros((2, 2))])
         self._R = np.eye(2) * c.meas_std_m**2
         self._tracks: list[_Track] = []
+        self._finished: list[_Track] = []
         self._next_id = 1
         self._frame = 0
 
@@ -152,39 +184,52 @@ class WorldTracker:
         """Advance one frame with this frame's detections; return the tracks to report."""
         c = self.config
         keep = dets.score >= c.min_score
+        index = np.nonzero(keep)[0]
         xy, z, size, yaw, score = dets.xy[keep], dets.z[keep], dets.size[keep], dets.yaw[keep], dets.score[keep]
         for t in self._tracks:
             t.x = self._F @ t.x
             t.P = self._F @ t.P @ self._F.T + self._Q
             t.life.predict()
-        pairs, lone_tracks, lone_dets = self._associate(xy)
-        for ti, di in pairs:
+        strong = np.nonzero(score >= c.birth_score)[0]
+        weak = np.nonzero(score < c.birth_score)[0]
+        pairs, lone_tracks, lone_strong = self._associate(list(range(len(self._tracks))), xy, strong)
+        more, lone_tracks, _ = self._associate(lone_tracks, xy, weak)
+        for ti, di in pairs + more:
             t = self._tracks[ti]
             self._correct(t, xy[di])
             t.z, t.size, t.score = float(z[di]), size[di].astype(float), float(score[di])
             t.yaw = _align_yaw(float(yaw[di]), t.yaw)
+            t.detection = int(index[di])
             t.life.hit()
         for ti in lone_tracks:
             self._tracks[ti].life.miss()
-        for di in lone_dets:
+        for di in lone_strong:
             self._tracks.append(self._new_track(xy[di], float(z[di]), size[di], float(yaw[di]), float(score[di])))
+            self._tracks[-1].detection = int(index[di])
+        for t in self._tracks:
+            t.record(self._frame)
+        self._finished += [t for t in self._tracks if t.life.is_deleted]
         self._tracks = [t for t in self._tracks if not t.life.is_deleted]
         out = [self._output(t) for t in self._tracks if self._reported(t)]
         self._frame += 1
         return out
 
-    def _associate(self, xy: np.ndarray) -> tuple[list[tuple[int, int]], list[int], list[int]]:
-        n_t, n_d = len(self._tracks), len(xy)
-        if n_t == 0 or n_d == 0:
-            return [], list(range(n_t)), list(range(n_d))
-        pred = np.array([t.x[:2] for t in self._tracks])
-        dist = np.hypot(pred[:, None, 0] - xy[None, :, 0], pred[:, None, 1] - xy[None, :, 1])
-        big = 1e6
-        rows, cols = linear_sum_assignment(np.where(dist <= self.config.gate_m, dist, big))
-        pairs = [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if dist[r, c] <= self.config.gate_m]
+    def _associate(
+        self, tracks: list[int], xy: np.ndarray, dets: np.ndarray
+    ) -> tuple[list[tuple[int, int]], list[int], list[int]]:
+        """Hungarian assignment of ``tracks`` (indices) to detections ``dets`` (indices into ``xy``)."""
+        if not tracks or len(dets) == 0:
+            return [], list(tracks), [int(d) for d in dets]
+        pred = np.array([self._tracks[i].x[:2] for i in tracks])
+        pts = xy[dets]
+        dist = np.hypot(pred[:, None, 0] - pts[None, :, 0], pred[:, None, 1] - pts[None, :, 1])
+        gate = self.config.gate_m
+        rows, cols = linear_sum_assignment(np.where(dist <= gate, dist, 1e6))
+        ok = dist[rows, cols] <= gate
+        pairs = [(tracks[r], int(dets[c])) for r, c in zip(rows[ok], cols[ok], strict=True)]
         used_t = {p[0] for p in pairs}
         used_d = {p[1] for p in pairs}
-        return pairs, [i for i in range(n_t) if i not in used_t], [j for j in range(n_d) if j not in used_d]
+        return pairs, [i for i in tracks if i not in used_t], [int(d) for d in dets if int(d) not in used_d]
 
     def _correct(self, t: _Track, meas: np.ndarray) -> None:
         S = self._H @ t.P @ self._H.T + self._R
@@ -214,8 +259,24 @@ class WorldTracker:
         return t.life.is_confirmed or self._frame < self.config.min_hits
 
     def _output(self, t: _Track) -> TrackOutput:
-        box = np.array([t.x[0], t.x[1], t.z, *t.size, t.yaw])
-        return TrackOutput(t.track_id, box, t.x[2:].copy(), t.score, t.life.time_since_update == 0)
+        return TrackOutput(t.track_id, t.box(), t.x[2:].copy(), t.score, t.life.time_since_update == 0)
+
+    def histories(self) -> list[TrackHistory]:
+        """Every track seen so far (deleted or alive) with its estimates in the frames it was detected."""
+        out = []
+        for t in sorted(self._finished + self._tracks, key=lambda t: t.track_id):
+            keep = np.array(t.detected, bool)
+            if keep.any():
+                out.append(
+                    TrackHistory(
+                        track_id=t.track_id,
+                        frames=np.array(t.frames, int)[keep],
+                        boxes=np.array(t.boxes, float)[keep],
+                        scores=np.array(t.scores, float)[keep],
+                        detections=np.array(t.detections, int)[keep],
+                    )
+                )
+        return out
 
 
 def _align_yaw(new: float, old: float) -> float:
