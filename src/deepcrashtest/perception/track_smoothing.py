@@ -140,10 +140,11 @@ def _extend(
         i = cand[k]
         claimed[f].add(i)
         box = np.array([*d.xy[i], d.z[i], *d.size[i], d.yaw[i]])
-        if step > 0:
-            frames.append(f), boxes.append(box), scores.append(float(d.score[i])), dets.append(i)
-        else:
-            frames.insert(0, f), boxes.insert(0, box), scores.insert(0, float(d.score[i])), dets.insert(0, i)
+        at = len(frames) if step > 0 else 0
+        frames.insert(at, f)
+        boxes.insert(at, box)
+        scores.insert(at, float(d.score[i]))
+        dets.insert(at, i)
         last_f = f
     return TrackHistory(track.track_id, np.array(frames), np.array(boxes), np.array(scores), np.array(dets))
 
