@@ -294,7 +294,10 @@ def _print_kitti_table(result: dict[str, Any]) -> None:
         table.add_row(name, *(_cell(row[c]) for c in [*TABLE_COLUMNS, "HOTA", "IDSW"]))
     for name, row in result["paper"].items():
         table.add_row(f"paper {name}", *(_cell(row[c]) for c in TABLE_COLUMNS), "-", "-", style="dim")
-    Console(width=200).print(table)
+    console = Console(width=200)
+    console.print(table)
+    for note in result.get("notes", []):
+        console.print(f"note: {note}", style="dim")
 
 
 def _cell(v: Any) -> str:
