@@ -344,13 +344,66 @@ def export(
 @evaluate_app.command("kitti")
 def evaluate_kitti(
     data: Path = typer.Option(..., "--data", help="KITTI tracking folder."),
-    sequences: str = typer.Option("3,8,10", "--sequences", help="Comma-separated sequence numbers."),
+    sequences: str = typer.Option("3,8,10", "--sequences", help="Comma-separated sequence numbers, or 'all'."),
+    detections: str = typer.Option(
+        "pointrcnn", "--detections", help="'pointrcnn' (the folder's detections_pointrcnn_Car) or a folder of NNNN.txt."
+    ),
+    match: str = typer.Option("distance", "--match", help="distance (2 m bird's-eye) | iou3d (0.25) | iou2d (0.5)."),
+    tracks: Path | None = typer.Option(
+        None, "--tracks", help="Score these KITTI-format tracker results (NNNN.txt) instead of our tracker."
+    ),
+    online: bool = typer.Option(False, "--online", help="Score the online tracker output, without the offline pass."),
+    output: Path | None = typer.Option(None, "-o", "--output", help="Also write results.json and results.md here."),
+    force: bool = ForceOpt,
     as_json: bool = JsonOpt,
 ) -> None:
     """CLEAR-MOT of the tracker on KITTI tracking, in world coordinates."""
+    from deepcrashtest.eval.kitti import evaluate_kitti as run_eval
+    from deepcrashtest.eval.kitti import parse_sequences, results_markdown
+
     if not data.is_dir():
         raise UserError(f"{data}: KITTI tracking folder not found")
-    raise NotImplementedYet("evaluate kitti: not implemented yet")
+    if tracks is not None and not tracks.is_dir():
+        raise UserError(f"{tracks}: tracker results folder not found")
+    if output is not None:
+        from deepcrashtest.fileio import check_writable
+
+        for name in ("results.json", "results.md"):
+            check_writable(output / name, force=force)
+    kwargs: dict[str, Any] = {"match": match, "detections": detections, "tracks": tracks}
+    if online:
+        kwargs["offline"] = None
+    result = run_eval(data, parse_sequences(sequences), **kwargs)
+    if output is not None:
+        from deepcrashtest.fileio import atomic_write_text, ensure_output_dir
+
+        ensure_output_dir(output)
+        atomic_write_text(output / "results.json", json.dumps(result, indent=1, default=_json_default) + "\n", force)
+        atomic_write_text(output / "results.md", results_markdown(result), force)
+    emit(result, as_json, _print_kitti_table)
+
+
+def _print_kitti_table(result: dict[str, Any]) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    from deepcrashtest.eval.kitti import TABLE_COLUMNS
+
+    table = Table(title=f"KITTI tracking, world frame: {result['hypotheses']}; match: {result['match_rule']}")
+    for c in ["seq", *TABLE_COLUMNS, "HOTA", "IDSW"]:
+        table.add_column(c, justify="right")
+    for name, row in result["sequences"].items():
+        table.add_row(name, *(_cell(row[c]) for c in [*TABLE_COLUMNS, "HOTA", "IDSW"]))
+    for name, row in result["paper"].items():
+        table.add_row(f"paper {name}", *(_cell(row[c]) for c in TABLE_COLUMNS), "-", "-", style="dim")
+    console = Console(width=200)
+    console.print(table)
+    for note in result.get("notes", []):
+        console.print(f"note: {note}", style="dim")
+
+
+def _cell(v: Any) -> str:
+    return f"{v:.2f}" if isinstance(v, float) else str(v)
 
 
 @evaluate_app.command("egomotion")

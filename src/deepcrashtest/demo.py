@@ -45,6 +45,7 @@ def run_demo(output: str | Path, video: str | Path | None = None) -> dict[str, A
         _step_sim(out, summary)
         _step_search(out, summary)
         _step_report(out, summary)
+    _step_eval(out, summary)
     return summary
 
 
@@ -132,3 +133,22 @@ def _step_report(out: Path, summary: dict[str, Any]) -> None:
         pass
     res = build_report(scenario, out / "report.html", sim_metrics=metrics)
     summary["steps"].append({"step": "report", "report": res["report"], "sections": len(res["sections"])})
+
+
+def _step_eval(out: Path, summary: dict) -> None:
+    """World-frame tracking evaluation of KITTI sequence 8 (PointRCNN detections, 2 m matching)."""
+    if not KITTI_TRACKING.exists():
+        return
+    import json
+
+    from deepcrashtest.eval.kitti import evaluate_kitti, results_markdown
+    from deepcrashtest.fileio import atomic_write_text
+
+    result = evaluate_kitti(KITTI_TRACKING, [8])
+    folder = ensure_output_dir(out / "eval")
+    atomic_write_text(folder / "results.json", json.dumps(result, indent=1, allow_nan=True) + "\n")
+    atomic_write_text(folder / "results.md", results_markdown(result))
+    row = result["sequences"]["0008"]
+    summary["steps"].append(
+        {"step": "evaluate kitti 8", "table": str(folder / "results.md"), "MOTA": row["MOTA"], "HOTA": row["HOTA"]}
+    )

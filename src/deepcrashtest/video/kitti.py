@@ -30,17 +30,59 @@ def read_labels(path: str | Path) -> pd.DataFrame:
     """KITTI tracking labels (one file per sequence) as a DataFrame with ``LABEL_COLUMNS``.
 
     Extra columns (a ``score`` in tracker output) are kept as ``score``.
+    Tracker results in this layout sometimes carry more columns; as in TrackEval, column 18 is the
+    score and later ones are dropped. An empty file (a sequence without objects) gives an empty table.
     """
-    p = require_file(path, "KITTI label file")
+    p = Path(path)
+    if p.is_file() and p.stat().st_size == 0:
+        return _empty_table(LABEL_COLUMNS, ints=("frame", "track_id"), objects=("type",))
+    require_file(p, "KITTI label file")
     try:
         df = pd.read_csv(p, sep=r"\s+", header=None, engine="python")
     except (pd.errors.ParserError, UnicodeDecodeError) as exc:
         raise UserError(f"{p}: not a KITTI label file ({exc})") from None
-    if df.shape[1] not in (17, 18):
-        raise UserError(f"{p}: expected 17 or 18 columns per KITTI label line, found {df.shape[1]}")
+    if df.shape[1] < 17:
+        raise UserError(f"{p}: expected at least 17 columns per KITTI label line, found {df.shape[1]}")
+    df = df.iloc[:, :18]
     df.columns = LABEL_COLUMNS + (["score"] if df.shape[1] == 18 else [])
     df["frame"] = df["frame"].astype(int)
     df["track_id"] = df["track_id"].astype(int)
+    return df
+
+
+def _empty_table(columns: list[str], ints: tuple[str, ...] = (), objects: tuple[str, ...] = ()) -> pd.DataFrame:
+    dtypes = {c: (int if c in ints else object if c in objects else float) for c in columns}
+    return pd.DataFrame({c: pd.Series(dtype=d) for c, d in dtypes.items()})
+
+
+#: AB3DMOT detection files: one detection a line, comma separated, KITTI camera-2 frame (the
+#: location is the bottom centre of the 3D box); ``type_id`` 1 Pedestrian, 2 Car, 3 Cyclist.
+DETECTION_COLUMNS = [
+    "frame", "type_id", "x1", "y1", "x2", "y2", "score", "h", "w", "l", "x", "y", "z", "ry", "alpha",
+]  # fmt: skip
+
+
+def read_ab3dmot_detections(path: str | Path) -> pd.DataFrame:
+    """3D detections in AB3DMOT's CSV layout (``frame,type,x1,y1,x2,y2,score,h,w,l,x,y,z,ry,alpha``).
+
+    Boxes are pixels, sizes and location metres (camera frame), angles radians; the score is the
+    detector's raw confidence (PointRCNN logits: roughly -1 to 16, not a probability).
+    """
+    p = Path(path)
+    if p.is_file() and p.stat().st_size == 0:  # a sequence without any detection
+        return _empty_table(DETECTION_COLUMNS, ints=("frame", "type_id"))
+    require_file(p, "AB3DMOT detection file")
+    try:
+        df = pd.read_csv(p, header=None)
+    except (pd.errors.ParserError, UnicodeDecodeError) as exc:
+        raise UserError(f"{p}: not an AB3DMOT detection file ({exc})") from None
+    if df.shape[1] != len(DETECTION_COLUMNS):
+        raise UserError(f"{p}: expected {len(DETECTION_COLUMNS)} comma-separated columns, found {df.shape[1]}")
+    df.columns = DETECTION_COLUMNS
+    if not np.all(np.isfinite(df.drop(columns=["frame", "type_id"]).to_numpy(dtype=float))):
+        raise UserError(f"{p}: detection file contains non-finite numbers")
+    df["frame"] = df["frame"].astype(int)
+    df["type_id"] = df["type_id"].astype(int)
     return df
 
 
@@ -146,3 +188,96 @@ class KittiSequence:
             if not p.exists():
                 raise UserError(f"{p}: missing for sequence {self.name}")
         return self
+
+
+# --------------------------------------------------------------------------- oxts (GPS/IMU)
+#: The 30 fields of a KITTI oxts packet (``oxts/dataformat.txt``): degrees, metres, radians, m/s,
+#: m/s^2, rad/s; yaw 0 = east, counter-clockwise; then accuracies and receiver status integers.
+OXTS_FIELDS = [
+    "lat", "lon", "alt", "roll", "pitch", "yaw", "vn", "ve", "vf", "vl", "vu", "ax", "ay", "az",
+    "af", "al", "au", "wx", "wy", "wz", "wf", "wl", "wu", "pos_accuracy", "vel_accuracy",
+    "navstat", "numsats", "posmode", "velmode", "orimode",
+]  # fmt: skip
+#: Earth radius used by the KITTI devkit's Mercator projection, metres.
+EARTH_RADIUS_M = 6378137.0
+
+
+def read_oxts(path: str | Path) -> pd.DataFrame:
+    """Oxts packets as a DataFrame with ``OXTS_FIELDS``, one row per packet.
+
+    ``path`` is a raw-data ``oxts/data`` folder (one packet per ``NNNNNNNNNN.txt``, read in name order)
+    or one file with one packet per line (the tracking benchmark's ``oxts/NNNN.txt``).
+    """
+    p = Path(path)
+    files = sorted(p.glob("*.txt")) if p.is_dir() else [require_file(p, "oxts file")]
+    if not files:
+        raise UserError(f"{p}: no oxts packets (*.txt) found")
+    rows: list[list[float]] = []
+    for f in files:
+        for n, line in enumerate(f.read_text().splitlines(), 1):
+            if not line.strip():
+                continue
+            try:
+                vals = [float(v) for v in line.split()]
+            except ValueError:
+                raise UserError(f"{f}:{n}: bad number in oxts packet") from None
+            if len(vals) != len(OXTS_FIELDS):
+                raise UserError(f"{f}:{n}: expected {len(OXTS_FIELDS)} oxts fields, found {len(vals)}")
+            rows.append(vals)
+    if not rows:
+        raise UserError(f"{p}: no oxts packets found")
+    return pd.DataFrame(rows, columns=OXTS_FIELDS)
+
+
+def mercator_scale(lat0_deg: float) -> float:
+    """Scale of the KITTI Mercator projection for the reference latitude (cos of it)."""
+    return float(np.cos(np.deg2rad(lat0_deg)))
+
+
+def latlon_to_mercator(lat_deg: np.ndarray, lon_deg: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """Scaled Mercator coordinates (metres east, metres north) of latitudes/longitudes in degrees."""
+    lat = np.asarray(lat_deg, dtype=float)
+    lon = np.asarray(lon_deg, dtype=float)
+    mx = scale * EARTH_RADIUS_M * np.deg2rad(lon)
+    my = scale * EARTH_RADIUS_M * np.log(np.tan(np.deg2rad(90.0 + lat) / 2.0))
+    return mx, my
+
+
+def mercator_to_latlon(mx: np.ndarray, my: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of :func:`latlon_to_mercator`, degrees."""
+    lon = np.rad2deg(np.asarray(mx, dtype=float) / (scale * EARTH_RADIUS_M))
+    lat = 2.0 * np.rad2deg(np.arctan(np.exp(np.asarray(my, dtype=float) / (scale * EARTH_RADIUS_M)))) - 90.0
+    return lat, lon
+
+
+def oxts_to_poses(oxts: pd.DataFrame) -> np.ndarray:
+    """(N, 4, 4) poses of the oxts unit relative to the first packet (the KITTI devkit convention).
+
+    Translation: the scaled Mercator projection (scale from the first latitude) plus altitude; rotation
+    ``Rz(yaw) Ry(pitch) Rx(roll)``. Pose k maps points of IMU frame k (x forward, y left, z up) into
+    IMU frame 0, so pose 0 is the identity.
+    """
+    if len(oxts) == 0:
+        raise UserError("no oxts packets to convert")
+    scale = mercator_scale(float(oxts["lat"].iloc[0]))
+    mx, my = latlon_to_mercator(oxts["lat"].to_numpy(), oxts["lon"].to_numpy(), scale)
+    poses = np.tile(np.eye(4), (len(oxts), 1, 1))
+    for i, (rx, ry, rz) in enumerate(oxts[["roll", "pitch", "yaw"]].to_numpy()):
+        poses[i, :3, :3] = _rot_z(rz) @ _rot_y(ry) @ _rot_x(rx)
+    poses[:, :3, 3] = np.column_stack([mx, my, oxts["alt"].to_numpy()])
+    return np.linalg.inv(poses[0]) @ poses
+
+
+def _rot_x(a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def _rot_y(a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def _rot_z(a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
