@@ -116,7 +116,10 @@ def evaluate_egomotion(data: str | Path, max_frames: int | None = None) -> dict[
     root = Path(data)
     if not root.is_dir():
         raise UserError(f"{root}: odometry folder not found")
-    folders = [root] if (root / "poses.txt").exists() else sorted(p for p in root.iterdir() if (p / "poses.txt").exists())
+    if (root / "poses.txt").exists():
+        folders = [root]
+    else:
+        folders = sorted(p for p in root.iterdir() if (p / "poses.txt").exists())
     if not folders:
         raise UserError(f"{root}: no poses.txt here or in its sub-folders (expected KITTI odometry frames)")
     out: dict[str, Any] = {"sequences": {}}

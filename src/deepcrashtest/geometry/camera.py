@@ -71,7 +71,7 @@ def camera_from_yaml(path: str | Path, width: int | None = None, height: int | N
     try:
         if "fx" in data:
             return Camera(
-                fx=float(data["fx"]), fy=float(data.get("fy", data["fx"])), cx=float(data["cx"]),
+                fx=float(data["fx"]), fy=float(data["fy"] if "fy" in data else data["fx"]), cx=float(data["cx"]),
                 cy=float(data["cy"]), intrinsics_source="user", **extra,
             )  # fmt: skip
         if "hfov_deg" in data:
@@ -127,7 +127,8 @@ def calibrate_chessboard(
 def scale_camera(camera: Camera, sx: float, sy: float | None = None) -> Camera:
     """The same camera for a resized frame (intrinsics scaled; distortion unchanged)."""
     sy = sx if sy is None else sy
-    return camera.model_copy(update={"fx": camera.fx * sx, "fy": camera.fy * sy, "cx": camera.cx * sx, "cy": camera.cy * sy})
+    scaled = {"fx": camera.fx * sx, "fy": camera.fy * sy, "cx": camera.cx * sx, "cy": camera.cy * sy}
+    return camera.model_copy(update=scaled)
 
 
 def undistort(image: np.ndarray, camera: Camera) -> np.ndarray:
@@ -194,7 +195,7 @@ def estimate_horizon_flow(frames: Iterable[np.ndarray], max_pairs: int = 10) -> 
         if prev is not None:
             pts = cv2.goodFeaturesToTrack(prev, 800, 0.01, 8)
             if pts is not None:
-                nxt, st, _ = cv2.calcOpticalFlowPyrLK(prev, g, pts, None)
+                nxt, st, _ = cv2.calcOpticalFlowPyrLK(prev, g, pts, None)  # type: ignore[call-overload]
                 ok = st.ravel() == 1
                 foe = focus_of_expansion(pts.reshape(-1, 2)[ok], nxt.reshape(-1, 2)[ok])
                 if foe is not None and 0 < foe[1] < g.shape[0]:
@@ -223,7 +224,7 @@ def detect_dashboard_rows(frames: Iterable[np.ndarray], max_pairs: int = 8, stil
         scale = min(1.0, 320.0 / g.shape[1])
         g = cv2.resize(g, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
         if prev is not None:
-            flow = cv2.calcOpticalFlowFarneback(prev, g, None, 0.5, 3, 15, 3, 5, 1.2, 0)
+            flow = cv2.calcOpticalFlowFarneback(prev, g, None, 0.5, 3, 15, 3, 5, 1.2, 0)  # type: ignore[call-overload]
             mags.append(np.hypot(flow[..., 0], flow[..., 1]))
             if len(mags) >= max_pairs:
                 break

@@ -36,6 +36,8 @@ from deepcrashtest.scenario import Camera
 MIN_MATCHES = 40
 #: Fewer road points than this and the pair's scale is not measured (the filtered speed is kept).
 MIN_ROAD_POINTS = 12
+#: Grey-level standard deviation below which a frame is too dark or flat to track (0-255 scale).
+DARK_CONTRAST = 6.0
 
 
 @dataclass
@@ -184,6 +186,7 @@ class EgoMotionEstimator:
         self._invalid = 0
         self._static = 0
         self._pairs = 0
+        self._unscaled = 0
 
     # ------------------------------------------------------------------ helpers
     def _prepare(self, frame: np.ndarray) -> np.ndarray:
@@ -230,8 +233,8 @@ class EgoMotionEstimator:
             return np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32)
         p0 = np.concatenate(all_pts).astype(np.float32)
         lk = {"winSize": (21, 21), "maxLevel": 3}
-        p1, st, _ = cv2.calcOpticalFlowPyrLK(prev, cur, p0, None, **lk)
-        p0r, st2, _ = cv2.calcOpticalFlowPyrLK(cur, prev, p1, None, **lk)
+        p1, st, _ = cv2.calcOpticalFlowPyrLK(prev, cur, p0, None, **lk)  # type: ignore[call-overload]
+        p0r, st2, _ = cv2.calcOpticalFlowPyrLK(cur, prev, p1, None, **lk)  # type: ignore[call-overload]
         good = (st.ravel() == 1) & (st2.ravel() == 1) & (np.linalg.norm(p0 - p0r, axis=-1).ravel() < 1.0)
         return p0.reshape(-1, 2)[good], p1.reshape(-1, 2)[good]
 
@@ -303,7 +306,9 @@ class EgoMotionEstimator:
         return self.camera.height_m * inv_d, dyaw, int(inl.sum())
 
     # ------------------------------------------------------------------ API
-    def update(self, frame_bgr: np.ndarray, time: float, vehicle_boxes: Sequence[Sequence[float]] | None = None) -> EgoState:
+    def update(
+        self, frame_bgr: np.ndarray, time: float, vehicle_boxes: Sequence[Sequence[float]] | np.ndarray | None = None
+    ) -> EgoState:
         """Add one frame (BGR or grey, full resolution) at ``time`` seconds; returns the ego state."""
         cur = self._prepare(frame_bgr)
         boxes = np.zeros((0, 4)) if vehicle_boxes is None else np.asarray(vehicle_boxes, dtype=float).reshape(-1, 4)
@@ -318,8 +323,11 @@ class EgoMotionEstimator:
         dt = float(time) - self._last_time
         if dt <= 0:
             dt = 1e-3
-        p0, p1 = self._track(self._prev, cur, self._static_mask(cur.shape, boxes))
         self._pairs += 1
+        if float(cur.std()) < DARK_CONTRAST:
+            p0 = p1 = np.zeros((0, 2), np.float32)  # too dark / flat to measure anything
+        else:
+            p0, p1 = self._track(self._prev, cur, self._static_mask(cur.shape, boxes))
         valid = True
         raw: float | None = None
         dyaw = 0.0
@@ -339,6 +347,8 @@ class EgoMotionEstimator:
                 metres, dyaw, n_road = res
                 if np.isfinite(metres):
                     raw = metres / dt
+                else:
+                    self._unscaled += 1
         if raw is not None:
             self._speeds.append(raw)
         speed = float(np.median(self._speeds)) if self._speeds else self._last_speed
@@ -348,9 +358,7 @@ class EgoMotionEstimator:
         self._x += ds * math.cos(mid)
         self._y += ds * math.sin(mid)
         self._yaw += dyaw
-        state = EgoState(
-            idx, float(time), speed, dyaw / dt, self._x, self._y, self._yaw, valid, len(p0), n_road, raw
-        )
+        state = EgoState(idx, float(time), speed, dyaw / dt, self._x, self._y, self._yaw, valid, len(p0), n_road, raw)
         self._states.append(state)
         self._prev = cur
         self._last_time = float(time)
@@ -367,6 +375,11 @@ class EgoMotionEstimator:
             warnings.append(
                 f"ego-motion: {self._invalid} of {self._pairs} frame pairs had too few trackable static-scene "
                 "features (dark, blurred or featureless frames); speed held over those frames"
+            )
+        if self._pairs and self._unscaled > 0.5 * self._pairs:
+            warnings.append(
+                f"ego-motion: the road gave no metric scale in {self._unscaled} of {self._pairs} frame pairs "
+                "(road hidden, textureless or dashboard not masked); speeds there are held"
             )
         return EgoMotion(
             frame=np.array([e.frame for e in s], dtype=int),

@@ -170,7 +170,7 @@ class ClassicalLaneDetector:
         grad = gx > max(25.0, float(np.percentile(gx, 90)))
         grad = cv2.dilate(grad.astype(np.uint8), np.ones((3, 7), np.uint8)) > 0
         mask = ((white | yellow) & grad).astype(np.uint8)
-        mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((2, 2), np.uint8))
+        mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((2, 2), np.uint8))  # type: ignore[assignment]
         return mask, s, r0
 
     def detect(self, frame_bgr: np.ndarray) -> list[LaneLine]:
@@ -216,10 +216,9 @@ class ClassicalLaneDetector:
         merged: list[LaneLine] = []
         for ln in lines:
             for m in merged:
-                if (
-                    abs(float(m.u_at(bottom)) - float(ln.u_at(bottom))) < 25 / max(self.work_width / 1280, 0.25)
-                    and abs(math.atan(m.a) - math.atan(ln.a)) < math.radians(6)
-                ):
+                if abs(float(m.u_at(bottom)) - float(ln.u_at(bottom))) < 25 / max(self.work_width / 1280, 0.25) and abs(
+                    math.atan(m.a) - math.atan(ln.a)
+                ) < math.radians(6):
                     wsum = m.support + ln.support
                     m.a = (m.a * m.support + ln.a * ln.support) / wsum
                     m.b = (m.b * m.support + ln.b * ln.support) / wsum
@@ -248,10 +247,10 @@ class ClassicalLaneDetector:
         matched_d = {c for _, c in pairs}
         for r, c in pairs:
             tr, ln = self.tracks[r], lines[c]
-            k = 0.5
-            tr.line = LaneLine(
-                (1 - k) * tr.line.a + k * ln.a, (1 - k) * tr.line.b + k * ln.b, ln.v_top, ln.v_bottom, ln.support, tr.track_id
-            )
+            k = 0.5  # exponential smoothing of the line parameters
+            a = (1 - k) * tr.line.a + k * ln.a
+            b = (1 - k) * tr.line.b + k * ln.b
+            tr.line = LaneLine(a, b, ln.v_top, ln.v_bottom, ln.support, tr.track_id)
             tr.hits += 1
             tr.missed = 0
         for i, tr in enumerate(self.tracks):
@@ -278,8 +277,11 @@ class ClassicalLaneDetector:
         live = [t for t in self.tracks if t.missed <= 2 and t.hits >= 2]
         lines = [LaneLine(t.line.a, t.line.b, t.line.v_top, t.line.v_bottom, t.line.support, t.track_id) for t in live]
         cx = self.camera.cx
-        left = max((ln for ln in lines if float(ln.u_at(bottom)) < cx), key=lambda ln: float(ln.u_at(bottom)), default=None)
-        right = min((ln for ln in lines if float(ln.u_at(bottom)) >= cx), key=lambda ln: float(ln.u_at(bottom)), default=None)
+        at_bottom = [float(ln.u_at(bottom)) for ln in lines]
+        lefts = [(u, ln) for u, ln in zip(at_bottom, lines, strict=True) if u < cx]
+        rights = [(u, ln) for u, ln in zip(at_bottom, lines, strict=True) if u >= cx]
+        left = max(lefts, key=lambda p: p[0])[1] if lefts else None
+        right = min(rights, key=lambda p: p[0])[1] if rights else None
         state = LaneState(self._frame, float(time), lines, left, right, lane_index=self._lane_index, roi_top=top)
         if left is not None and right is not None:
             xl = self.road_x(float(left.u_at(bottom)), bottom)
