@@ -59,7 +59,8 @@ def estimate_camera(
 ) -> tuple[Camera, int, str]:
     """Dashboard rows and horizon from a few frames. Returns (camera with pitch, rows, pitch source)."""
     h, w = images[0].shape[:2]
-    rows = detect_dashboard_rows(images) if dashboard_rows is None else int(dashboard_rows)
+    spread = images[:: max(1, len(images) // 9)]  # pairs ~0.2 s apart: enough road motion to see
+    rows = detect_dashboard_rows(spread) if dashboard_rows is None else int(dashboard_rows)
     rows = min(rows, h // 3)
     if camera.pitch_source in ("user", "kitti_calib"):
         return camera, rows, camera.pitch_source
