@@ -408,13 +408,18 @@ def _cell(v: Any) -> str:
 
 @evaluate_app.command("egomotion")
 def evaluate_egomotion(
-    data: Path = typer.Option(..., "--data", help="KITTI odometry frames folder with poses.txt."),
+    data: Path = typer.Option(..., "--data", help="KITTI odometry frames folder with poses.txt (or a folder of them)."),
+    max_frames: int | None = typer.Option(None, "--max-frames", help="Use only the first N frames of each sequence."),
     as_json: bool = JsonOpt,
 ) -> None:
     """Monocular ego-motion speed error and yaw drift against ground-truth poses."""
+    from deepcrashtest.eval.egomotion import evaluate_egomotion as run
+
     if not data.is_dir():
         raise UserError(f"{data}: odometry folder not found")
-    raise NotImplementedYet("evaluate egomotion: not implemented yet")
+    if max_frames is not None and max_frames < 2:
+        raise UserError(f"--max-frames must be >= 2 (got {max_frames})")
+    emit(run(data, max_frames), as_json)
 
 
 @app.command()

@@ -6,6 +6,7 @@ Each stage that lands adds a step here; every output goes under the demo folder.
 from __future__ import annotations
 
 import shutil
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +47,7 @@ def run_demo(output: str | Path, video: str | Path | None = None) -> dict[str, A
         _step_search(out, summary)
         _step_report(out, summary)
     _step_eval(out, summary)
+    _step_geometry(out, summary)
     return summary
 
 
@@ -151,4 +153,47 @@ def _step_eval(out: Path, summary: dict) -> None:
     row = result["sequences"]["0008"]
     summary["steps"].append(
         {"step": "evaluate kitti 8", "table": str(folder / "results.md"), "MOTA": row["MOTA"], "HOTA": row["HOTA"]}
+    )
+
+
+def _step_geometry(out: Path, summary: dict[str, Any]) -> None:
+    """Ego path + lanes from the clip (every 4th frame, at most 50: keeps the demo fast) -> raw Scenario."""
+    import av
+    import pandas as pd
+
+    from deepcrashtest.geometry.camera import default_camera
+    from deepcrashtest.geometry.extract_geometry import extract_geometry
+
+    src = Path(summary["video"])
+    with av.open(str(src)) as container:
+        stream = container.streams.video[0]
+        fps = float(stream.average_rate or 25)
+        width, height = stream.codec_context.width, stream.codec_context.height
+
+        @dataclass
+        class _Frame:
+            index: int
+            time: float
+            image: Any
+
+        def frames() -> Any:
+            for i, frame in enumerate(container.decode(stream)):
+                if i >= 200:
+                    break
+                if i % 4 == 0:
+                    yield _Frame(i, i / fps, frame.to_ndarray(format="bgr24")), pd.DataFrame()
+
+        meta = {"path": str(src), "fps": fps, "frame_count": 0, "width": width, "height": height}
+        res = extract_geometry(frames(), meta, default_camera(width, height), max_width=640)
+    ensure_output_dir(out / "geometry")
+    path = res.scenario.save(out / "geometry" / "scenario_raw.json")
+    ego = res.scenario.ego.trajectory
+    summary["steps"].append(
+        {
+            "step": "geometry (ego-motion + lanes, default camera)",
+            "scenario": str(path),
+            "ego_path_m": round(ego.x[-1], 1),
+            "lane_width_m": res.lanes.median_lane_width() if res.lanes is not None else None,
+            "warnings": res.scenario.warnings,
+        }
     )

@@ -1,0 +1,247 @@
+"""Camera models: intrinsics (user YAML, chessboard, field of view, default), horizon, dashboard mask.
+
+All intrinsics are pinhole, in pixels of the full video frame. ``Camera`` is the Scenario's
+model (``deepcrashtest.scenario.Camera``): x right, y down, z forward; ``pitch_rad`` > 0 tilts
+the optical axis down (the horizon then lies above the principal point).
+
+Default for unknown dashcams: a 90 deg horizontal field of view (``fx = width / 2``).
+Consumer dashcams advertise 120-140 deg *diagonal* fields of view through barrel-distorting
+lenses; near the image centre such a lens behaves like a pinhole of focal length
+``r_diag / theta_diag`` (equidistant model), i.e. 600-700 px for a 1280-px-wide frame, a
+horizontal field of view of 85-95 deg. The two calibrated cameras in the shared data bracket it
+(Udacity 58 deg, KITTI 82 deg). Distances scale linearly with the focal length, so a wrong
+default scales all distances and speeds by the same factor; relative motion is unaffected.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import yaml
+
+from deepcrashtest.errors import UserError
+from deepcrashtest.fileio import require_file
+from deepcrashtest.scenario import Camera
+
+DEFAULT_HFOV_DEG = 90.0
+DASHCAM_HEIGHT_M = 1.3  # a windscreen-mounted dashcam in a passenger car
+KITTI_HEIGHT_M = 1.65
+_CAMERA_KEYS = {"fx", "fy", "cx", "cy", "distortion", "height_m", "pitch_rad", "roll_rad", "forward_offset_m"}
+
+
+def camera_from_fov(width: int, height: int, hfov_deg: float, **kw: Any) -> Camera:
+    """Square-pixel pinhole with the given horizontal field of view, principal point at the centre."""
+    if not 10.0 <= hfov_deg < 179.0:
+        raise UserError(f"horizontal field of view must be in [10, 179) degrees (got {hfov_deg})")
+    f = 0.5 * width / math.tan(math.radians(hfov_deg) / 2)
+    kw.setdefault("intrinsics_source", "fov")
+    return Camera(fx=f, fy=f, cx=width / 2.0, cy=height / 2.0, **kw)
+
+
+def default_camera(width: int, height: int, height_m: float = DASHCAM_HEIGHT_M) -> Camera:
+    """The unknown-dashcam default (90 deg horizontal field of view, 1.3 m above the road)."""
+    return camera_from_fov(width, height, DEFAULT_HFOV_DEG, height_m=height_m, intrinsics_source="default")
+
+
+def camera_from_yaml(path: str | Path, width: int | None = None, height: int | None = None) -> Camera:
+    """Read a camera YAML: fx, fy, cx, cy (px) [, distortion, height_m, pitch_rad, ...] or hfov_deg.
+
+    With ``hfov_deg`` (and no fx) the frame size ``width``/``height`` is needed.
+    """
+    p = require_file(path, "camera file")
+    try:
+        data = yaml.safe_load(p.read_text())
+    except yaml.YAMLError as exc:
+        raise UserError(f"{p}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    if not isinstance(data, dict):
+        raise UserError(f"{p}: expected a mapping of camera parameters")
+    unknown = set(data) - _CAMERA_KEYS - {"hfov_deg", "width", "height"}
+    if unknown:
+        raise UserError(f"{p}: unknown camera keys {sorted(unknown)} (allowed: {sorted(_CAMERA_KEYS | {'hfov_deg'})})")
+    extra = {k: data[k] for k in _CAMERA_KEYS - {"fx", "fy", "cx", "cy"} if k in data}
+    if "height_m" in extra:
+        extra["height_source"] = "user"
+    if "pitch_rad" in extra:
+        extra["pitch_source"] = "user"
+    try:
+        if "fx" in data:
+            return Camera(
+                fx=float(data["fx"]), fy=float(data["fy"] if "fy" in data else data["fx"]), cx=float(data["cx"]),
+                cy=float(data["cy"]), intrinsics_source="user", **extra,
+            )  # fmt: skip
+        if "hfov_deg" in data:
+            w = int(data.get("width", width or 0))
+            h = int(data.get("height", height or 0))
+            if w <= 0 or h <= 0:
+                raise UserError(f"{p}: hfov_deg needs the frame width and height")
+            return camera_from_fov(w, h, float(data["hfov_deg"]), intrinsics_source="user", **extra)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise UserError(f"{p}: bad camera parameters ({exc})") from None
+    raise UserError(f"{p}: needs fx, cx, cy (pixels) or hfov_deg")
+
+
+def calibrate_chessboard(
+    folder: str | Path, pattern: tuple[int, int] = (9, 6), square_m: float = 1.0, max_images: int | None = None
+) -> tuple[Camera, float, int]:
+    """Calibrate from chessboard photos (OpenCV). Returns (camera, RMS reprojection error px, images used)."""
+    root = Path(folder)
+    if not root.is_dir():
+        raise UserError(f"{root}: chessboard folder not found")
+    files = sorted(p for p in root.iterdir() if p.suffix.lower() in {".jpg", ".jpeg", ".png", ".bmp"})
+    if max_images:
+        files = files[:max_images]
+    obj = np.zeros((pattern[0] * pattern[1], 3), np.float32)
+    obj[:, :2] = np.mgrid[0 : pattern[0], 0 : pattern[1]].T.reshape(-1, 2) * square_m
+    obj_pts, img_pts = [], []
+    size: tuple[int, int] | None = None
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 1e-3)
+    for f in files:
+        grey = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)
+        if grey is None:
+            continue
+        if size is None:
+            size = (grey.shape[1], grey.shape[0])
+        elif (grey.shape[1], grey.shape[0]) != size:
+            continue
+        found, corners = cv2.findChessboardCorners(grey, pattern, None)
+        if not found:
+            continue
+        corners = cv2.cornerSubPix(grey, corners, (11, 11), (-1, -1), crit)
+        obj_pts.append(obj)
+        img_pts.append(corners)
+    if size is None or len(obj_pts) < 3:
+        raise UserError(f"{root}: found a {pattern[0]}x{pattern[1]} chessboard in {len(obj_pts)} images (need >= 3)")
+    rms, K, dist, _, _ = cv2.calibrateCamera(obj_pts, img_pts, size, None, None)
+    cam = Camera(
+        fx=float(K[0, 0]), fy=float(K[1, 1]), cx=float(K[0, 2]), cy=float(K[1, 2]),
+        distortion=[float(v) for v in np.ravel(dist)[:5]], intrinsics_source="chessboard",
+    )  # fmt: skip
+    return cam, float(rms), len(obj_pts)
+
+
+def scale_camera(camera: Camera, sx: float, sy: float | None = None) -> Camera:
+    """The same camera for a resized frame (intrinsics scaled; distortion unchanged)."""
+    sy = sx if sy is None else sy
+    scaled = {"fx": camera.fx * sx, "fy": camera.fy * sy, "cx": camera.cx * sx, "cy": camera.cy * sy}
+    return camera.model_copy(update=scaled)
+
+
+def undistort(image: np.ndarray, camera: Camera) -> np.ndarray:
+    """Remove lens distortion (same intrinsics after undistortion)."""
+    if not camera.distortion:
+        return image
+    return cv2.undistort(image, camera.matrix(), np.asarray(camera.distortion))
+
+
+def with_horizon(camera: Camera, horizon_v: float, source: str) -> Camera:
+    """Set the pitch so that the horizon lies on image row ``horizon_v`` (pixels)."""
+    pitch = math.atan2(camera.cy - horizon_v, camera.fy)
+    return camera.model_copy(update={"pitch_rad": pitch, "pitch_source": source})
+
+
+# --------------------------------------------------------------------------- horizon
+def vanishing_point_from_lines(lines: np.ndarray, width: int, height: int) -> tuple[float, float] | None:
+    """Least-squares intersection of image lines (N, 4: x1, y1, x2, y2) -> (u, v) pixels, or None.
+
+    Each line is weighted by its length; lines nearly horizontal or vertical are ignored.
+    """
+    L = np.asarray(lines, dtype=float).reshape(-1, 4)
+    if len(L) < 2:
+        return None
+    d = L[:, 2:] - L[:, :2]
+    length = np.hypot(d[:, 0], d[:, 1])
+    ang = np.degrees(np.abs(np.arctan2(d[:, 1], d[:, 0]))) % 180
+    keep = (length > 10) & (np.minimum(ang, 180 - ang) > 15) & (np.abs(ang - 90) > 5)
+    if keep.sum() < 2:
+        return None
+    L, d, length = L[keep], d[keep], length[keep]
+    normal = np.column_stack([-d[:, 1], d[:, 0]]) / length[:, None]
+    c = np.sum(normal * L[:, :2], axis=1)
+    has_left = np.any(d[:, 0] * d[:, 1] < 0)
+    has_right = np.any(d[:, 0] * d[:, 1] > 0)
+    if not (has_left and has_right):
+        return None
+    sol, *_ = np.linalg.lstsq(normal * length[:, None], c * length, rcond=None)
+    u, v = float(sol[0]), float(sol[1])
+    if not (-0.5 * width < u < 1.5 * width and 0 < v < height):
+        return None
+    return u, v
+
+
+def focus_of_expansion(p0: np.ndarray, p1: np.ndarray) -> tuple[float, float] | None:
+    """Focus of expansion of a forward-moving camera from point tracks (least squares, pixels)."""
+    d = np.asarray(p1, float) - np.asarray(p0, float)
+    mag = np.hypot(d[:, 0], d[:, 1])
+    keep = mag > 0.5
+    if keep.sum() < 10:
+        return None
+    n = np.column_stack([-d[keep, 1], d[keep, 0]]) / mag[keep, None]
+    c = np.sum(n * p0[keep], axis=1)
+    sol, *_ = np.linalg.lstsq(n, c, rcond=None)
+    return float(sol[0]), float(sol[1])
+
+
+def estimate_horizon_flow(frames: Iterable[np.ndarray], max_pairs: int = 10) -> float | None:
+    """Median focus-of-expansion row over consecutive frame pairs (grey or BGR), pixels, or None."""
+    rows: list[float] = []
+    prev = None
+    for f in frames:
+        g = f if f.ndim == 2 else cv2.cvtColor(f, cv2.COLOR_BGR2GRAY)
+        if prev is not None:
+            pts = cv2.goodFeaturesToTrack(prev, 800, 0.01, 8)
+            if pts is not None:
+                nxt, st, _ = cv2.calcOpticalFlowPyrLK(prev, g, pts, None)  # type: ignore[call-overload]
+                ok = st.ravel() == 1
+                foe = focus_of_expansion(pts.reshape(-1, 2)[ok], nxt.reshape(-1, 2)[ok])
+                if foe is not None and 0 < foe[1] < g.shape[0]:
+                    rows.append(foe[1])
+            if len(rows) >= max_pairs:
+                break
+        prev = g
+    return float(np.median(rows)) if rows else None
+
+
+# --------------------------------------------------------------------------- dashboard
+def detect_dashboard_rows(frames: Iterable[np.ndarray], max_pairs: int = 8, still_px: float = 0.2) -> int:
+    """Rows at the bottom of the frame that do not move under optical flow (dashboard/bonnet), pixels.
+
+    Dense Farneback flow is computed on downscaled frame pairs; going up from the bottom, rows whose
+    median flow magnitude stays below ``still_px`` (and well below the road's motion just above) are
+    the dashboard. Returns 0 when none is found (or the camera does not move).
+    """
+    mags: list[np.ndarray] = []
+    prev = None
+    scale = 1.0
+    full_h = 0
+    for f in frames:
+        g = f if f.ndim == 2 else cv2.cvtColor(f, cv2.COLOR_BGR2GRAY)
+        full_h = g.shape[0]
+        scale = min(1.0, 320.0 / g.shape[1])
+        g = cv2.resize(g, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+        if prev is not None:
+            flow = cv2.calcOpticalFlowFarneback(prev, g, None, 0.5, 3, 15, 3, 5, 1.2, 0)  # type: ignore[call-overload]
+            mags.append(np.hypot(flow[..., 0], flow[..., 1]))
+            if len(mags) >= max_pairs:
+                break
+        prev = g
+    if not mags:
+        return 0
+    row = np.median(np.median(np.stack(mags), axis=0), axis=1)  # per-row median flow, px (downscaled)
+    h = len(row)
+    road_motion = float(np.percentile(row[h // 2 :], 90))
+    if road_motion < 4 * still_px:  # flow of the moving road, px per (downscaled) pair
+        return 0  # the camera is not moving: nothing to tell the dashboard from the road
+    still = row < max(still_px, 0.2 * road_motion)
+    n = 0
+    for r in range(h - 1, h // 2, -1):
+        if not still[r]:
+            break
+        n += 1
+    if n < 2:
+        return 0
+    return int(math.ceil(n / scale)) if full_h else 0

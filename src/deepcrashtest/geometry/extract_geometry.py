@@ -1,0 +1,133 @@
+"""One decoding pass: camera estimation + ego-motion + lanes + localisation -> raw Scenario.
+
+:func:`extract_geometry` consumes ``(frame, tracks_at_that_frame)`` pairs, where ``frame`` has
+``index`` (int), ``time`` (s) and ``image`` (BGR array, full resolution) - the ``Frame`` of
+``deepcrashtest.video.source`` - and ``tracks_at_that_frame`` is the tracks table's rows of that
+frame (columns of :data:`deepcrashtest.geometry.world_tracks.TRACK_COLUMNS`; may be empty).
+
+The first ``calib_seconds`` of frames are buffered to estimate what the stream needs before it
+starts: the dashboard/bonnet rows (still rows under optical flow, unless given), and the horizon
+(vanishing point of the lane lines, else the focus of expansion of the flow, else the camera's
+own pitch). Then every buffered and later frame goes through the ego-motion estimator and the
+lane detector once; frames are never decoded twice.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+import pandas as pd
+
+from deepcrashtest.errors import UserError
+from deepcrashtest.geometry.camera import (
+    detect_dashboard_rows,
+    estimate_horizon_flow,
+    vanishing_point_from_lines,
+    with_horizon,
+)
+from deepcrashtest.geometry.egomotion import EgoMotion, EgoMotionEstimator
+from deepcrashtest.geometry.localize import Localizer
+from deepcrashtest.geometry.world_tracks import TRACK_COLUMNS, raw_scenario_from_tracks
+from deepcrashtest.perception.lanes import ClassicalLaneDetector, LaneDetector, LaneState, LaneTimelineResult
+from deepcrashtest.scenario import Camera, Scenario, VideoSource
+
+
+class FrameLike(Protocol):
+    index: int
+    time: float
+    image: np.ndarray
+
+
+@dataclass
+class GeometryResult:
+    """Everything the geometry stage produced (the scenario plus per-frame details for overlays)."""
+
+    scenario: Scenario
+    camera: Camera
+    ego: EgoMotion
+    lanes: LaneTimelineResult | None
+    lane_states: dict[int, LaneState]
+    dashboard_rows: int
+    horizon_source: str
+
+
+def estimate_camera(
+    images: list[np.ndarray], camera: Camera, dashboard_rows: int | None = None
+) -> tuple[Camera, int, str]:
+    """Dashboard rows and horizon from a few frames. Returns (camera with pitch, rows, pitch source)."""
+    h, w = images[0].shape[:2]
+    spread = images[:: max(1, len(images) // 9)]  # pairs ~0.2 s apart: enough road motion to see
+    rows = detect_dashboard_rows(spread) if dashboard_rows is None else int(dashboard_rows)
+    rows = min(rows, h // 3)
+    if camera.pitch_source in ("user", "kitti_calib"):
+        return camera, rows, camera.pitch_source
+    probe = ClassicalLaneDetector(camera, mask_bottom_rows=rows)
+    segs = []
+    for img in images[:: max(1, len(images) // 10)]:
+        for ln in probe.detect(img):
+            segs.append([float(ln.u_at(ln.v_top)), ln.v_top, float(ln.u_at(ln.v_bottom)), ln.v_bottom])
+    vp = vanishing_point_from_lines(np.array(segs), w, h) if len(segs) >= 2 else None
+    if vp is not None and 0.2 * h < vp[1] < 0.8 * h:
+        return with_horizon(camera, vp[1], "vanishing_point"), rows, "vanishing_point"
+    foe = estimate_horizon_flow(images)
+    if foe is not None and 0.2 * h < foe < 0.8 * h:
+        return with_horizon(camera, foe, "flow_foe"), rows, "flow_foe"
+    return camera, rows, camera.pitch_source
+
+
+def extract_geometry(
+    frames: Iterable[tuple[FrameLike, pd.DataFrame]],
+    meta: VideoSource | Mapping[str, Any],
+    camera: Camera,
+    dashboard_rows: int | None = None,
+    calib_seconds: float = 2.0,
+    lanes: bool = True,
+    lane_detector: LaneDetector | None = None,
+    localizer: Localizer | None = None,
+    max_width: int = 960,
+    name: str = "scenario",
+    seed: int = 0,
+) -> GeometryResult:
+    """Run the geometry stage over one pass of frames (see the module docstring)."""
+    buffer: list[tuple[FrameLike, pd.DataFrame]] = []
+    all_tracks: list[pd.DataFrame] = []
+    it = iter(frames)
+    for item in it:
+        buffer.append(item)
+        if item[0].time - buffer[0][0].time >= calib_seconds and len(buffer) >= 3:
+            break
+    if len(buffer) < 2:
+        raise UserError("the video has fewer than 2 frames")
+    cam, rows, horizon_source = estimate_camera([f.image for f, _ in buffer], camera, dashboard_rows)
+    ego_est = EgoMotionEstimator(cam, mask_bottom_rows=rows, max_width=max_width, seed=seed)
+    lane_det: Any = lane_detector or (ClassicalLaneDetector(cam, mask_bottom_rows=rows, seed=seed) if lanes else None)
+    lane_states: dict[int, LaneState] = {}
+    indices: list[int] = []
+
+    def process(frame: FrameLike, trk: pd.DataFrame) -> None:
+        boxes = trk[["x1", "y1", "x2", "y2"]].to_numpy(float) if len(trk) else np.zeros((0, 4))
+        indices.append(int(frame.index))
+        ego_est.update(frame.image, float(frame.time), boxes)
+        if lane_det is not None:
+            lane_states[int(frame.index)] = (
+                lane_det.update(frame.image, float(frame.time), boxes)
+                if isinstance(lane_det, ClassicalLaneDetector)
+                else lane_det.update(frame.image, float(frame.time))
+            )
+        if len(trk):
+            all_tracks.append(trk)
+
+    for frame, trk in buffer:
+        process(frame, trk)
+    for frame, trk in it:
+        process(frame, trk)
+    ego = ego_est.result()
+    ego.frame = np.array(indices, dtype=int)  # the estimator counts 0..n-1: use the video's indices
+    lane_tl = lane_det.timeline() if isinstance(lane_det, ClassicalLaneDetector) else None
+    tracks = pd.concat(all_tracks, ignore_index=True) if all_tracks else pd.DataFrame(columns=list(TRACK_COLUMNS))
+    sc = raw_scenario_from_tracks(tracks, meta, cam, ego, lane_tl, localizer, name=name, seed=seed)
+    sc.provenance.parameters.update({"dashboard_rows": rows, "horizon_source": horizon_source})
+    return GeometryResult(sc, cam, ego, lane_tl, lane_states, rows, horizon_source)
