@@ -27,7 +27,7 @@ class Stage2Params:
     """Local fit: allowed RMS deviation from the Savitzky-Golay output (high smoothing), metres."""
     global_sigma_m: float = 0.04
     """Global fit: allowed RMS deviation from the blended local fits (low smoothing), metres."""
-    final_sigma_m: float = 0.01
+    final_sigma_m: float = 0.003
     """Fit of the final (extended, stepped-back) path that becomes ``Vehicle.spline``, metres."""
     max_smoothing_accel_mps2: float = 12.0
     """If a smoothed track still accelerates harder than this, it is smoothed again more strongly."""
