@@ -25,7 +25,7 @@ class Stage2Params:
     """Length of the windows of the local spline fit, seconds (windows overlap by half)."""
     local_sigma_m: float = 0.15
     """Local fit: allowed RMS deviation from the Savitzky-Golay output (high smoothing), metres."""
-    global_sigma_m: float = 0.04
+    global_sigma_m: float = 0.01
     """Global fit: allowed RMS deviation from the blended local fits (low smoothing), metres."""
     final_sigma_m: float = 0.003
     """Fit of the final (extended, stepped-back) path that becomes ``Vehicle.spline``, metres."""
