@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from trajectory_cases import CLASS_CASES, EGO_SPEED, FPS, raw_scenario, track, vehicle
 
 from deepcrashtest.trajectory.classify import ClassFeatures, trajectory_class
 from deepcrashtest.trajectory.pipeline import process_scenario
+from trajectory_cases import CLASS_CASES, EGO_SPEED, FPS, raw_scenario, track, vehicle
 
 DELAYED = {"D0T3", "D1T3", "D1T4"}
 

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from trajectory_cases import CLASS_CASES, raw_scenario, track, vehicle
 
 from deepcrashtest.errors import UserError
 from deepcrashtest.trajectory.pipeline import process_scenario
 from deepcrashtest.trajectory.stepback import distance_from_rest, plan_step_back, step_back_prefix
+from trajectory_cases import CLASS_CASES, raw_scenario, track, vehicle
 
 
 def _simulate(v_target: float, a: float, t_end: float, dt: float = 1e-4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
