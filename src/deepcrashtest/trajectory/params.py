@@ -56,7 +56,7 @@ class Stage2Params:
     stepback_accel_mps2: float = 3.0
     """Acceleration a of every vehicle from rest to its first observed speed, m/s^2."""
     # --- road (trajectory.road)
-    road_sigma_m: float = 0.5
+    road_sigma_m: float = 0.3
     """Heavy smoothing of the ego path into the road centre line (RMS deviation), metres."""
     road_spacing_m: float = 2.0
     """Distance between stored centre-line waypoints, metres."""

@@ -29,7 +29,7 @@ after the end (or the collision) are dropped with a warning in ``Scenario.warnin
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -75,7 +75,17 @@ class _Dense:
     cls: str | None = None
     static: bool = False
     lateral_m: float = 0.0
-    notes: list[str] = field(default_factory=list)
+    feats: ClassFeatures | None = None
+    rel_t: np.ndarray = field(default_factory=lambda: np.zeros(0))  # video time, s
+    rel_s: np.ndarray = field(default_factory=lambda: np.zeros(0))  # station minus the ego's, m
+
+    def reclassify(self, t_end_video: float, overtake_entry_gap_m: float) -> None:
+        """An agent the ego hits has not been passed: "passed" only counts up to the collision."""
+        if self.feats is None:
+            return
+        passed = bool((self.rel_s[self.rel_t <= t_end_video + _EPS_T] < 0).any())
+        self.feats = replace(self.feats, passed=passed)
+        self.cls = trajectory_class(self.feats, overtake_entry_gap_m)
 
     def box_track(self) -> BoxTrack:
         return BoxTrack(self.t, self.xy[:, 0], self.xy[:, 1], headings(self.t, self.xy, self.heading), *self._size())
@@ -196,6 +206,7 @@ def process_scenario(raw: Scenario, seed: int = 0, params: Stage2Params | None =
     if collision is not None:
         for d in [ego_dense, *dense]:
             d.cut(collision.time_s)
+            d.reclassify(collision.time_s - t_max, p.overtake_entry_gap_m)
         late = [d for d in dense if d.t[0] >= collision.time_s - _EPS_T]
         for d in late:
             warnings.append(f"agent {d.vehicle.id}: appears after the collision; dropped")
@@ -209,13 +220,14 @@ def process_scenario(raw: Scenario, seed: int = 0, params: Stage2Params | None =
     ego = _final_vehicle(ego_dense, p, None)
     agents = [_final_vehicle(d, p, d.cls) for d in dense]
 
-    # ---- road
-    road_frame, source = frame, "ego_path"
+    # ---- road: from the whole processed ego path (step-back included)
+    road_frame = RoadFrame.from_path(ego_dense.xy, p.road_sigma_m, heading=ego_heading0)
+    source = "ego_path"
     if collision is not None:
         hit = next((d for d in dense if d.vehicle.id == collision.agent_id), None)
         if hit is not None and hit.cls is not None and hit.cls.startswith("D1"):
-            s_c = float(frame.project(np.array([[collision.x or 0.0, collision.y or 0.0]]))[0][0])
-            road_frame = extend_head_on(frame, s_c, hit.xy[hit.observed], p.road_sigma_m)
+            s_c = float(road_frame.project(np.array([[collision.x or 0.0, collision.y or 0.0]]))[0][0])
+            road_frame = extend_head_on(road_frame, s_c, hit.xy[hit.observed], p.road_sigma_m)
             source = "ego_path+oncoming"
     raw_road = raw.road
     if raw_road.lane_timeline is not None:
@@ -320,7 +332,8 @@ def _agent_dense(
         feats = ClassFeatures(oncoming, in_view, True, s_a - float(np.interp(t[0], grid, s_ego)), 0.0, passed)
         cls = trajectory_class(feats, p.overtake_entry_gap_m)
         observed = (grid >= t[0] - _EPS_T) & (grid <= t[-1] + _EPS_T)
-        return _Dense(agent, grid.copy(), np.tile(pos, (len(grid), 1)), observed, heading, cls, True, lateral)
+        xy_static = np.tile(pos, (len(grid), 1))
+        return _Dense(agent, grid.copy(), xy_static, observed, heading, cls, True, lateral, feats, grid, s_a - s_ego)
 
     disp = obs_xy[-1] - obs_xy[0]
     heading = float(np.arctan2(disp[1], disp[0]))
@@ -344,7 +357,7 @@ def _agent_dense(
     feats = ClassFeatures(oncoming, in_view, False, float(r[0]), rel_speed, bool((r < 0).any()))
     cls = trajectory_class(feats, p.overtake_entry_gap_m)
     observed = np.concatenate([np.ones(len(t_obs), bool), np.zeros(len(t_post), bool)])
-    d = _Dense(agent, full_t, full_xy, observed, heading, cls, False, lateral)
+    d = _Dense(agent, full_t, full_xy, observed, heading, cls, False, lateral, feats, full_t, r)
 
     if t_post.size:  # an extrapolation must not run into the ego
         hit = first_contact(ego_box, d.box_track(), t_from=float(t[-1]) + _EPS_T)
