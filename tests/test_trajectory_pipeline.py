@@ -242,3 +242,18 @@ def test_plot_birdseye(kitti, tmp_path):
     with pytest.raises(UserError, match="already exists"):
         plot_birdseye(sc, raw, tmp_path / "b.png")
     assert plot_birdseye(sc, None, tmp_path / "b.png", force=True).exists()
+
+
+def test_gappy_off_grid_track():
+    """A perception track with a 2 s gap and times off the frame grid is bridged and classified."""
+    base = track(lambda t: (20 + EGO_SPEED * t, -3.5 + 0 * t), 0, 80)
+    keep = [i for i in range(len(base.t)) if not 20 < i < 40]
+    a = base.arrays()
+    from deepcrashtest.scenario import Trajectory
+
+    gappy = Trajectory.from_arrays(*(a[k][keep] + (0.013 if k == "t" else 0) for k in ("t", "x", "y", "yaw", "speed")))
+    sc = process_scenario(raw_scenario([vehicle(1, gappy)]))
+    v = sc.vehicle(1)
+    assert v.trajectory_class == "D0T1" and sc.collision is None
+    t_max = sc.provenance.parameters["t_max_s"]
+    assert v.trajectory.state_at(3.013 + t_max)["x"] == pytest.approx(20 + EGO_SPEED * 3.0, abs=0.1)
