@@ -173,6 +173,38 @@ def scenario_from_kitti(
     )
 
 
+@scenario_app.command("build")
+def scenario_build(
+    raw: Path = typer.Argument(..., help="Raw Scenario JSON (stage=raw: world-frame tracks)."),
+    output: Path = typer.Option(..., "-o", "--output", help="Processed Scenario JSON to write."),
+    force: bool = ForceOpt,
+    seed: int = SeedOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """Stage 2: smooth, classify, extrapolate, step back -> a simulation-ready Scenario."""
+    from deepcrashtest.fileio import check_writable
+    from deepcrashtest.trajectory.pipeline import process_scenario
+
+    sc_raw = _load(raw)
+    check_writable(output, force)
+    sc = process_scenario(sc_raw, seed=seed)
+    path = sc.save(output, force=force)
+    c = sc.collision
+    emit(
+        {
+            "scenario": str(path),
+            "stage": sc.stage,
+            "agents": len(sc.agents),
+            "duration_s": round(sc.duration(), 3),
+            "t_max_s": round(float(sc.provenance.parameters["t_max_s"]), 3),
+            "classes": _class_counts(sc),
+            "collision": None if c is None else {"time_s": round(c.time_s, 3), "agent_id": c.agent_id},
+            "warnings": sc.warnings,
+        },
+        as_json,
+    )
+
+
 def _class_counts(sc: Any) -> dict[str, int]:
     counts: dict[str, int] = {}
     for a in sc.agents:

@@ -48,6 +48,7 @@ def run_demo(output: str | Path, video: str | Path | None = None) -> dict[str, A
         _step_report(out, summary)
     _step_eval(out, summary)
     _step_geometry(out, summary)
+    _step_trajectory(out, summary)
     return summary
 
 
@@ -195,5 +196,29 @@ def _step_geometry(out: Path, summary: dict[str, Any]) -> None:
             "ego_path_m": round(ego.x[-1], 1),
             "lane_width_m": res.lanes.median_lane_width() if res.lanes is not None else None,
             "warnings": res.scenario.warnings,
+        }
+    )
+
+
+def _step_trajectory(out: Path, summary: dict[str, Any]) -> None:
+    """Stage 2 on KITTI 0008 (real labels + poses): bird's-eye PNG of raw vs processed tracks and road."""
+    if not KITTI_TRACKING.exists():
+        return
+    from deepcrashtest.trajectory.from_kitti import scenario_from_kitti
+    from deepcrashtest.trajectory.pipeline import process_scenario
+    from deepcrashtest.viz.plots import plot_birdseye
+
+    raw = scenario_from_kitti(KITTI_TRACKING, 8)
+    sc = process_scenario(raw, seed=0)
+    png = plot_birdseye(sc, raw, out / "trajectory_kitti_0008_birdseye.png", force=True)
+    classes: dict[str, int] = {}
+    for a in sc.agents:
+        classes[str(a.trajectory_class)] = classes.get(str(a.trajectory_class), 0) + 1
+    summary["steps"].append(
+        {
+            "step": "trajectory (stage 2) KITTI 0008",
+            "birdseye": str(png),
+            "t_max_s": round(float(sc.provenance.parameters["t_max_s"]), 3),
+            "classes": dict(sorted(classes.items())),
         }
     )

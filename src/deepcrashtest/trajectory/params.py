@@ -1,0 +1,80 @@
+"""Stage-2 parameters, all in physical units (seconds, metres, m/s, m/s^2).
+
+Nothing here is counted in samples: windows are converted with the video's frame rate, so the
+same parameters work for a 10 Hz KITTI sequence and a 30 fps dashcam clip.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+from deepcrashtest.errors import UserError
+
+
+@dataclass(frozen=True)
+class Stage2Params:
+    """Knobs of :func:`deepcrashtest.trajectory.pipeline.process_scenario`."""
+
+    # --- smoothing (trajectory.smoothing)
+    savgol_window_s: float = 0.7
+    """Savitzky-Golay window, seconds (rounded to an odd number of frames)."""
+    savgol_polyorder: int = 2
+    local_window_s: float = 2.0
+    """Length of the windows of the local spline fit, seconds (windows overlap by half)."""
+    local_sigma_m: float = 0.15
+    """Local fit: allowed RMS deviation from the Savitzky-Golay output (high smoothing), metres."""
+    global_sigma_m: float = 0.01
+    """Global fit: allowed RMS deviation from the blended local fits (low smoothing), metres."""
+    final_sigma_m: float = 0.003
+    """Fit of the final (extended, stepped-back) path that becomes ``Vehicle.spline``, metres."""
+    max_smoothing_accel_mps2: float = 12.0
+    """If a smoothed track still accelerates harder than this, it is smoothed again more strongly."""
+    # --- track selection and classes (trajectory.classify)
+    min_track_samples: int = 3
+    """Agent tracks with fewer samples are dropped (with a warning): too short to smooth or classify."""
+    first_seen_tolerance_s: float = 0.25
+    """An agent first seen within this time of the video's start counts as "in view at the start"."""
+    static_speed_mps: float = 1.0
+    """An agent whose net displacement / observed duration is below this is parked/static ..."""
+    static_min_displacement_m: float = 1.0
+    """... or whose net displacement is below this (label noise on a parked car), metres."""
+    overtake_entry_gap_m: float = 20.0
+    """A same-direction agent appearing later closer than this ahead and faster than the ego is D0T2."""
+    # --- extrapolation (trajectory.extrapolate)
+    ongoing_speed_ratio: float = 0.9
+    """A same-direction agent that left the view continues at min(own speed, ratio x ego speed)."""
+    extrapolation_accel_mps2: float = 2.0
+    """Largest speed change per second while an extrapolated agent settles to its new speed."""
+    overtaker_gap_m: float = 20.0
+    """D0T2 before it appears: distance behind the ego (along the road) while it mimics the ego, metres."""
+    overtaker_rel_accel_mps2: float = 1.0
+    """D0T2: relative acceleration with which it closes in on the ego before it appears."""
+    min_overtake_rel_speed_mps: float = 0.5
+    # --- step-back initialisation (trajectory.stepback)
+    stepback_accel_mps2: float = 3.0
+    """Acceleration a of every vehicle from rest to its first observed speed, m/s^2."""
+    # --- road (trajectory.road)
+    road_sigma_m: float = 0.3
+    """Heavy smoothing of the ego path into the road centre line (RMS deviation), metres."""
+    road_spacing_m: float = 2.0
+    """Distance between stored centre-line waypoints, metres."""
+    road_margin_m: float = 20.0
+    """The centre line reaches this far past the first/last vehicle position along the road, metres."""
+    default_lane_width_m: float = 3.5
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if not isinstance(v, int | float) or isinstance(v, bool) or not math.isfinite(v):
+                raise UserError(f"Stage2Params.{f.name} must be a finite number (got {v!r})")
+            if v <= 0:
+                raise UserError(f"Stage2Params.{f.name} must be > 0 (got {v})")
+        if self.ongoing_speed_ratio > 1:
+            raise UserError(f"Stage2Params.ongoing_speed_ratio must be <= 1 (got {self.ongoing_speed_ratio})")
+        if self.min_track_samples < 2:
+            raise UserError(f"Stage2Params.min_track_samples must be >= 2 (got {self.min_track_samples})")
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
