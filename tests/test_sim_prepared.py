@@ -82,3 +82,22 @@ def test_recorded_agents_equal_live_agents_through_an_agent_crash(agents_crash):
         pres = seg.pres[k - seg.k0]
         assert np.array_equal(pres, run.present[k, 1:])
         assert np.array_equal(seg.state[k - seg.k0][pres], run.states[k, 1:][pres])
+
+
+def test_references_of_many_paths_equal_one_by_one(head_on):
+    from deepcrashtest.sim.reference import build_reference, build_references
+
+    tr = head_on.ego.trajectory
+    t = np.linspace(tr.t[0], tr.t[-1], 30)
+    xy = np.column_stack([np.interp(t, tr.t, tr.x), np.interp(t, tr.t, tr.y)])
+    paths = xy + np.random.default_rng(3).normal(0.0, 0.5, (6, 30, 2))
+    times = np.arange(0, 20.0, 0.02)
+    yaw = np.interp(t, tr.t, tr.yaw)
+    for one, many in zip(
+        [build_reference(t, p, yaw, times, 0.02, smooth=False) for p in paths],
+        build_references(t, paths, yaw, times, 0.02),
+        strict=True,
+    ):
+        for name in ("path", "s_ref", "v_ref", "init"):
+            assert np.array_equal(getattr(one, name), getattr(many, name)), name
+        assert (one.start, one.end, one.static) == (many.start, many.end, many.static)

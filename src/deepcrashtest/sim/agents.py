@@ -186,6 +186,12 @@ class AgentTimeline:
             self._segments.clear()
             self._live, self._next = None, 0
 
+    def record_all(self) -> None:
+        """Record the whole run now (e.g. before forking workers, so that they share it); kept runs only."""
+        if self.keep_all:
+            for k in range(0, len(self.world.times) - 1, SEGMENT):
+                self.segment(k)
+
     def segment(self, k: int) -> _Segment:
         s = self._segments.get(k // SEGMENT)
         if s is None:

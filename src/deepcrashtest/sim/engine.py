@@ -23,7 +23,8 @@ from deepcrashtest.errors import UserError
 from deepcrashtest.scenario import Scenario
 from deepcrashtest.sim.controllers import controller_name, resolve_controller
 from deepcrashtest.sim.loop import Contact, LoopOutput, run_loop
-from deepcrashtest.sim.reference import PathSet, build_reference
+from deepcrashtest.sim.reference import PathSet, build_references
+from deepcrashtest.sim.vehicle import VehicleLimits
 from deepcrashtest.sim.world import World, build_world
 
 CHUNK = 2048
@@ -137,7 +138,7 @@ def _ego_variants(
     traj = world.scenario.ego.trajectory
     t = np.linspace(traj.t[0], traj.t[-1], ego_paths.shape[1])
     yaw = np.interp(t, traj.t, traj.yaw)
-    refs = [build_reference(t, p, yaw, world.times, world.dt, smooth=False) for p in ego_paths]
+    refs = build_references(t, ego_paths, yaw, world.times, world.dt)
     init = np.stack([r.init for r in refs])
     init[:, :2] += off
     return PathSet.stack(refs, world.dt), np.arange(B, dtype=np.intp), off, init
@@ -278,6 +279,7 @@ def simulate_batch(
     chunks = list(range((B + chunk_size - 1) // chunk_size))
     try:
         if workers > 1 and len(chunks) > 1:
+            world.agent_timeline(VehicleLimits()).record_all()  # once, shared by the forked workers
             ctx = multiprocessing.get_context("fork")
             with ProcessPoolExecutor(max_workers=min(workers, len(chunks)), mp_context=ctx) as pool:
                 outs = list(pool.map(_run_chunk, chunks))
