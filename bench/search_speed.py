@@ -2,7 +2,7 @@
 
 512 random variants (128 starts x 4 noisy paths) of a real KITTI crash scenario, 11 s simulated
 each, in chunks of 64. Ray's start-up (ray.init) is reported apart from the throughput.
-Usage: PYTHONPATH=src python bench/search_speed.py [--variants 512]
+Usage: PYTHONPATH=src python bench/search_speed.py [--variants 512] [--engines local1,local2,ray1,ray2]
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from deepcrashtest.search.space import SearchSpace  # noqa: E402
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--variants", type=int, default=512)
+    ap.add_argument("--engines", default="local1,local2,ray1,ray2", help="engine+workers to time, comma separated")
     args = ap.parse_args()
     sc = crash_scenario()
     space = SearchSpace.for_scenario(sc)
@@ -31,7 +32,7 @@ def main() -> None:
     print(f"{len(theta)} variants of {sc.name} (crash injected), {DURATION_S} s simulated each, chunks of 64")
     print(f"CPUs visible: {os.cpu_count()} (shared with other processes: timings are contaminated)")
     ref = None
-    runs = [("local", 1), ("local", 2), ("ray", 1), ("ray", 2)]
+    runs = [(e.rstrip("0123456789"), int(e[len(e.rstrip("0123456789")) :])) for e in args.engines.split(",")]
     for engine, workers in runs:
         if engine == "ray":
             try:

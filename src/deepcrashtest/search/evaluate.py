@@ -19,9 +19,9 @@ from deepcrashtest.errors import UserError
 from deepcrashtest.scenario import Scenario
 from deepcrashtest.search.space import SearchSpace
 
-#: Default variants per simulator call. Each call rebuilds the simulated world (~0.3-0.5 s for a
-#: KITTI drive), so chunks are large; the chunk size is a setting of the search, never derived
-#: from the worker count, so that every engine simulates exactly the same batches.
+#: Default variants per simulator call. The chunk size is a setting of the search, never derived
+#: from the worker count, so that every engine simulates exactly the same batches (the sensor
+#: noise of a batch depends on its size).
 CHUNK = 64
 #: Per-variant outcome columns returned by the simulator, in results.csv order.
 OUTCOME_FIELDS = ("collided", "collision_time", "min_distance", "min_ttc", "robustness", "aeb_time", "delta_v_ego")
@@ -38,24 +38,27 @@ def simulate_chunk(
 ) -> dict[str, np.ndarray]:
     """Simulate one chunk of variants; returns ``OUTCOME_FIELDS`` -> (B,) arrays.
 
-    Module-level (and taking the scenario as JSON) so that process pools and Ray can ship it.
+    Module-level (and taking the scenario as JSON) so that process pools and Ray can ship it. The
+    simulated world is prepared once per process and scenario (``sim.prepare``) and reused.
     """
     from deepcrashtest.sim import simulate_batch
 
-    sc = _scenario_cache(scenario_json)
-    res = simulate_batch(sc, ego_offsets=offsets, ego_paths=paths, controller=controller, seed=seed, duration=duration)
+    world = _prepared_world(scenario_json, duration)
+    res = simulate_batch(world, ego_offsets=offsets, ego_paths=paths, controller=controller, seed=seed)
     return {k: np.asarray(getattr(res, k), dtype=float) for k in OUTCOME_FIELDS}
 
 
-_CACHE: dict[int, Scenario] = {}
+_CACHE: dict[tuple[str, float | None], Any] = {}
 
 
-def _scenario_cache(scenario_json: str) -> Scenario:
-    """Parse each scenario once per process (workers see the same JSON many times)."""
-    key = hash(scenario_json)
+def _prepared_world(scenario_json: str, duration: float | None) -> Any:
+    """Parse and prepare each scenario once per process (workers see the same JSON many times)."""
+    from deepcrashtest.sim import prepare
+
+    key = (scenario_json, duration)
     if key not in _CACHE:
         _CACHE.clear()
-        _CACHE[key] = Scenario.model_validate_json(scenario_json)
+        _CACHE[key] = prepare(Scenario.model_validate_json(scenario_json), duration=duration)
     return _CACHE[key]
 
 

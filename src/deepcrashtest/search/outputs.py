@@ -158,9 +158,9 @@ def write_video(
     """
     try:
         from deepcrashtest.viz.birdseye import FPS, render_frames
+        from deepcrashtest.viz.h264 import h264_writer
     except ImportError:
         return None
-    import av
     import cv2
 
     from deepcrashtest.sim import simulate
@@ -168,29 +168,19 @@ def write_video(
     runs = [simulate(sc, controller, seed=seed, duration=duration) for sc in (original, best)]
     stride = max(1, int(round(1.0 / (FPS * float(runs[0].dt)))))
     w, h = 640, 360
-    with atomic_path(path, force, suffix=".mp4") as tmp:
-        container = av.open(str(tmp), mode="w", format="mp4")
-        try:
-            stream = container.add_stream("libx264", rate=round(1.0 / (stride * float(runs[0].dt))))
-            stream.width, stream.height, stream.pix_fmt = 2 * w, h, "yuv420p"
-            stream.options = {"crf": "26", "preset": "veryfast"}
-            left, right = render_frames(original, runs[0], stride), render_frames(best, runs[1], stride)
-            last: list[Any] = [None, None]
-            while True:
-                pair = [next(left, None), next(right, None)]
-                if pair[0] is None and pair[1] is None:
-                    break
-                last = [p if p is not None else q for p, q in zip(pair, last, strict=True)]
-                tiles = [cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA) for img in last]
-                for img, text in zip(tiles, ("original", label), strict=True):
-                    cv2.putText(img, text, (10, h - 40), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 1, cv2.LINE_AA)
-                frame = av.VideoFrame.from_ndarray(np.hstack(tiles), format="bgr24")
-                for packet in stream.encode(frame):
-                    container.mux(packet)
-            for packet in stream.encode():
-                container.mux(packet)
-        finally:
-            container.close()
+    rate = round(1.0 / (stride * float(runs[0].dt)))
+    with h264_writer(path, 2 * w, h, rate, force, crf=26) as write:
+        left, right = render_frames(original, runs[0], stride), render_frames(best, runs[1], stride)
+        last: list[Any] = [None, None]
+        while True:
+            pair = [next(left, None), next(right, None)]
+            if pair[0] is None and pair[1] is None:
+                break
+            last = [p if p is not None else q for p, q in zip(pair, last, strict=True)]
+            tiles = [cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA) for img in last]
+            for img, text in zip(tiles, ("original", label), strict=True):
+                cv2.putText(img, text, (10, h - 40), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 1, cv2.LINE_AA)
+            write(np.hstack(tiles))
     return str(path)
 
 

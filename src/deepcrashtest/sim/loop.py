@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from deepcrashtest.sim.agents import AgentSet
 from deepcrashtest.sim.boxes import contact_fraction, sat_gap, signed_distance, time_to_collision
 from deepcrashtest.sim.follow import Follower
 from deepcrashtest.sim.physics import PhysicsWorld, impact_delta_v, pair_key
@@ -80,7 +81,11 @@ def run_loop(
     limits: VehicleLimits | None = None,
     sensors: SensorConfig | None = None,
 ) -> LoopOutput:
-    """Run one batch of ``B = len(ego_init)`` ego variants through the whole time grid."""
+    """Run one batch of ``B = len(ego_init)`` ego variants through the whole time grid.
+
+    In batch mode (``physics_mode=False``) the agents come from the world's recorded
+    :class:`~deepcrashtest.sim.agents.AgentTimeline`; in physics mode they are stepped live.
+    """
     lim = limits or VehicleLimits()
     cfg = sensors or SensorConfig()
     dt, times = world.dt, world.times
@@ -95,20 +100,10 @@ def run_loop(
     active = np.ones(B, dtype=bool)
     orig = np.arange(B)  # variant index of each row (rows of finished variants are dropped)
 
-    a_start = np.array([r.start for r in world.refs[1:]], dtype=int)
-    a_end = np.array([r.end for r in world.refs[1:]], dtype=int)
-    a_static = np.array([r.static for r in world.refs[1:]], dtype=bool)
-    agents = np.array([r.init for r in world.refs[1:]], float).reshape(M, 4)
-    a_steer = np.zeros(M)
-    a_phys = np.zeros(M, dtype=bool)
-    a_vel_phys = np.zeros((M, 2))
-    a_omega_phys = np.zeros(M)
-    agent_follow = (
-        Follower(world.agent_paths, np.arange(M), np.zeros((M, 2)), world.wheelbase[1:])
-        if world.agent_paths is not None
-        else None
-    )
-    phys: PhysicsWorld | None = None
+    live = AgentSet(world, lim) if physics_mode else None
+    timeline = None if physics_mode else world.agent_timeline(lim)
+    if timeline is not None:
+        timeline.rewind()
     ego_in_phys = False
     ids = world.ids
 
@@ -137,13 +132,14 @@ def run_loop(
         out.present = np.zeros((T, M + 1), dtype=bool)
     pre_contact: dict[int, tuple[np.ndarray, np.ndarray, float, int, np.ndarray, np.ndarray, float]] = {}
 
-    def presence(k: int) -> np.ndarray:
-        return a_phys | ((a_start <= k) & (k <= a_end))
-
-    def agent_velocity() -> tuple[np.ndarray, np.ndarray]:
-        v = velocity_xy(agents[:, 2], agents[:, 3], a_steer)
-        w = yaw_rate(agents[:, 3], a_steer, world.wheelbase[1:])
-        return np.where(a_phys[:, None], a_vel_phys, v), np.where(a_phys, a_omega_phys, w)
+    def at_start(k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Agents' states, presence and velocities at the start of step ``k``."""
+        if live is not None:
+            return live.state, live.presence(k), live.velocity()[0]
+        assert timeline is not None
+        seg = timeline.segment(k)
+        r = k - seg.k0
+        return seg.state[r], seg.pres[r], seg.vel[r]
 
     def gaps(e: np.ndarray, ag: np.ndarray, pres: np.ndarray) -> np.ndarray:
         """(B, M) separating-axis gaps ego-agent; +inf for absent agents."""
@@ -194,49 +190,31 @@ def run_loop(
         out.min_ttc[o] = np.minimum(out.min_ttc[o], ttc.min(axis=1))
 
     def record(k: int) -> None:
-        if out.states is None or out.present is None:
+        if out.states is None or out.present is None or live is None:
             return
         out.states[k, 0] = ego[0]
         out.present[k, 0] = True
-        pres = presence(k)
-        out.states[k, 1:][pres] = agents[pres]
+        pres = live.presence(k)
+        out.states[k, 1:][pres] = live.state[pres]
         out.present[k, 1:] = pres
 
-    def to_physics(idx: int, pose: np.ndarray, vel: np.ndarray, omega: float) -> None:
-        nonlocal phys
-        if phys is None:
-            phys = PhysicsWorld()
-            phys.time = float(times[k])
-        if idx in phys.bodies:
-            return
-        phys.add(idx, pose[:3], vel, omega, float(world.length[idx]), float(world.width[idx]), float(world.mass[idx]))
-
     # ---- step 0: initial overlaps are ignored; metrics of the initial state
-    k = 0
-    pres_prev = presence(0)
+    agents, pres_prev, av0 = at_start(0)
     gap0 = gaps(ego, agents, pres_prev)
     ignore_e = (gap0 <= 0) & pres_prev[None, :]
-    if M > 1:
-        gap_aa = _agent_gaps(agents, ah)
-        ignore_aa = (gap_aa <= 0) & pres_prev[:, None] & pres_prev[None, :]
-    else:
-        ignore_aa = np.zeros((M, M), bool)
-    update_metrics(gap0, pres_prev, active, ego, e_steer, agents, agent_velocity()[0], True)
+    update_metrics(gap0, pres_prev, active, ego, e_steer, agents, av0, True)
     record(0)
 
     for k in range(T - 1):
+        agents, pres_k, av_k = at_start(k)
         # ---- 1. commands
-        if agent_follow is not None:
-            a_acc, a_str = agent_follow.command(agents, k, dt)
-            a_acc = np.where(a_static, -lim.max_brake, a_acc)
         e_acc_r, e_str_r = ego_follow.command(ego, k, dt)
         if active.any() and not is_replay and (k % period == 0 or held is None):
             if needs_sensors:
-                av, _ = agent_velocity()
                 obs = sense(
                     cfg, rng, float(times[k]), dt, ego,
                     velocity_xy(ego[:, 2], ego[:, 3], e_steer), yaw_rate(ego[:, 3], e_steer, wb_e), e_accel,
-                    ego_size, agents, av, ah, presence(k), (e_acc_r, e_str_r), ids[1:],
+                    ego_size, agents, av_k, ah, pres_k, (e_acc_r, e_str_r), ids[1:],
                 )  # fmt: skip
             else:
                 obs = sense(
@@ -265,32 +243,16 @@ def run_loop(
         ego_new = bicycle_step(ego, acc, e_steer_new, wb_e, dt)
         ego_new = np.where(active[:, None], ego_new, ego)
         if M:
-            moving = (a_start <= k) & (k < a_end) & ~a_phys
-            a_acc_l, a_steer_new = limit_commands(a_acc, a_str, a_steer, dt, lim)
-            agents_new = np.where(
-                moving[:, None], bicycle_step(agents, a_acc_l, a_steer_new, world.wheelbase[1:], dt), agents
-            )
-            a_steer_new = np.where(moving, a_steer_new, a_steer)
-            if phys is not None:
-                for idx in phys.bodies:
-                    if idx > 0:
-                        s, v, w = phys.state(idx)
-                        agents_new[idx - 1] = [s[0] + v[0] * dt, s[1] + v[1] * dt, s[2] + w * dt, s[3]]
-            pres = presence(k + 1)
-            # ---- 3. contacts between agents (shared by all variants)
-            if M > 1:
-                g_aa = _agent_gaps(agents_new, ah)
-                both = pres[:, None] & pres[None, :]
-                newly = both & ~(pres_prev[:, None] & pres_prev[None, :])
-                ignore_aa |= newly & (g_aa <= 0)
-                ignore_aa &= ~(g_aa > 0)
-                hit = both & (g_aa <= 0) & ~ignore_aa & ~(a_phys[:, None] & a_phys[None, :])
-                hit = np.triu(hit, 1)
-                for i, j in zip(*np.nonzero(hit), strict=True):
-                    _join_pair(
-                        world, i + 1, j + 1, agents, agents_new, a_steer, k, times, out, to_physics, physics_mode
-                    )
-                    a_phys[[i, j]] = True
+            # ---- 3. agents: candidate states and contacts between agents (shared by all variants)
+            if live is not None:
+                agents_new, a_steer_new, pres = live.predict(k, dt)
+                for va, vb, t_c, rel in live.join_contacts(k, agents_new, pres):
+                    out.contacts.append(Contact(t_c, va, vb, rel))
+            else:
+                assert timeline is not None
+                seg = timeline.segment(k)
+                r = k - seg.k0
+                agents_new, pres = seg.new[r], seg.pres_next[r]
             # ---- ego contacts
             g_e = gaps(ego_new, agents_new, pres)
             newly_e = pres[None, :] & ~pres_prev[None, :]
@@ -303,7 +265,7 @@ def run_loop(
                 e0, e1 = ego[rows_hit, :3], ego_new[rows_hit, :3]
                 frac = contact_fraction(e0, e1, agents[j, :3], agents_new[j, :3], np.tile(eh, (len(j), 1)), ah[j])
                 ev = velocity_xy(ego[rows_hit, 2], ego[rows_hit, 3], e_steer[rows_hit])
-                av, aw = agent_velocity()
+                av, aw = live.velocity() if live is not None else (seg.hit_vel[r], seg.hit_omega[r])
                 o_hit = orig[rows_hit]
                 out.collided[o_hit] = True
                 out.collision_time[o_hit] = times[k] + frac * dt
@@ -320,49 +282,46 @@ def run_loop(
                         av[jj].copy(),
                         float(aw[jj]),
                     )
-                if physics_mode:
+                if live is not None:
                     b0, j0 = int(rows_hit[0]), int(j[0])
                     _, ev0, ew0, _, ap, av0, aw0 = pre_contact[b0]
-                    to_physics(0, ego[0], ev0, ew0)
-                    to_physics(j0 + 1, ap, av0, aw0)
-                    a_phys[j0] = True
+                    live.to_physics(0, ego[0], ev0, ew0, float(times[k]))
+                    live.to_physics(j0 + 1, ap, av0, aw0, float(times[k]))
+                    live.in_phys[j0] = True
                     ego_in_phys = True
                     out.contacts.append(
                         Contact(float(out.collision_time[b0]), 0, j0 + 1, float(out.relative_speed[b0]))
                     )
-            av_new = np.where(a_phys[:, None], a_vel_phys, velocity_xy(agents_new[:, 2], agents_new[:, 3], a_steer_new))
+            av_new = live.new_velocity(agents_new, a_steer_new) if live is not None else seg.new_vel[r]
             update_metrics(g_e, pres, active, ego_new, e_steer_new, agents_new, av_new, (k + 1) % TTC_EVERY == 0)
-            if physics_mode and ego_in_phys:
+            if live is not None and ego_in_phys:
                 # the sliding ego pushes kinematic agents it touches into the physics world
-                touch = pres & ~a_phys & (g_e[0] <= 0) & ~ignore_e[0]
+                touch = pres & ~live.in_phys & (g_e[0] <= 0) & ~ignore_e[0]
                 for jj in np.nonzero(touch)[0]:
-                    vel = velocity_xy(agents[jj : jj + 1, 2], agents[jj : jj + 1, 3], a_steer[jj : jj + 1])[0]
-                    om = float(
-                        yaw_rate(agents[jj : jj + 1, 3], a_steer[jj : jj + 1], world.wheelbase[jj + 1 : jj + 2])[0]
-                    )
-                    to_physics(int(jj) + 1, agents[jj], vel, om)
-                    a_phys[jj] = True
+                    s_jj, st_jj = live.state[jj : jj + 1], live.steer[jj : jj + 1]
+                    vel = velocity_xy(s_jj[:, 2], s_jj[:, 3], st_jj)[0]
+                    om = float(yaw_rate(s_jj[:, 3], st_jj, world.wheelbase[jj + 1 : jj + 2])[0])
+                    live.to_physics(int(jj) + 1, live.state[jj], vel, om, float(times[k]))
+                    live.in_phys[jj] = True
             if not physics_mode:
                 active[rows_hit] = False
             elif ego_in_phys:
                 active[:] = False
             pres_prev = pres
-        # ---- 4. physics step and commit
-        if phys is not None:
-            phys.step(dt)
-            for idx in phys.bodies:
-                s, v, w = phys.state(idx)
-                if idx == 0:
-                    ego_new[0] = s
-                    e_steer_new[0] = 0.0
-                else:
-                    agents_new[idx - 1] = s
-                    a_vel_phys[idx - 1], a_omega_phys[idx - 1] = v, w
-                    a_steer_new[idx - 1] = 0.0
+            if live is not None:
+                live.pres_prev = pres
+        # ---- 4. physics step and commit (batch mode: the agents' physics is in the timeline)
+        if live is not None and live.phys is not None:
+            live.phys.step(dt)
+            if 0 in live.phys.bodies:
+                ego_new[0] = live.phys.state(0)[0]
+                e_steer_new[0] = 0.0
+            if M:
+                live.from_physics(agents_new, a_steer_new)
         # ego physics contacts with other agents are detected in the next step via predicted states
         ego, e_steer, e_accel = ego_new, e_steer_new, acc
-        if M:
-            agents, a_steer = agents_new, a_steer_new
+        if M and live is not None:
+            live.commit(agents_new, a_steer_new)
         record(k + 1)
         if not physics_mode and not active.any():
             break
@@ -377,7 +336,7 @@ def run_loop(
                 controller.select(keep)
 
     if physics_mode:
-        _finish_contacts(out, phys)
+        _finish_contacts(out, live.phys if live is not None else None)
         if out.contacts:
             first = min(out.contacts, key=lambda c: c.time)
             if first.a == 0 or first.b == 0:
@@ -391,40 +350,6 @@ def run_loop(
             dv_e, dv_o, _ = impact_delta_v(e_pose[:3], e_vel, e_om, size_e, a_pose[:3], a_vel, a_om, size_a)
             out.delta_v_ego[row], out.delta_v_other[row] = dv_e, dv_o
     return out
-
-
-def _agent_gaps(ag: np.ndarray, ah: np.ndarray) -> np.ndarray:
-    return sat_gap(
-        ag[:, None, 0], ag[:, None, 1], ag[:, None, 2], ah[:, None, 0], ah[:, None, 1],
-        ag[None, :, 0], ag[None, :, 1], ag[None, :, 2], ah[None, :, 0], ah[None, :, 1],
-    )  # fmt: skip
-
-
-def _join_pair(
-    world: World,
-    a: int,
-    b: int,
-    agents: np.ndarray,
-    agents_new: np.ndarray,
-    a_steer: np.ndarray,
-    k: int,
-    times: np.ndarray,
-    out: LoopOutput,
-    to_physics: Any,
-    physics_mode: bool,
-) -> None:
-    """Two agents touch: both continue under Box2D from their pre-contact states."""
-    half = world.half
-    i, j = a - 1, b - 1
-    frac = contact_fraction(
-        agents[[i], :3], agents_new[[i], :3], agents[[j], :3], agents_new[[j], :3], half[[a]], half[[b]]
-    )
-    vel = velocity_xy(agents[[i, j], 2], agents[[i, j], 3], a_steer[[i, j]])
-    om = yaw_rate(agents[[i, j], 3], a_steer[[i, j]], world.wheelbase[[a, b]])
-    to_physics(a, agents[i], vel[0], float(om[0]))
-    to_physics(b, agents[j], vel[1], float(om[1]))
-    if physics_mode:
-        out.contacts.append(Contact(float(times[k] + frac[0] * world.dt), a, b, float(np.hypot(*(vel[0] - vel[1])))))
 
 
 def _finish_contacts(out: LoopOutput, phys: PhysicsWorld | None) -> None:

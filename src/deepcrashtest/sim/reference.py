@@ -109,14 +109,51 @@ def build_reference(
     """
     t = np.asarray(t, float)
     xy = np.asarray(xy, float)
-    yaw_label = np.asarray(yaw_label, float)
+    start, end, tq = _span(t, times, dt)
+    pos_f, vel_f = _smooth_positions(t, xy[:, 0], xy[:, 1], smooth)
+    return _reference(pos_f(tq), vel_f(tq), xy, np.asarray(yaw_label, float), times, start, end)
+
+
+def build_references(
+    t: np.ndarray, xys: np.ndarray, yaw_label: np.ndarray, times: np.ndarray, dt: float
+) -> list[Reference]:
+    """References of ``B`` paths ``xys`` (B, n, 2) sampled at the same times ``t`` (n,), interpolated exactly.
+
+    The same as ``[build_reference(t, xy, yaw_label, times, dt, smooth=False) for xy in xys]``, with
+    one cubic-spline solve for all paths (SciPy solves each column the same way; bit-identical).
+    """
+    t = np.asarray(t, float)
+    xys = np.asarray(xys, float)
+    if len(t) < 4:
+        return [build_reference(t, xy, yaw_label, times, dt, smooth=False) for xy in xys]
+    B, n = xys.shape[:2]
+    start, end, tq = _span(t, times, dt)
+    spline = make_interp_spline(t, xys.transpose(1, 0, 2).reshape(n, 2 * B), k=3)
+    pos = spline(tq).reshape(len(tq), B, 2)
+    vel = spline.derivative()(tq).reshape(len(tq), B, 2)
+    yaw = np.asarray(yaw_label, float)
+    return [_reference(pos[:, b], vel[:, b], xys[b], yaw, times, start, end) for b in range(B)]
+
+
+def _span(t: np.ndarray, times: np.ndarray, dt: float) -> tuple[int, int, np.ndarray]:
+    """First and last grid index of samples at ``t`` and the grid times between them (clipped to ``t``)."""
     T = len(times)
     start = min(max(grid_index(t[0], dt), 0), T - 1)
     end = min(max(grid_index(t[-1], dt), start), T - 1)
-    span = times[start : end + 1]
-    pos_f, vel_f = _smooth_positions(t, xy[:, 0], xy[:, 1], smooth)
-    pos = pos_f(np.clip(span, t[0], t[-1]))
-    vel = vel_f(np.clip(span, t[0], t[-1]))
+    return start, end, np.clip(times[start : end + 1], t[0], t[-1])
+
+
+def _reference(
+    pos: np.ndarray,
+    vel: np.ndarray,
+    xy: np.ndarray,
+    yaw_label: np.ndarray,
+    times: np.ndarray,
+    start: int,
+    end: int,
+) -> Reference:
+    """Reference from positions ``pos`` and velocities ``vel`` (m, m/s) at grid steps ``start..end``."""
+    T = len(times)
     seg = np.hypot(*np.diff(pos, axis=0).T) if len(pos) > 1 else np.zeros(0)
     s_span = np.concatenate([[0.0], np.cumsum(seg)])
     static = bool(s_span[-1] < STATIC_PATH_M)

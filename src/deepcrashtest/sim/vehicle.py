@@ -48,12 +48,19 @@ def velocity_xy(yaw: np.ndarray, v: np.ndarray, steer: np.ndarray) -> np.ndarray
     return np.stack([v * np.cos(course), v * np.sin(course)], axis=-1)
 
 
+def _clip_nan_zero(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """``x`` clipped to [lo, hi] (lo <= 0 <= hi), NaN -> 0: ``clip(nan_to_num(x, nan=0))`` without its copies."""
+    out = np.minimum(np.maximum(x, lo), hi)
+    nan = np.isnan(out)
+    return np.where(nan, 0.0, out) if nan.any() else out
+
+
 def limit_commands(
     accel_cmd: np.ndarray, steer_cmd: np.ndarray, steer: np.ndarray, dt: float, limits: VehicleLimits
 ) -> tuple[np.ndarray, np.ndarray]:
     """Clip commanded acceleration and steering to the actuator limits; returns (accel, new steer)."""
-    accel = np.minimum(np.maximum(np.nan_to_num(accel_cmd, nan=0.0), -limits.max_brake), limits.max_accel)
-    target = np.minimum(np.maximum(np.nan_to_num(steer_cmd, nan=0.0), -limits.max_steer), limits.max_steer)
+    accel = _clip_nan_zero(accel_cmd, -limits.max_brake, limits.max_accel)
+    target = _clip_nan_zero(steer_cmd, -limits.max_steer, limits.max_steer)
     rate = limits.max_steer_rate * dt
     return accel, steer + np.minimum(np.maximum(target - steer, -rate), rate)
 

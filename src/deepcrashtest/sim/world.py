@@ -10,21 +10,30 @@ has collided stays in the world, sliding under Box2D physics, to the end of the 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from deepcrashtest.errors import UserError
 from deepcrashtest.scenario import Scenario
 from deepcrashtest.sim.reference import PathSet, Reference, reference_from_trajectory
-from deepcrashtest.sim.vehicle import CATEGORY_MASS_KG, WHEELBASE_FRACTION
+from deepcrashtest.sim.vehicle import CATEGORY_MASS_KG, WHEELBASE_FRACTION, VehicleLimits
+
+if TYPE_CHECKING:
+    from deepcrashtest.sim.agents import AgentTimeline
 
 MAX_DURATION_S = 600.0
 
 
 @dataclass
 class World:
-    """Everything about a scenario the simulation loop needs (index 0 is the ego)."""
+    """Everything about a scenario the simulation loop needs (index 0 is the ego).
+
+    Build it once with :func:`build_world` (or ``sim.prepare``) and pass it to ``simulate_batch``
+    as often as needed: it is not modified by a run, except for the agents' recorded run
+    (:meth:`agent_timeline`), which is computed on first use and reused.
+    """
 
     scenario: Scenario
     dt: float
@@ -36,6 +45,16 @@ class World:
     mass: np.ndarray  # (N,) kg
     refs: list[Reference]
     agent_paths: PathSet | None
+    duration: float = 0.0  # s, times[-1]
+    _timelines: dict[VehicleLimits, AgentTimeline] = field(default_factory=dict, repr=False, compare=False)
+
+    def agent_timeline(self, limits: VehicleLimits) -> AgentTimeline:
+        """The agents' run (shared by every ego variant of a batch), recorded once per ``limits``."""
+        from deepcrashtest.sim.agents import AgentTimeline
+
+        if limits not in self._timelines:
+            self._timelines[limits] = AgentTimeline(self, limits)
+        return self._timelines[limits]
 
     @property
     def n_agents(self) -> int:
@@ -71,4 +90,5 @@ def build_world(scenario: Scenario, dt: float = 0.02, duration: float | None = N
         mass=np.array([CATEGORY_MASS_KG[v.category] for v in vehicles], float),
         refs=refs,
         agent_paths=PathSet.stack(refs[1:], dt) if len(refs) > 1 else None,
+        duration=float(times[-1]),
     )

@@ -13,12 +13,11 @@ from __future__ import annotations
 import os
 from typing import Any
 
-import av
 import cv2
 import numpy as np
 
-from deepcrashtest.fileio import atomic_path
 from deepcrashtest.scenario import Scenario
+from deepcrashtest.viz.h264 import h264_writer
 
 WIDTH, HEIGHT = 960, 540
 PX_PER_M = 8.0
@@ -139,18 +138,7 @@ def write_birdseye(
     """Write the bird's-eye H.264 MP4 of ``result`` to ``path`` atomically; returns the path."""
     stride = max(1, int(round(1.0 / (fps * float(result.dt)))))
     rate = round(1.0 / (stride * float(result.dt)))
-    with atomic_path(path, force, suffix=".mp4") as tmp:
-        container = av.open(str(tmp), mode="w", format="mp4")
-        try:
-            stream = container.add_stream("libx264", rate=rate)
-            stream.width, stream.height, stream.pix_fmt = WIDTH, HEIGHT, "yuv420p"
-            stream.options = {"crf": "24", "preset": "veryfast"}
-            for img in render_frames(scenario, result, stride):
-                frame = av.VideoFrame.from_ndarray(img, format="bgr24")
-                for packet in stream.encode(frame):
-                    container.mux(packet)
-            for packet in stream.encode():
-                container.mux(packet)
-        finally:
-            container.close()
+    with h264_writer(path, WIDTH, HEIGHT, rate, force, crf=24) as write:
+        for img in render_frames(scenario, result, stride):
+            write(img)
     return str(path)

@@ -1,0 +1,241 @@
+"""The other vehicles (agents) of a simulation: their live state and, for batches, a recorded timeline.
+
+Agents replay their references (Stanley + PID), touch each other (Box2D from then on) and never
+depend on the ego in a batch: there a variant ends at its first collision, so the ego never enters
+the physics world. The agents' whole run is therefore the same for every variant and every call:
+:class:`AgentTimeline` computes it once per :class:`~deepcrashtest.sim.world.World` (in segments
+of ``SEGMENT`` steps, all kept when small) and the batch loop reads it. ``simulate`` (one variant,
+the ego slides into the agents after an impact) steps an :class:`AgentSet` live instead.
+Both run exactly the same operations in the same order, so results are bit-identical.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from deepcrashtest.sim.boxes import contact_fraction, sat_gap
+from deepcrashtest.sim.follow import Follower
+from deepcrashtest.sim.physics import PhysicsWorld
+from deepcrashtest.sim.vehicle import VehicleLimits, bicycle_step, limit_commands, velocity_xy, yaw_rate
+from deepcrashtest.sim.world import World
+
+#: Steps computed together by a timeline.
+SEGMENT = 512
+#: Largest timeline (steps x agents) kept in memory for reuse (~128 bytes each).
+MAX_CACHED_ENTRIES = 1_000_000
+
+
+def agent_gaps(ag: np.ndarray, ah: np.ndarray) -> np.ndarray:
+    """(M, M) separating-axis gaps between agent boxes ``ag`` (M, >=3) with half extents ``ah`` (M, 2)."""
+    return sat_gap(
+        ag[:, None, 0], ag[:, None, 1], ag[:, None, 2], ah[:, None, 0], ah[:, None, 1],
+        ag[None, :, 0], ag[None, :, 1], ag[None, :, 2], ah[None, :, 0], ah[None, :, 1],
+    )  # fmt: skip
+
+
+class AgentSet:
+    """Live state of the ``M`` agents (vehicle indices 1..M) and the Box2D world they share with the ego."""
+
+    def __init__(self, world: World, limits: VehicleLimits) -> None:
+        self.world, self.lim = world, limits
+        refs = world.refs[1:]
+        M = self.M = world.n_agents
+        self.half = world.half[1:]
+        self.start = np.array([r.start for r in refs], dtype=int)
+        self.end = np.array([r.end for r in refs], dtype=int)
+        self.static = np.array([r.static for r in refs], dtype=bool)
+        self.state = np.array([r.init for r in refs], float).reshape(M, 4)
+        self.steer = np.zeros(M)
+        self.in_phys = np.zeros(M, dtype=bool)
+        self.vel_phys = np.zeros((M, 2))
+        self.omega_phys = np.zeros(M)
+        self.follow = (
+            Follower(world.agent_paths, np.arange(M), np.zeros((M, 2)), world.wheelbase[1:])
+            if world.agent_paths is not None
+            else None
+        )
+        self.phys: PhysicsWorld | None = None
+        self.pres_prev = self.presence(0)
+        if M > 1:
+            gap = agent_gaps(self.state, self.half)
+            self.ignore = (gap <= 0) & self.pres_prev[:, None] & self.pres_prev[None, :]
+        else:
+            self.ignore = np.zeros((M, M), bool)
+
+    def presence(self, k: int) -> np.ndarray:
+        """(M,) agents in the world at step ``k``."""
+        return self.in_phys | ((self.start <= k) & (k <= self.end))
+
+    def velocity(self) -> tuple[np.ndarray, np.ndarray]:
+        """Current (M, 2) world velocities (m/s) and (M,) yaw rates (rad/s)."""
+        v = velocity_xy(self.state[:, 2], self.state[:, 3], self.steer)
+        w = yaw_rate(self.state[:, 3], self.steer, self.world.wheelbase[1:])
+        return np.where(self.in_phys[:, None], self.vel_phys, v), np.where(self.in_phys, self.omega_phys, w)
+
+    def new_velocity(self, new: np.ndarray, steer_new: np.ndarray) -> np.ndarray:
+        """(M, 2) velocities of the candidate states ``new`` (physics bodies: their last velocity)."""
+        return np.where(self.in_phys[:, None], self.vel_phys, velocity_xy(new[:, 2], new[:, 3], steer_new))
+
+    def to_physics(self, idx: int, pose: np.ndarray, vel: np.ndarray, omega: float, t: float) -> None:
+        """Vehicle ``idx`` (0 = ego) becomes a Box2D body (the world is created at time ``t``)."""
+        w = self.world
+        if self.phys is None:
+            self.phys = PhysicsWorld()
+            self.phys.time = t
+        if idx in self.phys.bodies:
+            return
+        self.phys.add(idx, pose[:3], vel, omega, float(w.length[idx]), float(w.width[idx]), float(w.mass[idx]))
+
+    def predict(self, k: int, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Replay commands and kinematics: candidate states, steering at ``k + 1`` and presence at ``k + 1``."""
+        assert self.follow is not None
+        lim = self.lim
+        a_acc, a_str = self.follow.command(self.state, k, dt)
+        a_acc = np.where(self.static, -lim.max_brake, a_acc)
+        moving = (self.start <= k) & (k < self.end) & ~self.in_phys
+        a_acc_l, steer_new = limit_commands(a_acc, a_str, self.steer, dt, lim)
+        new = np.where(
+            moving[:, None], bicycle_step(self.state, a_acc_l, steer_new, self.world.wheelbase[1:], dt), self.state
+        )
+        steer_new = np.where(moving, steer_new, self.steer)
+        if self.phys is not None:
+            for idx in self.phys.bodies:
+                if idx > 0:
+                    s, v, w = self.phys.state(idx)
+                    new[idx - 1] = [s[0] + v[0] * dt, s[1] + v[1] * dt, s[2] + w * dt, s[3]]
+        return new, steer_new, self.presence(k + 1)
+
+    def join_contacts(self, k: int, new: np.ndarray, pres: np.ndarray) -> list[tuple[int, int, float, float]]:
+        """Agents that touch during step ``k`` continue under Box2D; returns (a, b, time, relative speed) each."""
+        if self.M < 2:
+            return []
+        g_aa = agent_gaps(new, self.half)
+        both = pres[:, None] & pres[None, :]
+        newly = both & ~(self.pres_prev[:, None] & self.pres_prev[None, :])
+        self.ignore |= newly & (g_aa <= 0)
+        self.ignore &= ~(g_aa > 0)
+        hit = both & (g_aa <= 0) & ~self.ignore & ~(self.in_phys[:, None] & self.in_phys[None, :])
+        hit = np.triu(hit, 1)
+        found = []
+        for i, j in zip(*np.nonzero(hit), strict=True):
+            found.append(self._join_pair(int(i), int(j), new, k))
+            self.in_phys[[i, j]] = True
+        return found
+
+    def _join_pair(self, i: int, j: int, new: np.ndarray, k: int) -> tuple[int, int, float, float]:
+        """Agents ``i`` and ``j`` (0-based) touch: both continue under Box2D from their pre-contact states."""
+        w, s = self.world, self.state
+        a, b = i + 1, j + 1
+        half = w.half
+        frac = contact_fraction(s[[i], :3], new[[i], :3], s[[j], :3], new[[j], :3], half[[a]], half[[b]])
+        vel = velocity_xy(s[[i, j], 2], s[[i, j], 3], self.steer[[i, j]])
+        om = yaw_rate(s[[i, j], 3], self.steer[[i, j]], w.wheelbase[[a, b]])
+        t = float(w.times[k])
+        self.to_physics(a, s[i], vel[0], float(om[0]), t)
+        self.to_physics(b, s[j], vel[1], float(om[1]), t)
+        return a, b, float(w.times[k] + frac[0] * w.dt), float(np.hypot(*(vel[0] - vel[1])))
+
+    def from_physics(self, new: np.ndarray, steer_new: np.ndarray) -> None:
+        """After a physics step: agents that are Box2D bodies take the bodies' states (in place)."""
+        assert self.phys is not None
+        for idx in self.phys.bodies:
+            if idx > 0:
+                s, v, w = self.phys.state(idx)
+                new[idx - 1] = s
+                self.vel_phys[idx - 1], self.omega_phys[idx - 1] = v, w
+                steer_new[idx - 1] = 0.0
+
+    def commit(self, new: np.ndarray, steer_new: np.ndarray) -> None:
+        self.state, self.steer = new, steer_new
+
+
+@dataclass
+class _Segment:
+    """Recorded agent quantities for steps ``k0 .. k0 + n - 1`` (first axis)."""
+
+    k0: int
+    state: np.ndarray  # (n, M, 4) at the step's start
+    pres: np.ndarray  # (n, M) presence at the step's start
+    vel: np.ndarray  # (n, M, 2) velocities at the step's start
+    new: np.ndarray  # (n, M, 4) candidate states at k + 1 (before the physics step)
+    pres_next: np.ndarray  # (n, M) presence at k + 1
+    hit_vel: np.ndarray  # (n, M, 2) velocities after this step's agent-agent contacts
+    hit_omega: np.ndarray  # (n, M)
+    new_vel: np.ndarray  # (n, M, 2) velocities of the candidate states
+
+
+class AgentTimeline:
+    """The agents' whole run as seen by a batch of ego variants (independent of the ego), computed lazily.
+
+    ``segment(k)`` returns the recorded segment holding step ``k``; steps must be asked in
+    increasing order within one run (``rewind`` starts a new run). When the run is small
+    (``steps x agents <= MAX_CACHED_ENTRIES``) every segment is kept and later runs reuse them.
+    """
+
+    def __init__(self, world: World, limits: VehicleLimits) -> None:
+        self.world, self.limits = world, limits
+        self.keep_all = len(world.times) * max(world.n_agents, 1) <= MAX_CACHED_ENTRIES
+        self._segments: dict[int, _Segment] = {}
+        self._live: AgentSet | None = None
+        self._next = 0  # first step the live AgentSet has not recorded yet
+
+    def rewind(self) -> None:
+        if not self.keep_all:
+            self._segments.clear()
+            self._live, self._next = None, 0
+
+    def record_all(self) -> None:
+        """Record the whole run now (e.g. before forking workers, so that they share it); kept runs only."""
+        if self.keep_all:
+            for k in range(0, len(self.world.times) - 1, SEGMENT):
+                self.segment(k)
+
+    def segment(self, k: int) -> _Segment:
+        s = self._segments.get(k // SEGMENT)
+        if s is None:
+            s = self._record(k // SEGMENT)
+        return s
+
+    def _record(self, n_seg: int) -> _Segment:
+        k0 = n_seg * SEGMENT
+        if self._live is None or self._next != k0:
+            if k0 != 0:
+                raise RuntimeError("agent timeline asked out of order")
+            self._live, self._next = AgentSet(self.world, self.limits), 0
+        ag, dt, M = self._live, self.world.dt, self._live.M
+        n = min(SEGMENT, len(self.world.times) - 1 - k0)
+        seg = _Segment(
+            k0,
+            np.empty((n, M, 4)),
+            np.empty((n, M), bool),
+            np.empty((n, M, 2)),
+            np.empty((n, M, 4)),
+            np.empty((n, M), bool),
+            np.empty((n, M, 2)),
+            np.empty((n, M)),
+            np.empty((n, M, 2)),
+        )
+        for r in range(n):
+            k = k0 + r
+            seg.state[r] = ag.state
+            seg.pres[r] = ag.presence(k)
+            seg.vel[r] = ag.velocity()[0]
+            if M == 0:
+                continue
+            new, steer_new, pres = ag.predict(k, dt)
+            ag.join_contacts(k, new, pres)
+            seg.hit_vel[r], seg.hit_omega[r] = ag.velocity()
+            seg.new_vel[r] = ag.new_velocity(new, steer_new)
+            seg.new[r], seg.pres_next[r] = new, pres
+            ag.pres_prev = pres
+            if ag.phys is not None:
+                ag.phys.step(dt)
+                ag.from_physics(new, steer_new)
+            ag.commit(new, steer_new)
+        self._next = k0 + n
+        if not self.keep_all:
+            self._segments.clear()
+        self._segments[n_seg] = seg
+        return seg
