@@ -103,7 +103,8 @@ def _step_search(out: Path, summary: dict[str, Any]) -> None:
     if not src.exists():
         return
     base = Scenario.load(src)
-    sc = meet_ego(base, 10, 8.8)
+    # 8.8 s into the video; a processed scenario starts t_max earlier (step-back initialisation)
+    sc = meet_ego(base, 10, 8.8 + float(base.provenance.parameters.get("t_max_s", 0.0)))
     folder = ensure_output_dir(out / "search")
     sc.save(folder / "crash_scenario.json")
     res = run_search(sc, folder, SearchConfig(duration=(sc.collision.time_s if sc.collision else 0.0) + 2.5))
