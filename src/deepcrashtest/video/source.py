@@ -112,6 +112,11 @@ class PyAVSource(VideoSource):
         try:
             self._container: Any = av.open(str(path))
         except (av.error.FFmpegError, UnicodeDecodeError) as exc:
+            if _is_unfinished_mp4(path):
+                raise UserError(
+                    f"{path}: truncated mp4/mov: the index ('moov' box) is missing, the recording was cut off "
+                    "before it was finalised; no frame can be located"
+                ) from None
             raise UserError(f"{path}: not a readable video ({_short(exc)})") from None
         if not self._container.streams.video:
             self._container.close()
@@ -210,6 +215,22 @@ def _duration_s(container: Any, stream: Any) -> float:
     if container.duration:
         return float(Fraction(container.duration, 1_000_000))
     return 0.0
+
+
+def _is_unfinished_mp4(path: Path) -> bool:
+    """An ISO-BMFF file (starts with an 'ftyp' box) that has media data but no 'moov' index."""
+    with open(path, "rb") as fh:
+        head = fh.read(12)
+        if head[4:8] != b"ftyp":
+            return False
+        seen_mdat, tail = False, b""
+        while block := fh.read(1 << 20):
+            chunk = tail + block
+            if b"moov" in chunk:
+                return False
+            seen_mdat = seen_mdat or b"mdat" in chunk
+            tail = block[-3:]
+    return seen_mdat
 
 
 def _short(exc: BaseException) -> str:
