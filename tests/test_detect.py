@@ -8,8 +8,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from conftest import DATA, KITTI_TRACKING, need
 
+from conftest import DATA, KITTI_TRACKING, need
 from deepcrashtest.errors import UserError
 from deepcrashtest.perception.boxes import iou_matrix
 from deepcrashtest.perception.detect import SsdMobileNetDetector, horizon_tiles, make_detector

@@ -7,8 +7,8 @@ from pathlib import Path
 import av
 import numpy as np
 import pytest
-from conftest import DATA, KITTI_TRACKING, need
 
+from conftest import DATA, KITTI_TRACKING, need
 from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import sha256_file
 from deepcrashtest.video.source import open_video
