@@ -8,7 +8,8 @@ Backends (``make_detector(spec)``):
   the whole-frame pass (KITTI, 6 labelled frames: car recall 0.70 -> 0.78-0.85; tests/test_detect.py).
   Options after a colon: ``ssd-mobilenet:tiles=0`` (whole frame only),
   ``tiles=N`` (N tiles), ``score=0.4``, ``input=640x360``, ``band=0.55`` (tile row centre, fraction of
-  the height), ``tile=0.4`` (tile side, fraction of the height), ``bicycle=1``.
+  the height), ``tile=0.4`` (tile side, fraction of the height), ``tile_every=K`` (tiles on every K-th
+  call only: distant cars change slowly, and this saves most of the tile cost), ``bicycle=1``.
 * ``onnx:PATH``: any YOLO-format ONNX detector (Ultralytics export layout, boxes with or without
   mask coefficients) through onnxruntime; see :mod:`deepcrashtest.perception.yolo_onnx`.
 
@@ -92,10 +93,12 @@ def make_detector(spec: str) -> Detector:
                 kwargs["band_centre"] = float(value)
             elif key == "tile":
                 kwargs["tile_frac"] = float(value)
+            elif key == "tile_every":
+                kwargs["tile_every"] = int(value)
             elif key == "bicycle":
                 kwargs["bicycles"] = value not in ("0", "false", "no")
             else:
-                raise UserError(f"unknown ssd-mobilenet option {key!r} (tiles, score, input, band, tile, bicycle)")
+                raise UserError(f"unknown ssd-mobilenet option {key!r} (tiles, score, input, band, tile, tile_every, bicycle)")
         except ValueError:
             raise UserError(f"bad ssd-mobilenet option {item!r}") from None
     return SsdMobileNetDetector(**kwargs)  # type: ignore[arg-type]
@@ -158,6 +161,7 @@ class SsdMobileNetDetector:
         bicycles: bool = False,
         band_centre: float = 0.55,
         tile_frac: float = 0.4,
+        tile_every: int = 1,
     ) -> None:
         import cv2
 
@@ -169,8 +173,10 @@ class SsdMobileNetDetector:
         self.tile_input = int(tile_input)
         self.band_centre = float(band_centre)
         self.tile_frac = float(tile_frac)
+        self.tile_every = max(1, int(tile_every))
+        self._calls = 0
         self.classes = {k: v for k, v in _TF_COCO_VEHICLES.items() if bicycles or v != "bicycle"}
-        self.name = f"ssd-mobilenet(tiles={self.tiles})"
+        self.name = f"ssd-mobilenet(tiles={self.tiles}, tile_every={self.tile_every})"
 
     def whole_input(self, width: int, height: int) -> tuple[int, int]:
         """Network input size for the whole frame: 640 wide at the frame's aspect, height >= 300."""
@@ -194,7 +200,9 @@ class SsdMobileNetDetector:
         h, w = image.shape[:2]
         rows = self._forward([image], self.whole_input(w, h))[0]
         parts = [_to_pixels(rows, 0, 0, w, h)]
-        tiles = horizon_tiles(w, h, self.tiles, self.band_centre, self.tile_frac)
+        with_tiles = self._calls % self.tile_every == 0
+        self._calls += 1
+        tiles = horizon_tiles(w, h, self.tiles, self.band_centre, self.tile_frac) if with_tiles else []
         if tiles:
             crops = [image[t.y0 : t.y1, t.x0 : t.x1] for t in tiles]
             for t, r in zip(tiles, self._forward(crops, (self.tile_input, self.tile_input)), strict=True):

@@ -35,7 +35,7 @@ class VideoWriter:
         height: int,
         force: bool = False,
         crf: int = 23,
-        preset: str = "veryfast",
+        preset: str = "ultrafast",
     ) -> None:
         if not (np.isfinite(fps) and fps > 0):
             raise UserError(f"video fps must be positive (got {fps})")
