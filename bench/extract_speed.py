@@ -26,6 +26,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=100)
     ap.add_argument("--every", default="1,5,10")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--skip", type=int, default=0, help="start after this many frames (decoded, not timed)")
     ap.add_argument("--detector", default="ssd-mobilenet")
     args = ap.parse_args()
 
@@ -57,16 +58,17 @@ def main() -> None:
     for every in [int(e) for e in args.every.split(",")]:
         for write in (False, True):
             calls.update(n=0, s=0.0)
-            with tempfile.TemporaryDirectory() as tmp, open_video(args.video) as src:
-                m = src.meta
+            with tempfile.TemporaryDirectory() as tmp, open_video(args.video) as video:
+                m = video.meta
+                src = _skip(video, args.skip)
                 t = time.perf_counter()
                 if write:
                     with VideoWriter(Path(tmp) / "a.mp4", m.fps, m.width, m.height) as w:
                         draw = Annotator(m.fps).draw
                         hook = lambda ft, w=w, d=draw: w.write(d(ft))  # noqa: E731
-                        df = track_video(src, timed, every, args.frames, on_frame=hook)
+                        df = track_video(src, timed, every, args.frames, on_frame=hook, fps=m.fps)
                 else:
-                    df = track_video(src, timed, every, args.frames)
+                    df = track_video(src, timed, every, args.frames, fps=m.fps)
                 el = time.perf_counter() - t
             per_det = calls["s"] / max(calls["n"], 1) * 1000
             what = "detect+track+annotate+encode" if write else "detect+track"
@@ -75,6 +77,13 @@ def main() -> None:
                 f"({per_det:.0f} ms/detector call, {calls['n']} calls, {df['track_id'].nunique()} tracks)"
             )
     print(f"peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
+
+
+def _skip(frames, n):  # type: ignore[no-untyped-def]
+    it = iter(frames)
+    for _ in range(n):
+        next(it)
+    return it
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ from __future__ import annotations
 import importlib.util
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -98,7 +98,8 @@ def make_detector(spec: str) -> Detector:
             elif key == "bicycle":
                 kwargs["bicycles"] = value not in ("0", "false", "no")
             else:
-                raise UserError(f"unknown ssd-mobilenet option {key!r} (tiles, score, input, band, tile, tile_every, bicycle)")
+                known = "tiles, score, input, band, tile, tile_every, bicycle"
+                raise UserError(f"unknown ssd-mobilenet option {key!r} ({known})")
         except ValueError:
             raise UserError(f"bad ssd-mobilenet option {item!r}") from None
     return SsdMobileNetDetector(**kwargs)  # type: ignore[arg-type]
@@ -166,7 +167,10 @@ class SsdMobileNetDetector:
         import cv2
 
         pb, pbtxt = ssd_model_files()
+        # Two networks: OpenCV DNN re-plans a net whenever its input shape changes (measured: a
+        # 640x360 pass followed by a batch of 300x300 tiles on one net costs ~3x the two apart).
         self.net = cv2.dnn.readNetFromTensorflow(str(pb), str(pbtxt))
+        self.tile_net = cv2.dnn.readNetFromTensorflow(str(pb), str(pbtxt)) if tiles > 0 else self.net
         self.input_size = input_size
         self.tiles = int(tiles)
         self.score_threshold = float(score_threshold)
@@ -186,26 +190,27 @@ class SsdMobileNetDetector:
         h = int(round(w * height / width / 4.0)) * 4
         return (w, max(h, 300)) if h >= 300 else (max(300, int(round(300 * width / height / 4.0)) * 4), 300)
 
-    def _forward(self, images: list[np.ndarray], size: tuple[int, int]) -> list[np.ndarray]:
+    def _forward(self, net: Any, images: list[np.ndarray], size: tuple[int, int]) -> list[np.ndarray]:
         """Raw rows (class, score, x1, y1, x2, y2 normalised) per image, one batched forward pass."""
         import cv2
 
         blob = cv2.dnn.blobFromImages(images, 1.0, size, (0, 0, 0), swapRB=True, crop=False)
-        self.net.setInput(blob)
-        out = self.net.forward().reshape(-1, 7)
+        net.setInput(blob)
+        out = net.forward().reshape(-1, 7)
         out = out[out[:, 2] >= self.score_threshold]
         return [out[out[:, 0] == k][:, 1:] for k in range(len(images))]
 
     def __call__(self, image: np.ndarray) -> Detections:
         h, w = image.shape[:2]
-        rows = self._forward([image], self.whole_input(w, h))[0]
+        rows = self._forward(self.net, [image], self.whole_input(w, h))[0]
         parts = [_to_pixels(rows, 0, 0, w, h)]
         with_tiles = self._calls % self.tile_every == 0
         self._calls += 1
         tiles = horizon_tiles(w, h, self.tiles, self.band_centre, self.tile_frac) if with_tiles else []
         if tiles:
             crops = [image[t.y0 : t.y1, t.x0 : t.x1] for t in tiles]
-            for t, r in zip(tiles, self._forward(crops, (self.tile_input, self.tile_input)), strict=True):
+            size = (self.tile_input, self.tile_input)
+            for t, r in zip(tiles, self._forward(self.tile_net, crops, size), strict=True):
                 px = _to_pixels(r, t.x0, t.y0, t.x1 - t.x0, t.y1 - t.y0)
                 parts.append(px[~_touches_inner_border(px[:, 2:], t, w, h)])
         allrows = np.concatenate(parts, axis=0)
