@@ -47,13 +47,14 @@ def _score(detector, frames) -> MatchCounts:
 
 
 def test_kitti_car_recall_whole_frame_vs_tiled(kitti_frames):
-    """27 moderate cars in the 6 labelled frames. Measured: whole frame (992x300 input) recall 0.70,
-    precision 0.70; + 5 horizon tiles recall 0.78, precision 0.54 (unlabelled distant cars count as false)."""
+    """27 moderate cars in the 6 labelled frames. Measured: whole frame (992x300 input) recall 0.70
+    (19/27), precision 0.70; + 4 horizon tiles recall 0.81 (22/27), precision 0.67 (unlabelled distant
+    cars count as false positives)."""
     whole = _score(SsdMobileNetDetector(tiles=0), kitti_frames)
-    tiled = _score(SsdMobileNetDetector(tiles=5), kitti_frames)
+    tiled = _score(SsdMobileNetDetector(tiles=4), kitti_frames)
     assert whole.tp + whole.fn == 27
-    assert whole.recall >= 0.6 and whole.precision >= 0.55
-    assert tiled.recall >= 0.75 and tiled.precision >= 0.45
+    assert whole.recall >= 0.6 and whole.precision >= 0.6
+    assert tiled.recall >= 0.75 and tiled.precision >= 0.55
     assert tiled.tp > whole.tp  # the tiles find cars the whole-frame pass misses
 
 
