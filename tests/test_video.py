@@ -1,0 +1,160 @@
+"""Video input/output on real clips: metadata, streaming, bad inputs, H.264 output."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import av
+import numpy as np
+import pytest
+
+from conftest import DATA, KITTI_TRACKING, need
+from deepcrashtest.errors import UserError
+from deepcrashtest.fileio import sha256_file
+from deepcrashtest.video.source import open_video
+from deepcrashtest.video.writer import VideoWriter
+
+DAD = DATA / "crash_dad" / "dad_000512.mp4"
+
+
+@pytest.fixture(scope="module")
+def dad() -> Path:
+    return need(DAD)
+
+
+@pytest.fixture(scope="module")
+def faststart_copy(dad, tmp_path_factory) -> Path:
+    """The DAD clip remuxed (no re-encoding) with its index ('moov') at the front, as cameras often write."""
+    out_path = tmp_path_factory.mktemp("fast") / "fast.mp4"
+    with av.open(str(dad)) as src, av.open(str(out_path), "w", options={"movflags": "faststart"}) as out:
+        ist = src.streams.video[0]
+        ost = out.add_stream_from_template(ist)
+        for packet in src.demux(ist):
+            if packet.dts is not None:
+                packet.stream = ost
+                out.mux(packet)
+    return out_path
+
+
+def test_real_clip_metadata_and_first_frames(dad):
+    with open_video(dad) as src:
+        m = src.meta
+        assert (m.kind, m.fps, m.frame_count, m.width, m.height) == ("video", 20.0, 100, 1280, 720)
+        assert m.sha256 == sha256_file(dad)
+        frames = []
+        for f in src:
+            frames.append(f)
+            if len(frames) == 5:
+                break
+    assert [f.index for f in frames] == [0, 1, 2, 3, 4]
+    assert [f.time for f in frames] == pytest.approx([0.0, 0.05, 0.10, 0.15, 0.20])
+    assert all(f.image.shape == (720, 1280, 3) and f.image.dtype == np.uint8 for f in frames)
+    assert not np.array_equal(frames[0].image, frames[4].image)
+
+
+def test_fps_override_sets_times(dad):
+    with open_video(dad, fps=10.0) as src:
+        times = [f.time for _, f in zip(range(3), src, strict=False)]
+    assert times == pytest.approx([0.0, 0.1, 0.2])
+
+
+def test_kitti_image_folder_uses_file_numbers():
+    folder = need(KITTI_TRACKING / "image_02" / "0001")
+    with open_video(folder, fps=10) as src:
+        assert (src.meta.kind, src.meta.frame_count, src.meta.sha256) == ("image_folder", 3, None)
+        got = [(f.index, f.time, f.image.shape) for f in src]
+    assert got == [(10, 0.0, (375, 1242, 3)), (15, 0.5, (375, 1242, 3)), (20, 1.0, (375, 1242, 3))]
+    assert src.meta.decoded_frames == 3
+
+
+def test_truncated_faststart_clip_keeps_decoded_frames(faststart_copy, tmp_path):
+    data = faststart_copy.read_bytes()
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes(data[: len(data) * 4 // 10])
+    src = open_video(cut)
+    n = sum(1 for _ in src)
+    assert 5 < n < 100
+    assert src.meta.decoded_frames == n
+    assert any(f"decoded {n} of 100 frames" in w for w in src.meta.warnings)
+
+
+def test_truncated_clip_without_index_is_a_clear_error(dad, tmp_path):
+    data = dad.read_bytes()
+    assert data.find(b"moov") > len(data) // 2  # the shared clip keeps its index at the end
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes(data[: len(data) // 2])
+    with pytest.raises(UserError, match="truncated mp4"):
+        open_video(cut)
+
+
+def test_zero_frame_clip(faststart_copy, tmp_path):
+    data = faststart_copy.read_bytes()
+    header_only = tmp_path / "zero.mp4"
+    header_only.write_bytes(data[: data.find(b"mdat") + 4])  # header and index, no media data
+    with pytest.raises(UserError, match="no frame could be decoded"):
+        open_video(header_only)
+
+
+@pytest.mark.parametrize(
+    ("content", "fragment"),
+    [(b"", "empty"), (bytes(np.random.default_rng(0).integers(0, 256, 4096, dtype=np.uint8)), "not a readable")],
+    ids=["empty", "garbage"],
+)
+def test_bad_files(tmp_path, content, fragment):
+    p = tmp_path / "bad.mp4"
+    p.write_bytes(content)
+    with pytest.raises(UserError, match=fragment):
+        open_video(p)
+
+
+def test_rotated_video_is_refused(tmp_path):
+    path = tmp_path / "rotated.mp4"
+    with av.open(str(path), "w") as out:
+        stream = out.add_stream("libx264", rate=10)
+        stream.width, stream.height, stream.pix_fmt = 64, 48, "yuv420p"
+        stream.set_display_rotation(90)
+        for i in range(3):
+            frame = av.VideoFrame.from_ndarray(np.full((48, 64, 3), 40 * i, np.uint8), format="bgr24")
+            for p in stream.encode(frame):
+                out.mux(p)
+        for p in stream.encode():
+            out.mux(p)
+    with pytest.raises(UserError, match="rotated by 90"):
+        open_video(path)
+
+
+def test_folder_errors(tmp_path):
+    with pytest.raises(UserError, match="no images"):
+        open_video(tmp_path, fps=10)
+    with pytest.raises(UserError, match="--fps"):
+        open_video(need(KITTI_TRACKING / "image_02" / "0001"))
+    with pytest.raises(UserError, match="positive"):
+        open_video(need(DAD), fps=-5)
+    with pytest.raises(UserError, match="no such"):
+        open_video(tmp_path / "missing.mp4")
+
+
+def test_h264_writer_round_trip(dad, tmp_path):
+    out = tmp_path / "out.mp4"
+    with open_video(dad) as src, VideoWriter(out, src.meta.fps, 641, 359) as w:
+        for f, _ in zip(src, range(6), strict=False):
+            w.write(np.ascontiguousarray(f.image[:359, :641]))
+    with av.open(str(out)) as c:
+        s = c.streams.video[0]
+        assert s.codec_context.name == "h264"
+        frames = [fr.to_ndarray(format="bgr24") for fr in c.decode(s)]
+    assert len(frames) == 6 and frames[0].shape == (360, 642, 3)  # odd sizes padded for yuv420p
+    with open_video(dad) as src:
+        first = next(iter(src)).image[:359, :641].astype(float)
+    assert np.abs(frames[0][:359, :641] - first).mean() < 6.0  # lossy but faithful
+    with pytest.raises(UserError, match="already exists"):
+        VideoWriter(out, 20, 64, 48)
+    assert not list(tmp_path.glob(".out.mp4.*"))  # no temporary file left behind
+
+
+def test_writer_discards_on_error(tmp_path):
+    out = tmp_path / "x.mp4"
+    with pytest.raises(ValueError), VideoWriter(out, 10, 64, 48) as w:
+        w.write(np.zeros((48, 64, 3), np.uint8))
+        w.write(np.zeros((10, 10, 3), np.uint8))
+    assert not out.exists() and not list(tmp_path.iterdir())
