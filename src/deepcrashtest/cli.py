@@ -224,20 +224,54 @@ def extract(
     ),
     detect_every: int = typer.Option(5, "--detect-every", help="Run the detector every N frames; track between."),
     max_frames: int | None = typer.Option(None, "--max-frames", help="Stop after this many frames."),
+    camera: Path | None = typer.Option(None, "--camera", help="Camera YAML: fx, fy, cx, cy [, height_m, ...]."),
+    hfov: float | None = typer.Option(None, "--hfov", help="Horizontal field of view, degrees (no YAML)."),
+    chessboard: Path | None = typer.Option(None, "--chessboard", help="Folder of 9x6 chessboard photos."),
+    camera_height: float | None = typer.Option(None, "--camera-height", help="Camera height above road, m."),
+    dashboard_rows: int | None = typer.Option(
+        None, "--dashboard-rows", help="Rows of dashboard/bonnet at the bottom to ignore (default: detect)."
+    ),
+    lanes: bool = typer.Option(True, "--lanes/--no-lanes", help="Detect and track lane lines."),
+    geometry: bool = typer.Option(
+        True, "--geometry/--no-geometry", help="Build the scenario (ego-motion, 3D positions, stage 2)."
+    ),
+    report: bool = typer.Option(True, "--report/--no-report", help="Write report.html."),
     force: bool = ForceOpt,
     seed: int = SeedOpt,
     as_json: bool = JsonOpt,
 ) -> None:
-    """Stage 1 (+2): detect, track, localise -> tracks.csv, annotated.mp4, scenario.json."""
+    """Stage 1 + 2: detect, track, ego-motion, lanes, 3D positions -> tracks.csv, annotated.mp4, scenario.json."""
+    from functools import partial
+
     from deepcrashtest.extract import run_extract
     from deepcrashtest.fileio import require_file
+    from deepcrashtest.geometry.camera import camera_for_video
 
     if not video.is_dir():
         require_file(video, "video")
     if fps is not None and not fps > 0:
         raise UserError(f"--fps must be a positive number (got {fps})")
+    if dashboard_rows is not None and dashboard_rows < 0:
+        raise UserError(f"--dashboard-rows must be >= 0 (got {dashboard_rows})")
+    if camera is not None:
+        require_file(camera, "camera file")
+    if chessboard is not None and not chessboard.is_dir():
+        raise UserError(f"{chessboard}: chessboard folder not found")
+    cam = partial(camera_for_video, yaml_path=camera, hfov_deg=hfov, chessboard=chessboard, height_m=camera_height)
     result = run_extract(
-        video, output, detector=detector, detect_every=detect_every, max_frames=max_frames, fps=fps, force=force
+        video,
+        output,
+        detector=detector,
+        detect_every=detect_every,
+        max_frames=max_frames,
+        fps=fps,
+        force=force,
+        geometry=geometry,
+        camera=cam,
+        dashboard_rows=dashboard_rows,
+        lanes=lanes,
+        report=report,
+        seed=seed,
     )
     emit(result, as_json, _extract_summary)
 
@@ -248,6 +282,20 @@ def _extract_summary(r: dict[str, Any]) -> None:
         f"mean track length {r['mean_track_length_frames']} frames, {r['fps_achieved']} fps achieved"
     )
     typer.echo(f"wrote {r['tracks_csv']}" + (f" and {r['annotated_mp4']}" if r["annotated_mp4"] else ""))
+    if r.get("scenario_raw"):
+        cam = r["camera"]
+        typer.echo(
+            f"ego: {r['ego_distance_m']} m at {r['ego_mean_speed_mps']} m/s mean; {r['agents']} agents; camera "
+            f"fx {cam['fx']} px, pitch {cam['pitch_rad']} rad ({cam['pitch_source']}), height {cam['height_m']} m"
+        )
+    for key in ("scenario_raw", "scenario", "report"):
+        if r.get(key):
+            typer.echo(f"wrote {r[key]}")
+    if r.get("classes"):
+        typer.echo("classes: " + ", ".join(f"{k} {v}" for k, v in r["classes"].items()))
+    if r.get("collision"):
+        c = r["collision"]
+        typer.echo(f"collision: ego with agent {c['agent_id']} at t = {c['time_s']:.2f} s")
     for w in r["warnings"]:
         typer.echo(f"warning: {w}")
 
@@ -554,7 +602,16 @@ def demo(
     """Run the whole pipeline on the bundled sample clip and write everything to OUTPUT."""
     from deepcrashtest.demo import run_demo
 
-    emit(run_demo(output, video), as_json)
+    emit(run_demo(output, video), as_json, _demo_summary)
+
+
+def _demo_summary(r: dict[str, Any]) -> None:
+    typer.echo(f"demo on {r['video']} -> {r['output']}")
+    for step in r["steps"]:
+        details = ", ".join(
+            f"{k}={v}" for k, v in step.items() if k != "step" and isinstance(v, str | int | float | bool) and v != ""
+        )
+        typer.echo(f"- {step['step']}: {details}")
 
 
 # --------------------------------------------------------------------------- entry point

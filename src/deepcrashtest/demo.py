@@ -6,7 +6,6 @@ Each stage that lands adds a step here; every output goes under the demo folder.
 from __future__ import annotations
 
 import shutil
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -48,7 +47,6 @@ def run_demo(output: str | Path, video: str | Path | None = None) -> dict[str, A
         _step_search(out, summary)
         _step_report(out, summary)
     _step_eval(out, summary)
-    _step_geometry(out, summary)
     _step_trajectory(out, summary)
     return summary
 
@@ -159,49 +157,6 @@ def _step_eval(out: Path, summary: dict) -> None:
     )
 
 
-def _step_geometry(out: Path, summary: dict[str, Any]) -> None:
-    """Ego path + lanes from the clip (every 4th frame, at most 50: keeps the demo fast) -> raw Scenario."""
-    import av
-    import pandas as pd
-
-    from deepcrashtest.geometry.camera import default_camera
-    from deepcrashtest.geometry.extract_geometry import extract_geometry
-
-    src = Path(summary["video"])
-    with av.open(str(src)) as container:
-        stream = container.streams.video[0]
-        fps = float(stream.average_rate or 25)
-        width, height = stream.codec_context.width, stream.codec_context.height
-
-        @dataclass
-        class _Frame:
-            index: int
-            time: float
-            image: Any
-
-        def frames() -> Any:
-            for i, frame in enumerate(container.decode(stream)):
-                if i >= 200:
-                    break
-                if i % 4 == 0:
-                    yield _Frame(i, i / fps, frame.to_ndarray(format="bgr24")), pd.DataFrame()
-
-        meta = {"path": str(src), "fps": fps, "frame_count": 0, "width": width, "height": height}
-        res = extract_geometry(frames(), meta, default_camera(width, height), max_width=640)
-    ensure_output_dir(out / "geometry")
-    path = res.scenario.save(out / "geometry" / "scenario_raw.json")
-    ego = res.scenario.ego.trajectory
-    summary["steps"].append(
-        {
-            "step": "geometry (ego-motion + lanes, default camera)",
-            "scenario": str(path),
-            "ego_path_m": round(ego.x[-1], 1),
-            "lane_width_m": res.lanes.median_lane_width() if res.lanes is not None else None,
-            "warnings": res.scenario.warnings,
-        }
-    )
-
-
 def _step_trajectory(out: Path, summary: dict[str, Any]) -> None:
     """Stage 2 on KITTI 0008 (real labels + poses): bird's-eye PNG of raw vs processed tracks and road."""
     if not KITTI_TRACKING.exists():
@@ -227,17 +182,26 @@ def _step_trajectory(out: Path, summary: dict[str, Any]) -> None:
 
 
 def _step_perception(out: Path, summary: dict[str, Any]) -> None:
-    """Stage 1a: detect + track vehicles in the demo clip -> extract/tracks.csv, extract/annotated.mp4."""
-    from deepcrashtest.extract import run_extract
+    """Stage 1 + 2 on the demo clip in one pass (detect + track, ego-motion, lanes, 3D, stage 2) -> extract/.
 
-    r = run_extract(summary["video"], out / "extract", detect_every=10, force=True)
-    summary["steps"].append(
-        {
-            "step": "extract (detect + track)",
-            "tracks_csv": r["tracks_csv"],
-            "annotated_mp4": r["annotated_mp4"],
-            "frames": r["frames"],
-            "tracks": r["tracks"],
-            "fps_achieved": r["fps_achieved"],
-        }
-    )
+    Then the extracted scenario is replayed in the simulator (bird's-eye video) and exported.
+    """
+    from deepcrashtest.export import export_scenario
+    from deepcrashtest.extract import run_extract
+    from deepcrashtest.scenario import Scenario
+    from deepcrashtest.sim import simulate
+    from deepcrashtest.viz.birdseye import write_birdseye
+
+    r = run_extract(summary["video"], out / "extract", force=True)
+    step: dict[str, Any] = {
+        "step": "extract (stage 1 + 2 on the video)",
+        **{k: r.get(k) for k in ("frames", "tracks", "fps_achieved", "agents", "classes", "collision")},
+        **{k: r.get(k) for k in ("tracks_csv", "annotated_mp4", "scenario", "report")},
+    }
+    if r.get("scenario"):
+        sc = Scenario.load(r["scenario"])
+        res = simulate(sc, controller="replay")
+        step["simulate_replay"] = {k: res.metrics[k] for k in ("collided", "min_distance", "min_ttc")}
+        step["birdseye_mp4"] = str(write_birdseye(sc, res, out / "extract" / "birdseye.mp4"))
+        step["export"] = export_scenario(sc, "openscenario", out / "extract" / "export")["files"]
+    summary["steps"].append(step)

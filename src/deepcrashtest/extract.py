@@ -6,17 +6,27 @@ pass through ``on_frame`` callbacks and add their outputs after tracking (see th
 
 from __future__ import annotations
 
+import contextlib
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+import pandas as pd
+
 from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import atomic_path, check_writable, ensure_output_dir
+from deepcrashtest.geometry.camera import default_camera
+from deepcrashtest.geometry.extract_geometry import GeometryResult, extract_geometry
 from deepcrashtest.perception.annotate import Annotator
 from deepcrashtest.perception.detect import make_detector
-from deepcrashtest.perception.track import FrameTracks, track_video
+from deepcrashtest.perception.lanes import LaneState, draw_lanes
+from deepcrashtest.perception.track import FrameTracks, frame_records, iter_tracks, records_table
+from deepcrashtest.scenario import Camera, VideoSource
+from deepcrashtest.trajectory.pipeline import process_scenario
 from deepcrashtest.ui import track as progress
-from deepcrashtest.video.source import open_video
+from deepcrashtest.video.source import VideoMeta, open_video
 from deepcrashtest.video.writer import VideoWriter
 
 DEFAULT_DETECTOR = "ssd-mobilenet"
@@ -32,10 +42,20 @@ def run_extract(
     fps: float | None = None,
     force: bool = False,
     annotate: bool = True,
+    geometry: bool = True,
+    camera: Camera | Callable[[int, int], Camera] | None = None,
+    dashboard_rows: int | None = None,
+    lanes: bool = True,
+    report: bool = True,
+    seed: int = 0,
 ) -> dict[str, Any]:
-    """Detect and track every vehicle in ``video``; write ``output``/tracks.csv and annotated.mp4.
+    """Extract a video in ONE decoding pass: detect + track, ego-motion, lanes, localisation.
 
-    Returns a summary: frames, tracks, mean track length (frames), processing fps, warnings.
+    Writes into ``output``: ``tracks.csv``, ``annotated.mp4`` (boxes, ids, trails, lane lines),
+    ``scenario_raw.json`` (world-frame tracks), ``scenario.json`` (after stage 2) and
+    ``report.html``. ``camera`` defaults to :func:`deepcrashtest.geometry.camera.default_camera`
+    (horizon from the lanes' vanishing point or the flow's focus of expansion); a callable gets the
+    video's width and height and returns the Camera. Returns a summary.
     """
     if detect_every < 1:
         raise UserError(f"--detect-every must be >= 1 (got {detect_every})")
@@ -47,46 +67,84 @@ def run_extract(
     out = Path(output)
     if out.exists() and not out.is_dir():
         raise UserError(f"{out}: exists and is not a directory")
-    csv_path, mp4_path = out / "tracks.csv", out / "annotated.mp4"
-    for p in (csv_path, mp4_path) if annotate else (csv_path,):
-        if p.exists() and not force:
-            raise UserError(f"{p}: already exists (use --force to overwrite)")
+    paths = {
+        "tracks_csv": out / "tracks.csv",
+        "annotated_mp4": out / "annotated.mp4",
+        "scenario_raw": out / "scenario_raw.json",
+        "scenario": out / "scenario.json",
+        "report": out / "report.html",
+    }
+    wanted = ["tracks_csv"] + (["annotated_mp4"] if annotate else [])
+    wanted += ["scenario_raw", "scenario"] if geometry else []
+    wanted += ["report"] if geometry and report else []
+    for key in wanted:  # refuse before any work, so nothing already written is lost
+        check_writable(paths[key], force)
     det = make_detector(detector)
     t0 = time.perf_counter()
-    with open_video(src_path, fps) as source:
+    records: list[tuple[object, ...]] = []
+    geo: GeometryResult | None = None
+    with open_video(src_path, fps) as source, contextlib.ExitStack() as stack:
         meta = source.meta
         ensure_output_dir(out)
         total = min(meta.frame_count, max_frames) if max_frames else meta.frame_count
         frames = progress(source, "extract", total=total or None)
-        if annotate:
-            drawer = Annotator(meta.fps)
-            with VideoWriter(mp4_path, meta.fps, meta.width, meta.height, force=force) as writer:
-
-                def on_frame(ft: FrameTracks) -> None:
+        writer = (
+            stack.enter_context(VideoWriter(paths["annotated_mp4"], meta.fps, meta.width, meta.height, force=force))
+            if annotate
+            else None
+        )
+        drawer = Annotator(meta.fps)
+        tracked = iter_tracks(frames, det, detect_every, max_frames, fps=meta.fps)
+        if not geometry:
+            for ft in tracked:
+                records.extend(frame_records(ft))
+                if writer is not None:
                     writer.write(drawer.draw(ft))
-
-                df = track_video(frames, det, detect_every, max_frames, on_frame=on_frame, fps=meta.fps)
         else:
-            df = track_video(frames, det, detect_every, max_frames, fps=meta.fps)
+            pending: dict[int, FrameTracks] = {}
+
+            def pairs() -> Iterator[tuple[Any, pd.DataFrame]]:
+                for ft in tracked:
+                    rows = frame_records(ft)
+                    records.extend(rows)
+                    pending[ft.frame.index] = ft
+                    yield ft.frame, records_table(rows)
+
+            def on_frame(frame: Any, _trk: pd.DataFrame, lane_state: LaneState | None) -> None:
+                ft = pending.pop(int(frame.index))
+                if writer is not None:
+                    img = drawer.draw(ft)
+                    writer.write(draw_lanes(img, lane_state) if lane_state is not None else img)
+
+            if callable(camera):
+                cam = camera(meta.width, meta.height)
+            else:
+                cam = camera or default_camera(meta.width, meta.height)
+            geo = extract_geometry(
+                pairs(),
+                _video_source(meta),
+                cam,
+                dashboard_rows=dashboard_rows,
+                lanes=lanes,
+                name=src_path.stem,
+                seed=seed,
+                on_frame=on_frame,
+            )
     elapsed = time.perf_counter() - t0
     if meta.decoded_frames == 0:
         raise UserError(f"{src_path}: no frame could be decoded")
-    check_writable(csv_path, force)
-    with atomic_path(csv_path, force=force) as tmp:
+    df = records_table(records)
+    with atomic_path(paths["tracks_csv"], force=force) as tmp:
         df.to_csv(tmp, index=False, float_format="%.3f")
-
-    # ----------------------------------------------------------------------------------------
-    # GEOMETRY STAGE GOES HERE: the geometry helper turns `df` (+ meta, ego-motion gathered in an
-    # on_frame hook in the same pass) into a Scenario and writes out / "scenario.json".
-    # ----------------------------------------------------------------------------------------
 
     n_frames = min(meta.decoded_frames, max_frames) if max_frames else meta.decoded_frames
     lengths = df.groupby("track_id").size() if len(df) else None
-    return {
+    warnings = list(meta.warnings)
+    result: dict[str, Any] = {
         "video": str(src_path),
         "output": str(out),
-        "tracks_csv": str(csv_path),
-        "annotated_mp4": str(mp4_path) if annotate else None,
+        "tracks_csv": str(paths["tracks_csv"]),
+        "annotated_mp4": str(paths["annotated_mp4"]) if annotate else None,
         "detector": getattr(det, "name", detector),
         "detect_every": detect_every,
         "fps_video": round(meta.fps, 3),
@@ -97,5 +155,69 @@ def run_extract(
         "mean_track_length_frames": round(float(lengths.mean()), 2) if lengths is not None else 0.0,
         "fps_achieved": round(n_frames / elapsed, 2) if elapsed > 0 else None,
         "seconds": round(elapsed, 2),
-        "warnings": list(meta.warnings),
+        "scenario_raw": None,
+        "scenario": None,
+        "report": None,
+        "warnings": warnings,
     }
+    if geo is not None:
+        result.update(_finish_scenario(geo, paths, force, seed, report, warnings))
+    return result
+
+
+def _finish_scenario(
+    geo: GeometryResult, paths: dict[str, Path], force: bool, seed: int, report: bool, warnings: list[str]
+) -> dict[str, Any]:
+    """Save the raw scenario, run stage 2 on it, save the processed one and the report."""
+    raw = geo.scenario
+    raw.save(paths["scenario_raw"], force=force)
+    ego = raw.ego.trajectory.arrays()
+    info: dict[str, Any] = {
+        "scenario_raw": str(paths["scenario_raw"]),
+        "agents": len(raw.agents),
+        "ego_distance_m": round(float(np.hypot(np.diff(ego["x"]), np.diff(ego["y"])).sum()), 2),
+        "ego_mean_speed_mps": round(float(np.mean(ego["speed"])), 2),
+        "camera": {
+            "fx": round(geo.camera.fx, 1),
+            "pitch_rad": round(geo.camera.pitch_rad, 4),
+            "pitch_source": geo.camera.pitch_source,
+            "height_m": geo.camera.height_m,
+        },
+        "dashboard_rows": geo.dashboard_rows,
+    }
+    warnings.extend(raw.warnings)
+    try:
+        processed = process_scenario(raw, seed=seed)
+    except UserError as exc:  # e.g. no usable track: keep the raw scenario, say why
+        warnings.append(f"stage 2 could not process the extracted tracks: {exc}")
+        return info
+    processed.save(paths["scenario"], force=force)
+    info["scenario"] = str(paths["scenario"])
+    info["collision"] = processed.collision.model_dump() if processed.collision is not None else None
+    classes: dict[str, int] = {}
+    for a in processed.agents:
+        classes[str(a.trajectory_class)] = classes.get(str(a.trajectory_class), 0) + 1
+    info["classes"] = dict(sorted(classes.items()))
+    if report:
+        from deepcrashtest.viz.report import build_report
+
+        build_report(paths["scenario"], paths["report"], force=force)
+        info["report"] = str(paths["report"])
+    return info
+
+
+def _video_source(meta: VideoMeta) -> VideoSource:
+    return VideoSource(
+        kind=meta.kind,
+        path=str(meta.path),
+        fps=meta.fps,
+        frame_count=meta.frame_count,
+        width=meta.width,
+        height=meta.height,
+        sha256=meta.sha256,
+    )
+
+
+def extract_video(video: str | Path, output: str | Path, seed: int = 0, force: bool = False, **options: Any) -> dict:
+    """Library entry point used by ``batch``: :func:`run_extract` with its defaults."""
+    return run_extract(video, output, seed=seed, force=force, **options)

@@ -245,3 +245,36 @@ def detect_dashboard_rows(frames: Iterable[np.ndarray], max_pairs: int = 8, stil
     if n < 2:
         return 0
     return int(math.ceil(n / scale)) if full_h else 0
+
+
+def camera_for_video(
+    width: int,
+    height: int,
+    yaml_path: str | Path | None = None,
+    hfov_deg: float | None = None,
+    chessboard: str | Path | None = None,
+    height_m: float | None = None,
+) -> Camera:
+    """The camera of a video of ``width`` x ``height`` pixels from whichever source the user gave.
+
+    Priority: a camera YAML, then chessboard photos (scaled when the photos' size differs from the
+    video's), then a horizontal field of view, else :func:`default_camera`. ``height_m`` (camera
+    height above the road) overrides the source's.
+    """
+    if yaml_path is not None:
+        cam = camera_from_yaml(yaml_path, width, height)
+    elif chessboard is not None:
+        cam, _, _ = calibrate_chessboard(chessboard)
+        first = next(p for p in sorted(Path(chessboard).iterdir()) if p.suffix.lower() in {".jpg", ".jpeg", ".png"})
+        photo = cv2.imread(str(first))
+        if photo is not None and photo.shape[1] != width:
+            cam = scale_camera(cam, width / photo.shape[1], height / photo.shape[0])
+    elif hfov_deg is not None:
+        cam = camera_from_fov(width, height, hfov_deg)
+    else:
+        cam = default_camera(width, height)
+    if height_m is not None:
+        if not height_m > 0:
+            raise UserError(f"camera height must be > 0 m (got {height_m})")
+        cam = cam.model_copy(update={"height_m": float(height_m), "height_source": "user"})
+    return cam

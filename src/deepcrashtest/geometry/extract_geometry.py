@@ -14,7 +14,7 @@ lane detector once; frames are never decoded twice.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -90,8 +90,13 @@ def extract_geometry(
     max_width: int = 960,
     name: str = "scenario",
     seed: int = 0,
+    on_frame: Callable[[FrameLike, pd.DataFrame, LaneState | None], None] | None = None,
 ) -> GeometryResult:
-    """Run the geometry stage over one pass of frames (see the module docstring)."""
+    """Run the geometry stage over one pass of frames (see the module docstring).
+
+    ``on_frame(frame, tracks, lane_state)`` is called once per frame, in order, after the frame went
+    through ego-motion and lanes (annotation draws the lanes in the same pass).
+    """
     buffer: list[tuple[FrameLike, pd.DataFrame]] = []
     all_tracks: list[pd.DataFrame] = []
     it = iter(frames)
@@ -119,6 +124,8 @@ def extract_geometry(
             )
         if len(trk):
             all_tracks.append(trk)
+        if on_frame is not None:
+            on_frame(frame, trk, lane_states.get(int(frame.index)))
 
     for frame, trk in buffer:
         process(frame, trk)

@@ -339,5 +339,5 @@ def draw_lanes(frame_bgr: np.ndarray, state: LaneState, top_v: float | None = No
         cv2.line(out, p0, p1, (0, 255, 0) if ego else (0, 220, 255), 4 if ego else 2, cv2.LINE_AA)
     if state.lane_width is not None and state.lateral_offset is not None:
         text = f"lane {state.lane_width:.2f} m  offset {state.lateral_offset:+.2f} m"
-        cv2.putText(out, text, (20, 40), cv2.FONT_HERSHEY_SIMPLEX, 1.0, (0, 255, 0), 2, cv2.LINE_AA)
+        cv2.putText(out, text, (10, 60), cv2.FONT_HERSHEY_SIMPLEX, 0.8, (0, 255, 0), 2, cv2.LINE_AA)
     return out

@@ -245,11 +245,11 @@ def iter_tracks(
         yield tracker.update(frame)
 
 
-def _records(ft: FrameTracks) -> list[tuple[object, ...]]:
+def frame_records(ft: FrameTracks) -> list[tuple[object, ...]]:
     return [(ft.frame.index, ft.frame.time, b.track_id, b.category, *b.box, b.score, b.state) for b in ft.tracks]
 
 
-def _table(records: list[tuple[object, ...]]) -> pd.DataFrame:
+def records_table(records: list[tuple[object, ...]]) -> pd.DataFrame:
     df = pd.DataFrame.from_records(records, columns=TRACK_COLUMNS)
     types = {"frame": "int64", "time": "float64", "track_id": "int64", "category": "str", "score": "float64"}
     types |= {c: "float64" for c in ("x1", "y1", "x2", "y2")} | {"state": "str"}
@@ -258,7 +258,7 @@ def _table(records: list[tuple[object, ...]]) -> pd.DataFrame:
 
 def tracks_dataframe(rows: Iterable[FrameTracks]) -> pd.DataFrame:
     """Per-frame tracker results -> the ``tracks.csv`` table (columns :data:`TRACK_COLUMNS`)."""
-    return _table([r for ft in rows for r in _records(ft)])
+    return records_table([r for ft in rows for r in frame_records(ft)])
 
 
 def track_video(
@@ -278,5 +278,5 @@ def track_video(
     for ft in iter_tracks(source, detector, detect_every=detect_every, max_frames=max_frames, **options):
         if on_frame is not None:
             on_frame(ft)
-        records.extend(_records(ft))
-    return _table(records)
+        records.extend(frame_records(ft))
+    return records_table(records)

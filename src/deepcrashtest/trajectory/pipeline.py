@@ -218,7 +218,12 @@ def process_scenario(raw: Scenario, seed: int = 0, params: Stage2Params | None =
 
     # ---- final splines and samples
     ego = _final_vehicle(ego_dense, p, None)
-    agents = [_final_vehicle(d, p, d.cls) for d in dense]
+    agents = []
+    for d in dense:  # one implausible agent track (a monocular depth jump) must not sink the scenario
+        try:
+            agents.append(_final_vehicle(d, p, d.cls))
+        except UserError as exc:
+            warnings.append(f"{exc}; dropped")
 
     # ---- road: from the whole processed ego path (step-back included)
     road_frame = RoadFrame.from_path(ego_dense.xy, p.road_sigma_m, heading=ego_heading0)
