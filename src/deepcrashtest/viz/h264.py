@@ -1,4 +1,4 @@
-"""H.264 MP4 writing with PyAV, shared by every video the package renders (BGR frames from OpenCV)."""
+"""H.264 MP4 writing for rendered videos: a context-manager face of :class:`deepcrashtest.video.writer.VideoWriter`."""
 
 from __future__ import annotations
 
@@ -6,10 +6,9 @@ import os
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
-import av
 import numpy as np
 
-from deepcrashtest.fileio import atomic_path
+from deepcrashtest.video.writer import VideoWriter
 
 
 @contextmanager
@@ -28,19 +27,5 @@ def h264_writer(
     at ``path`` only when the block finishes without an exception (refused if it exists, unless
     ``force``).
     """
-    with atomic_path(path, force, suffix=".mp4") as tmp:
-        container = av.open(str(tmp), mode="w", format="mp4")
-        try:
-            stream = container.add_stream("libx264", rate=rate)
-            stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
-            stream.options = {"crf": str(crf), "preset": preset}
-
-            def write(img: np.ndarray) -> None:
-                for packet in stream.encode(av.VideoFrame.from_ndarray(img, format="bgr24")):
-                    container.mux(packet)
-
-            yield write
-            for packet in stream.encode():
-                container.mux(packet)
-        finally:
-            container.close()
+    with VideoWriter(os.fspath(path), rate, width, height, force=force, crf=crf, preset=preset) as writer:
+        yield writer.write
