@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from deepcrashtest.errors import UserError
+from deepcrashtest.scenario import Scenario
 
 sim = pytest.importorskip("deepcrashtest.sim")
 if not hasattr(sim, "simulate_batch"):
@@ -92,26 +93,39 @@ def test_kill_9_loses_nothing_finished_and_resume_completes(inputs, tmp_path):
         assert (out / n / "search" / "summary.json").stat().st_mtime_ns == stamp
 
 
-def test_a_video_without_the_extract_stage_is_recorded_as_failed(kitti8_raw, kitti_root, tmp_path):
-    try:
-        from deepcrashtest.extract import extract_video  # type: ignore[attr-defined]  # noqa: F401
-    except ImportError:
-        pass
-    else:
-        pytest.skip("the extract stage is in this build: videos are processed, not refused")
+def _cut(clip: Path, dest: Path, frames: int) -> Path:
+    """The first ``frames`` frames of a real clip, re-encoded (a short real video for a fast test)."""
+    import av
+
+    with av.open(str(clip)) as src, av.open(str(dest), "w") as out:
+        stream = out.add_stream("libx264", rate=20)
+        stream.width, stream.height, stream.pix_fmt = 640, 360, "yuv420p"
+        for i, frame in enumerate(src.decode(video=0)):
+            if i >= frames:
+                break
+            rgb = frame.to_ndarray(width=640, height=360, format="rgb24")
+            for packet in stream.encode(av.VideoFrame.from_ndarray(rgb, format="rgb24")):
+                out.mux(packet)
+        for packet in stream.encode():
+            out.mux(packet)
+    return dest
+
+
+def test_batch_extracts_real_videos_and_records_a_broken_one(kitti_root, tmp_path):
     dad = kitti_root.parent / "crash_dad"
     if not dad.is_dir():
         pytest.skip(f"real data not found: {dad}")
-    clip = sorted(dad.glob("*.mp4"))[0]
     folder = tmp_path / "videos"
     folder.mkdir()
-    (folder / clip.name).symlink_to(clip)
-    meet_ego(kitti8_raw, 10, 8.8).save(folder / "kitti8_crash.json")
-    cfg = SearchConfig(starts=2, noise_variants=2, method="random", duration=10.0, video=False, max_scenarios=1)
+    clip = _cut(sorted(dad.glob("*.mp4"))[0], folder / "crash.mp4", 50)
+    (folder / "broken.mp4").write_bytes(clip.read_bytes()[:4000])  # a cut-off recording
+    cfg = SearchConfig(starts=2, noise_variants=2, method="random", video=False, max_scenarios=1)
     res = run_batch(folder, tmp_path / "out", cfg)
     assert res["done"] == 1 and res["failed"] == 1
-    assert "extract" in res["errors"][clip.stem] and "NotImplementedYet" in res["errors"][clip.stem]
-    summary = json.loads((tmp_path / "out" / "kitti8_crash" / "search" / "summary.json").read_text())
-    assert summary["original"]["collided"] is True
-    with pytest.raises(UserError, match="not available"):
-        process_video(clip, tmp_path / "one", cfg)
+    assert "broken" in res["errors"] and "crash" not in res["errors"]
+    extracted = Scenario.load(tmp_path / "out" / "crash" / "extract" / "scenario.json")
+    assert extracted.stage == "processed" and extracted.source.fps == 20.0
+    summary = json.loads((tmp_path / "out" / "crash" / "search" / "summary.json").read_text())
+    assert summary["methods"]["random"]["simulations"] == 4
+    with pytest.raises(UserError):
+        process_video(folder / "broken.mp4", tmp_path / "one", cfg)

@@ -158,3 +158,31 @@ def test_writer_discards_on_error(tmp_path):
         w.write(np.zeros((48, 64, 3), np.uint8))
         w.write(np.zeros((10, 10, 3), np.uint8))
     assert not out.exists() and not list(tmp_path.iterdir())
+
+
+def test_broken_timestamps_fall_back_to_index_over_fps(tmp_path):
+    """A real clip re-muxed without timestamps (as some dashcam tools write): frame times must still
+    increase, and the reader says it fell back to index / fps."""
+    import av
+
+    sample = Path(__file__).resolve().parents[1] / "examples" / "highway_sample.mp4"
+    dest = tmp_path / "nopts.mp4"
+    with av.open(str(sample)) as src, av.open(str(dest), "w") as out:
+        stream = out.add_stream("libx264", rate=25)
+        stream.width, stream.height, stream.pix_fmt = 320, 180, "yuv420p"
+        for i, frame in enumerate(src.decode(video=0)):
+            if i >= 10:
+                break
+            small = frame.reformat(width=320, height=180, format="yuv420p")
+            small.pts = None  # the encoder then writes no usable timestamps
+            for packet in stream.encode(small):
+                out.mux(packet)
+        for packet in stream.encode():
+            out.mux(packet)
+    with open_video(dest, fps=None) as source:
+        times = [f.time for f in source]
+        warnings = source.meta.warnings
+    assert len(times) == 10
+    assert all(b > a for a, b in zip(times, times[1:], strict=False))
+    assert times[1] == pytest.approx(times[0] + 1 / source.meta.fps)
+    assert any("timestamps" in w for w in warnings)

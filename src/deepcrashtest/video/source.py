@@ -181,11 +181,19 @@ class PyAVSource(VideoSource):
         raw = self._first
         self._first = None
         index = 0
+        last_t = -np.inf
+        pts_ok = self._fps_override is None
         while raw is not None:
-            if self._fps_override is not None or raw.time is None:
+            t = float(raw.time - self._start) if pts_ok and raw.time is not None else np.nan
+            if not t > last_t:  # missing or non-increasing timestamps (broken muxers): index / fps from here on
+                if pts_ok and index > 0:
+                    self.meta.warnings.append(
+                        f"frame {index}: timestamps missing or not increasing; "
+                        f"frame times are index / {self.meta.fps:g} fps"
+                    )
+                pts_ok = False
                 t = index / self.meta.fps
-            else:
-                t = float(raw.time - self._start)
+            last_t = t
             image = raw.to_ndarray(format="bgr24")
             self.meta.decoded_frames = index + 1
             yield Frame(index=index, time=t, image=image)
