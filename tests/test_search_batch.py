@@ -82,7 +82,8 @@ def test_kill_9_loses_nothing_finished_and_resume_completes(inputs, tmp_path):
     assert again.returncode == 2 and "--resume" in err
     resumed = batch(str(inputs), "-o", str(out), *SMALL, "--resume", "--json")
     stdout, err = resumed.communicate(timeout=300)
-    assert resumed.returncode == 0, err
+    assert resumed.returncode == 1, err  # one input (e_broken) failed: the batch finished, the exit code says so
+    assert "1 input(s) failed" in err
     res = json.loads(stdout)
     assert res["done"] == len(CRASHES) and res["failed"] == 1 and res["skipped"] == len(finished)
     assert "e_broken" in res["errors"] and "name" in res["errors"]["e_broken"]

@@ -408,10 +408,11 @@ def _search_human(s: dict[str, Any]) -> None:
         f"{'collides' if o['collided'] else 'does not collide'} (robustness {o['robustness']} m)"
     )
     for name, m in s["methods"].items():
-        typer.echo(
-            f"  {name:8s} {m['safe']:4d} of {m['simulations']:4d} safe; first safe after "
-            f"{m['first_safe_at']} simulations; least change {m['min_change_safe_m']} m"
-        )
+        if m["first_safe_at"] is None:
+            found = "no safe variant found"
+        else:
+            found = f"first safe after {m['first_safe_at']} simulations; least change {m['min_change_safe_m']} m"
+        typer.echo(f"  {name:8s} {m['safe']:4d} of {m['simulations']:4d} safe; {found}")
     b = s["best_safe"]
     if b:
         typer.echo(
@@ -539,7 +540,10 @@ def batch(
     seed: int = SeedOpt,
     as_json: bool = JsonOpt,
 ) -> None:
-    """Run extract -> scenario -> search over a folder of videos (resumable; manifest.json)."""
+    """Run extract -> scenario -> search over a folder of videos (resumable; manifest.json).
+
+    A failed input is recorded and the batch goes on; the exit code is 1 when any input failed.
+    """
     from deepcrashtest.search.batch import run_batch
     from deepcrashtest.search.run import SearchConfig
 
@@ -552,7 +556,11 @@ def batch(
         video=False,
         duration=duration,
     )
-    emit(run_batch(videos, output, cfg, engine=engine, workers=workers, resume=resume, force=force), as_json)
+    result = run_batch(videos, output, cfg, engine=engine, workers=workers, resume=resume, force=force)
+    emit(result, as_json)
+    if result.get("failed"):  # the batch went on; the exit code still tells a script that some inputs failed
+        sys.stderr.write(f"deepcrashtest: {result['failed']} input(s) failed; see {Path(output) / 'manifest.json'}\n")
+        raise typer.Exit(1)
 
 
 @app.command()
@@ -620,7 +628,9 @@ def main(argv: list[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in args
     try:
-        app(args=args, prog_name="deepcrashtest", standalone_mode=False)
+        rv = app(args=args, prog_name="deepcrashtest", standalone_mode=False)
+        if isinstance(rv, int) and not isinstance(rv, bool):  # typer.Exit(n) comes back as a return value
+            return rv
     except typer.Exit as exc:
         return int(exc.exit_code or 0)
     except typer.Abort:
