@@ -620,6 +620,11 @@ def _demo_summary(r: dict[str, Any]) -> None:
             f"{k}={v}" for k, v in step.items() if k != "step" and isinstance(v, str | int | float | bool) and v != ""
         )
         typer.echo(f"- {step['step']}: {details}")
+        for run in step.get("runs", []):  # e.g. the simulator's runs: one line each
+            typer.echo(
+                f"    {run.get('scenario')} / {run.get('controller')}: collided={run.get('collided')} "
+                f"t={run.get('collision_time')} min_distance={run.get('min_distance')} aeb={run.get('aeb_time')}"
+            )
 
 
 # --------------------------------------------------------------------------- entry point
