@@ -74,15 +74,12 @@ def emit(result: dict[str, Any], as_json: bool, human: Callable[[dict[str, Any]]
 
 
 def _json_default(o: Any) -> Any:
-    try:
-        import numpy as np
+    import numpy as np
 
-        if isinstance(o, np.generic):
-            return o.item()
-        if isinstance(o, np.ndarray):
-            return o.tolist()
-    except ImportError:  # pragma: no cover
-        pass
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
     if isinstance(o, Path):
         return str(o)
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
@@ -152,12 +149,9 @@ def scenario_from_kitti(
         raise UserError(f"--sequence must be >= 0 (got {sequence})")
     sc = build(data, sequence)
     if not raw:
-        try:
-            from deepcrashtest.trajectory.pipeline import process_scenario
-        except ImportError:
-            sc.warnings.append("stage-2 processing is not available in this build; scenario is raw")
-        else:
-            sc = process_scenario(sc, seed=seed)
+        from deepcrashtest.trajectory.pipeline import process_scenario
+
+        sc = process_scenario(sc, seed=seed)
     out = ensure_output_dir(output)
     path = sc.save(out / "scenario.json", force=force)
     emit(
@@ -167,7 +161,7 @@ def scenario_from_kitti(
             "stage": sc.stage,
             "agents": len(sc.agents),
             "duration_s": round(sc.duration(), 3),
-            "classes": _class_counts(sc),
+            "classes": sc.class_counts(),
         },
         as_json,
     )
@@ -197,20 +191,12 @@ def scenario_build(
             "agents": len(sc.agents),
             "duration_s": round(sc.duration(), 3),
             "t_max_s": round(float(sc.provenance.parameters["t_max_s"]), 3),
-            "classes": _class_counts(sc),
+            "classes": sc.class_counts(),
             "collision": None if c is None else {"time_s": round(c.time_s, 3), "agent_id": c.agent_id},
             "warnings": sc.warnings,
         },
         as_json,
     )
-
-
-def _class_counts(sc: Any) -> dict[str, int]:
-    counts: dict[str, int] = {}
-    for a in sc.agents:
-        key = a.trajectory_class or "unclassified"
-        counts[key] = counts.get(key, 0) + 1
-    return dict(sorted(counts.items()))
 
 
 # --------------------------------------------------------------------------- pipeline stages

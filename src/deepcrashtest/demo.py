@@ -11,6 +11,7 @@ from typing import Any
 
 from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import ensure_output_dir, require_file
+from deepcrashtest.scenario import Scenario
 
 SAMPLE_VIDEO = Path(__file__).resolve().parents[2] / "examples" / "highway_sample.mp4"
 KITTI_TRACKING = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "kitti_tracking"
@@ -32,29 +33,24 @@ def run_demo(output: str | Path, video: str | Path | None = None) -> dict[str, A
     # Step: a Scenario from KITTI ground truth (real trajectories), when the shared data is present.
     if KITTI_TRACKING.exists():
         from deepcrashtest.trajectory.from_kitti import scenario_from_kitti
+        from deepcrashtest.trajectory.pipeline import process_scenario
 
-        sc = scenario_from_kitti(KITTI_TRACKING, 8)
-        try:
-            from deepcrashtest.trajectory.pipeline import process_scenario
-
-            sc = process_scenario(sc, seed=0)
-        except ImportError:
-            pass
-        path = sc.save(out / "kitti_0008" / "scenario.json") if ensure_output_dir(out / "kitti_0008") else None
+        raw = scenario_from_kitti(KITTI_TRACKING, 8)
+        sc = process_scenario(raw, seed=0)
+        path = sc.save(ensure_output_dir(out / "kitti_0008") / "scenario.json")
         summary["steps"].append({"step": "scenario from-kitti 8", "scenario": str(path), "agents": len(sc.agents)})
         _step_export(out, summary)
-        _step_sim(out, summary)
+        _step_sim(out, summary, raw)
         _step_search(out, summary)
         _step_report(out, summary)
+        _step_trajectory(out, summary, raw, sc)
     _step_eval(out, summary)
-    _step_trajectory(out, summary)
     return summary
 
 
 def _step_export(out: Path, summary: dict) -> None:
     """Export the KITTI 0008 scenario written above to OpenSCENARIO + OpenDRIVE, CommonRoad and CSV."""
     from deepcrashtest.export import FORMATS, export_scenario
-    from deepcrashtest.scenario import Scenario
 
     src = out / "kitti_0008" / "scenario.json"
     if not src.exists():
@@ -65,15 +61,13 @@ def _step_export(out: Path, summary: dict) -> None:
         summary["steps"].append({"step": f"export {fmt}", "files": res["files"], "seconds": res["seconds"]})
 
 
-def _step_sim(out: Path, summary: dict[str, Any]) -> None:
-    """Simulate KITTI 0008 (replay, aeb) and a crash made from it; bird's-eye videos in out/sim."""
+def _step_sim(out: Path, summary: dict[str, Any], base: Scenario) -> None:
+    """Simulate the raw KITTI 0008 scenario (replay, aeb) and a crash made from it; bird's-eye videos in out/sim."""
     from deepcrashtest.sim import replay_error, simulate
     from deepcrashtest.sim.testcases import meet_ego
-    from deepcrashtest.trajectory.from_kitti import scenario_from_kitti
     from deepcrashtest.viz.birdseye import write_birdseye
 
     folder = ensure_output_dir(out / "sim")
-    base = scenario_from_kitti(KITTI_TRACKING, 8)
     # agent 11 (a real oncoming car) moved to meet the ego at t = 10 s: a crash that KITTI lacks
     crash = meet_ego(base, 11, 10.0)
     crash.save(folder / "kitti_0008_crash_scenario.json")
@@ -94,7 +88,6 @@ def _step_search(out: Path, summary: dict[str, Any]) -> None:
     KITTI drives have no crash: the oncoming car 10 is shifted to meet the ego front to front at
     t = 8.8 s (``sim.testcases.meet_ego``; recorded in the scenario's provenance and warnings).
     """
-    from deepcrashtest.scenario import Scenario
     from deepcrashtest.search.run import SearchConfig, run_search
     from deepcrashtest.sim.testcases import meet_ego
 
@@ -128,7 +121,6 @@ def _step_report(out: Path, summary: dict[str, Any]) -> None:
         return
     metrics = None
     try:  # the simulation outcome too, when this build has the simulator
-        from deepcrashtest.scenario import Scenario
         from deepcrashtest.sim import simulate  # type: ignore[attr-defined]
 
         metrics = simulate(Scenario.load(scenario), controller="replay", seed=0).metrics
@@ -157,26 +149,17 @@ def _step_eval(out: Path, summary: dict) -> None:
     )
 
 
-def _step_trajectory(out: Path, summary: dict[str, Any]) -> None:
+def _step_trajectory(out: Path, summary: dict[str, Any], raw: Scenario, sc: Scenario) -> None:
     """Stage 2 on KITTI 0008 (real labels + poses): bird's-eye PNG of raw vs processed tracks and road."""
-    if not KITTI_TRACKING.exists():
-        return
-    from deepcrashtest.trajectory.from_kitti import scenario_from_kitti
-    from deepcrashtest.trajectory.pipeline import process_scenario
     from deepcrashtest.viz.plots import plot_birdseye
 
-    raw = scenario_from_kitti(KITTI_TRACKING, 8)
-    sc = process_scenario(raw, seed=0)
     png = plot_birdseye(sc, raw, out / "trajectory_kitti_0008_birdseye.png", force=True)
-    classes: dict[str, int] = {}
-    for a in sc.agents:
-        classes[str(a.trajectory_class)] = classes.get(str(a.trajectory_class), 0) + 1
     summary["steps"].append(
         {
             "step": "trajectory (stage 2) KITTI 0008",
             "birdseye": str(png),
             "t_max_s": round(float(sc.provenance.parameters["t_max_s"]), 3),
-            "classes": dict(sorted(classes.items())),
+            "classes": sc.class_counts(),
         }
     )
 
@@ -188,7 +171,6 @@ def _step_perception(out: Path, summary: dict[str, Any]) -> None:
     """
     from deepcrashtest.export import export_scenario
     from deepcrashtest.extract import run_extract
-    from deepcrashtest.scenario import Scenario
     from deepcrashtest.sim import simulate
     from deepcrashtest.viz.birdseye import write_birdseye
 

@@ -194,10 +194,7 @@ def _finish_scenario(
     processed.save(paths["scenario"], force=force)
     info["scenario"] = str(paths["scenario"])
     info["collision"] = processed.collision.model_dump() if processed.collision is not None else None
-    classes: dict[str, int] = {}
-    for a in processed.agents:
-        classes[str(a.trajectory_class)] = classes.get(str(a.trajectory_class), 0) + 1
-    info["classes"] = dict(sorted(classes.items()))
+    info["classes"] = processed.class_counts()
     if report:
         from deepcrashtest.viz.report import build_report
 

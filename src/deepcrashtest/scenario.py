@@ -341,6 +341,14 @@ class Scenario(_Model):
                 return v
         raise KeyError(vehicle_id)
 
+    def class_counts(self) -> dict[str, int]:
+        """Agents per trajectory class (D0T1..D1T4, ``unclassified`` for none), sorted by class."""
+        counts: dict[str, int] = {}
+        for a in self.agents:
+            key = a.trajectory_class or "unclassified"
+            counts[key] = counts.get(key, 0) + 1
+        return dict(sorted(counts.items()))
+
     def duration(self) -> float:
         """Last sample time over all vehicles, seconds."""
         return max(v.trajectory.t[-1] for v in self.vehicles())

@@ -101,17 +101,14 @@ def vehicle_colour(v: Vehicle, ego_id: int) -> str:
 # --------------------------------------------------------------------------- sections
 def overview_section(sc: Scenario) -> Section:
     """Name, stage, vehicles, duration, classes, collision and provenance."""
-    classes: dict[str, int] = {}
-    for a in sc.agents:
-        key = a.trajectory_class or "unclassified"
-        classes[key] = classes.get(key, 0) + 1
+    classes = sc.class_counts()
     rows: list[tuple[str, Any]] = [
         ("name", sc.name),
         ("schema version", sc.schema_version),
         ("stage", sc.stage),
         ("agents", len(sc.agents)),
         ("duration (s)", sc.duration()),
-        ("trajectory classes", ", ".join(f"{k}: {n}" for k, n in sorted(classes.items())) or "-"),
+        ("trajectory classes", ", ".join(f"{k}: {n}" for k, n in classes.items()) or "-"),
         (
             "road",
             f"{sc.road.lane_count} lanes x {sc.road.lane_width:g} m, ego lane {sc.road.ego_lane}, "
