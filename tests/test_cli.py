@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from deepcrashtest.cli import main
+from deepcrashtest.scenario import SCHEMA_VERSION
 
 
 def run(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
@@ -121,5 +122,5 @@ def test_from_kitti_json_and_refusal_to_overwrite(kitti_root, tmp_path):
 def test_schema_command_writes_valid_json(tmp_path):
     assert main(["schema", "-o", str(tmp_path / "schema.json")]) == 0
     schema = json.loads((tmp_path / "schema.json").read_text())
-    assert schema["properties"]["schema_version"]["default"] == "1.0"
+    assert schema["properties"]["schema_version"]["default"] == SCHEMA_VERSION
     assert main(["schema", "-o", str(tmp_path / "schema.json")]) == 2  # exists, no --force

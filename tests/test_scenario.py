@@ -123,3 +123,32 @@ def test_json_schema_validates_real_file_and_rejects_bad(kitti8_raw):
     data["ego"]["trajectory"]["speed"][0] = -3.0
     with pytest.raises(jsonschema.ValidationError):
         jsonschema.validate(data, schema)
+
+
+def test_migrates_1_0_files_and_keeps_the_time_mapping() -> None:
+    """A 1.0 processed file loads as 1.1 with the lead-in and the ego's first frame in source.time_offset_s."""
+    from deepcrashtest.scenario import migrate
+
+    data = {
+        "schema_version": "1.0",
+        "source": {"path": "v.mp4", "fps": 20.0, "frame_count": 100, "width": 64, "height": 48},
+        "ego": {"first_frame": 10},
+        "provenance": {"parameters": {"video_time_offset_s": 3.0}},
+    }
+    out = migrate(data)
+    assert out["schema_version"] == SCHEMA_VERSION
+    assert out["source"]["time_offset_s"] == pytest.approx(3.0 - 10 / 20.0)
+    assert data["schema_version"] == "1.0"  # the input is not changed
+
+
+def test_evolve_validates_and_third_party_collision(kitti8_raw):
+    """Scenario.evolve returns a validated copy; a collision may name two agents but not an unknown one."""
+    a, b = kitti8_raw.agents[0].id, kitti8_raw.agents[1].id
+    sc = kitti8_raw.evolve(collision={"time_s": 1.0, "other_id": a, "agent_id": b, "source": "user"})
+    assert sc.collision is not None and sc.collision.participants == (a, b) and not sc.collision.involves_ego
+    assert kitti8_raw.collision is None or kitti8_raw.collision.source != "user"
+    with pytest.raises(ScenarioError, match="collision.other_id 9999"):
+        kitti8_raw.evolve(collision={"time_s": 1.0, "other_id": 9999, "agent_id": b})
+    with pytest.raises(ScenarioError, match="unknown Scenario field"):
+        kitti8_raw.evolve(colision=None)
+    assert sc.scenario_time(sc.video_time(2.5)) == pytest.approx(2.5)

@@ -30,8 +30,9 @@ from deepcrashtest import __version__
 from deepcrashtest.errors import ScenarioError
 from deepcrashtest.fileio import atomic_write_text, require_file
 
-SCHEMA_VERSION = "1.0"
-"""Major.minor. A file with another major, or a newer minor, is refused."""
+SCHEMA_VERSION = "1.1"
+"""Major.minor. A file with another major, or a newer minor, is refused; older minors are migrated on load
+(:func:`migrate`)."""
 
 #: Physical limits used by validation. Stated, never clipped silently.
 MAX_SPEED_MPS = 90.0  # 324 km/h: above any road vehicle
@@ -41,7 +42,11 @@ FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 
-VehicleCategory = Literal["car", "van", "truck", "bus", "motorcycle", "bicycle"]
+VehicleCategory = Literal["car", "van", "truck", "bus", "motorcycle", "bicycle", "pedestrian"]
+"""Road-user categories. A two-wheeler and its rider are one road user (``motorcycle``, ``bicycle``);
+``pedestrian`` is a person not riding."""
+ROAD_USER_CATEGORIES: tuple[str, ...] = ("car", "van", "truck", "bus", "motorcycle", "bicycle", "pedestrian")
+CollisionSource = Literal["video-auto", "user", "simulated", "labels"]
 TrajectoryClass = Literal["D0T1", "D0T2", "D0T3", "D1T1", "D1T2", "D1T3", "D1T4"]
 TRAJECTORY_CLASSES: tuple[str, ...] = ("D0T1", "D0T2", "D0T3", "D1T1", "D1T2", "D1T3", "D1T4")
 
@@ -60,6 +65,12 @@ class VideoSource(_Model):
     width: int = Field(gt=0, description="Frame width, pixels")
     height: int = Field(gt=0, description="Frame height, pixels")
     sha256: str | None = Field(default=None, description="SHA-256 of the source file, hex")
+    time_offset_s: FiniteFloat = Field(
+        default=0.0,
+        description="Scenario time of video time 0 (video time = frame / fps): scenario time = video time + "
+        "time_offset_s. The one time mapping used by the viewer, the report, the fidelity evaluation and the "
+        "exports (Scenario.video_time / scenario_time / video_frame)",
+    )
     frame_rate_note: str | None = Field(
         default=None,
         description="Caveat on the frame rate (uploaded videos may be re-timed: relative speed trends are "
@@ -268,14 +279,40 @@ class Road(_Model):
 
 
 class Collision(_Model):
-    """The collision seen in the video (or found by the simulator)."""
+    """The collision seen in the video (or found by the simulator) between two road users.
+
+    The participants are ``other_id`` and ``agent_id``; either may be the ego (id 0), and a third-party
+    crash names two agents.
+    """
 
     time_s: FiniteFloat = Field(description="Seconds, scenario time")
-    agent_id: int = Field(ge=0, description="The agent the ego hits (or the second vehicle)")
-    other_id: int = Field(default=0, ge=0, description="The first vehicle (the ego unless stated)")
+    agent_id: int = Field(ge=0, description="The second participant (the road user the ego hits)")
+    other_id: int = Field(default=0, ge=0, description="The first participant (the ego unless stated)")
+    source: CollisionSource = Field(
+        default="video-auto",
+        description="video-auto = detected in the video; user = given by the user; simulated = found by the "
+        "simulator; labels = from dataset labels",
+    )
+    confidence: float | None = Field(default=None, ge=0.0, le=1.0, description="Detection confidence, 0-1")
     x: FiniteFloat | None = Field(default=None, description="Impact point x, metres")
     y: FiniteFloat | None = Field(default=None, description="Impact point y, metres")
     relative_speed: NonNegFloat | None = Field(default=None, description="m/s at first contact")
+
+    @model_validator(mode="after")
+    def _two_participants(self) -> Collision:
+        if self.agent_id == self.other_id:
+            raise ValueError(f"collision needs two different participants (both are {self.agent_id})")
+        return self
+
+    @property
+    def participants(self) -> tuple[int, int]:
+        """The two road users' ids, (other_id, agent_id)."""
+        return (self.other_id, self.agent_id)
+
+    @property
+    def involves_ego(self) -> bool:
+        """True when the ego (id 0) is one of the participants."""
+        return 0 in self.participants
 
 
 class Provenance(_Model):
@@ -326,9 +363,51 @@ class Scenario(_Model):
                         f"{label}.trajectory: |acceleration| {amax:.1f} m/s^2 at sample {i} exceeds the "
                         f"physical limit {MAX_ACCEL_MPS2} m/s^2"
                     )
-        if self.collision is not None and self.collision.agent_id not in ids:
-            raise ValueError(f"collision.agent_id {self.collision.agent_id} is not a vehicle of this scenario")
+        if self.collision is not None:
+            for field in ("agent_id", "other_id"):
+                vid = getattr(self.collision, field)
+                if vid not in ids:
+                    raise ValueError(f"collision.{field} {vid} is not a road user of this scenario")
         return self
+
+    # ------------------------------------------------------------------ change
+    def evolve(self, **changes: Any) -> Scenario:
+        """A validated copy with top-level fields replaced: the one way to change a Scenario.
+
+        Values may be models or plain dicts/lists; the result is validated as a whole (every field check
+        and the cross-field physics), so an invalid change raises :class:`ScenarioError` naming the field.
+        """
+        unknown = sorted(set(changes) - set(type(self).model_fields))
+        if unknown:
+            raise ScenarioError(f"unknown Scenario field(s) {unknown}")
+        data = self.model_dump()
+        for key, value in changes.items():
+            data[key] = _plain(value)
+        return Scenario.from_dict(data, origin="scenario")
+
+    # ------------------------------------------------------------------ time
+    def video_time(self, t: Any) -> Any:
+        """Video time (s, frame / fps) of scenario time ``t`` (s); arrays allowed."""
+        if np.isscalar(t):
+            return float(t) - self.source.time_offset_s
+        return np.asarray(t, dtype=float) - self.source.time_offset_s
+
+    def scenario_time(self, video_t: Any) -> Any:
+        """Scenario time (s) of video time ``video_t`` (s); arrays allowed."""
+        if np.isscalar(video_t):
+            return float(video_t) + self.source.time_offset_s
+        return np.asarray(video_t, dtype=float) + self.source.time_offset_s
+
+    def video_frame(self, t: float) -> int | None:
+        """Video frame index shown at scenario time ``t``, or None before the first / after the last frame."""
+        f = int(math.floor(self.video_time(t) * self.source.fps + 1e-6))
+        if f < 0 or (self.source.frame_count > 0 and f >= self.source.frame_count):
+            return None
+        return f
+
+    def frame_time(self, frame: int) -> float:
+        """Scenario time (s) of video frame ``frame``."""
+        return float(frame) / self.source.fps + self.source.time_offset_s
 
     # ------------------------------------------------------------------ access
     def vehicles(self) -> list[Vehicle]:
@@ -370,7 +449,7 @@ class Scenario(_Model):
             raise ScenarioError(f"{origin}: missing schema_version (not a DeepCrashTest scenario?)")
         try:
             check_schema_version(str(data["schema_version"]))
-            return cls.model_validate(data)
+            return cls.model_validate(migrate(data))
         except ValidationError as exc:
             raise ScenarioError(f"{origin}: {format_validation_error(exc)}") from None
         except ValueError as exc:
@@ -391,6 +470,41 @@ class Scenario(_Model):
         except ValueError as exc:
             raise ScenarioError(f"{p}: {exc}") from None
         return cls.from_dict(data, origin=str(p))
+
+
+def _plain(value: Any) -> Any:
+    """Models to plain data (recursively through lists/dicts) so a changed field is validated afresh."""
+    if isinstance(value, BaseModel):
+        return value.model_dump()
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    return value
+
+
+def migrate(data: dict[str, Any]) -> dict[str, Any]:
+    """Upgrade a decoded scenario of an older minor schema version to :data:`SCHEMA_VERSION` (a copy).
+
+    1.0 -> 1.1: the video/scenario time mapping moves from ``provenance.parameters.video_time_offset_s``
+    (processed files) and the ego's first frame into ``source.time_offset_s``; collisions get
+    ``source="video-auto"`` (the default).
+    """
+    if str(data.get("schema_version")) != "1.0":
+        return data
+    out = dict(data)
+    out["schema_version"] = SCHEMA_VERSION
+    src = out.get("source")
+    ego = out.get("ego")
+    if isinstance(src, dict) and "time_offset_s" not in src:
+        fps = src.get("fps")
+        first = ego.get("first_frame", 0) if isinstance(ego, dict) else 0
+        prov = out.get("provenance")
+        params = prov.get("parameters", {}) if isinstance(prov, dict) else {}
+        lead = params.get("video_time_offset_s", 0.0) if isinstance(params, dict) else 0.0
+        if isinstance(fps, int | float) and fps > 0 and isinstance(first, int) and isinstance(lead, int | float):
+            out["source"] = dict(src, time_offset_s=float(lead) - first / float(fps))
+    return out
 
 
 def _reject_constant(name: str) -> float:

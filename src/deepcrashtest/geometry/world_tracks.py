@@ -122,7 +122,7 @@ def raw_scenario_from_tracks(
         raise UserError(f"tracks table misses columns {missing} (expected {list(TRACK_COLUMNS)})")
     if len(ego) < 2:
         raise UserError("ego motion has fewer than 2 frames: the video is too short")
-    source = _video_source(meta)
+    source = _video_source(meta).model_copy(update={"time_offset_s": -float(ego.t[0])})
     warnings = list(ego.warnings) + (list(lanes.warnings) if lanes is not None else [])
     loc = localizer or GroundPlaneLocalizer()
 

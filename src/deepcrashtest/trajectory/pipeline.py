@@ -266,7 +266,7 @@ def process_scenario(raw: Scenario, seed: int = 0, params: Stage2Params | None =
         schema_version=raw.schema_version,
         name=raw.name,
         stage="processed",
-        source=raw.source,
+        source=raw.source.model_copy(update={"time_offset_s": raw.source.time_offset_s + t_max - t0}),
         camera=raw.camera,
         ego=ego,
         agents=agents,

@@ -81,8 +81,8 @@ def safe_target(root: Path, name: Any) -> Path:
 
 
 def video_offset_s(scenario: Scenario) -> float:
-    """Video time (s) of scenario time 0: the ego's first frame over the source's frame rate."""
-    return scenario.ego.first_frame / scenario.source.fps
+    """Video time (s) of scenario time 0 (the Scenario's one time mapping, ``source.time_offset_s``)."""
+    return float(scenario.video_time(0.0))
 
 
 def finite_or_none(value: Any) -> Any:
