@@ -388,13 +388,13 @@ class Scenario(_Model):
     # ------------------------------------------------------------------ time
     def video_time(self, t: Any) -> Any:
         """Video time (s, frame / fps) of scenario time ``t`` (s); arrays allowed."""
-        if np.isscalar(t):
+        if isinstance(t, int | float | np.floating | np.integer):
             return float(t) - self.source.time_offset_s
         return np.asarray(t, dtype=float) - self.source.time_offset_s
 
     def scenario_time(self, video_t: Any) -> Any:
         """Scenario time (s) of video time ``video_t`` (s); arrays allowed."""
-        if np.isscalar(video_t):
+        if isinstance(video_t, int | float | np.floating | np.integer):
             return float(video_t) + self.source.time_offset_s
         return np.asarray(video_t, dtype=float) + self.source.time_offset_s
 
