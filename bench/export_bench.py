@@ -27,10 +27,10 @@ def main() -> int:
     sys.path.insert(0, str(ROOT / "tests"))
     from pyxodr.road_objects.network import RoadNetwork
 
+    from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
     from deepcrashtest.export import FORMATS, export_scenario
     from deepcrashtest.export.commonroad import OBSTACLE_ID_BASE
     from deepcrashtest.export.openscenario import entity_name, entry_time
-    from deepcrashtest.trajectory.from_kitti import scenario_from_kitti
     from export_helpers import read_xosc
 
     rows = []

@@ -11,8 +11,8 @@ DURATION_S = 11.0  # the crash happens at ~8.7 s
 
 
 def crash_scenario() -> Scenario:
+    from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
     from deepcrashtest.sim.testcases import meet_ego
-    from deepcrashtest.trajectory.from_kitti import scenario_from_kitti
 
     if not KITTI.exists():
         raise SystemExit(f"real data not found: {KITTI}")

@@ -13,9 +13,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from sim_speed import KITTI, bench_scenario  # noqa: E402
 
+from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti  # noqa: E402
 from deepcrashtest.sim import simulate, simulate_batch  # noqa: E402
 from deepcrashtest.sim.testcases import meet_ego  # noqa: E402
-from deepcrashtest.trajectory.from_kitti import scenario_from_kitti  # noqa: E402
 
 
 def h(*arrs: np.ndarray) -> str:

@@ -14,9 +14,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
+from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti  # noqa: E402
 from deepcrashtest.sim import replay_error, simulate  # noqa: E402
 from deepcrashtest.sim.testcases import meet_ego  # noqa: E402
-from deepcrashtest.trajectory.from_kitti import scenario_from_kitti  # noqa: E402
 
 KITTI = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti_tracking"
 KEYS = ("collided", "collision_time", "collision_vehicle", "relative_speed", "delta_v_ego", "min_distance", "min_ttc",

@@ -21,9 +21,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
+from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti  # noqa: E402
 from deepcrashtest.sim import simulate, simulate_batch  # noqa: E402
 from deepcrashtest.sim.testcases import meet_ego  # noqa: E402
-from deepcrashtest.trajectory.from_kitti import scenario_from_kitti  # noqa: E402
 
 KITTI = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti_tracking"
 

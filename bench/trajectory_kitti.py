@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from deepcrashtest.trajectory.from_kitti import scenario_from_kitti
+from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
 from deepcrashtest.trajectory.pipeline import process_scenario
 from deepcrashtest.viz.plots import plot_birdseye
 

@@ -27,7 +27,7 @@ def _ms(samples: list[float]) -> str:
 
 
 def main() -> int:
-    from deepcrashtest.trajectory.from_kitti import scenario_from_kitti
+    from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
     from deepcrashtest.viz.report import build_report
     from deepcrashtest.viz.server import create_app
 

@@ -26,6 +26,6 @@ def kitti_root() -> Path:
 @pytest.fixture(scope="session")
 def kitti8_raw(kitti_root):
     """The raw Scenario of KITTI tracking sequence 0008 (real labels + ORB-SLAM3 poses)."""
-    from deepcrashtest.trajectory.from_kitti import scenario_from_kitti
+    from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
 
     return scenario_from_kitti(kitti_root, 8)

@@ -35,7 +35,7 @@ def test_version():
 
 @pytest.fixture(scope="module")
 def bad_inputs(tmp_path_factory, kitti_root):
-    from deepcrashtest.trajectory.from_kitti import scenario_from_kitti
+    from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
 
     d = tmp_path_factory.mktemp("bad")
     good = scenario_from_kitti(kitti_root, 3)

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from conftest import DATA, KITTI_TRACKING, need
+from deepcrashtest.datasets.kitti.detection_eval import MatchCounts, match_frame, split_kitti_cars
+from deepcrashtest.datasets.kitti.files import read_labels
 from deepcrashtest.errors import UserError
 from deepcrashtest.perception.boxes import iou_matrix
 from deepcrashtest.perception.detect import SsdMobileNetDetector, horizon_tiles, make_detector
-from deepcrashtest.perception.evaluate import MatchCounts, match_frame, split_kitti_cars
-from deepcrashtest.video.kitti import read_labels
 from deepcrashtest.video.source import open_video
 
 

@@ -50,7 +50,7 @@ def xsd():
 
 
 def _scenario(seq: int, stage: str) -> Scenario:
-    from deepcrashtest.trajectory.from_kitti import scenario_from_kitti
+    from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
 
     sc = scenario_from_kitti(need(KITTI_TRACKING), seq)
     if stage == "processed":
@@ -115,7 +115,7 @@ def test_reference_line_passes_through_waypoints_pyxodr(exported):
 
 def test_kitti_roads_curve():
     """0008 and 0010 are curved roads: the heading of their reference line turns by > 10 degrees."""
-    from deepcrashtest.trajectory.from_kitti import scenario_from_kitti
+    from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
 
     for seq in (8, 10):
         sc = scenario_from_kitti(need(KITTI_TRACKING), seq)

@@ -95,7 +95,7 @@ def crash_scenario(kitti8_raw) -> Scenario:
 
 @pytest.mark.parametrize("seq", [3, 8, 10])
 def test_commonroad_reloads_with_resampled_agents(seq, tmp_path):
-    from deepcrashtest.trajectory.from_kitti import scenario_from_kitti
+    from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
 
     sc = scenario_from_kitti(need(KITTI_TRACKING), seq)
     res = export_scenario(sc, "commonroad", tmp_path)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from deepcrashtest.trajectory.from_kitti import labels_frame_table, scenario_from_kitti
-from deepcrashtest.video.kitti import KittiSequence, read_labels, read_poses
+from deepcrashtest.datasets.kitti.files import KittiSequence, read_labels, read_poses
+from deepcrashtest.datasets.kitti.scenario import labels_frame_table, scenario_from_kitti
 
 
 @pytest.mark.parametrize("sequence", [3, 8, 10])

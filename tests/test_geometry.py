@@ -225,8 +225,8 @@ def test_egomotion_static_and_dark_input():
 # --------------------------------------------------------------------------- world-frame tracks
 def test_world_tracks_match_kitti_ground_truth(kitti_root):
     """Labelled 2D boxes + true ego poses -> world positions close to the labels' 3D positions."""
-    from deepcrashtest.trajectory.from_kitti import kitti_world_transform
-    from deepcrashtest.video.kitti import KittiSequence, read_calib, read_labels, read_poses
+    from deepcrashtest.datasets.kitti.files import KittiSequence, read_calib, read_labels, read_poses
+    from deepcrashtest.datasets.kitti.scenario import kitti_world_transform
 
     seq = KittiSequence(kitti_root, 1)
     labels = read_labels(seq.labels)

@@ -8,8 +8,7 @@ import pandas as pd
 import pytest
 from tests.conftest import DATA, need
 
-from deepcrashtest.errors import UserError
-from deepcrashtest.video.kitti import (
+from deepcrashtest.datasets.kitti.files import (
     EARTH_RADIUS_M,
     KittiSequence,
     latlon_to_mercator,
@@ -20,6 +19,7 @@ from deepcrashtest.video.kitti import (
     read_labels,
     read_oxts,
 )
+from deepcrashtest.errors import UserError
 
 OXTS_DIR = DATA / "kitti_raw_drive0005_frame0" / "2011_09_26" / "2011_09_26_drive_0005_sync" / "oxts" / "data"
 

@@ -19,7 +19,7 @@ sim = pytest.importorskip("deepcrashtest.sim")
 if not hasattr(sim, "simulate_batch"):
     pytest.skip("the simulator (deepcrashtest.sim.simulate_batch) is not in this build", allow_module_level=True)
 
-from deepcrashtest.search.batch import list_inputs, process_video, read_manifest, run_batch  # noqa: E402
+from deepcrashtest.pipeline.batch import list_inputs, process_video, read_manifest, run_batch  # noqa: E402
 from deepcrashtest.search.run import SearchConfig  # noqa: E402
 from deepcrashtest.sim.testcases import meet_ego  # noqa: E402
 

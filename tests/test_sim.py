@@ -25,7 +25,7 @@ from deepcrashtest.sim.vehicle import VehicleLimits, bicycle_step, limit_command
 # --------------------------------------------------------------------------- fixtures (real data)
 @pytest.fixture(scope="module")
 def kitti3(kitti_root):
-    from deepcrashtest.trajectory.from_kitti import scenario_from_kitti
+    from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
 
     return scenario_from_kitti(kitti_root, 3)
 

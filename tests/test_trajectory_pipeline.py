@@ -12,9 +12,9 @@ import pytest
 import shapely
 from scipy.interpolate import BSpline
 
+from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
 from deepcrashtest.errors import UserError
 from deepcrashtest.scenario import Collision, LaneTimeline, Scenario, wrap_angle
-from deepcrashtest.trajectory.from_kitti import scenario_from_kitti
 from deepcrashtest.trajectory.params import Stage2Params
 from deepcrashtest.trajectory.pipeline import process_scenario
 from deepcrashtest.trajectory.roadframe import RoadFrame

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from deepcrashtest.trajectory.from_kitti import scenario_from_kitti
+from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
 from deepcrashtest.trajectory.params import Stage2Params
 from deepcrashtest.trajectory.pipeline import process_scenario
 from deepcrashtest.trajectory.smoothing import smooth_track

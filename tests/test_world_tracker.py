@@ -5,15 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from deepcrashtest.eval.boxes import iou_2d, iou_3d, project_box
-from deepcrashtest.perception.track_smoothing import OfflineConfig, offline_tracks
-from deepcrashtest.perception.world_tracker import (
+from deepcrashtest.datasets.kitti.track_smoothing import OfflineConfig, offline_tracks
+from deepcrashtest.datasets.kitti.world_tracker import (
     TrackLifecycle,
     TrackState,
     WorldDetections,
     WorldTracker,
     WorldTrackerConfig,
 )
+from deepcrashtest.eval.boxes import iou_2d, iou_3d, project_box
 
 
 def test_lifecycle():

@@ -142,8 +142,8 @@ def scenario_from_kitti(
     as_json: bool = JsonOpt,
 ) -> None:
     """Build a Scenario from KITTI tracking ground truth (labels + poses + calib)."""
+    from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti as build
     from deepcrashtest.fileio import ensure_output_dir
-    from deepcrashtest.trajectory.from_kitti import scenario_from_kitti as build
 
     if sequence < 0:
         raise UserError(f"--sequence must be >= 0 (got {sequence})")
@@ -229,9 +229,9 @@ def extract(
     """Stage 1 + 2: detect, track, ego-motion, lanes, 3D positions -> tracks.csv, annotated.mp4, scenario.json."""
     from functools import partial
 
-    from deepcrashtest.extract import run_extract
     from deepcrashtest.fileio import require_file
     from deepcrashtest.geometry.camera import camera_for_video
+    from deepcrashtest.pipeline.extract import run_extract
 
     if not video.is_dir():
         require_file(video, "video")
@@ -530,7 +530,7 @@ def batch(
 
     A failed input is recorded and the batch goes on; the exit code is 1 when any input failed.
     """
-    from deepcrashtest.search.batch import run_batch
+    from deepcrashtest.pipeline.batch import run_batch
     from deepcrashtest.search.run import SearchConfig
 
     cfg = SearchConfig(
@@ -594,7 +594,7 @@ def demo(
     as_json: bool = JsonOpt,
 ) -> None:
     """Run the whole pipeline on the bundled sample clip and write everything to OUTPUT."""
-    from deepcrashtest.demo import run_demo
+    from deepcrashtest.pipeline.demo import run_demo
 
     emit(run_demo(output, video), as_json, _demo_summary)
 

@@ -23,11 +23,11 @@ from typing import Any
 import cv2
 import numpy as np
 
+from deepcrashtest.datasets.kitti.files import KITTI_CAMERA_HEIGHT_M, read_poses
 from deepcrashtest.errors import UserError
 from deepcrashtest.geometry.egomotion import EgoMotion, EgoMotionEstimator
 from deepcrashtest.geometry.frames import camera_forward_yaw, camera_points_to_world
 from deepcrashtest.scenario import Camera
-from deepcrashtest.video.kitti import KITTI_CAMERA_HEIGHT_M, read_poses
 
 KITTI_ODOMETRY_FPS = 10.0
 

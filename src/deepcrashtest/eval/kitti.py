@@ -16,6 +16,17 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from deepcrashtest.datasets.kitti.files import (
+    KittiCalib,
+    KittiSequence,
+    read_ab3dmot_detections,
+    read_calib,
+    read_labels,
+    read_poses,
+)
+from deepcrashtest.datasets.kitti.scenario import labels_frame_table
+from deepcrashtest.datasets.kitti.track_smoothing import OfflineConfig, offline_tracks
+from deepcrashtest.datasets.kitti.world_tracker import WorldDetections, WorldTracker, WorldTrackerConfig
 from deepcrashtest.errors import UserError
 from deepcrashtest.eval.boxes import WORLD_BOX_COLUMNS
 from deepcrashtest.eval.clear_mot import EvalSequence, evaluate_sequences
@@ -31,18 +42,7 @@ from deepcrashtest.eval.kitti_rules import (
     apply_kitti_rules,
 )
 from deepcrashtest.eval.kitti_world import KittiWorld, frame_index, world_table
-from deepcrashtest.perception.track_smoothing import OfflineConfig, offline_tracks
-from deepcrashtest.perception.world_tracker import WorldDetections, WorldTracker, WorldTrackerConfig
-from deepcrashtest.trajectory.from_kitti import labels_frame_table
 from deepcrashtest.ui import track
-from deepcrashtest.video.kitti import (
-    KittiCalib,
-    KittiSequence,
-    read_ab3dmot_detections,
-    read_calib,
-    read_labels,
-    read_poses,
-)
 
 #: The reference paper's table (world-frame CLEAR-MOT of its trajectory extraction), percentages.
 PAPER_TABLE: dict[int, dict[str, float]] = {
@@ -82,7 +82,7 @@ def match_rule(name: str) -> MatchRule:
 
 def ground_truth_frames(root: Path, sequence: int, world: KittiWorld) -> list[GroundTruthFrame]:
     """Car/Van ground truth and DontCare regions of every frame, world positions from
-    :func:`~deepcrashtest.trajectory.from_kitti.labels_frame_table` (the Scenario's frame)."""
+    :func:`~deepcrashtest.datasets.kitti.scenario.labels_frame_table` (the Scenario's frame)."""
     labels = labels_frame_table(root, sequence)
     boxes = world_table(world, labels)
     # ground-plane positions are labels_frame_table's own (the transform of the Scenario's agents)

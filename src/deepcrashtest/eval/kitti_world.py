@@ -1,6 +1,6 @@
 """KITTI camera-frame boxes <-> the Scenario's world frame, through the sequence's ego poses.
 
-Ground-plane positions come from :func:`deepcrashtest.trajectory.from_kitti.kitti_world_transform`,
+Ground-plane positions come from :func:`deepcrashtest.datasets.kitti.scenario.kitti_world_transform`,
 the very transform that places the agents of a KITTI Scenario, so evaluated positions and Scenario
 positions are the same numbers. Heights (z up) and yaws use the same poses.
 """
@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from deepcrashtest.datasets.kitti.files import KITTI_IMAGE_SIZE
+from deepcrashtest.datasets.kitti.scenario import kitti_world_transform
 from deepcrashtest.eval.boxes import WORLD_BOX_COLUMNS, project_box
 from deepcrashtest.geometry.frames import (
     CAM_TO_WORLD_AXES,
@@ -17,8 +19,6 @@ from deepcrashtest.geometry.frames import (
     camera_yaw_to_world,
     transform_points,
 )
-from deepcrashtest.trajectory.from_kitti import kitti_world_transform
-from deepcrashtest.video.kitti import KITTI_IMAGE_SIZE
 
 
 class KittiWorld:

@@ -13,10 +13,10 @@ from typing import Any
 
 import numpy as np
 
+from deepcrashtest.datasets.kitti.files import KITTI_CAMERA_HEIGHT_M, KITTI_IMAGE_SIZE, read_calib, read_labels
 from deepcrashtest.errors import UserError
 from deepcrashtest.geometry.localize import GroundPlaneLocalizer, Localizer
 from deepcrashtest.scenario import Camera
-from deepcrashtest.video.kitti import KITTI_CAMERA_HEIGHT_M, KITTI_IMAGE_SIZE, read_calib, read_labels
 
 
 def kitti_localization_errors(

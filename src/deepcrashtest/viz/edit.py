@@ -6,7 +6,7 @@ position, two boxes that overlap): minor lateral/longitudinal displacements of w
 Every edit keeps the rest of the vehicle consistent with its new positions, over the same times:
 
 * speed and yaw change by exactly as much as the motion derived from the positions changes
-  (central differences, as in :mod:`deepcrashtest.trajectory.from_kitti`). A trajectory whose speed
+  (central differences, as in :mod:`deepcrashtest.datasets.kitti.scenario`). A trajectory whose speed
   was derived from its positions therefore stays derived from them; measured details (label yaw,
   smoothed speeds) are kept where nothing moved. Yaw only follows the motion where the vehicle
   moves (>= :data:`MOVING_MPS` before and after the edit): a parked car keeps its heading.

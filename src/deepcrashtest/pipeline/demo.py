@@ -13,8 +13,8 @@ from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import ensure_output_dir, require_file
 from deepcrashtest.scenario import Scenario
 
-SAMPLE_VIDEO = Path(__file__).resolve().parents[2] / "examples" / "highway_sample.mp4"
-KITTI_TRACKING = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "kitti_tracking"
+SAMPLE_VIDEO = Path(__file__).resolve().parents[3] / "examples" / "highway_sample.mp4"
+KITTI_TRACKING = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "kitti_tracking"
 
 
 def run_demo(output: str | Path, video: str | Path | None = None) -> dict[str, Any]:
@@ -32,7 +32,7 @@ def run_demo(output: str | Path, video: str | Path | None = None) -> dict[str, A
 
     # Step: a Scenario from KITTI ground truth (real trajectories), when the shared data is present.
     if KITTI_TRACKING.exists():
-        from deepcrashtest.trajectory.from_kitti import scenario_from_kitti
+        from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
         from deepcrashtest.trajectory.pipeline import process_scenario
 
         raw = scenario_from_kitti(KITTI_TRACKING, 8)
@@ -170,7 +170,7 @@ def _step_perception(out: Path, summary: dict[str, Any]) -> None:
     Then the extracted scenario is replayed in the simulator (bird's-eye video) and exported.
     """
     from deepcrashtest.export import export_scenario
-    from deepcrashtest.extract import run_extract
+    from deepcrashtest.pipeline.extract import run_extract
     from deepcrashtest.sim import simulate
     from deepcrashtest.viz.birdseye import write_birdseye
 

@@ -50,7 +50,7 @@ def process_video(
 ) -> dict[str, Any]:
     """One input end to end: extract (videos only) -> Scenario -> search. Returns a short summary.
 
-    Videos go through ``deepcrashtest.extract.extract_video(video, outdir / "extract", ...)``;
+    Videos go through ``deepcrashtest.pipeline.extract.extract_video(video, outdir / "extract", ...)``;
     ``*.json`` inputs are Scenario files and go straight to the search.
     """
     src = Path(video)
@@ -75,7 +75,7 @@ def process_video(
 
 def _extract(video: Path, outdir: Path, seed: int, force: bool) -> Scenario:
     try:
-        from deepcrashtest.extract import extract_video  # type: ignore[attr-defined]
+        from deepcrashtest.pipeline.extract import extract_video  # type: ignore[attr-defined]
     except ImportError:
         raise NotImplementedYet("extract: the extraction stage is not available in this build") from None
     res = extract_video(video, outdir, seed=seed, force=force)

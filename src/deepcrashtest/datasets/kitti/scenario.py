@@ -13,11 +13,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from deepcrashtest.errors import UserError
-from deepcrashtest.fileio import sha256_file
-from deepcrashtest.geometry.frames import camera_forward_yaw, camera_points_to_world, camera_yaw_to_world
-from deepcrashtest.scenario import Camera, Provenance, Road, Scenario, Trajectory, Vehicle, VideoSource
-from deepcrashtest.video.kitti import (
+from deepcrashtest.datasets.kitti.files import (
     KITTI_CAMERA_HEIGHT_M,
     KITTI_FPS,
     KITTI_IMAGE_SIZE,
@@ -26,6 +22,10 @@ from deepcrashtest.video.kitti import (
     read_labels,
     read_poses,
 )
+from deepcrashtest.errors import UserError
+from deepcrashtest.fileio import sha256_file
+from deepcrashtest.geometry.frames import camera_forward_yaw, camera_points_to_world, camera_yaw_to_world
+from deepcrashtest.scenario import Camera, Provenance, Road, Scenario, Trajectory, Vehicle, VideoSource
 
 #: KITTI label type -> Scenario vehicle category. Other types (Pedestrian, Cyclist, Tram, Misc,
 #: DontCare) are not vehicles of the scenario.

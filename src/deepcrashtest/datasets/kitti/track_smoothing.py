@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from deepcrashtest.perception.world_tracker import TrackHistory, WorldDetections
+from deepcrashtest.datasets.kitti.world_tracker import TrackHistory, WorldDetections
 
 
 @dataclass(frozen=True)

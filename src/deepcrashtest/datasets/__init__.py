@@ -1,0 +1,1 @@
+"""Dataset readers and adapters (KITTI today). Stages never import this package; pipelines and evaluations do."""

@@ -1,0 +1,1 @@
+"""KITTI tracking/odometry: file readers, labels -> Scenario, the LiDAR (PointRCNN) 3D tracker harness."""
