@@ -143,20 +143,20 @@ def scenario_from_kitti(
 ) -> None:
     """Build a Scenario from KITTI tracking ground truth (labels + poses + calib)."""
     from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti as build
-    from deepcrashtest.fileio import ensure_output_dir
+    from deepcrashtest.fileio import output_set
 
     if sequence < 0:
         raise UserError(f"--sequence must be >= 0 (got {sequence})")
-    sc = build(data, sequence)
-    if not raw:
-        from deepcrashtest.trajectory.pipeline import process_scenario
+    with output_set(output, ["scenario.json"], force) as stage:
+        sc = build(data, sequence)
+        if not raw:
+            from deepcrashtest.trajectory.pipeline import process_scenario
 
-        sc = process_scenario(sc, seed=seed)
-    out = ensure_output_dir(output)
-    path = sc.save(out / "scenario.json", force=force)
+            sc = process_scenario(sc, seed=seed)
+        sc.save(stage / "scenario.json")
     emit(
         {
-            "scenario": str(path),
+            "scenario": str(output / "scenario.json"),
             "sequence": sequence,
             "stage": sc.stage,
             "agents": len(sc.agents),
@@ -393,14 +393,19 @@ def _search_human(s: dict[str, Any]) -> None:
         f"scenario {s['scenario']} (controller {s['controller']}, seed {s['seed']}): original "
         f"{'collides' if o['collided'] else 'does not collide'} (robustness {o['robustness']} m)"
     )
+    if s.get("note"):
+        typer.echo(f"  note: {s['note']}")
     for name, m in s["methods"].items():
+        if not o["collided"]:
+            typer.echo(f"  {name:8s} {m['simulations'] - m['safe']:4d} of {m['simulations']:4d} variants collide")
+            continue
         if m["first_safe_at"] is None:
             found = "no safe variant found"
         else:
             found = f"first safe after {m['first_safe_at']} simulations; least change {m['min_change_safe_m']} m"
         typer.echo(f"  {name:8s} {m['safe']:4d} of {m['simulations']:4d} safe; {found}")
     b = s["best_safe"]
-    if b:
+    if b and o["collided"]:
         typer.echo(
             f"  best safe: variant {b['variant']} ({b['method']}), start ({b['d_lon_m']}, {b['d_lat_m']}) m, "
             f"change {b['change_m']} m, robustness {b['robustness']} m"
@@ -453,21 +458,19 @@ def evaluate_kitti(
         raise UserError(f"{data}: KITTI tracking folder not found")
     if tracks is not None and not tracks.is_dir():
         raise UserError(f"{tracks}: tracker results folder not found")
-    if output is not None:
-        from deepcrashtest.fileio import check_writable
+    from deepcrashtest.fileio import atomic_write_text, output_set
 
-        for name in ("results.json", "results.md"):
-            check_writable(output / name, force=force)
     kwargs: dict[str, Any] = {"match": match, "detections": detections, "tracks": tracks}
     if online:
         kwargs["offline"] = None
-    result = run_eval(data, parse_sequences(sequences), **kwargs)
-    if output is not None:
-        from deepcrashtest.fileio import atomic_write_text, ensure_output_dir
-
-        ensure_output_dir(output)
-        atomic_write_text(output / "results.json", json.dumps(result, indent=1, default=_json_default) + "\n", force)
-        atomic_write_text(output / "results.md", results_markdown(result), force)
+    seqs = parse_sequences(sequences)
+    if output is None:
+        result = run_eval(data, seqs, **kwargs)
+    else:
+        with output_set(output, ("results.json", "results.md"), force) as stage:
+            result = run_eval(data, seqs, **kwargs)
+            atomic_write_text(stage / "results.json", json.dumps(result, indent=1, default=_json_default) + "\n")
+            atomic_write_text(stage / "results.md", results_markdown(result))
     emit(result, as_json, _print_kitti_table)
 
 

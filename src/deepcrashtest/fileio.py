@@ -1,7 +1,10 @@
-"""Safe file output: write to a temporary file in the same folder, then rename.
+"""Safe file output: write to a temporary file (or folder) beside the target, then rename.
 
 Nothing already written is lost: an existing file is only replaced when ``force`` is true,
 and a crash mid-write leaves the old file (or nothing) in place, never a half-written one.
+A command that writes several files into a folder writes them as one set (:func:`output_set`):
+the folder holds the complete set of one run, or the command's files are absent. Temporary names
+carry the writer's process id, so the leftovers of a killed run are removed by the next run.
 """
 
 from __future__ import annotations
@@ -9,8 +12,10 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import os
+import shutil
+import stat
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 from deepcrashtest.errors import UserError
@@ -29,6 +34,8 @@ def check_writable(path: str | os.PathLike[str], force: bool = False) -> Path:
         raise UserError(f"{p}: is a directory, expected a file path")
     if p.exists() and not force:
         raise UserError(f"{p}: already exists (use --force to overwrite)")
+    if p.parent.exists() and not p.parent.is_dir():
+        raise UserError(f"{p.parent}: exists and is not a directory")
     if not p.parent.exists():
         p.parent.mkdir(parents=True, exist_ok=True)
     return p
@@ -42,7 +49,12 @@ def atomic_path(path: str | os.PathLike[str], force: bool = False, suffix: str |
     the temporary file is removed and ``path`` is left untouched.
     """
     target = check_writable(path, force)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=suffix or target.suffix, dir=target.parent)
+    prefix = f".{target.name}.{os.getpid()}."
+    _sweep_stale(target.parent, f".{target.name}.", legacy=True)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=suffix or target.suffix, dir=target.parent)
+    except OSError as exc:
+        raise UserError(f"{target}: cannot write ({exc.strerror or exc})") from None
     os.close(fd)
     os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; outputs get the usual permissions
     tmp_path = Path(tmp)
@@ -85,8 +97,12 @@ def require_file(path: str | os.PathLike[str], what: str = "file") -> Path:
         raise UserError(f"{p}: no such {what}")
     if p.is_dir():
         raise UserError(f"{p}: is a directory, expected a {what}")
+    if not stat.S_ISREG(p.stat().st_mode):  # FIFO, device (/dev/zero), socket: never a user's file
+        raise UserError(f"{p}: not a regular file, expected a {what}")
     if p.stat().st_size == 0:
         raise UserError(f"{p}: {what} is empty")
+    if not os.access(p, os.R_OK):
+        raise UserError(f"{p}: {what} is not readable (permission denied)")
     return p
 
 
@@ -97,3 +113,124 @@ def sha256_file(path: str | os.PathLike[str], chunk: int = 1 << 20) -> str:
         while block := fh.read(chunk):
             h.update(block)
     return h.hexdigest()
+
+
+# --------------------------------------------------------------------------- output sets
+STAGING_SUFFIX = ".partial"
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's live process
+        return True
+    return True
+
+
+def _sweep_stale(folder: Path, prefix: str, legacy: bool = False) -> None:
+    """Remove ``prefix<pid>.*`` temporary files/folders in ``folder`` whose writer process is gone.
+
+    ``legacy``: also remove ``prefix<random>.*`` (temporary names without a process id, as older versions
+    wrote them).
+    """
+    try:
+        entries = list(folder.iterdir()) if folder.is_dir() else []
+    except OSError:
+        return
+    for entry in entries:
+        if not entry.name.startswith(prefix):
+            continue
+        pid = entry.name[len(prefix) :].split(".", 1)[0]
+        if pid.isdigit() and (int(pid) == os.getpid() or _pid_alive(int(pid))):
+            continue
+        if not pid.isdigit() and not legacy:
+            continue
+        with contextlib.suppress(OSError):
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry)
+            else:
+                entry.unlink()
+
+
+def _make_parents(folder: Path) -> list[Path]:
+    """Create ``folder`` and missing parents; return the ones created (deepest first)."""
+    created: list[Path] = []
+    p = folder
+    while not p.exists() and p != p.parent:
+        created.append(p)
+        p = p.parent
+    if p.exists() and not p.is_dir():
+        raise UserError(f"{p}: exists and is not a directory")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"{folder}: cannot create the folder ({exc.strerror or exc})") from None
+    return created
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path)
+    elif path.exists() or path.is_symlink():
+        path.unlink()
+
+
+@contextlib.contextmanager
+def output_set(target: str | os.PathLike[str], names: Iterable[str], force: bool = False) -> Iterator[Path]:
+    """Write a command's whole output set into a staging folder beside ``target``; move it in at the end.
+
+    ``names`` are every file or folder name the command may write into ``target``. Refused before any
+    work when ``target`` is a file, or holds one of ``names`` and ``force`` is false. Yields the staging
+    folder (write there under the final names). On success the set replaces the previous run's: names of
+    ``names`` the new run did not write are removed, so ``target`` never mixes two runs; other files in
+    ``target`` are kept. When ``target`` did not exist the staging folder is renamed onto it in one step.
+    On an error nothing is moved: the staging folder and any parent folders this call created are removed,
+    so a failed run leaves no empty folder behind.
+    """
+    out = Path(os.path.abspath(target))
+    own = set(names)
+    if out.exists() and not out.is_dir():
+        raise UserError(f"{out}: exists and is not a directory")
+    if out.is_dir() and not force:
+        taken = sorted(n for n in own if (out / n).exists() or (out / n).is_symlink())
+        if taken:
+            raise UserError(f"{out / taken[0]}: already exists (use --force to overwrite)")
+    created = _make_parents(out.parent)
+    _sweep_stale(out.parent, f".{out.name}.")
+    if out.is_dir():
+        for name in own:
+            _sweep_stale(out, f".{name}.", legacy=True)
+    try:
+        stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.{os.getpid()}.", suffix=STAGING_SUFFIX, dir=out.parent))
+    except OSError as exc:
+        for p in created:
+            with contextlib.suppress(OSError):
+                p.rmdir()
+        raise UserError(f"{out}: cannot write ({exc.strerror or exc})") from None
+    os.chmod(stage, 0o777 & ~_umask())
+    try:
+        yield stage
+        _commit(stage, out, own)
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        for p in created:
+            with contextlib.suppress(OSError):
+                p.rmdir()
+        raise
+
+
+def _commit(stage: Path, out: Path, own: set[str]) -> None:
+    """Move the staged set onto ``out`` (see :func:`output_set`)."""
+    if not out.exists():
+        os.rename(stage, out)
+        return
+    new = {p.name for p in stage.iterdir()}
+    for name in own - new:  # the previous run's files this run did not make
+        _remove(out / name)
+    for name in sorted(new):
+        if (out / name).is_dir() and not (out / name).is_symlink():
+            shutil.rmtree(out / name)
+        os.replace(stage / name, out / name)
+    stage.rmdir()

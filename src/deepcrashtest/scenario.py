@@ -24,7 +24,16 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from deepcrashtest import __version__
 from deepcrashtest.errors import ScenarioError
@@ -38,9 +47,68 @@ SCHEMA_VERSION = "1.1"
 MAX_SPEED_MPS = 90.0  # 324 km/h: above any road vehicle
 MAX_ACCEL_MPS2 = 15.0  # ~1.5 g: above any tyre-limited braking/acceleration (impacts are cut away)
 
-FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
-PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+#: Physical ranges: a value outside them is a broken file, not a scenario (stated, never clipped).
+MAX_COORD_M = 1e5  # |x|, |y| of any position, metres (100 km from the ego's start)
+MAX_TIME_S = 1e4  # |t| of any time, seconds
+MAX_YAW_RAD = 1e4  # |yaw| (unwrapped heading), radians
+MIN_SIZE_M, MAX_SIZE_M = 0.1, 30.0  # length, width, height of a road user, metres
+MAX_PIXELS = 1e6  # image sizes, focal lengths, principal points, pixels
+MAX_NAME_CHARS = 200
+
+
+def _number(v: Any) -> Any:
+    """Strict numbers: a JSON string ("12.5") or a boolean is refused, numpy scalars become Python numbers."""
+    if isinstance(v, np.generic):
+        v = v.item()
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        raise ValueError(f"expected a number, got {type(v).__name__} {_short(v)}")
+    return v
+
+
+def _integer(v: Any) -> Any:
+    """Strict integers: strings, booleans and floats (even 2.0) are refused."""
+    if isinstance(v, np.integer):
+        v = int(v)
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise ValueError(f"expected an integer, got {type(v).__name__} {_short(v)}")
+    return v
+
+
+def _text(v: str) -> str:
+    """Text written into exports (XML, CSV): no control characters but tab/newline, no lone surrogates."""
+    for i, ch in enumerate(v):
+        if (ord(ch) < 32 and ch not in "\t\n\r") or ord(ch) == 127 or 0xD800 <= ord(ch) <= 0xDFFF:
+            raise ValueError(f"control or invalid character U+{ord(ch):04X} at position {i}")
+    return v
+
+
+def _name(v: str) -> str:
+    _text(v)
+    if any(ch in "\t\n\r" for ch in v):
+        raise ValueError("name must be one line")
+    return v
+
+
+def _short(v: Any) -> str:
+    text = repr(v)
+    return text if len(text) <= 40 else text[:40] + "..."
+
+
+# strict finite numbers with bounds (constraints before the validator: the JSON Schema shows minimum/maximum)
+Number = Annotated[float, Field(allow_inf_nan=False), BeforeValidator(_number)]
+Integer = Annotated[int, BeforeValidator(_integer)]
+FiniteFloat = Number
+PositiveFloat = Annotated[float, Field(allow_inf_nan=False, gt=0), BeforeValidator(_number)]
+NonNegFloat = Annotated[float, Field(allow_inf_nan=False, ge=0), BeforeValidator(_number)]
+Coord = Annotated[float, Field(allow_inf_nan=False, ge=-MAX_COORD_M, le=MAX_COORD_M), BeforeValidator(_number)]
+Time = Annotated[float, Field(allow_inf_nan=False, ge=-MAX_TIME_S, le=MAX_TIME_S), BeforeValidator(_number)]
+Yaw = Annotated[float, Field(allow_inf_nan=False, ge=-MAX_YAW_RAD, le=MAX_YAW_RAD), BeforeValidator(_number)]
+Size = Annotated[float, Field(allow_inf_nan=False, ge=MIN_SIZE_M, le=MAX_SIZE_M), BeforeValidator(_number)]
+Pixels = Annotated[float, Field(allow_inf_nan=False, ge=-MAX_PIXELS, le=MAX_PIXELS), BeforeValidator(_number)]
+Distortion = Annotated[float, Field(allow_inf_nan=False, ge=-1e3, le=1e3), BeforeValidator(_number)]
+LaneOffset = Annotated[float, Field(allow_inf_nan=False, ge=-100.0, le=100.0), BeforeValidator(_number)]
+Text = Annotated[str, AfterValidator(_text)]
+Name = Annotated[str, AfterValidator(_name), Field(min_length=1, max_length=MAX_NAME_CHARS)]
 
 VehicleCategory = Literal["car", "van", "truck", "bus", "motorcycle", "bicycle", "pedestrian"]
 """Road-user categories. A two-wheeler and its rider are one road user (``motorcycle``, ``bicycle``);
@@ -59,19 +127,19 @@ class VideoSource(_Model):
     """Where the scenario came from."""
 
     kind: Literal["video", "image_folder", "kitti_labels", "synthetic"] = "video"
-    path: str = Field(description="Path of the video file, image folder or label file, as given by the user")
-    fps: PositiveFloat = Field(description="Frames per second used to turn frame numbers into seconds")
-    frame_count: int = Field(ge=0, description="Number of frames read")
-    width: int = Field(gt=0, description="Frame width, pixels")
-    height: int = Field(gt=0, description="Frame height, pixels")
-    sha256: str | None = Field(default=None, description="SHA-256 of the source file, hex")
-    time_offset_s: FiniteFloat = Field(
+    path: Text = Field(description="Path of the video file, image folder or label file, as given by the user")
+    fps: PositiveFloat = Field(le=10000, description="Frames per second used to turn frame numbers into seconds")
+    frame_count: Integer = Field(ge=0, le=10**9, description="Number of frames read")
+    width: Integer = Field(gt=0, le=MAX_PIXELS, description="Frame width, pixels")
+    height: Integer = Field(gt=0, le=MAX_PIXELS, description="Frame height, pixels")
+    sha256: Text | None = Field(default=None, description="SHA-256 of the source file, hex")
+    time_offset_s: Time = Field(
         default=0.0,
         description="Scenario time of video time 0 (video time = frame / fps): scenario time = video time + "
         "time_offset_s. The one time mapping used by the viewer, the report, the fidelity evaluation and the "
         "exports (Scenario.video_time / scenario_time / video_frame)",
     )
-    frame_rate_note: str | None = Field(
+    frame_rate_note: Text | None = Field(
         default=None,
         description="Caveat on the frame rate (uploaded videos may be re-timed: relative speed trends are "
         "what extraction gets right; absolute speeds scale with the true frame rate)",
@@ -81,18 +149,25 @@ class VideoSource(_Model):
 class Camera(_Model):
     """Pinhole camera. Camera frame: x right, y down, z forward (metres); image u right, v down (pixels)."""
 
-    fx: PositiveFloat = Field(description="Focal length along u, pixels")
-    fy: PositiveFloat = Field(description="Focal length along v, pixels")
-    cx: FiniteFloat = Field(description="Principal point u, pixels")
-    cy: FiniteFloat = Field(description="Principal point v, pixels")
-    distortion: list[FiniteFloat] = Field(
+    fx: PositiveFloat = Field(le=MAX_PIXELS, description="Focal length along u, pixels")
+    fy: PositiveFloat = Field(le=MAX_PIXELS, description="Focal length along v, pixels")
+    cx: Pixels = Field(description="Principal point u, pixels")
+    cy: Pixels = Field(description="Principal point v, pixels")
+    distortion: list[Distortion] = Field(
         default_factory=list, description="OpenCV distortion coefficients k1,k2,p1,p2[,k3]"
     )
-    height_m: PositiveFloat = Field(default=1.3, description="Camera height above the road, metres")
-    pitch_rad: FiniteFloat = Field(default=0.0, description="Downward pitch of the optical axis, radians")
-    roll_rad: FiniteFloat = Field(default=0.0, description="Roll about the optical axis, radians")
+    height_m: PositiveFloat = Field(default=1.3, le=100.0, description="Camera height above the road, metres")
+    pitch_rad: FiniteFloat = Field(
+        default=0.0, ge=-math.pi / 2, le=math.pi / 2, description="Downward pitch of the optical axis, radians"
+    )
+    roll_rad: FiniteFloat = Field(
+        default=0.0, ge=-math.pi, le=math.pi, description="Roll about the optical axis, radians"
+    )
     forward_offset_m: FiniteFloat = Field(
-        default=0.5, description="Camera position ahead of the ego vehicle's centre, metres"
+        default=0.5,
+        ge=-MAX_SIZE_M,
+        le=MAX_SIZE_M,
+        description="Camera position ahead of the ego vehicle's centre, metres",
     )
     intrinsics_source: Literal["user", "chessboard", "fov", "default", "kitti_calib"] = "default"
     pitch_source: Literal["user", "vanishing_point", "flow_foe", "default", "kitti_calib"] = "default"
@@ -106,10 +181,10 @@ class Camera(_Model):
 class SplineParams(_Model):
     """A 2D B-spline in time: x(t), y(t) = BSpline(knots, cx|cy, degree). The search perturbs cx, cy."""
 
-    knots: list[FiniteFloat] = Field(description="Knot vector, seconds (scipy.interpolate.BSpline layout)")
-    cx: list[FiniteFloat] = Field(description="Control-point x coordinates, metres (world frame)")
-    cy: list[FiniteFloat] = Field(description="Control-point y coordinates, metres (world frame)")
-    degree: int = Field(default=3, ge=1, le=5)
+    knots: list[Time] = Field(description="Knot vector, seconds (scipy.interpolate.BSpline layout)")
+    cx: list[Coord] = Field(description="Control-point x coordinates, metres (world frame)")
+    cy: list[Coord] = Field(description="Control-point y coordinates, metres (world frame)")
+    degree: Integer = Field(default=3, ge=1, le=5)
 
     @model_validator(mode="after")
     def _shape(self) -> SplineParams:
@@ -127,10 +202,10 @@ class SplineParams(_Model):
 class Trajectory(_Model):
     """Time-indexed states of one vehicle's centre, column-wise (all lists have the same length)."""
 
-    t: list[FiniteFloat] = Field(description="Time, seconds, strictly increasing")
-    x: list[FiniteFloat] = Field(description="World x (forward), metres")
-    y: list[FiniteFloat] = Field(description="World y (left), metres")
-    yaw: list[FiniteFloat] = Field(description="Heading, radians CCW from world +x, unwrapped")
+    t: list[Time] = Field(description="Time, seconds, strictly increasing")
+    x: list[Coord] = Field(description="World x (forward), metres")
+    y: list[Coord] = Field(description="World y (left), metres")
+    yaw: list[Yaw] = Field(description="Heading, radians CCW from world +x, unwrapped")
     speed: list[NonNegFloat] = Field(description="Speed along the heading, m/s")
     observed: list[bool] | None = Field(
         default=None, description="Per sample: true where seen in the video, false where extrapolated"
@@ -212,19 +287,21 @@ class Trajectory(_Model):
 class Vehicle(_Model):
     """One vehicle (the ego or an agent) with its size, class and trajectory."""
 
-    id: int = Field(ge=0, description="Unique within the scenario; the ego is 0")
+    id: Integer = Field(ge=0, le=10**9, description="Unique within the scenario; the ego is 0")
     category: VehicleCategory = "car"
-    length: PositiveFloat = Field(default=4.5, description="Metres")
-    width: PositiveFloat = Field(default=1.8, description="Metres")
-    height: PositiveFloat = Field(default=1.5, description="Metres")
-    confidence: float = Field(default=1.0, ge=0.0, le=1.0, description="Mean detection confidence")
+    length: Size = Field(default=4.5, description="Metres")
+    width: Size = Field(default=1.8, description="Metres")
+    height: Size = Field(default=1.5, description="Metres")
+    confidence: Number = Field(default=1.0, ge=0.0, le=1.0, description="Mean detection confidence")
     trajectory_class: TrajectoryClass | None = Field(
         default=None, description="D0T1..D1T4 for agents (see trajectory.classify); None for the ego"
     )
-    first_frame: int = Field(default=0, ge=0, description="First video frame where the vehicle is observed")
-    last_frame: int = Field(default=0, ge=0, description="Last video frame where the vehicle is observed")
+    first_frame: Integer = Field(
+        default=0, ge=0, le=10**9, description="First video frame where the vehicle is observed"
+    )
+    last_frame: Integer = Field(default=0, ge=0, le=10**9, description="Last video frame where the vehicle is observed")
     start_delay_s: NonNegFloat = Field(
-        default=0.0, description="Seconds after t=0 at which the vehicle enters the simulation"
+        default=0.0, le=MAX_TIME_S, description="Seconds after t=0 at which the vehicle enters the simulation"
     )
     trajectory: Trajectory
     spline: SplineParams | None = Field(
@@ -241,9 +318,9 @@ class Vehicle(_Model):
 class LaneTimeline(_Model):
     """The ego's lane over time, from the lane stage."""
 
-    t: list[FiniteFloat] = Field(description="Seconds")
-    lane_index: list[int] = Field(description="0 = rightmost lane")
-    lateral_offset: list[FiniteFloat] = Field(description="Ego centre left of its lane centre, metres")
+    t: list[Time] = Field(description="Seconds")
+    lane_index: list[Annotated[Integer, Field(ge=0, le=100)]] = Field(description="0 = rightmost lane")
+    lateral_offset: list[LaneOffset] = Field(description="Ego centre left of its lane centre, metres")
 
     @model_validator(mode="after")
     def _same_length(self) -> LaneTimeline:
@@ -255,11 +332,11 @@ class LaneTimeline(_Model):
 class Road(_Model):
     """Road centre line and lanes, world frame."""
 
-    centerline_x: list[FiniteFloat] = Field(description="Waypoint x, metres")
-    centerline_y: list[FiniteFloat] = Field(description="Waypoint y, metres")
-    lane_width: PositiveFloat = Field(default=3.5, description="Metres")
-    lane_count: int = Field(default=2, ge=1, le=12)
-    ego_lane: int = Field(default=0, ge=0, description="Lane of the ego at t=0, 0 = rightmost")
+    centerline_x: list[Coord] = Field(description="Waypoint x, metres")
+    centerline_y: list[Coord] = Field(description="Waypoint y, metres")
+    lane_width: PositiveFloat = Field(default=3.5, ge=1.0, le=20.0, description="Metres")
+    lane_count: Integer = Field(default=2, ge=1, le=12)
+    ego_lane: Integer = Field(default=0, ge=0, description="Lane of the ego at t=0, 0 = rightmost")
     source: Literal["ego_path", "ego_path+oncoming", "lanes", "user"] = "ego_path"
     lane_timeline: LaneTimeline | None = None
 
@@ -285,18 +362,18 @@ class Collision(_Model):
     crash names two agents.
     """
 
-    time_s: FiniteFloat = Field(description="Seconds, scenario time")
-    agent_id: int = Field(ge=0, description="The second participant (the road user the ego hits)")
-    other_id: int = Field(default=0, ge=0, description="The first participant (the ego unless stated)")
+    time_s: Time = Field(description="Seconds, scenario time")
+    agent_id: Integer = Field(ge=0, description="The second participant (the road user the ego hits)")
+    other_id: Integer = Field(default=0, ge=0, description="The first participant (the ego unless stated)")
     source: CollisionSource = Field(
         default="video-auto",
         description="video-auto = detected in the video; user = given by the user; simulated = found by the "
         "simulator; labels = from dataset labels",
     )
-    confidence: float | None = Field(default=None, ge=0.0, le=1.0, description="Detection confidence, 0-1")
-    x: FiniteFloat | None = Field(default=None, description="Impact point x, metres")
-    y: FiniteFloat | None = Field(default=None, description="Impact point y, metres")
-    relative_speed: NonNegFloat | None = Field(default=None, description="m/s at first contact")
+    confidence: Number | None = Field(default=None, ge=0.0, le=1.0, description="Detection confidence, 0-1")
+    x: Coord | None = Field(default=None, description="Impact point x, metres")
+    y: Coord | None = Field(default=None, description="Impact point y, metres")
+    relative_speed: NonNegFloat | None = Field(default=None, le=2 * MAX_SPEED_MPS, description="m/s at first contact")
 
     @model_validator(mode="after")
     def _two_participants(self) -> Collision:
@@ -318,18 +395,18 @@ class Collision(_Model):
 class Provenance(_Model):
     """How the scenario was made, so it can be made again."""
 
-    package_version: str = __version__
-    command: str = ""
+    package_version: Text = __version__
+    command: Text = ""
     parameters: dict[str, Any] = Field(default_factory=dict)
-    seed: int = 0
-    history: list[str] = Field(default_factory=list, description="Edits applied after creation, in order")
+    seed: Integer = Field(default=0, ge=0, description="Seed of every random choice (non-negative)")
+    history: list[Text] = Field(default_factory=list, description="Edits applied after creation, in order")
 
 
 class Scenario(_Model):
     """A crash scenario: source, camera, ego, agents, road, collision, provenance."""
 
     schema_version: str = SCHEMA_VERSION
-    name: str = "scenario"
+    name: Name = Field(default="scenario", description="One line, no control characters, at most 200 characters")
     stage: Literal["raw", "processed"] = Field(
         default="processed",
         description="raw = world-frame tracks straight from extraction; processed = after stage 2",
@@ -341,7 +418,7 @@ class Scenario(_Model):
     road: Road
     collision: Collision | None = None
     provenance: Provenance = Field(default_factory=Provenance)
-    warnings: list[str] = Field(default_factory=list, description="Caveats a user should read")
+    warnings: list[Text] = Field(default_factory=list, description="Caveats a user should read")
 
     @field_validator("schema_version")
     @classmethod
@@ -469,7 +546,12 @@ class Scenario(_Model):
             raise ScenarioError(f"{p}: invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
         except ValueError as exc:
             raise ScenarioError(f"{p}: {exc}") from None
-        return cls.from_dict(data, origin=str(p))
+        except RecursionError:
+            raise ScenarioError(f"{p}: JSON nested too deeply (not a scenario file)") from None
+        try:
+            return cls.from_dict(data, origin=str(p))
+        except RecursionError:
+            raise ScenarioError(f"{p}: JSON nested too deeply (not a scenario file)") from None
 
 
 def _plain(value: Any) -> Any:

@@ -14,10 +14,11 @@ from __future__ import annotations
 
 import os
 import time
+from pathlib import Path
 from typing import Any
 
 from deepcrashtest.errors import UserError
-from deepcrashtest.fileio import check_writable, ensure_output_dir
+from deepcrashtest.fileio import output_set
 from deepcrashtest.scenario import Scenario
 
 FORMATS = ("openscenario", "commonroad", "csv")
@@ -41,10 +42,15 @@ def export_scenario(
         raise UserError(f"--format must be one of {', '.join(FORMATS)} (got {fmt!r})")
     if ego_free and fmt != "openscenario":
         raise UserError("--ego-free applies to --format openscenario only")
-    out = ensure_output_dir(out_dir)
-    paths = [out / name for name in FILES[fmt]]
-    for p in paths:  # refuse before writing anything, so a refusal leaves no half export
-        check_writable(p, force)
+    out = Path(out_dir)
+    with output_set(out, FILES[fmt], force) as stage:  # all files of one export, or none
+        result = _export(sc, fmt, [stage / name for name in FILES[fmt]], ego_free)
+    result["files"] = [str(out / name) for name in FILES[fmt]]
+    return result
+
+
+def _export(sc: Scenario, fmt: str, paths: list[Path], ego_free: bool) -> dict[str, Any]:
+    force = False  # the staging folder starts empty
     start = time.perf_counter()
     result: dict[str, Any] = {"format": fmt, "scenario": sc.name, "files": [str(p) for p in paths]}
     if fmt == "openscenario":

@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from deepcrashtest.errors import UserError
-from deepcrashtest.fileio import atomic_path, check_writable, ensure_output_dir
+from deepcrashtest.fileio import atomic_path, output_set
 from deepcrashtest.geometry.camera import default_camera
 from deepcrashtest.geometry.extract_geometry import GeometryResult, extract_geometry
 from deepcrashtest.perception.annotate import Annotator
@@ -30,6 +30,14 @@ from deepcrashtest.video.source import VideoMeta, open_video
 from deepcrashtest.video.writer import VideoWriter
 
 DEFAULT_DETECTOR = "ssd-mobilenet"
+#: Every file ``extract`` may write into its output folder (one set per run: see fileio.output_set).
+OUTPUT_FILES = {
+    "tracks_csv": "tracks.csv",
+    "annotated_mp4": "annotated.mp4",
+    "scenario_raw": "scenario_raw.json",
+    "scenario": "scenario.json",
+    "report": "report.html",
+}
 DEFAULT_DETECT_EVERY = 5
 
 
@@ -65,27 +73,38 @@ def run_extract(
     if not src_path.exists():
         raise UserError(f"{src_path}: no such video file or image folder")
     out = Path(output)
-    if out.exists() and not out.is_dir():
-        raise UserError(f"{out}: exists and is not a directory")
-    paths = {
-        "tracks_csv": out / "tracks.csv",
-        "annotated_mp4": out / "annotated.mp4",
-        "scenario_raw": out / "scenario_raw.json",
-        "scenario": out / "scenario.json",
-        "report": out / "report.html",
-    }
-    wanted = ["tracks_csv"] + (["annotated_mp4"] if annotate else [])
-    wanted += ["scenario_raw", "scenario"] if geometry else []
-    wanted += ["report"] if geometry and report else []
-    for key in wanted:  # refuse before any work, so nothing already written is lost
-        check_writable(paths[key], force)
+    with output_set(out, OUTPUT_FILES.values(), force) as stage:  # the whole set of one run, or nothing
+        result = _extract(src_path, out, stage, detector, detect_every, max_frames, fps, annotate, geometry,
+                          camera, dashboard_rows, lanes, report, seed)  # fmt: skip
+    return result
+
+
+def _extract(
+    src_path: Path,
+    out: Path,
+    stage: Path,
+    detector: str,
+    detect_every: int,
+    max_frames: int | None,
+    fps: float | None,
+    annotate: bool,
+    geometry: bool,
+    camera: Camera | Callable[[int, int], Camera] | None,
+    dashboard_rows: int | None,
+    lanes: bool,
+    report: bool,
+    seed: int,
+) -> dict[str, Any]:
+    """:func:`run_extract` writing into the staging folder ``stage``; result paths name ``out``."""
+    paths = {key: stage / name for key, name in OUTPUT_FILES.items()}
+    final = {key: out / name for key, name in OUTPUT_FILES.items()}
+    force = False  # the staging folder starts empty
     det = make_detector(detector)
     t0 = time.perf_counter()
     records: list[tuple[object, ...]] = []
     geo: GeometryResult | None = None
     with open_video(src_path, fps) as source, contextlib.ExitStack() as stack:
         meta = source.meta
-        ensure_output_dir(out)
         total = min(meta.frame_count, max_frames) if max_frames else meta.frame_count
         frames = progress(source, "extract", total=total or None)
         writer = (
@@ -143,8 +162,8 @@ def run_extract(
     result: dict[str, Any] = {
         "video": str(src_path),
         "output": str(out),
-        "tracks_csv": str(paths["tracks_csv"]),
-        "annotated_mp4": str(paths["annotated_mp4"]) if annotate else None,
+        "tracks_csv": str(final["tracks_csv"]),
+        "annotated_mp4": str(final["annotated_mp4"]) if annotate else None,
         "detector": getattr(det, "name", detector),
         "detect_every": detect_every,
         "fps_video": round(meta.fps, 3),
@@ -160,8 +179,13 @@ def run_extract(
         "report": None,
         "warnings": warnings,
     }
+    if len(df) == 0:
+        warnings.append("no vehicles found in the video")
     if geo is not None:
         result.update(_finish_scenario(geo, paths, force, seed, report, warnings))
+        for key in ("scenario_raw", "scenario", "report"):
+            if result.get(key):
+                result[key] = str(final[key])
     return result
 
 
@@ -188,9 +212,11 @@ def _finish_scenario(
     warnings.extend(raw.warnings)
     try:
         processed = process_scenario(raw, seed=seed)
-    except UserError as exc:  # e.g. no usable track: keep the raw scenario, say why
-        warnings.append(f"stage 2 could not process the extracted tracks: {exc}")
-        return info
+    except UserError as exc:  # e.g. no usable track: the run fails as a whole and writes nothing
+        raise UserError(
+            f"stage 2 could not process the extracted tracks: {exc} (nothing written; --no-geometry writes the "
+            "tracks and the annotated video alone)"
+        ) from None
     processed.save(paths["scenario"], force=force)
     info["scenario"] = str(paths["scenario"])
     info["collision"] = processed.collision.model_dump() if processed.collision is not None else None

@@ -78,18 +78,29 @@ def write_variants(
     meta: dict[str, Any],
     limit: int,
     force: bool,
-) -> tuple[list[str], list[str]]:
-    """Write the ``limit`` safe variants with the least change as Scenario files; returns (paths, problems)."""
-    safe = df[df["safe"]].sort_values(["change_m", "variant"]).head(limit)
-    paths, problems = [], []
+) -> tuple[list[str], dict[int, str], Scenario | None]:
+    """Write the ``limit`` safe variants with the least change as Scenario files.
+
+    A variant that breaks the Scenario's physical limits (the simulator drove it, but its path asks e.g. an
+    acceleration no vehicle has) is a result, not an error: it is recorded in the problems and skipped.
+    Returns (paths written, {variant: problem}, the first valid variant's Scenario or None).
+    """
+    safe = df[df["safe"]].sort_values(["change_m", "variant"])
+    paths: list[str] = []
+    problems: dict[int, str] = {}
+    best: Scenario | None = None
     for vid, method in zip(safe["variant"], safe["method"], strict=True):
+        if len(paths) >= limit and best is not None:
+            break
         try:
             sc = variant_scenario(scenario, space, theta[int(vid)], int(vid), {**meta, "method": method})
         except ScenarioError as exc:
-            problems.append(f"variant {vid}: {exc}")
+            problems[int(vid)] = str(exc)
             continue
-        paths.append(str(sc.save(folder / f"variant_{int(vid):04d}.json", force=force)))
-    return paths, problems
+        best = best or sc
+        if len(paths) < limit:
+            paths.append(str(sc.save(folder / f"variant_{int(vid):04d}.json", force=force)))
+    return paths, problems, best
 
 
 def plot_starts(

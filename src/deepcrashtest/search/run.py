@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from deepcrashtest.errors import UserError
-from deepcrashtest.fileio import check_writable, ensure_output_dir
+from deepcrashtest.fileio import output_set
 from deepcrashtest.scenario import Scenario
 from deepcrashtest.search import outputs
 from deepcrashtest.search.evaluate import Evaluator
@@ -19,7 +19,11 @@ from deepcrashtest.search.methods import CemConfig, Log, boundary_scan, cem_sear
 from deepcrashtest.search.space import SearchSpace
 
 METHODS = ("random", "cem", "both")
-OUTPUT_FILES = ("results.csv", "summary.json", "starts.png")
+OUTPUT_FILES = ("results.csv", "summary.json", "starts.png", "safe_variants", "best_vs_original.mp4")
+NO_CRASH_NOTE = (
+    "the original scenario does not collide: there is no crash to avoid, so every variant without a collision "
+    "counts as safe"
+)
 
 
 @dataclass(frozen=True)
@@ -60,11 +64,33 @@ def run_search(
     workers: int = 1,
     force: bool = False,
 ) -> dict[str, Any]:
-    """Search variants of ``scenario``, write the outputs under ``output``, return the summary."""
+    """Search variants of ``scenario``, write the outputs under ``output``, return the summary.
+
+    The outputs are one set (:func:`deepcrashtest.fileio.output_set`): all from this run, or none.
+    """
     cfg.check()
-    out_dir = ensure_output_dir(output)
-    for name in OUTPUT_FILES:
-        check_writable(out_dir / name, force)
+    out = Path(output)
+    with output_set(out, OUTPUT_FILES, force) as stage:
+        summary = _search(scenario, stage, cfg, engine, workers)
+        summary["outputs"] = _final_paths(summary["outputs"], stage, out)
+        outputs.write_summary(summary, stage / "summary.json", False)
+    return summary
+
+
+def _final_paths(value: Any, stage: Path, out: Path) -> Any:
+    """Paths under the staging folder -> the same paths under the output folder (recursively)."""
+    if isinstance(value, str) and value.startswith(str(stage)):
+        return str(out / Path(value).relative_to(stage))
+    if isinstance(value, list):
+        return [_final_paths(v, stage, out) for v in value]
+    if isinstance(value, dict):
+        return {k: _final_paths(v, stage, out) for k, v in value.items()}
+    return value
+
+
+def _search(scenario: Scenario, out_dir: Path, cfg: SearchConfig, engine: str, workers: int) -> dict[str, Any]:
+    """Run the search and write every output but summary.json into ``out_dir`` (an empty staging folder)."""
+    force = False
     space = SearchSpace.for_scenario(scenario, cfg.box_lateral, cfg.box_longitudinal, cfg.noise_sigma)
     t0 = time.perf_counter()
     log = Log()
@@ -90,10 +116,10 @@ def run_search(
     outputs.write_csv(df, out_dir / "results.csv", force)
     meta = {**asdict(cfg), "engine": engine}
     meta.pop("video")
-    scen_paths, problems = outputs.write_variants(
+    scen_paths, problems, best_sc = outputs.write_variants(
         scenario, space, df, theta, out_dir / "safe_variants", meta, cfg.max_scenarios, force
     )
-    best_id = _best_safe(df)
+    best_id = _best_safe(df, problems)
     summary: dict[str, Any] = {
         "scenario": scenario.name,
         "controller": cfg.controller,
@@ -101,6 +127,7 @@ def run_search(
         "engine": engine,
         "workers": workers,
         "original": {"collided": bool(original["collided"][0]), **_metrics(original, 0)},
+        "note": None if bool(original["collided"][0]) else NO_CRASH_NOTE,
         "simulations": n_sims,
         "elapsed_s": round(elapsed, 3),
         "variants_per_s": round(n_sims / elapsed, 1) if elapsed > 0 else None,
@@ -109,13 +136,10 @@ def run_search(
         "best_safe": _row(df, best_id),
         "config": meta,
     }
-    best_sc = None
-    if best_id is not None:
-        best_sc = outputs.variant_scenario(scenario, space, theta[best_id], best_id, meta)
     summary["outputs"] = {
         "results_csv": str(out_dir / "results.csv"),
         "safe_scenarios": scen_paths,
-        "scenario_problems": problems,
+        "scenario_problems": [f"variant {k}: {v}" for k, v in problems.items()],
         "plot": str(
             outputs.plot_starts(
                 df,
@@ -142,12 +166,12 @@ def run_search(
             cfg.duration,
             f"variant {r['variant']}: start ({r['d_lon_m']:+.2f}, {r['d_lat_m']:+.2f}) m, change {r['change_m']:.2f} m",
         )
-    outputs.write_summary(summary, out_dir / "summary.json", force)
     return summary
 
 
-def _best_safe(df: Any) -> int | None:
-    safe = df[df["safe"]]
+def _best_safe(df: Any, problems: dict[int, str]) -> int | None:
+    """The safe variant with the least change among those that make a valid Scenario."""
+    safe = df[df["safe"] & ~df["variant"].isin(list(problems))]
     if safe.empty:
         return None
     return int(safe.sort_values(["change_m", "variant"]).iloc[0]["variant"])

@@ -128,7 +128,7 @@ def resolve_controller(spec: str | Any) -> Any:
     if not isinstance(spec, str):
         if not callable(spec):
             raise UserError(f"controller {spec!r} is not callable")
-        return spec() if inspect.isclass(spec) else spec
+        return _instance(spec, repr(spec))
     if spec in BUILTIN:
         return BUILTIN[spec]()
     if ":" not in spec:
@@ -148,12 +148,68 @@ def resolve_controller(spec: str | Any) -> Any:
             sp.loader.exec_module(module)
         else:
             module = importlib.import_module(mod_name)
+    except UserError:
+        raise
     except ImportError as exc:
         raise UserError(f"controller {spec!r}: cannot import {mod_name}: {exc}") from None
+    except Exception as exc:  # the user's module failed while loading (SyntaxError, its own errors)
+        raise UserError(f"controller {spec!r}: loading {mod_name} failed: {type(exc).__name__}: {exc}") from None
     obj = getattr(module, attr, None)
-    if obj is None or not callable(obj):
-        raise UserError(f"controller {spec!r}: {mod_name} has no callable {attr!r}")
-    return obj() if inspect.isclass(obj) else obj
+    if obj is None:
+        raise UserError(f"controller {spec!r}: {mod_name} has no {attr!r}")
+    if not callable(obj):
+        raise UserError(f"controller {spec!r}: {attr!r} in {mod_name} is a {type(obj).__name__}, not callable")
+    return _instance(obj, repr(spec))
+
+
+def _instance(obj: Any, label: str) -> Any:
+    """A class -> an instance made without arguments (checked callable); a callable as is."""
+    if not inspect.isclass(obj):
+        return obj
+    try:
+        inst = obj()
+    except Exception as exc:
+        raise UserError(f"controller {label}: creating {obj.__name__}() failed: {type(exc).__name__}: {exc}") from None
+    if not callable(inst):
+        raise UserError(f"controller {label}: {obj.__name__} instances are not callable (define __call__)")
+    return inst
+
+
+def call_controller(controller: Any, obs: Any, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Call ``controller(obs)`` for ``n`` ego rows; returns (acceleration m/s^2, steering rad) arrays (n,).
+
+    A user controller that raises, returns something other than two numbers or arrays of ``n``, or returns a
+    non-finite value is reported as a UserError naming it and the problem.
+    """
+    name = controller_name(controller)
+    try:
+        res = controller(obs)
+    except UserError:
+        raise
+    except Exception as exc:
+        raise UserError(f"controller {name} raised {type(exc).__name__}: {exc}") from None
+    if isinstance(res, str | bytes) or not isinstance(res, tuple | list) or len(res) != 2:
+        raise UserError(
+            f"controller {name} returned {_describe(res)}; expected (acceleration, steering): two numbers or arrays"
+        )
+    out = []
+    for label, r in zip(("acceleration", "steering"), res, strict=True):
+        try:
+            a = np.asarray(r, dtype=float)
+            a = np.array(np.broadcast_to(a, (n,)), dtype=float)
+        except (TypeError, ValueError):
+            raise UserError(
+                f"controller {name} returned {label} {_describe(r)}; expected a number or {n} numbers"
+            ) from None
+        if not np.isfinite(a).all():
+            raise UserError(f"controller {name} returned a non-finite {label} (NaN or infinity)")
+        out.append(a)
+    return out[0], out[1]
+
+
+def _describe(v: Any) -> str:
+    text = repr(v)
+    return f"{type(v).__name__} {text[:60]}{'...' if len(text) > 60 else ''}"
 
 
 def controller_name(spec: str | Any) -> str:
