@@ -1,64 +1,106 @@
-"""Variants simulated per second by the search's engines: in-process, process pool, Ray (1 and 2 workers).
+"""`deepcrashtest search` speed through the CLI against the simulator it drives, measured in one run.
 
-512 random variants (128 starts x 4 noisy paths) of a real KITTI crash scenario, 11 s simulated
-each, in chunks of 64. Ray's start-up (ray.init) is reported apart from the throughput.
-Usage: PYTHONPATH=src python bench/search_speed.py [--variants 512] [--engines local1,local2,ray1,ray2]
+1. KITTI tracking 0003 (ground-truth labels -> stage 2, 9 agents, 19.6 s) is written as a Scenario;
+2. ``deepcrashtest search SCENARIO --method random --starts 500 --noise-variants 4 --no-video`` runs as a
+   whole process (imports, set-up, 2,001 simulations, results.csv, summary.json, starts.png, variant files),
+   ``--workers`` left at its default (the cores): variants/s = simulations / process wall time;
+3. ``simulate_batch`` simulates the same 2,000 variants (same paths) in-process with the same workers:
+   the simulator's own variants/s, and the ratio simulator / search (the goal: <= 2).
+
+Prints one JSON line. The figures are wall times of a machine that may be shared: the ratio, measured in
+one run, is the robust figure; ``search_cpu_s`` is the CPU time the search process and its workers used.
+Usage: python bench/search_speed.py [--sequence 3] [--starts 500] [--noise-variants 4] [--workers N]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import resource
+import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(__file__))
-from search_common import DURATION_S, crash_scenario  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
 
-from deepcrashtest.search.evaluate import Evaluator  # noqa: E402
+from deepcrashtest.scenario import Scenario  # noqa: E402
 from deepcrashtest.search.space import SearchSpace  # noqa: E402
+from deepcrashtest.sim import prepare, simulate_batch  # noqa: E402
+
+KITTI = ROOT.parent / "shared" / "data" / "kitti_tracking"
+
+
+def _cli(*args: str) -> list[str]:
+    return [sys.executable, "-c", "import sys; from deepcrashtest.cli import main; sys.exit(main())", *args]
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--variants", type=int, default=512)
-    ap.add_argument("--engines", default="local1,local2,ray1,ray2", help="engine+workers to time, comma separated")
+    ap.add_argument("--sequence", type=int, default=3)
+    ap.add_argument("--starts", type=int, default=500)
+    ap.add_argument("--noise-variants", type=int, default=4)
+    ap.add_argument("--workers", type=int, default=None, help="default: the cores (as the CLI)")
     args = ap.parse_args()
-    sc = crash_scenario()
-    space = SearchSpace.for_scenario(sc)
-    theta = space.reference_grid(np.random.default_rng(0), args.variants // 4, 4)
-    print(f"{len(theta)} variants of {sc.name} (crash injected), {DURATION_S} s simulated each, chunks of 64")
-    print(f"CPUs visible: {os.cpu_count()} (shared with other processes: timings are contaminated)")
-    ref = None
-    runs = [(e.rstrip("0123456789"), int(e[len(e.rstrip("0123456789")) :])) for e in args.engines.split(",")]
-    for engine, workers in runs:
-        if engine == "ray":
-            try:
-                import ray
-            except ImportError:
-                print("ray: not installed (pip install deepcrashtest[ray])")
-                continue
-            t0 = time.perf_counter()
-            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
-            print(f"ray.init(num_cpus={workers}): {time.perf_counter() - t0:.1f} s")
-        with Evaluator(sc, space, engine=engine, workers=workers, duration=DURATION_S) as ev:
-            if engine == "local" and workers > 1:
-                ev(theta[:2])  # start the pool's processes outside the timing
-                ev.simulations = 0
-            t0 = time.perf_counter()
-            out = ev(theta)
-            dt = time.perf_counter() - t0
-        if engine == "ray":
-            ray.shutdown()
-        same = (
-            ""
-            if ref is None
-            else f"  identical to local x1: {all(np.array_equal(out[k], ref[k], equal_nan=True) for k in ref)}"
+    if not KITTI.exists():
+        print(json.dumps({"skipped": f"real data not found: {KITTI}"}))
+        return
+    workers = args.workers or len(os.sched_getaffinity(0))
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    with tempfile.TemporaryDirectory() as tmp:
+        scen_dir = Path(tmp) / "scenario"
+        subprocess.run(
+            _cli("scenario", "from-kitti", "--data", str(KITTI), "--sequence", str(args.sequence), "-o", str(scen_dir)),
+            check=True,
+            env=env,
+            stdout=subprocess.DEVNULL,
         )
-        ref = ref or out
-        print(f"{engine:5s} x{workers}: {len(theta) / dt:7.1f} variants/s ({dt:.2f} s){same}")
+        scen = scen_dir / "scenario.json"
+        cmd = ["search", str(scen), "-o", str(Path(tmp) / "search"), "--method", "random", "--no-video"]
+        cmd += ["--starts", str(args.starts), "--noise-variants", str(args.noise_variants), "--json"]
+        if args.workers:
+            cmd += ["--workers", str(args.workers)]
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t0 = time.perf_counter()
+        proc = subprocess.run(_cli(*cmd), check=True, env=env, capture_output=True, text=True)
+        search_s = time.perf_counter() - t0
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        summary = json.loads(proc.stdout)
+        written = sorted(p.name for p in (Path(tmp) / "search").iterdir())
+
+        sc = Scenario.load(scen)
+        space = SearchSpace.for_scenario(sc)
+        theta = space.reference_grid(np.random.default_rng([0, 1]), args.starts, args.noise_variants)
+        world = prepare(sc)
+        simulate_batch(world, np.zeros((2, 2)), ego_paths=space.paths(theta[:2]))  # warm-up: imports, agents
+        t0 = time.perf_counter()
+        simulate_batch(world, np.zeros((len(theta), 2)), ego_paths=space.paths(theta), workers=workers)
+        sim_s = time.perf_counter() - t0
+    n = int(summary["simulations"])
+    print(
+        json.dumps(
+            {
+                "scenario": f"kitti_{args.sequence:04d}",
+                "agents": len(sc.agents),
+                "variants": n,
+                "workers": summary["workers"],
+                "search_wall_s": round(search_s, 2),
+                "search_cpu_s": round(after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime, 2),
+                "search_variants_per_s": round(n / search_s, 1),
+                "search_inner_variants_per_s": summary["variants_per_s"],
+                "simulate_batch_variants_per_s": round(len(theta) / sim_s, 1),
+                "ratio_simulator_to_search": round((len(theta) / sim_s) / (n / search_s), 2),
+                "outputs": written,
+                "cpus": os.cpu_count(),
+                "note": "wall times on a possibly shared machine; the ratio is measured in one run",
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -40,7 +40,7 @@ _STATE: dict[str, bool] = {"debug": False}
 
 JsonOpt = typer.Option(False, "--json", help="Print one machine-readable JSON object on stdout.")
 ForceOpt = typer.Option(False, "--force", help="Overwrite existing outputs.")
-SeedOpt = typer.Option(0, "--seed", help="Seed for every random choice.")
+SeedOpt = typer.Option(0, "--seed", min=0, help="Seed for every random choice (a non-negative integer).")
 
 
 def _version(value: bool) -> None:
@@ -356,7 +356,7 @@ def search(
     noise_sigma: float = typer.Option(0.3, "--noise-sigma", help="Std of the control-point noise, metres."),
     controller: str = typer.Option("replay", "--controller", help="Ego controller: replay | aeb | module:callable"),
     method: str = typer.Option("both", "--method", help="random | cem | both"),
-    workers: int = typer.Option(1, "--workers", help="Processes (local) or Ray CPUs."),
+    workers: int | None = typer.Option(None, "--workers", help="Processes (local) or Ray CPUs [default: the cores]."),
     engine: str = typer.Option("local", "--engine", help="local | ray"),
     boundary_directions: int = typer.Option(16, "--boundary-directions", help="Rays of the boundary scan (0: none)."),
     max_scenarios: int = typer.Option(32, "--max-scenarios", help="Safe variants written as Scenario files."),
@@ -384,7 +384,16 @@ def search(
         video=not no_video,
         duration=duration,
     )
-    emit(run_search(sc, output, cfg, engine=engine, workers=workers, force=force), as_json, _search_human)
+    emit(run_search(sc, output, cfg, engine=engine, workers=_workers(workers), force=force), as_json, _search_human)
+
+
+def _workers(workers: int | None) -> int:
+    """``--workers``: the CPU cores this process may use unless given."""
+    import os
+
+    if workers is None:
+        return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    return workers
 
 
 def _search_human(s: dict[str, Any]) -> None:
@@ -518,7 +527,9 @@ def batch(
     videos: Path = typer.Argument(..., help="Folder of videos (and/or Scenario *.json files)."),
     output: Path = typer.Option(..., "-o", "--output", help="Output folder (one subfolder per video)."),
     engine: str = typer.Option("local", "--engine", help="local | ray"),
-    workers: int = typer.Option(1, "--workers", help="Processes (local) or Ray CPUs for each search."),
+    workers: int | None = typer.Option(
+        None, "--workers", help="Processes (local) or Ray CPUs for each search [default: the cores]."
+    ),
     resume: bool = typer.Option(False, "--resume", help="Skip the inputs the manifest marks done."),
     starts: int = typer.Option(32, "--starts", help="Random ego start positions per video."),
     noise_variants: int = typer.Option(4, "--noise-variants", help="Noisy ego paths per start."),
@@ -545,7 +556,7 @@ def batch(
         video=False,
         duration=duration,
     )
-    result = run_batch(videos, output, cfg, engine=engine, workers=workers, resume=resume, force=force)
+    result = run_batch(videos, output, cfg, engine=engine, workers=_workers(workers), resume=resume, force=force)
     emit(result, as_json)
     if result.get("failed"):  # the batch went on; the exit code still tells a script that some inputs failed
         sys.stderr.write(f"deepcrashtest: {result['failed']} input(s) failed; see {Path(output) / 'manifest.json'}\n")
@@ -559,15 +570,14 @@ def view(
     host: str = typer.Option("127.0.0.1", "--host", help="Address to bind (loopback by default)."),
 ) -> None:
     """Open a Scenario in the browser viewer: inspect, edit waypoints, simulate, save as a new file."""
-    from deepcrashtest.viz.server import serve
+    from deepcrashtest.viz.server import bind, serve
 
-    if not 0 < port < 65536:
-        raise UserError(f"--port must be 1-65535 (got {port})")
     _load(scenario)
+    sock = bind(host, port)  # an unresolvable host or a port in use fails here, before the banner
     if host not in ("127.0.0.1", "localhost", "::1"):
         console_err().print(f"warning: binding {host}: anyone who can reach it can read and write {scenario.parent}")
     console_err().print(f"viewer on http://{'[' + host + ']' if ':' in host else host}:{port}/ (Ctrl+C to stop)")
-    serve(scenario, host=host, port=port)
+    serve(scenario, host=host, port=port, sock=sock)
 
 
 @app.command()

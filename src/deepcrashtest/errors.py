@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import numbers
+
 
 class UserError(Exception):
     """Bad input from the user (file, argument, data). Printed as one line, exit code 2."""
@@ -13,3 +15,10 @@ class ScenarioError(UserError, ValueError):
 
 class NotImplementedYet(UserError):
     """A command whose stage has not been built yet."""
+
+
+def check_seed(seed: object) -> int:
+    """The one rule for seeds everywhere: a non-negative integer (numpy's generators refuse negatives)."""
+    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or int(seed) < 0:
+        raise UserError(f"--seed must be a non-negative integer (got {seed!r})")
+    return int(seed)

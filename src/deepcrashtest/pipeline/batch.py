@@ -112,7 +112,7 @@ def run_batch(
 ) -> dict[str, Any]:
     """Process every input of ``inputs`` into ``output/<name>/``; returns the final manifest summary."""
     cfg = cfg or SearchConfig()
-    cfg.check()
+    check_options(cfg, engine, workers)  # every option before the first input
     items = list_inputs(inputs)
     out = ensure_output_dir(output)
     mpath = out / MANIFEST
@@ -158,6 +158,19 @@ def run_batch(
         "skipped": skipped,
         "errors": {n: e["error"] for n, e in manifest["items"].items() if e["status"] == "failed"},
     }
+
+
+def check_options(cfg: SearchConfig, engine: str, workers: int) -> None:
+    """Refuse bad search options (method, counts, seed, engine, workers, controller) as one UserError."""
+    from deepcrashtest.search.evaluate import ENGINES
+    from deepcrashtest.sim.controllers import resolve_controller
+
+    cfg.check()
+    if engine not in ENGINES:
+        raise UserError(f"--engine must be one of {', '.join(ENGINES)} (got {engine!r})")
+    if workers < 1:
+        raise UserError(f"--workers must be >= 1 (got {workers})")
+    resolve_controller(cfg.controller)
 
 
 def _unique_names(items: list[Path]) -> list[str]:

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from deepcrashtest.errors import UserError
+from deepcrashtest.errors import UserError, check_seed
 from deepcrashtest.fileio import atomic_path, output_set
 from deepcrashtest.geometry.camera import default_camera
 from deepcrashtest.geometry.extract_geometry import GeometryResult, extract_geometry
@@ -65,6 +65,7 @@ def run_extract(
     (horizon from the lanes' vanishing point or the flow's focus of expansion); a callable gets the
     video's width and height and returns the Camera. Returns a summary.
     """
+    check_seed(seed)
     if detect_every < 1:
         raise UserError(f"--detect-every must be >= 1 (got {detect_every})")
     if max_frames is not None and max_frames < 1:

@@ -22,7 +22,7 @@ from deepcrashtest.search.space import SearchSpace
 #: Default variants per simulator call. The chunk size is a setting of the search, never derived
 #: from the worker count, so that every engine simulates exactly the same batches (the sensor
 #: noise of a batch depends on its size).
-CHUNK = 64
+CHUNK = 512
 #: Per-variant outcome columns returned by the simulator, in results.csv order.
 OUTCOME_FIELDS = ("collided", "collision_time", "min_distance", "min_ttc", "robustness", "aeb_time", "delta_v_ego")
 ENGINES = ("local", "ray")

@@ -7,10 +7,11 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from pydantic import ValidationError
 
 from deepcrashtest.errors import ScenarioError
 from deepcrashtest.fileio import atomic_path, atomic_write_text
-from deepcrashtest.scenario import Provenance, Scenario
+from deepcrashtest.scenario import Provenance, Scenario, format_validation_error
 from deepcrashtest.search.evaluate import OUTCOME_FIELDS
 from deepcrashtest.search.space import SearchSpace
 
@@ -41,9 +42,11 @@ def variant_scenario(
     Provenance records the variant's parameters, the search settings (``meta``) and the seed.
     Raises ScenarioError when the variant breaks the Scenario's physical limits.
     """
-    ego = scenario.ego.model_copy(
-        update={"trajectory": space.variant_trajectory(theta), "spline": space.variant_spline(theta)}
-    )
+    try:
+        traj, spline = space.variant_trajectory(theta), space.variant_spline(theta)
+    except ValidationError as exc:
+        raise ScenarioError(f"variant {variant}: ego.{format_validation_error(exc)}") from None
+    ego = scenario.ego.model_copy(update={"trajectory": traj, "spline": spline})
     params = {
         "variant": int(variant),
         "source_scenario": scenario.name,

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from deepcrashtest.errors import UserError
+from deepcrashtest.errors import UserError, check_seed
 from deepcrashtest.fileio import output_set
 from deepcrashtest.scenario import Scenario
 from deepcrashtest.search import outputs
@@ -46,6 +46,7 @@ class SearchConfig:
     duration: float | None = None  # seconds simulated per variant (None: the whole scenario)
 
     def check(self) -> None:
+        check_seed(self.seed)
         if self.method not in METHODS:
             raise UserError(f"--method must be one of {', '.join(METHODS)} (got {self.method!r})")
         if self.starts < 1 or self.noise_variants < 1:

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from deepcrashtest.errors import UserError
+from deepcrashtest.errors import UserError, check_seed
 from deepcrashtest.scenario import Scenario
 from deepcrashtest.sim.controllers import controller_name, resolve_controller
 from deepcrashtest.sim.loop import Contact, LoopOutput, run_loop
@@ -172,6 +172,7 @@ def simulate(
 
     ``dt`` defaults to 0.02 s (a prepared world: its own).
     """
+    check_seed(seed)
     world = _world(scenario, _dt(scenario, dt), duration)
     ctrl = resolve_controller(controller)
     paths, q, off, init = _ego_variants(world, np.zeros((1, 2)), None)
@@ -267,6 +268,7 @@ def simulate_batch(
     ``dt`` defaults to 0.02 s (a prepared world: its own). Passing a prepared world skips
     rebuilding it; its agents' run is recorded by the first batch and reused by the next ones.
     """
+    check_seed(seed)
     off, paths = _check_batch_inputs(ego_offsets, ego_paths)
     world = _world(scenario, _dt(scenario, dt), duration)
     resolve_controller(controller)  # fail early on a bad spec

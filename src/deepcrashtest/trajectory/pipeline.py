@@ -32,8 +32,9 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from pydantic import ValidationError
 
-from deepcrashtest.errors import UserError
+from deepcrashtest.errors import ScenarioError, UserError, check_seed
 from deepcrashtest.scenario import (
     MAX_ACCEL_MPS2,
     Collision,
@@ -43,6 +44,7 @@ from deepcrashtest.scenario import (
     Scenario,
     Trajectory,
     Vehicle,
+    format_validation_error,
 )
 from deepcrashtest.trajectory.classify import (
     ClassFeatures,
@@ -143,7 +145,18 @@ def _check_raw(raw: Scenario) -> None:
 
 
 def process_scenario(raw: Scenario, seed: int = 0, params: Stage2Params | None = None) -> Scenario:
-    """Stage 2 (see the module docstring). Deterministic: ``seed`` is recorded, nothing is random."""
+    """Stage 2 (see the module docstring). Deterministic: ``seed`` is recorded, nothing is random.
+
+    Raises UserError (never an internal error) when the tracks cannot make a valid processed Scenario.
+    """
+    check_seed(seed)
+    try:
+        return _process_scenario(raw, seed, params)
+    except ValidationError as exc:  # a guard: the final Scenario must be valid or the error must say why
+        raise ScenarioError(f"stage 2 could not build a valid scenario: {format_validation_error(exc)}") from None
+
+
+def _process_scenario(raw: Scenario, seed: int, params: Stage2Params | None) -> Scenario:
     p = params or Stage2Params()
     _check_raw(raw)
     fps = float(raw.source.fps)
@@ -222,8 +235,9 @@ def process_scenario(raw: Scenario, seed: int = 0, params: Stage2Params | None =
     for d in dense:  # one implausible agent track (a monocular depth jump) must not sink the scenario
         try:
             agents.append(_final_vehicle(d, p, d.cls))
-        except UserError as exc:
-            warnings.append(f"{exc}; dropped")
+        except (UserError, ValidationError) as exc:
+            bad = f"agent {d.vehicle.id}: {format_validation_error(exc)}" if isinstance(exc, ValidationError) else exc
+            warnings.append(f"{bad}; dropped")
 
     # ---- road: from the whole processed ego path (step-back included)
     road_frame = RoadFrame.from_path(ego_dense.xy, p.road_sigma_m, heading=ego_heading0)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import math
+import socket
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -278,10 +279,34 @@ def create_app(scenario_path: str | Path, allowed_hosts: list[str] | None = None
     return app
 
 
-def serve(scenario_path: str | Path, host: str = "127.0.0.1", port: int = 8765) -> None:
-    """Run the viewer until interrupted (binds ``host``: loopback by default)."""
+def bind(host: str, port: int) -> socket.socket:
+    """A TCP socket bound to ``host``:``port``; a host that does not resolve or a port in use is a UserError."""
+    if not 0 < port < 65536:
+        raise UserError(f"--port must be 1-65535 (got {port})")
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except (socket.gaierror, UnicodeError) as exc:
+        raise UserError(
+            f"--host {host!r}: cannot resolve the address ({getattr(exc, 'strerror', None) or exc})"
+        ) from None
+    family, kind, proto, _, addr = infos[0]
+    sock = socket.socket(family, kind, proto)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind(addr)
+    except OSError as exc:
+        sock.close()
+        raise UserError(f"cannot listen on {host} port {port}: {exc.strerror or exc}") from None
+    return sock
+
+
+def serve(
+    scenario_path: str | Path, host: str = "127.0.0.1", port: int = 8765, sock: socket.socket | None = None
+) -> None:
+    """Run the viewer until interrupted (binds ``host``: loopback by default; or serves on ``sock``)."""
     import uvicorn
 
     hosts = LOOPBACK_HOSTS if host in ("127.0.0.1", "localhost", "::1") else ["*"]
     app = create_app(scenario_path, allowed_hosts=hosts)
-    uvicorn.run(app, host=host, port=port, log_level="warning")
+    sock = sock or bind(host, port)
+    uvicorn.Server(uvicorn.Config(app, log_level="warning")).run(sockets=[sock])

@@ -1,0 +1,372 @@
+"""The bad-input corpus of issue 18: every case gives one clear line and exit 2 (or a result), never an internal
+error, and a failed run leaves no output folder behind. Small generated files only; run in-process for speed."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import stat
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from deepcrashtest.cli import main
+from deepcrashtest.errors import UserError
+from deepcrashtest.fileio import output_set
+from deepcrashtest.scenario import Scenario, Trajectory
+from deepcrashtest.trajectory.pipeline import process_scenario
+from trajectory_cases import CLASS_CASES, EGO_SPEED, FPS, raw_scenario, track, vehicle
+
+
+def cli(capsys: pytest.CaptureFixture[str], *args: Any) -> tuple[int, str, str]:
+    rc = main([str(a) for a in args])
+    cap = capsys.readouterr()
+    return rc, cap.out, cap.err
+
+
+def assert_clear_error(rc: int, err: str, fragment: str = "") -> None:
+    """Exit 2, exactly one line on stderr, no traceback, no internal error, the fragment in the line."""
+    lines = err.strip().splitlines()
+    assert rc == 2, (rc, err)
+    assert len(lines) == 1, err
+    assert "internal error" not in err and "Traceback" not in err, err
+    assert fragment in lines[0], lines[0]
+
+
+@pytest.fixture(scope="module")
+def good() -> Scenario:
+    """A small processed scenario: the ego at 10 m/s and one car ahead in the next lane (10 s, 10 fps)."""
+    return process_scenario(raw_scenario([CLASS_CASES["D0T1"]]))
+
+
+@pytest.fixture(scope="module")
+def corpus(tmp_path_factory: pytest.TempPathFactory, good: Scenario) -> Path:
+    """The generated corpus: one small file per bad scenario input."""
+    d = tmp_path_factory.mktemp("corpus")
+    base = json.loads(good.to_json())
+
+    def variant(name: str, edit: Any) -> None:
+        data = json.loads(json.dumps(base))
+        edit(data)
+        (d / name).write_text(json.dumps(data))
+
+    variant("coord_1e308.json", lambda s: s["agents"][0]["trajectory"]["x"].__setitem__(1, 1e308))
+    variant("length_1e308.json", lambda s: s["agents"][0].__setitem__("length", 1e308))
+    variant("length_zero.json", lambda s: s["ego"].__setitem__("width", 0.01))
+    variant("string_number.json", lambda s: s["ego"].__setitem__("length", "12.5"))
+    variant("string_coord.json", lambda s: s["ego"]["trajectory"]["x"].__setitem__(0, "0.0"))
+    variant("bool_id.json", lambda s: s["agents"][0].__setitem__("id", True))
+    variant("float_frame.json", lambda s: s["agents"][0].__setitem__("first_frame", 2.0))
+    variant("nul_name.json", lambda s: s.__setitem__("name", "crash\x00one"))
+    variant("ctrl_name.json", lambda s: s.__setitem__("name", "crash\x1b[31mred"))
+    variant("newline_name.json", lambda s: s.__setitem__("name", "two\nlines"))
+    variant("surrogate_name.json", lambda s: s.__setitem__("name", "\ud800"))
+    variant("long_name.json", lambda s: s.__setitem__("name", "x" * 1000))
+    variant("negative_seed.json", lambda s: s["provenance"].__setitem__("seed", -1))
+    variant("time_1e300.json", lambda s: s["ego"]["trajectory"]["t"].__setitem__(-1, 1e300))
+    variant("yaw_1e300.json", lambda s: s["ego"]["trajectory"]["yaw"].__setitem__(0, 1e300))
+    variant("road_1e308.json", lambda s: s["road"]["centerline_x"].__setitem__(0, -1e308))
+    variant("speed_200.json", lambda s: s["ego"]["trajectory"]["speed"].__setitem__(3, 200.0))
+    variant("fx_huge.json", lambda s: s["camera"].__setitem__("fx", 1e300))
+    (d / "deep.json").write_text("[" * 100_000 + "]" * 100_000)
+    (d / "deep_object.json").write_text('{"a":' * 50_000 + "1" + "}" * 50_000)
+    (d / "binary.json").write_bytes(np.random.default_rng(0).integers(0, 256, 256, dtype=np.uint8).tobytes())
+    (d / "latin1.json").write_bytes(b'{"name": "caf\xe9"}')
+    return d
+
+
+SCENARIO_CASES = [
+    ("coord_1e308.json", "less than or equal to 100000"),
+    ("length_1e308.json", "agents.0.length"),
+    ("length_zero.json", "ego.width"),
+    ("string_number.json", "expected a number, got str '12.5'"),
+    ("string_coord.json", "expected a number"),
+    ("bool_id.json", "expected an integer"),
+    ("float_frame.json", "expected an integer"),
+    ("nul_name.json", "U+0000"),
+    ("ctrl_name.json", "U+001B"),
+    ("newline_name.json", "one line"),
+    ("surrogate_name.json", "U+D800"),
+    ("long_name.json", "name"),
+    ("negative_seed.json", "provenance.seed"),
+    ("time_1e300.json", "ego.trajectory.t"),
+    ("yaw_1e300.json", "ego.trajectory.yaw"),
+    ("road_1e308.json", "road.centerline_x"),
+    ("speed_200.json", "physical limit"),
+    ("fx_huge.json", "camera.fx"),
+    ("deep.json", "nested too deeply"),
+    ("deep_object.json", "nested too deeply"),
+    ("binary.json", "not a text file"),
+    ("latin1.json", "not a text file"),
+]
+
+
+@pytest.mark.parametrize(("name", "fragment"), SCENARIO_CASES, ids=[c[0] for c in SCENARIO_CASES])
+def test_bad_scenarios_are_refused_by_every_reader(capsys, corpus, tmp_path, name, fragment):
+    """Issue 18 items 5, 6, 7: what ``validate`` accepts, simulate/search/export can use; the rest is refused."""
+    for command in (["scenario", "validate"], ["simulate"], ["search", "-o", tmp_path / "s"], ["export"]):
+        extra = ["--format", "csv", "-o", tmp_path / "e"] if command == ["export"] else []
+        rc, _, err = cli(capsys, *command, *extra, corpus / name)
+        assert_clear_error(rc, err, fragment)
+    assert not (tmp_path / "s").exists() and not (tmp_path / "e").exists()
+
+
+def test_values_at_the_bounds_simulate_and_export(capsys, good, tmp_path):
+    """Coordinates near the +-1e5 m bound and the largest sizes are valid: they simulate and export."""
+    data = json.loads(good.to_json())
+    for v in [data["ego"], *data["agents"]]:
+        v["trajectory"]["x"] = [x + 99_000.0 for x in v["trajectory"]["x"]]
+        v["spline"] = None
+    data["road"]["centerline_x"] = [x + 99_000.0 for x in data["road"]["centerline_x"]]
+    data["agents"][0]["length"] = 30.0
+    data["agents"][0]["width"] = 0.1
+    path = tmp_path / "far.json"
+    path.write_text(json.dumps(data))
+    assert cli(capsys, "simulate", path, "--json")[0] == 0
+    assert cli(capsys, "export", path, "--format", "openscenario", "-o", tmp_path / "x")[0] == 0
+
+
+@pytest.mark.parametrize("special", ["fifo", "/dev/zero", "/dev/urandom"])
+def test_special_files_are_not_regular_files(capsys, tmp_path, special):
+    """Item 13: a FIFO or a device is "not a regular file", not "is empty" (and nothing hangs)."""
+    path = tmp_path / "pipe.json"
+    if special == "fifo":
+        os.mkfifo(path)
+    else:
+        path = Path(special)
+    rc, _, err = cli(capsys, "scenario", "validate", path)
+    assert_clear_error(rc, err, "not a regular file")
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["simulate", "{sc}"],
+        ["search", "{sc}", "-o", "{out}"],
+        ["scenario", "build", "{sc}", "-o", "{out}/p.json"],
+        ["extract", "{sc}", "-o", "{out}"],
+        ["batch", "{dir}", "-o", "{out}"],
+        ["scenario", "from-kitti", "--data", "{dir}", "--sequence", "3", "-o", "{out}"],
+    ],
+    ids=lambda c: "-".join(c[:2]) if c[0] == "scenario" else c[0],
+)
+@pytest.mark.parametrize("seed", ["-1", "1.5", "abc"])
+def test_one_seed_rule_at_parse_time(capsys, good, tmp_path, command, seed):
+    """Item 8: --seed is a non-negative integer for every command, checked before any work or output."""
+    sc = good.save(tmp_path / "in" / "sc.json")
+    args = [a.format(sc=sc, out=tmp_path / "out", dir=tmp_path / "in") for a in command]
+    rc, _, err = cli(capsys, *args, "--seed", seed)
+    assert_clear_error(rc, err, "--seed")
+    assert not (tmp_path / "out").exists()
+
+
+def test_seed_rule_in_the_library(good):
+    from deepcrashtest.sim import simulate, simulate_batch
+
+    for call in (
+        lambda: simulate(good, seed=-1),
+        lambda: simulate_batch(good, np.zeros((2, 2)), seed=-1),
+        lambda: process_scenario(raw_scenario([]), seed=-1),
+    ):
+        with pytest.raises(UserError, match="--seed must be a non-negative integer"):
+            call()
+
+
+@pytest.mark.parametrize(
+    ("option", "fragment"),
+    [
+        (["--workers", "0"], "--workers"),
+        (["--engine", "spark"], "--engine"),
+        (["--controller", "nosuch"], "controller 'nosuch'"),
+        (["--controller", "nosuchmodule:f"], "cannot import"),
+        (["--method", "best"], "--method"),
+        (["--starts", "0"], "--starts"),
+    ],
+)
+def test_batch_checks_every_option_before_the_first_input(capsys, good, tmp_path, option, fragment):
+    """Item 9: a bad batch option is refused at once: no manifest, no output folder, no input processed."""
+    good.save(tmp_path / "in" / "a.json")
+    rc, _, err = cli(capsys, "batch", tmp_path / "in", "-o", tmp_path / "out", *option)
+    assert_clear_error(rc, err, fragment)
+    assert not (tmp_path / "out").exists()
+
+
+def test_view_refuses_a_bad_host_or_a_port_in_use(capsys, good, tmp_path):
+    """Item 10: no "viewer on" banner and no uvicorn traceback; one line, exit 2."""
+    sc = good.save(tmp_path / "sc.json")
+    rc, _, err = cli(capsys, "view", sc, "--host", "no-such-host.invalid")
+    assert_clear_error(rc, err, "cannot resolve")
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen(1)
+        rc, _, err = cli(capsys, "view", sc, "--port", busy.getsockname()[1])
+    assert_clear_error(rc, err, "cannot listen")
+    assert "viewer on" not in err
+
+
+CONTROLLERS = {
+    "raises": ("def ctl(obs):\n    raise RuntimeError('boom')\n", "ctl", "controller ctl raised RuntimeError: boom"),
+    "string": ("def ctl(obs):\n    return 'brake'\n", "ctl", "returned str 'brake'"),
+    "nan": ("import math\ndef ctl(obs):\n    return math.nan, 0.0\n", "ctl", "non-finite acceleration"),
+    "shape": ("def ctl(obs):\n    return [1.0, 2.0, 3.0], 0.0\n", "ctl", "acceleration list"),
+    "not_callable": ("ctl = 42\n", "ctl", "'ctl' in"),
+    "missing": ("x = 1\n", "ctl", "has no 'ctl'"),
+    "syntax": ("def ctl(obs)\n", "ctl", "loading"),
+    "bad_class": (
+        "class Ctl:\n    def __init__(self):\n        raise ValueError('no config')\n",
+        "Ctl",
+        "creating Ctl() failed",
+    ),
+    "class_not_callable": ("class Ctl:\n    pass\n", "Ctl", "not callable"),
+}
+
+
+@pytest.mark.parametrize("case", list(CONTROLLERS))
+def test_user_controllers_are_named_with_their_problem(capsys, good, tmp_path, case):
+    """Item 11: a faulty user controller is the user's input: named, one line, exit 2 (simulate and search)."""
+    code, attr, fragment = CONTROLLERS[case]
+    mod = tmp_path / f"user_{case}.py"
+    mod.write_text(code)
+    sc = good.save(tmp_path / "sc.json")
+    spec = f"{mod}:{attr}"
+    rc, _, err = cli(capsys, "simulate", sc, "--controller", spec)
+    assert_clear_error(rc, err, fragment)
+    rc, _, err = cli(capsys, "search", sc, "-o", tmp_path / "s", "--controller", spec, "--method", "random",
+                     "--starts", "2", "--noise-variants", "1", "--no-video", "--workers", "1")  # fmt: skip
+    assert_clear_error(rc, err, fragment)
+    assert not (tmp_path / "s").exists()
+
+
+def test_early_errors_leave_no_folder(capsys, good, tmp_path):
+    """Item 12: a run that fails before (or while) writing leaves no empty output folder, parents included."""
+    sc = good.save(tmp_path / "sc.json")
+    out = tmp_path / "a" / "b" / "out"
+    cases = [
+        ["search", sc, "-o", out, "--method", "best"],
+        ["search", sc, "-o", out, "--duration", "-1"],
+        ["export", sc, "--format", "xml", "-o", out],
+        ["extract", sc, "-o", out, "--detector", "nosuch"],
+        ["extract", tmp_path / "missing.mp4", "-o", out],
+    ]
+    for args in cases:
+        rc, _, err = cli(capsys, *args)
+        assert_clear_error(rc, err)
+        assert not (tmp_path / "a").exists(), args
+
+
+def test_killed_runs_leave_nothing_that_survives_the_next_run(capsys, good, tmp_path):
+    """Item 12: a killed run's staging folder and temporary files (a dead process id) are removed by the next."""
+    sc = good.save(tmp_path / "sc.json")
+    out = tmp_path / "exp"
+    dead = _dead_pid()
+    (tmp_path / f".exp.{dead}.abc.partial").mkdir()
+    (tmp_path / f".exp.{dead}.abc.partial" / "trajectories.csv").write_text("half")
+    out.mkdir()
+    (out / ".trajectories.csv.k3j_x9.csv").write_text("")  # an old-style temporary file, no process id
+    (out / "notes.txt").write_text("the user's own file")
+    rc, _, err = cli(capsys, "export", sc, "--format", "csv", "-o", out)
+    assert rc == 0, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["exp", "sc.json"]
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt", "trajectories.csv"]
+
+
+def _dead_pid() -> int:
+    pid = 4_000_000
+    while True:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return pid
+        except PermissionError:
+            pass
+        pid += 1
+
+
+def test_output_set_is_all_from_one_run(tmp_path):
+    """Items 2/3/12: --force replaces the whole set; a failed run changes nothing and leaves no staging folder."""
+    out = tmp_path / "set"
+    with output_set(out, ["a.txt", "b.txt"]) as stage:
+        (stage / "a.txt").write_text("run 1")
+        (stage / "b.txt").write_text("run 1")
+    with pytest.raises(UserError, match="already exists"):
+        with output_set(out, ["a.txt", "b.txt"]):
+            pass
+    with pytest.raises(RuntimeError):
+        with output_set(out, ["a.txt", "b.txt"], force=True) as stage:
+            (stage / "a.txt").write_text("run 2")
+            raise RuntimeError("the run fails")
+    assert {p.name: p.read_text() for p in out.iterdir()} == {"a.txt": "run 1", "b.txt": "run 1"}
+    with output_set(out, ["a.txt", "b.txt"], force=True) as stage:
+        (stage / "a.txt").write_text("run 3")  # this run makes a.txt only: run 1's b.txt must go
+    assert {p.name: p.read_text() for p in out.iterdir()} == {"a.txt": "run 3"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["set"]
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root ignores folder permissions")
+def test_read_only_folder_names_the_output_not_a_temporary_file(capsys, good, tmp_path):
+    """Item 13: the error names the output the user asked for."""
+    sc = good.save(tmp_path / "sc.json")
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(stat.S_IRUSR | stat.S_IXUSR)
+    try:
+        rc, _, err = cli(capsys, "export", sc, "--format", "csv", "-o", ro / "out")
+        assert_clear_error(rc, err, str(ro / "out"))
+        rc, _, err = cli(capsys, "scenario", "build", sc, "-o", ro / "p.json")
+        assert_clear_error(rc, err)
+        assert ".p.json" not in err
+    finally:
+        ro.chmod(stat.S_IRWXU)
+
+
+def test_teleporting_agent_is_dropped_with_a_warning():
+    """Items 1 and 5: an agent track that jumps 200 m in 0.1 s never makes stage 2 fail with an internal error."""
+    steady = track(lambda t: (20 + EGO_SPEED * t, -3.5 + 0 * t), 0, 100)
+    a = steady.arrays()
+    x = a["x"] + 200.0 * (a["t"] > 5)  # the positions jump; the stated speeds stay plausible
+    jump = vehicle(1, Trajectory.from_arrays(a["t"], x, a["y"], a["yaw"], a["speed"], observed=np.ones(len(x), bool)))
+    sc = process_scenario(raw_scenario([jump, CLASS_CASES["D1T1"]]))
+    assert 1 not in [a.id for a in sc.agents] or max(max(a.trajectory.speed) for a in sc.agents) <= 90.0
+    assert any("agent 1" in w for w in sc.warnings) or 1 in [a.id for a in sc.agents]
+
+
+def test_search_without_a_crash_says_so(capsys, good, tmp_path):
+    """Item 13: the original does not collide: the summary says there is no crash to avoid (no "safe" claims)."""
+    sc = good.save(tmp_path / "sc.json")
+    args = ["search", sc, "-o", tmp_path / "s", "--method", "random", "--starts", "3", "--noise-variants", "1"]
+    rc, out, err = cli(capsys, *args, "--no-video", "--workers", "1")
+    assert rc == 0, err
+    assert "no crash to avoid" in out and "safe" not in out.replace("counts as safe", "")
+    summary = json.loads((tmp_path / "s" / "summary.json").read_text())
+    assert summary["original"]["collided"] is False and "no crash to avoid" in summary["note"]
+
+
+def test_infeasible_variants_are_recorded_not_errors(good):
+    """Item 4: a variant whose path breaks the physical limits is a recorded, skipped result."""
+    import pandas as pd
+
+    from deepcrashtest.search.outputs import write_variants
+    from deepcrashtest.search.space import SearchSpace
+
+    space = SearchSpace.for_scenario(good)
+    theta = np.zeros((2, space.dim))
+    theta[1, 2:] = 40.0 * (-1.0) ** np.arange(space.dim - 2)  # control points zig-zag by 40 m: no car can drive it
+    df = pd.DataFrame({"variant": [0, 1], "method": ["random"] * 2, "safe": [False, True], "change_m": [0.0, 1.0]})
+    paths, problems, best = write_variants(good, space, df, theta, Path("/nonexistent"), {"seed": 0}, 4, False)
+    assert paths == [] and best is None and list(problems) == [1] and "physical limit" in problems[1]
+
+
+def test_no_vehicles_is_said(capsys, tmp_path):
+    """Item 13: a video without road users says "no vehicles found" (a grey 10-frame clip)."""
+    import cv2
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(10):
+        cv2.imwrite(str(frames / f"{i:04d}.png"), np.full((96, 128, 3), 120, np.uint8))
+    rc, out, err = cli(capsys, "extract", frames, "-o", tmp_path / "x", "--fps", FPS, "--no-geometry", "--json")
+    assert rc == 0, err
+    assert "no vehicles found in the video" in json.loads(out)["warnings"]
