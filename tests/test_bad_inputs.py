@@ -83,7 +83,7 @@ SCENARIO_CASES = [
     ("length_1e308.json", "agents.0.length"),
     ("length_zero.json", "ego.width"),
     ("string_number.json", "expected a number, got str '12.5'"),
-    ("string_coord.json", "expected a number"),
+    ("string_coord.json", "ego.trajectory.x.0: Input should be a valid number"),
     ("bool_id.json", "expected an integer"),
     ("float_frame.json", "expected an integer"),
     ("nul_name.json", "U+0000"),

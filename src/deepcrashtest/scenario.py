@@ -105,6 +105,12 @@ Time = Annotated[float, Field(allow_inf_nan=False, ge=-MAX_TIME_S, le=MAX_TIME_S
 Yaw = Annotated[float, Field(allow_inf_nan=False, ge=-MAX_YAW_RAD, le=MAX_YAW_RAD), BeforeValidator(_number)]
 Size = Annotated[float, Field(allow_inf_nan=False, ge=MIN_SIZE_M, le=MAX_SIZE_M), BeforeValidator(_number)]
 Pixels = Annotated[float, Field(allow_inf_nan=False, ge=-MAX_PIXELS, le=MAX_PIXELS), BeforeValidator(_number)]
+# list items (trajectories hold thousands): pydantic's own strict floats (ints and floats only, no strings or
+# booleans) - the same rule as the scalars, checked in Rust
+CoordItem = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=-MAX_COORD_M, le=MAX_COORD_M)]
+TimeItem = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=-MAX_TIME_S, le=MAX_TIME_S)]
+YawItem = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=-MAX_YAW_RAD, le=MAX_YAW_RAD)]
+SpeedItem = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=0)]
 Distortion = Annotated[float, Field(allow_inf_nan=False, ge=-1e3, le=1e3), BeforeValidator(_number)]
 LaneOffset = Annotated[float, Field(allow_inf_nan=False, ge=-100.0, le=100.0), BeforeValidator(_number)]
 Text = Annotated[str, AfterValidator(_text)]
@@ -181,9 +187,9 @@ class Camera(_Model):
 class SplineParams(_Model):
     """A 2D B-spline in time: x(t), y(t) = BSpline(knots, cx|cy, degree). The search perturbs cx, cy."""
 
-    knots: list[Time] = Field(description="Knot vector, seconds (scipy.interpolate.BSpline layout)")
-    cx: list[Coord] = Field(description="Control-point x coordinates, metres (world frame)")
-    cy: list[Coord] = Field(description="Control-point y coordinates, metres (world frame)")
+    knots: list[TimeItem] = Field(description="Knot vector, seconds (scipy.interpolate.BSpline layout)")
+    cx: list[CoordItem] = Field(description="Control-point x coordinates, metres (world frame)")
+    cy: list[CoordItem] = Field(description="Control-point y coordinates, metres (world frame)")
     degree: Integer = Field(default=3, ge=1, le=5)
 
     @model_validator(mode="after")
@@ -202,11 +208,11 @@ class SplineParams(_Model):
 class Trajectory(_Model):
     """Time-indexed states of one vehicle's centre, column-wise (all lists have the same length)."""
 
-    t: list[Time] = Field(description="Time, seconds, strictly increasing")
-    x: list[Coord] = Field(description="World x (forward), metres")
-    y: list[Coord] = Field(description="World y (left), metres")
-    yaw: list[Yaw] = Field(description="Heading, radians CCW from world +x, unwrapped")
-    speed: list[NonNegFloat] = Field(description="Speed along the heading, m/s")
+    t: list[TimeItem] = Field(description="Time, seconds, strictly increasing")
+    x: list[CoordItem] = Field(description="World x (forward), metres")
+    y: list[CoordItem] = Field(description="World y (left), metres")
+    yaw: list[YawItem] = Field(description="Heading, radians CCW from world +x, unwrapped")
+    speed: list[SpeedItem] = Field(description="Speed along the heading, m/s")
     observed: list[bool] | None = Field(
         default=None, description="Per sample: true where seen in the video, false where extrapolated"
     )
@@ -318,7 +324,7 @@ class Vehicle(_Model):
 class LaneTimeline(_Model):
     """The ego's lane over time, from the lane stage."""
 
-    t: list[Time] = Field(description="Seconds")
+    t: list[TimeItem] = Field(description="Seconds")
     lane_index: list[Annotated[Integer, Field(ge=0, le=100)]] = Field(description="0 = rightmost lane")
     lateral_offset: list[LaneOffset] = Field(description="Ego centre left of its lane centre, metres")
 
@@ -332,8 +338,8 @@ class LaneTimeline(_Model):
 class Road(_Model):
     """Road centre line and lanes, world frame."""
 
-    centerline_x: list[Coord] = Field(description="Waypoint x, metres")
-    centerline_y: list[Coord] = Field(description="Waypoint y, metres")
+    centerline_x: list[CoordItem] = Field(description="Waypoint x, metres")
+    centerline_y: list[CoordItem] = Field(description="Waypoint y, metres")
     lane_width: PositiveFloat = Field(default=3.5, ge=1.0, le=20.0, description="Metres")
     lane_count: Integer = Field(default=2, ge=1, le=12)
     ego_lane: Integer = Field(default=0, ge=0, description="Lane of the ego at t=0, 0 = rightmost")
@@ -610,7 +616,7 @@ def check_schema_version(version: str) -> None:
 def format_validation_error(exc: ValidationError, limit: int = 3) -> str:
     """One line naming the field(s): ``ego.trajectory.t.3: Input should be a finite number``."""
     parts = []
-    for err in exc.errors()[:limit]:
+    for err in exc.errors(include_url=False, include_context=False, include_input=False)[:limit]:
         loc = ".".join(str(p) for p in err["loc"]) or "(root)"
         msg = err["msg"].removeprefix("Value error, ")
         parts.append(f"{loc}: {msg}")

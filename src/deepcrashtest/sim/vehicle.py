@@ -17,7 +17,15 @@ from dataclasses import dataclass
 import numpy as np
 
 #: Vehicle mass by category, kg (typical kerb mass + driver).
-CATEGORY_MASS_KG = {"car": 1500.0, "van": 2200.0, "truck": 9000.0, "bus": 12000.0, "motorcycle": 250.0, "bicycle": 95.0}
+CATEGORY_MASS_KG = {
+    "car": 1500.0,
+    "van": 2200.0,
+    "truck": 9000.0,
+    "bus": 12000.0,
+    "motorcycle": 250.0,
+    "bicycle": 95.0,
+    "pedestrian": 75.0,
+}
 #: Wheelbase as a fraction of overall length (passenger cars: 2.7 m / 4.5 m).
 WHEELBASE_FRACTION = 0.6
 

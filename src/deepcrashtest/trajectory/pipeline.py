@@ -37,6 +37,7 @@ from pydantic import ValidationError
 from deepcrashtest.errors import ScenarioError, UserError, check_seed
 from deepcrashtest.scenario import (
     MAX_ACCEL_MPS2,
+    MAX_SPEED_MPS,
     Collision,
     LaneTimeline,
     Provenance,
@@ -198,7 +199,9 @@ def _process_scenario(raw: Scenario, seed: int, params: Stage2Params | None) -> 
 
     # ---- step-back
     present = [ego_dense] + [d for d in dense if d.t[0] <= _EPS_T]
-    v0 = np.array([_first_speed(d) for d in present])
+    # guard: an implausible first speed (a jumping track) must not plan a step-back of hours; such a track
+    # fails the speed limit later and is dropped
+    v0 = np.minimum(np.array([_first_speed(d) for d in present]), MAX_SPEED_MPS)
     plan = plan_step_back(v0, p.stepback_accel_mps2)
     t_max = plan.t_max
     n_pre = int(np.ceil(t_max / dt - 1e-9)) if t_max > 0 else 0
