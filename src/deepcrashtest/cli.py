@@ -21,7 +21,7 @@ import typer
 from typer._click import exceptions as click_exc  # typer >= 0.29 vendors its own click
 
 from deepcrashtest import __version__
-from deepcrashtest.errors import NotImplementedYet, UserError
+from deepcrashtest.errors import UserError
 from deepcrashtest.ui import console_err, set_quiet
 
 app = typer.Typer(
@@ -636,7 +636,7 @@ def main(argv: list[str] | None = None) -> int:
     except click_exc.ClickException as exc:
         sys.stderr.write(f"deepcrashtest: error: {exc.format_message()}\n")
         return 2
-    except (UserError, NotImplementedYet) as exc:
+    except UserError as exc:
         if debug:
             traceback.print_exc()
         sys.stderr.write(f"deepcrashtest: error: {exc}\n")

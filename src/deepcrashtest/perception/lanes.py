@@ -121,7 +121,7 @@ class ClassicalLaneDetector:
     ) -> None:
         self.camera = camera
         self.mask_bottom_rows = int(mask_bottom_rows)
-        self.horizon_v = camera.cy - camera.fy * math.tan(camera.pitch_rad) if horizon_v is None else horizon_v
+        self.horizon_v = camera.horizon_v() if horizon_v is None else horizon_v
         self.work_width = work_width
         self.max_missed = max_missed
         self.gate_px = gate_px

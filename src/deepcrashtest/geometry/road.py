@@ -1,8 +1,9 @@
-"""Lane lines of a Scenario's road, for drawing (the viewer's canvas and the report's plots).
+"""Road geometry of a Scenario's road, defined once: lane boundaries, offset polylines, lane lines.
 
-Layout (as the exporters read it): on an ``ego_path*`` road the centre line is the ego's path, so
-it is the centre of lane ``ego_lane``; on any other road it is the centre of the carriageway.
-Lane 0 is the rightmost. World frame, metres.
+Used by the exporters (OpenDRIVE, CommonRoad), the bird's-eye video, the report's plots and the viewer.
+Layout: on an ``ego_path*`` road the centre line is the ego's path, so it is the centre of lane
+``ego_lane``; on any other road it is the centre of the carriageway. Lane 0 is the rightmost.
+World frame, metres.
 """
 
 from __future__ import annotations
@@ -22,7 +23,10 @@ def offset_polyline(xy: np.ndarray, offset: float) -> np.ndarray:
 
 
 def boundary_offsets(road: Road) -> np.ndarray:
-    """Lateral offsets (m, left positive) of the lane boundaries from the centre line, right to left."""
+    """Lateral offsets (m, left positive) of the lane boundaries from the centre line, right to left.
+
+    ``lane_count + 1`` values; lane k (0 = rightmost) lies between entries k and k + 1.
+    """
     j = np.arange(road.lane_count + 1, dtype=float)
     if road.source.startswith("ego_path"):
         return (j - road.ego_lane - 0.5) * road.lane_width
@@ -34,5 +38,11 @@ def lane_lines(road: Road) -> dict[str, list[list[list[float]]]]:
     xy = road.centerline()
     return {
         "center": xy.tolist(),
-        "boundaries": [offset_polyline(xy, float(o)).tolist() for o in boundary_offsets(road)],
+        "boundaries": [b.tolist() for b in boundary_polylines(road)],
     }
+
+
+def boundary_polylines(road: Road) -> list[np.ndarray]:
+    """Every lane boundary as an (N, 2) polyline, rightmost edge first, leftmost edge last (metres)."""
+    xy = road.centerline()
+    return [offset_polyline(xy, float(o)) for o in boundary_offsets(road)]
