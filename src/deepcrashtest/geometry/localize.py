@@ -85,7 +85,6 @@ def class_dimensions(category: str) -> tuple[float, float, float]:
     return CLASS_DIMENSIONS.get(category, CLASS_DIMENSIONS["car"])
 
 
-
 def centre_offset(apparent_width_m: np.ndarray, length: np.ndarray, width: np.ndarray) -> np.ndarray:
     """Half the vehicle's extent along the line of sight, from its apparent width (metres).
 
