@@ -147,14 +147,11 @@ def scenario_from_kitti(
     """Build a Scenario from KITTI tracking ground truth (labels + poses + calib)."""
     from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti as build
     from deepcrashtest.fileio import ensure_output_dir
+    from deepcrashtest.pipeline.kitti import kitti_scenarios
 
     if sequence < 0:
         raise UserError(f"--sequence must be >= 0 (got {sequence})")
-    sc = build(data, sequence)
-    if not raw:
-        from deepcrashtest.trajectory.pipeline import process_scenario
-
-        sc = process_scenario(sc, seed=seed)
+    sc = build(data, sequence) if raw else kitti_scenarios(data, sequence, seed=seed)[1]
     out = ensure_output_dir(output)
     path = sc.save(out / "scenario.json", force=force)
     emit(
@@ -470,21 +467,16 @@ def evaluate_kitti(
         raise UserError(f"{data}: KITTI tracking folder not found")
     if tracks is not None and not tracks.is_dir():
         raise UserError(f"{tracks}: tracker results folder not found")
-    if output is not None:
-        from deepcrashtest.fileio import check_writable
+    from deepcrashtest.pipeline.kitti import check_results_writable, write_results
 
-        for name in ("results.json", "results.md"):
-            check_writable(output / name, force=force)
+    if output is not None:
+        check_results_writable(output, force)
     kwargs: dict[str, Any] = {"match": match, "detections": detections, "tracks": tracks}
     if online:
         kwargs["offline"] = None
     result = run_eval(data, parse_sequences(sequences), **kwargs)
     if output is not None:
-        from deepcrashtest.fileio import atomic_write_text, ensure_output_dir
-
-        ensure_output_dir(output)
-        atomic_write_text(output / "results.json", json.dumps(result, indent=1, default=_json_default) + "\n", force)
-        atomic_write_text(output / "results.md", results_markdown(result), force)
+        write_results(result, output, results_markdown(result), force)
     emit(result, as_json, _print_kitti_table)
 
 
