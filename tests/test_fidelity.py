@@ -112,3 +112,17 @@ def test_exact_replay_reprojects_like_the_scenario(kitti8_raw, kitti_root):
     shifted = kitti8_raw.evolve(source=kitti8_raw.source.model_copy(update={"time_offset_s": 0.3}))
     worse = evaluate_fidelity(shifted, tracks).reprojection["processed"]
     assert worse["mean_iou"] < proc["mean_iou"] - 0.03
+
+
+def test_projection_round_trips_through_the_extraction_localiser():
+    """A box projected with the scenario camera and localised again lands where it was (same conventions)."""
+    from deepcrashtest.geometry.camera import default_camera, with_horizon
+    from deepcrashtest.geometry.localize import GroundPlaneLocalizer
+
+    cam = with_horizon(default_camera(1280, 720), 340.0, "vanishing_point")
+    for x, y in [(10.0, 0.0), (20.0, 2.0), (30.0, -3.0)]:
+        pb = project_box(cam, (0.0, 0.0, 0.0), x, y, 0.0, 4.4, 1.8, 1.5, image_size=(1280, 720))
+        assert pb.box is not None
+        p = GroundPlaneLocalizer().localize(pb.box[None], ["car"], cam, (1280, 720))
+        assert p.z[0] + cam.forward_offset_m == pytest.approx(x, abs=0.3)
+        assert -p.x[0] == pytest.approx(y, abs=0.2)

@@ -312,9 +312,10 @@ def evaluate_fidelity(
     return FidelityResult(name or scenario.name, mapping, pairs, overall, per, crash, notes)
 
 
-def fidelity_json(result: FidelityResult) -> str:
-    """The result as one JSON document (NaN -> null)."""
-    return json.dumps(_finite(result.to_dict()), indent=1) + "\n"
+def fidelity_json(result: FidelityResult | dict[str, Any]) -> str:
+    """A result (or its dict, possibly extended) as one JSON document (NaN -> null)."""
+    data = result.to_dict() if isinstance(result, FidelityResult) else result
+    return json.dumps(_finite(data), indent=1) + "\n"
 
 
 def _finite(o: Any) -> Any:

@@ -151,3 +151,29 @@ def project_box(
         if box[2] <= box[0] or box[3] <= box[1]:
             return ProjectedBox(corners, None, depth)
     return ProjectedBox(corners, box, depth)
+
+
+def project_box_edges(
+    camera: Camera,
+    ego_pose: tuple[float, float, float],
+    x: float,
+    y: float,
+    yaw: float,
+    length: float,
+    width: float,
+    height: float,
+    z0: float = 0.0,
+    near_m: float = NEAR_M,
+) -> np.ndarray:
+    """(K, 2, 2) pixel segments of the box's edges that lie (partly) in front of the near plane,
+    each clipped at it: what to draw of a 3D box. Edge order follows :data:`BOX_EDGES`."""
+    cam = world_to_camera(box_corners_world(x, y, yaw, length, width, height, z0), camera, *ego_pose)
+    a, b = cam[BOX_EDGES[:, 0]], cam[BOX_EDGES[:, 1]]
+    keep = (a[:, 2] >= near_m) | (b[:, 2] >= near_m)
+    a, b = a[keep], b[keep]
+    for p, q in ((a, b), (b, a)):  # move the endpoint behind the plane onto it
+        behind = p[:, 2] < near_m
+        f = (near_m - p[behind, 2]) / (q[behind, 2] - p[behind, 2])
+        p[behind] = p[behind] + f[:, None] * (q[behind] - p[behind])
+    uv = project_camera_points(np.vstack([a, b]), camera)
+    return np.stack([uv[: len(a)], uv[len(a) :]], axis=1)
