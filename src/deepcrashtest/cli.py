@@ -224,6 +224,9 @@ def extract(
         True, "--geometry/--no-geometry", help="Build the scenario (ego-motion, 3D positions, stage 2)."
     ),
     report: bool = typer.Option(True, "--report/--no-report", help="Write report.html."),
+    shots: bool = typer.Option(
+        True, "--shots/--no-shots", help="Find shot cuts first: a compilation gives one scenario per shot."
+    ),
     force: bool = ForceOpt,
     seed: int = SeedOpt,
     as_json: bool = JsonOpt,
@@ -260,11 +263,20 @@ def extract(
         lanes=lanes,
         report=report,
         seed=seed,
+        shots=shots,
     )
     emit(result, as_json, _extract_summary)
 
 
 def _extract_summary(r: dict[str, Any]) -> None:
+    if "shots" in r:  # a compilation: one extraction per shot
+        typer.echo(f"{len(r['shots'])} shot(s) extracted; cuts at {r['cuts_s']} s")
+        for shot in r["shots"]:
+            typer.echo(f"--- {shot['shot']}: frames {shot['first_frame']}-{shot['last_frame']} -> {shot['output']}")
+            _extract_summary({**shot, "warnings": []})
+        for w in r["warnings"]:
+            typer.echo(f"warning: {w}")
+        return
     typer.echo(
         f"{r['frames']} frames ({r['width']}x{r['height']} @ {r['fps_video']} fps), {r['tracks']} tracks, "
         f"mean track length {r['mean_track_length_frames']} frames, {r['fps_achieved']} fps achieved"

@@ -250,9 +250,10 @@ def process_scenario(raw: Scenario, seed: int = 0, params: Stage2Params | None =
         road_frame,
         raw_road,
         [d.xy for d in [ego_dense, *dense]],
-        [d.lateral_m for d in dense if not d.static],
+        [d.lateral_m for d in dense if not d.static and d.vehicle.category != "pedestrian"],
         p,
         source,
+        warnings,
     )
 
     params_out = dict(raw.provenance.parameters)
