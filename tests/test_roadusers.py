@@ -128,7 +128,7 @@ def test_road_inferred_from_road_users_where_no_lanes_are_seen(kitti12):
     assert abs(width - 3.3) < 0.03 and (count, ego_lane) == (4, 1)
 
 
-def _compilation(path: Path, parts: list[tuple[str, int, int]], size: tuple[int, int] = (640, 360)) -> list[int]:
+def _compilation(path: Path, parts: list[tuple[str, int, int]], size: tuple[int, int] = (480, 270)) -> list[int]:
     """Concatenate frames of real clips into one H.264 file (a compilation); returns the first frame of each part."""
     import av
     import cv2
@@ -158,10 +158,12 @@ def test_compilation_gives_one_scenario_per_shot(tmp_path):
     from deepcrashtest.video.shots import detect_shots
 
     video = tmp_path / "compilation.mp4"
-    starts = _compilation(video, [("dad_000478", 40, 79), ("dad_000512", 50, 89)])
+    starts = _compilation(video, [("dad_000478", 56, 79), ("dad_000512", 60, 83)])
     shots = detect_shots(video)
-    assert [(s.first_frame, s.last_frame) for s in shots] == [(0, starts[1] - 1), (starts[1], 79)]
-    res = run_extract(video, tmp_path / "out", detect_every=10, lanes=False, report=False, annotate=False)
+    assert [(s.first_frame, s.last_frame) for s in shots] == [(0, starts[1] - 1), (starts[1], 47)]
+    res = run_extract(
+        video, tmp_path / "out", "ssd-mobilenet:tiles=0", detect_every=8, lanes=False, report=False, annotate=False
+    )
     assert res["cuts_s"] == [starts[1] / 20.0] and [r["shot"] for r in res["shots"]] == ["shot_01", "shot_02"]
     for r, shot in zip(res["shots"], shots, strict=True):
         tracks = (tmp_path / "out" / r["shot"] / "tracks.csv").read_text().splitlines()[1:]
