@@ -1,8 +1,8 @@
 """Road geometry of a Scenario's road, defined once: lane boundaries, offset polylines, lane lines.
 
 Used by the exporters (OpenDRIVE, CommonRoad), the bird's-eye video, the report's plots and the viewer.
-Layout: on an ``ego_path*`` road the centre line is the ego's path, so it is the centre of lane
-``ego_lane``; on any other road it is the centre of the carriageway. Lane 0 is the rightmost.
+Layout: on an ``ego_path*`` or ``road_users`` road the centre line is the ego's path, so it is the centre
+of lane ``ego_lane``; on any other road it is the centre of the carriageway. Lane 0 is the rightmost.
 World frame, metres.
 """
 
@@ -28,7 +28,7 @@ def boundary_offsets(road: Road) -> np.ndarray:
     ``lane_count + 1`` values; lane k (0 = rightmost) lies between entries k and k + 1.
     """
     j = np.arange(road.lane_count + 1, dtype=float)
-    if road.source.startswith("ego_path"):
+    if road.source.startswith("ego_path") or road.source == "road_users":
         return (j - road.ego_lane - 0.5) * road.lane_width
     return (j - road.lane_count / 2.0) * road.lane_width
 

@@ -77,6 +77,12 @@ def _extract(video: Path, outdir: Path, seed: int, force: bool) -> Scenario:
     from deepcrashtest.pipeline.extract import extract_video
 
     res = extract_video(video, outdir, seed=seed, force=force)
+    if res.get("shots"):
+        made = [r["scenario"] for r in res["shots"] if r.get("scenario")]
+        raise UserError(
+            f"{video}: a compilation (cuts at {res['cuts_s']} s); one scenario per shot was written "
+            f"({', '.join(made) or 'none usable'}): search each of them"
+        )
     return Scenario.load(Path(res.get("scenario") or outdir / "scenario.json"))
 
 
