@@ -13,10 +13,6 @@ class ScenarioError(UserError, ValueError):
     """A Scenario file or object is invalid; the message names the field."""
 
 
-class NotImplementedYet(UserError):
-    """A command whose stage has not been built yet."""
-
-
 def check_seed(seed: object) -> int:
     """The one rule for seeds everywhere: a non-negative integer (numpy's generators refuse negatives)."""
     if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or int(seed) < 0:

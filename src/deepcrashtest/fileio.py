@@ -17,6 +17,7 @@ import stat
 import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
+from typing import Any
 
 from deepcrashtest.errors import UserError
 
@@ -234,3 +235,14 @@ def _commit(stage: Path, out: Path, own: set[str]) -> None:
             shutil.rmtree(out / name)
         os.replace(stage / name, out / name)
     stage.rmdir()
+
+
+def restage_paths(value: Any, stage: Path, out: Path) -> Any:
+    """Paths (strings) under a staging folder -> the same paths under the output folder, recursively."""
+    if isinstance(value, str) and value.startswith(str(stage)):
+        return str(out / Path(value).relative_to(stage))
+    if isinstance(value, list):
+        return [restage_paths(v, stage, out) for v in value]
+    if isinstance(value, dict):
+        return {k: restage_paths(v, stage, out) for k, v in value.items()}
+    return value

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from deepcrashtest.errors import UserError, check_seed
-from deepcrashtest.fileio import output_set
+from deepcrashtest.fileio import output_set, restage_paths
 from deepcrashtest.scenario import Scenario
 from deepcrashtest.search import outputs
 from deepcrashtest.search.evaluate import Evaluator
@@ -21,8 +21,8 @@ from deepcrashtest.search.space import SearchSpace
 METHODS = ("random", "cem", "both")
 OUTPUT_FILES = ("results.csv", "summary.json", "starts.png", "safe_variants", "best_vs_original.mp4")
 NO_CRASH_NOTE = (
-    "the original scenario does not collide: there is no crash to avoid, so every variant without a collision "
-    "counts as safe"
+    "the ego does not collide in the original scenario: there is no crash to avoid, so every variant in which "
+    "the ego touches nobody counts as safe"
 )
 
 
@@ -73,20 +73,9 @@ def run_search(
     out = Path(output)
     with output_set(out, OUTPUT_FILES, force) as stage:
         summary = _search(scenario, stage, cfg, engine, workers)
-        summary["outputs"] = _final_paths(summary["outputs"], stage, out)
+        summary["outputs"] = restage_paths(summary["outputs"], stage, out)
         outputs.write_summary(summary, stage / "summary.json", False)
     return summary
-
-
-def _final_paths(value: Any, stage: Path, out: Path) -> Any:
-    """Paths under the staging folder -> the same paths under the output folder (recursively)."""
-    if isinstance(value, str) and value.startswith(str(stage)):
-        return str(out / Path(value).relative_to(stage))
-    if isinstance(value, list):
-        return [_final_paths(v, stage, out) for v in value]
-    if isinstance(value, dict):
-        return {k: _final_paths(v, stage, out) for k, v in value.items()}
-    return value
 
 
 def _search(scenario: Scenario, out_dir: Path, cfg: SearchConfig, engine: str, workers: int) -> dict[str, Any]:
@@ -129,6 +118,7 @@ def _search(scenario: Scenario, out_dir: Path, cfg: SearchConfig, engine: str, w
         "workers": workers,
         "original": {"collided": bool(original["collided"][0]), **_metrics(original, 0)},
         "note": None if bool(original["collided"][0]) else NO_CRASH_NOTE,
+        "crash": crash_question(scenario, cfg),
         "simulations": n_sims,
         "elapsed_s": round(elapsed, 3),
         "variants_per_s": round(n_sims / elapsed, 1) if elapsed > 0 else None,
@@ -168,6 +158,32 @@ def _search(scenario: Scenario, out_dir: Path, cfg: SearchConfig, engine: str, w
             f"variant {r['variant']}: start ({r['d_lon_m']:+.2f}, {r['d_lat_m']:+.2f}) m, change {r['change_m']:.2f} m",
         )
     return summary
+
+
+def crash_question(scenario: Scenario, cfg: SearchConfig) -> dict[str, Any]:
+    """What the search asks of this scenario's crash, and whether the replay reproduces it.
+
+    Every variant changes the ego only; the agents replay their trajectories, so a crash between two
+    agents (third party) happens in every variant. A variant is safe when the ego touches nobody (and
+    stays ``margin`` metres away). For a third-party crash the original is simulated once to check
+    that the two agents still crash (``reproduced``, with the simulated time and pair).
+    """
+    c = scenario.collision
+    out: dict[str, Any] = {
+        "kind": "none" if c is None else "ego" if c.involves_ego else "third-party",
+        "pair": None if c is None else list(c.participants),
+        "observed_time_s": None if c is None else round(c.time_s, 3),
+        "safe_means": f"the ego touches no road user (robustness > {cfg.margin} m)",
+    }
+    if c is not None and not c.involves_ego:
+        from deepcrashtest.sim import simulate
+
+        res = simulate(scenario, controller=cfg.controller, seed=cfg.seed, duration=cfg.duration)
+        hit = res.contact_between(*c.participants)
+        out["reproduced"] = hit is not None
+        out["simulated_time_s"] = None if hit is None else hit["time"]
+        out["first_contact"] = res.first_contact
+    return out
 
 
 def _best_safe(df: Any, problems: dict[int, str]) -> int | None:

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from deepcrashtest.sim.agents import AgentSet
+from deepcrashtest.sim.agents import AgentSet, agent_timeline
 from deepcrashtest.sim.boxes import contact_fraction, sat_gap, signed_distance, time_to_collision
 from deepcrashtest.sim.controllers import call_controller
 from deepcrashtest.sim.follow import Follower
@@ -127,7 +127,7 @@ class _Loop:
         self.active = np.ones(B, dtype=bool)
         self.orig = np.arange(B)  # variant index of each row (rows of finished variants are dropped)
         self.live = AgentSet(world, self.lim) if physics_mode else None
-        self.timeline = None if physics_mode else world.agent_timeline(self.lim)
+        self.timeline = None if physics_mode else agent_timeline(world, self.lim)
         if self.timeline is not None:
             self.timeline.rewind()
         self.ego_in_phys = False
@@ -432,12 +432,11 @@ class _Loop:
         out, world = self.out, self.world
         if self.physics_mode:
             _finish_contacts(out, self.live.phys if self.live is not None else None)
-            if out.contacts:
-                first = min(out.contacts, key=lambda c: c.time)
-                if first.a == 0 or first.b == 0:
-                    other = first.b if first.a == 0 else first.a
-                    out.delta_v_ego[0] = first.delta_v.get(0, np.nan)
-                    out.delta_v_other[0] = first.delta_v.get(other, np.nan)
+            first = next((c for c in out.contacts if 0 in (c.a, c.b)), None)  # the ego's first, after any third-party
+            if first is not None:
+                other = first.b if first.a == 0 else first.a
+                out.delta_v_ego[0] = first.delta_v.get(0, np.nan)
+                out.delta_v_other[0] = first.delta_v.get(other, np.nan)
             return out
         size_e = (self.ego_size[0], self.ego_size[1], float(world.mass[0]))
         for row, (e_pose, e_vel, e_om, agent, a_pose, a_vel, a_om) in self.pre_contact.items():

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: Vehicle mass by category, kg (typical kerb mass + driver).
+#: Road-user mass by category, kg (typical kerb mass + driver; two-wheelers with their rider; an adult).
 CATEGORY_MASS_KG = {
     "car": 1500.0,
     "van": 2200.0,
@@ -26,6 +26,10 @@ CATEGORY_MASS_KG = {
     "bicycle": 95.0,
     "pedestrian": 75.0,
 }
+#: Categories that move without a vehicle's kinematics: a pedestrian steps sideways, turns on the spot
+#: and stops at once, so the simulator replays its reference path exactly (``PathSet.pose_at``)
+#: instead of steering a bicycle model along it.
+HOLONOMIC_CATEGORIES = frozenset({"pedestrian"})
 #: Wheelbase as a fraction of overall length (passenger cars: 2.7 m / 4.5 m).
 WHEELBASE_FRACTION = 0.6
 
