@@ -250,6 +250,8 @@ def test_early_errors_leave_no_folder(capsys, good, tmp_path):
         ["export", sc, "--format", "xml", "-o", out],
         ["extract", sc, "-o", out, "--detector", "nosuch"],
         ["extract", tmp_path / "missing.mp4", "-o", out],
+        ["scenario", "build", sc, "-o", out / "p.json"],  # a processed scenario is not a raw one
+        ["simulate", sc, "--video", out / "v.mp4", "--controller", "nosuch"],
     ]
     for args in cases:
         rc, _, err = cli(capsys, *args)

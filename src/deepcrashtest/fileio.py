@@ -37,9 +37,7 @@ def check_writable(path: str | os.PathLike[str], force: bool = False) -> Path:
         raise UserError(f"{p}: already exists (use --force to overwrite)")
     if p.parent.exists() and not p.parent.is_dir():
         raise UserError(f"{p.parent}: exists and is not a directory")
-    if not p.parent.exists():
-        p.parent.mkdir(parents=True, exist_ok=True)
-    return p
+    return p  # missing parent folders are made when the file is written (atomic_path), not before the work
 
 
 @contextlib.contextmanager
@@ -50,6 +48,7 @@ def atomic_path(path: str | os.PathLike[str], force: bool = False, suffix: str |
     the temporary file is removed and ``path`` is left untouched.
     """
     target = check_writable(path, force)
+    _make_parents(target.parent)
     prefix = f".{target.name}.{os.getpid()}."
     _sweep_stale(target.parent, f".{target.name}.", legacy=True)
     try:
