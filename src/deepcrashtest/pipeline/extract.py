@@ -287,9 +287,13 @@ def _extract_shots(video: Path, out: Path, shots: list[Shot], force: bool, optio
         if shot.end_s - shot.start_s < MIN_EXTRACT_SHOT_S:
             warnings.append(f"{name}: {span} is shorter than {MIN_EXTRACT_SHOT_S} s; not extracted")
             continue
-        res = run_extract(
-            video, out / name, force=force, shots=False, frame_range=(shot.first_frame, shot.last_frame), **options
-        )
+        try:
+            res = run_extract(
+                video, out / name, force=force, shots=False, frame_range=(shot.first_frame, shot.last_frame), **options
+            )
+        except UserError as exc:  # one shot without a usable scenario: its folder is absent, the others go on
+            warnings.append(f"{name}: {span}: {exc}")
+            continue
         results.append({"shot": name, "first_frame": shot.first_frame, "last_frame": shot.last_frame, **res})
     return {
         "video": str(video),
