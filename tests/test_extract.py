@@ -19,7 +19,8 @@ SAMPLE = Path(__file__).resolve().parents[1] / "examples" / "highway_sample.mp4"
 def test_extract_writes_tracks_and_h264_video(tmp_path):
     out = tmp_path / "ex"
     # 12 frames make no scenario (stage 2 would refuse them and write nothing): tracks and video only
-    args = ["extract", str(SAMPLE), "-o", str(out), "--max-frames", "12", "--detect-every", "6", "--json", "--no-geometry"]
+    args = ["extract", str(SAMPLE), "-o", str(out), "--max-frames", "12", "--detect-every", "6", "--json"]
+    args.append("--no-geometry")
     proc = run(*args)
     assert proc.returncode == 0, proc.stderr
     result = json.loads(proc.stdout)
