@@ -25,6 +25,16 @@ CLASS_DESCRIPTIONS: dict[str, str] = {
     "D1T3": "oncoming, enters later, passed",
     "D1T4": "oncoming, enters later, not passed",
 }
+#: The same in a few words, for legends.
+CLASS_SHORT: dict[str, str] = {
+    "D0T1": "same direction, from the start",
+    "D0T2": "same direction, overtakes",
+    "D0T3": "same direction, enters ahead",
+    "D1T1": "oncoming, from the start, passed",
+    "D1T2": "oncoming, from the start, not passed",
+    "D1T3": "oncoming, enters later, passed",
+    "D1T4": "oncoming, enters later, not passed",
+}
 #: How each road-user category is drawn from above: box (cars, vans), long box with a cab line (truck,
 #: bus), a narrow diamond (two-wheelers with their rider), a disc (pedestrian).
 CATEGORY_SHAPES: dict[str, str] = {
@@ -53,6 +63,7 @@ def page_style() -> dict[str, Any]:
         "unclassified": UNCLASSIFIED_COLOUR,
         "classes": CLASS_COLOURS,
         "class_descriptions": CLASS_DESCRIPTIONS,
+        "class_short": CLASS_SHORT,
         "category_shapes": CATEGORY_SHAPES,
         "observed_note": OBSERVED_NOTE,
     }

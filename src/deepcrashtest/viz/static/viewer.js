@@ -12,7 +12,7 @@
   const canvas = $("bev");
   const ctx = canvas.getContext("2d");
   const READABLE_PX_PER_M = 6; // the first view: about 140 m across a 850 px canvas, a car ~27 px long
-  const CROSS_WINDOW_S = 0.25; // a collision's cross is drawn within this many seconds of its time
+  const CROSS_WINDOW_S = 0.1; // a collision's cross is drawn within this many seconds of its time
   const S = {
     file: "", scenario: null, original: null, road: null, video: null, time: null, style: null, simulator: false,
     undo: [], redo: [], t: 0, tmin: 0, tmax: 1, playing: false, speed: 1, selected: 0, wp: null,
@@ -470,41 +470,41 @@
     const st = S.style;
     const used = new Set(S.scenario.agents.map((a) => a.trajectory_class || "unclassified"));
     const cats = new Set(vehicles().map((v) => v.category));
-    const rows = [[st.ego, "ego (the camera car)"]];
+    const rows = [[st.ego, "ego (the camera car)", ""]];
     for (const [k, col] of Object.entries(st.classes)) {
-      if (used.has(k)) rows.push([col, `${k}: ${st.class_descriptions[k]}`]);
+      if (used.has(k)) rows.push([col, `${k} ${st.class_short[k]}`, st.class_descriptions[k]]);
     }
-    if (used.has("unclassified")) rows.push([st.unclassified, "unclassified"]);
+    if (used.has("unclassified")) rows.push([st.unclassified, "unclassified", ""]);
+    const rowsExtra = [
+      ["border-top:2px solid #333", "observed path", ""],
+      ["border-top:2px dashed #777", "not observed (extrapolated, lead-in, step-back)", st.observed_note],
+      ["border-top:2px dotted #999", "original, before your edits", ""],
+      ["border:1px dashed #555;background:#fff", "simulated (after Simulate)", ""],
+      ["background:#ff1744;height:3px", "collision (cross at its time only)", ""],
+    ];
     const body = $("legend-body");
     body.innerHTML = "";
-    for (const [col, text] of rows) {
+    for (const [css, text, title] of [...rows.map(([c, t, d]) => [`background:${c}`, t, d]), ...rowsExtra]) {
       const r = document.createElement("div");
       r.className = "row";
-      r.innerHTML = `<span class="sw" style="background:${col}"></span>`;
-      r.appendChild(document.createTextNode(text));
-      body.appendChild(r);
-    }
-    const extra = [
-      ["border-top:2px solid #333", "observed path"],
-      ["border-top:2px dashed #777", "extrapolated / lead-in / step-back (faded box)"],
-      ["border-top:2px dotted #999", "original before your edits"],
-      ["border:1px dashed #555;background:#fff", "simulated (after Simulate)"],
-      ["background:#ff1744;height:3px", "collision (cross at its time only)"],
-    ];
-    for (const [css, text] of extra) {
-      const r = document.createElement("div");
-      r.className = "row";
+      r.title = title;
       r.innerHTML = `<span class="sw" style="${css}"></span>`;
       r.appendChild(document.createTextNode(text));
       body.appendChild(r);
     }
     const note = document.createElement("div");
     note.className = "note";
-    const shapes = [...cats].map((c) => `${c}: ${st.category_shapes[c] || "box"}`).join(", ");
-    note.textContent = `shapes: ${shapes}; arrow = heading; yellow outline = selected. ` +
-      "Drag empty space to pan, wheel to zoom, click a box to select it, drag the selected one's waypoints to move " +
-      "them. Keys: Space play, Left/Right one video frame (Shift: 1 s), F fit all, E ego.";
+    const shapes = [...cats].map((c) => `${c} ${st.category_shapes[c] || "box"}`).join(", ");
+    note.textContent = `shapes: ${shapes}; arrow: heading; yellow: selected`;
     body.appendChild(note);
+    const help = document.createElement("details");
+    help.innerHTML = "<summary>mouse and keys</summary>";
+    help.appendChild(document.createTextNode(
+      "Drag empty space to pan, wheel to zoom, click a box to select it, drag the selected one's waypoints to " +
+      "move them. Space: play/pause; Left/Right: one video frame (Shift: 1 s); Home/End; F: fit all; E: ego; " +
+      "Ctrl+Z/Ctrl+Y: undo/redo.",
+    ));
+    body.appendChild(help);
   }
 
   // ------------------------------------------------------------------ panels
