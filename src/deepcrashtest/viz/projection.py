@@ -54,14 +54,15 @@ def sim_poses(times: Sequence[float], vehicle_ids: Sequence[int], states: Any) -
 
 
 def projected_frames(scenario: Scenario, pose: PoseFn, frame_count: int, source: str) -> dict[str, Any]:
-    """For every video frame, the 8 image corners (pixels of the full frame) of each road user in front.
+    """For every video frame, the edges of each road user's 3D box in the image (pixels of the full frame).
 
-    ``{"width", "height", "edges": [[a, b], ...], "source", "frames": {"<frame>": [[id, corners], ...]}}``
-    with ``corners`` eight ``[u, v]`` pixels, ``[None, None]`` for corners at or behind the near plane.
+    ``{"width", "height", "source", "frames": {"<frame>": [[id, [[u0, v0, u1, v1], ...]], ...]}}``: the
+    edges in front of the camera's near plane, clipped at it (:func:`project_box_edges`); a road user
+    with no edge inside the image is left out.
     """
-    from deepcrashtest.geometry.project import BOX_EDGES, project_box
+    from deepcrashtest.geometry.project import project_box_edges
 
-    size = (scenario.source.width, scenario.source.height)
+    w, h = scenario.source.width, scenario.source.height
     frames: dict[str, list[Any]] = {}
     for f in range(frame_count):
         t = scenario.frame_time(f)
@@ -73,14 +74,12 @@ def projected_frames(scenario: Scenario, pose: PoseFn, frame_count: int, source:
             p = pose(v.id, t)
             if p is None:
                 continue
-            pb = project_box(scenario.camera, ego, *p, v.length, v.width, v.height, image_size=size)
-            if pb.box is None:
+            seg = project_box_edges(scenario.camera, ego, *p, v.length, v.width, v.height).reshape(-1, 4)
+            seg = seg[np.isfinite(seg).all(axis=1)]
+            u, vv = seg[:, 0::2], seg[:, 1::2]
+            if not len(seg) or u.max() < 0 or u.min() > w or vv.max() < 0 or vv.min() > h:
                 continue
-            corners = [
-                [None, None] if not np.isfinite(c).all() else [round(float(c[0]), 1), round(float(c[1]), 1)]
-                for c in pb.corners
-            ]
-            boxes.append([v.id, corners])
+            boxes.append([v.id, np.round(seg, 1).tolist()])
         if boxes:
             frames[str(f)] = boxes
-    return {"width": size[0], "height": size[1], "edges": BOX_EDGES.tolist(), "source": source, "frames": frames}
+    return {"width": w, "height": h, "source": source, "frames": frames}

@@ -165,15 +165,6 @@ def _simulator() -> Any | None:
     return simulate
 
 
-def _projector() -> bool:
-    """True when this build has the camera projection (``deepcrashtest.geometry.project``)."""
-    try:
-        import deepcrashtest.geometry.project  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
 async def json_body(request: Request) -> dict[str, Any]:
     """The request's JSON object (Content-Type application/json; no NaN/Infinity), or ApiError."""
     ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
@@ -270,7 +261,6 @@ def create_app(scenario_path: str | Path, allowed_hosts: list[str] | None = None
                 "style": style.page_style(),
                 "simulator": _simulator() is not None,
                 "default_falloff_s": DEFAULT_FALLOFF_S,
-                "projector": _projector(),
             }
         )
 
@@ -322,8 +312,6 @@ def create_app(scenario_path: str | Path, allowed_hosts: list[str] | None = None
     async def project(request: Request) -> JSONResponse:
         body = await json_body(request)
         sc = body_scenario(body)
-        if not _projector():
-            raise ApiError(503, "camera projection not available in this build")
         count = int(time_mapping(sc, video)["frame_count"])
         sim = body.get("sim")
         if sim is None:

@@ -739,7 +739,8 @@
     S.frameLoading = true;
     S.frameShown = f;
     img.src = `/api/frame?frame=${f}`;
-    $("video-caption").textContent = `frame ${f}, video ${(f / S.time.fps).toFixed(2)} s = scenario ${frameTime(f).toFixed(2)} s`;
+    S.caption = `frame ${f}, video ${(f / S.time.fps).toFixed(2)} s = scenario ${frameTime(f).toFixed(2)} s`;
+    $("video-caption").textContent = S.caption;
   }
 
   function frameDone() {
@@ -753,7 +754,11 @@
     const P = S.projection;
     const f = videoFrame(S.t);
     const boxes = P && f !== null ? P.frames[String(f)] : null;
-    if (!boxes || !S.video || $("frame").hidden) { oc.hidden = true; return; }
+    if (!boxes || !S.video || $("frame").hidden) {
+      oc.hidden = true;
+      if (S.caption && !$("frame").hidden) $("video-caption").textContent = S.caption;
+      return;
+    }
     oc.hidden = false;
     const r = oc.getBoundingClientRect();
     oc.width = Math.round(r.width * devicePixelRatio);
@@ -763,26 +768,22 @@
     const ox = (r.width - k * P.width) / 2;
     const oy = (r.height - k * P.height) / 2;
     g.setTransform(devicePixelRatio * k, 0, 0, devicePixelRatio * k, devicePixelRatio * ox, devicePixelRatio * oy);
-    const edges = P.edges;
-    for (const [id, corners] of boxes) {
+    for (const [id, segments] of boxes) {
       const v = vehicleById(id);
       g.strokeStyle = v ? colour(v) : "#fff";
       g.lineWidth = 2 / k;
       g.beginPath();
-      for (const [a, b] of edges) {
-        const p = corners[a];
-        const q = corners[b];
-        if (p[0] === null || q[0] === null) continue;
-        g.moveTo(p[0], p[1]);
-        g.lineTo(q[0], q[1]);
+      for (const [u0, v0, u1, v1] of segments) {
+        g.moveTo(u0, v0);
+        g.lineTo(u1, v1);
       }
       g.stroke();
     }
-    $("video-caption").textContent += ` | boxes: ${P.source}`;
+    $("video-caption").textContent = `${S.caption} | 3D boxes: ${P.source}`;
   }
 
   async function refreshProjection() {
-    if (!S.video || !S.projector) return;
+    if (!S.video) return;
     const body = { scenario: S.scenario };
     if (S.sim && $("show-sim").checked) body.sim = { times: S.sim.times, vehicle_ids: S.sim.vehicle_ids, states: S.sim.states };
     try {
@@ -1086,7 +1087,6 @@
     S.time = data.time;
     S.style = data.style;
     S.simulator = data.simulator;
-    S.projector = data.projector;
     S.selected = data.scenario.ego.id;
     S.original = new Map([data.scenario.ego, ...data.scenario.agents].map((v) => [v.id, v.trajectory]));
     $("falloff").value = String(data.default_falloff_s);
