@@ -990,6 +990,16 @@
   $("vehicle").addEventListener("change", (e) => {
     S.selected = Number(e.target.value);
     S.wp = null;
+    const v = vehicleById(S.selected);
+    const st = v && (stateAt(v, S.t) || stateAt(v, v.trajectory.t[0]));
+    if (st) { // bring it into view when it is off the canvas
+      const [px, py] = worldToScreen(st.x, st.y);
+      if (px < 0 || py < 0 || px > S.w || py > S.h) {
+        $("follow").checked = false;
+        S.view.ox = S.w / 2 - st.x * S.view.scale;
+        S.view.oy = S.h / 2 + st.y * S.view.scale;
+      }
+    }
     refreshPanels();
     draw();
   });
@@ -1115,8 +1125,9 @@
       const st = stateAt(vehicleById(id), S.t);
       return st ? clientPoint(...worldToScreen(st.x, st.y)) : null;
     },
+    clientXY(x, y) { return clientPoint(...worldToScreen(x, y)); },
     pixelsPerMetre() { return S.view.scale; },
-    setTime,
+    setTime, setStatus,
   };
   start().catch((err) => setStatus(`cannot load the scenario: ${err.message}`, true));
 })();
