@@ -11,7 +11,8 @@
   const $ = (id) => document.getElementById(id);
   const canvas = $("bev");
   const ctx = canvas.getContext("2d");
-  const READABLE_PX_PER_M = 6; // the first view: about 140 m across a 850 px canvas, a car ~27 px long
+  const READABLE_PX_PER_M = 6; // the least scale of the first view: a car 27 px long
+  const READABLE_SPAN_M = 90; // the first view and "Ego": about this many metres across the canvas
   const CROSS_WINDOW_S = 0.1; // a collision's cross is drawn within this many seconds of its time
   const S = {
     file: "", scenario: null, original: null, road: null, video: null, time: null, style: null, simulator: false,
@@ -436,15 +437,17 @@
     const ego = S.scenario.ego;
     const tr = ego.trajectory;
     const st = stateAt(ego, Math.min(Math.max(S.t, tr.t[0]), tr.t[tr.t.length - 1]));
-    if (rescale) S.view.scale = Math.max(READABLE_PX_PER_M, S.view.scale > 40 ? 12 : S.view.scale);
+    if (rescale) S.view.scale = readableScale();
     S.view.ox = S.w / 2 - st.x * S.view.scale;
     S.view.oy = S.h / 2 + st.y * S.view.scale;
   }
 
+  const readableScale = () => Math.max(READABLE_PX_PER_M, S.w / READABLE_SPAN_M);
+
   function firstView() {
     fitView();
-    if (S.view.scale < READABLE_PX_PER_M) { // too far out to read: centre on the ego instead
-      S.view.scale = READABLE_PX_PER_M;
+    if (S.view.scale < readableScale()) { // too far out to read the boxes: centre on the ego instead
+      S.view.scale = readableScale();
       centreOnEgo(false);
     }
   }
