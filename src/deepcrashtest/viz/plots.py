@@ -187,7 +187,7 @@ def birdseye_figure(
         zax.set_title(f"zoom: {2 * zx:g} m x {2 * zy:g} m around {where}", fontsize=9)
         ax.indicate_inset((cx - zx, cy - zy, 2 * zx, 2 * zy), inset_ax=zax, edgecolor="k", lw=1.0)
     for a in axes:
-        a.set_aspect("equal", adjustable="datalim" if a is ax and long else "box")
+        a.set_aspect("equal", adjustable="box")
         a.set_xlabel("world x, forward (m)")
         a.set_ylabel("world y, left (m)")
         a.grid(True, lw=0.3, alpha=0.5)
