@@ -155,3 +155,18 @@ def test_processed_scenario_refuses_an_edit_no_car_could_drive(kitti8_raw):
 def test_bad_edits_are_refused_with_the_reason(kitti8_raw, edit, message):
     with pytest.raises(EditError, match=message):
         apply_edit(kitti8_raw, edit)
+
+
+def test_a_shift_no_car_could_drive_is_refused_with_the_shift_that_works(kitti8_raw):
+    from deepcrashtest.trajectory.pipeline import process_scenario
+
+    sc = process_scenario(kitti8_raw)
+    vid = 20  # an oncoming car on the curve: 20 m to its left its parallel path needs 21.5 m/s^2
+    sc = sc.evolve(agents=[a for a in sc.agents if a.id == vid])
+    with pytest.raises(EditError, match="at most") as err:
+        shift_trajectory(sc, vid, 0.0, 20.0)
+    found = re.search(r"at most ([-+0-9.]+) m along and ([-+0-9.]+) m across would work", str(err.value))
+    assert found, str(err.value)
+    ok = shift_trajectory(sc, vid, float(found[1]), float(found[2]))
+    assert ok.vehicle(vid).trajectory.max_abs_accel()[0] <= 15.0
+    assert 10.0 < float(found[2]) < 20.0

@@ -121,6 +121,17 @@ def shift_trajectory(scenario: Scenario, vehicle_id: int, d_lon: float, d_lat: f
     c, s = np.cos(a["yaw"]), np.sin(a["yaw"])
     x = a["x"] + d_lon * c - d_lat * s
     y = a["y"] + d_lon * s + d_lat * c
+    if scenario.stage == "processed":
+        amax = accel_after(veh, x, y)
+        if amax > MAX_ACCEL_MPS2:
+            dx, dy = x - a["x"], y - a["y"]
+            frac = largest_fraction(lambda f: accel_after(veh, a["x"] + f * dx, a["y"] + f * dy) <= MAX_ACCEL_MPS2)
+            raise EditError(
+                f"shifting vehicle {vehicle_id} by {d_lon:+.2f} m along and {d_lat:+.2f} m across its heading needs "
+                f"|acceleration| {amax:.1f} m/s^2 (a parallel path of a curve is longer or shorter), above the "
+                f"physical limit {MAX_ACCEL_MPS2:g} m/s^2; a shift of at most {_cm_down(frac * d_lon):+.2f} m along "
+                f"and {_cm_down(frac * d_lat):+.2f} m across would work"
+            )
     note = f"shift vehicle={vehicle_id} d_lon={d_lon:+.3f} m d_lat={d_lat:+.3f} m (vehicle frame)"
     return _replace(scenario, veh, x, y, note)
 
@@ -178,14 +189,37 @@ def _replace(scenario: Scenario, veh: Vehicle, x: np.ndarray, y: np.ndarray, not
     return scenario.evolve(**changes)
 
 
+def accel_after(veh: Vehicle, x: np.ndarray, y: np.ndarray) -> float:
+    """Largest |acceleration| (m/s^2) of ``veh`` once its positions are ``x, y`` (speed as the edit derives it)."""
+    t = np.asarray(veh.trajectory.t, float)
+    if len(t) < 2:
+        return 0.0
+    speed, _ = _derived(veh, x, y)
+    return float(np.abs(np.diff(speed) / np.diff(t)).max())
+
+
 def drag_accel(veh: Vehicle, index: int, dx: float, dy: float, falloff_s: float) -> float:
     """Largest |acceleration| (m/s^2) of ``veh`` after moving sample ``index`` by ``(dx, dy)`` with ``falloff_s``."""
     a = veh.trajectory.arrays()
     w = falloff_weights(a["t"], index, falloff_s)
-    speed, _ = _derived(veh, a["x"] + w * dx, a["y"] + w * dy)
-    if len(speed) < 2:
-        return 0.0
-    return float(np.abs(np.diff(speed) / np.diff(a["t"])).max())
+    return accel_after(veh, a["x"] + w * dx, a["y"] + w * dy)
+
+
+def largest_fraction(drivable: Any, steps: int = 12) -> float:
+    """The largest fraction f in [0, 1] of an edit with ``drivable(f)`` true (bisection; 0 when none)."""
+    lo, hi = 0.0, 1.0
+    for _ in range(steps):
+        mid = 0.5 * (lo + hi)
+        if drivable(mid):
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+def _cm_down(v: float) -> float:
+    """``v`` rounded towards zero to whole centimetres (a suggestion printed with 2 decimals must still work)."""
+    return math.copysign(math.floor(abs(v) * 100.0) / 100.0, v)
 
 
 def drivable_alternatives(veh: Vehicle, index: int, dx: float, dy: float, falloff_s: float) -> str:
@@ -194,18 +228,12 @@ def drivable_alternatives(veh: Vehicle, index: int, dx: float, dy: float, fallof
     falloff = next(
         (f for f in FALLOFF_LADDER_S if f > falloff_s and drag_accel(veh, index, dx, dy, f) <= MAX_ACCEL_MPS2), None
     )
-    lo, hi = 0.0, 1.0  # the largest fraction of the move that stays drivable at this falloff (bisection)
-    for _ in range(12):
-        mid = 0.5 * (lo + hi)
-        if drag_accel(veh, index, mid * dx, mid * dy, falloff_s) <= MAX_ACCEL_MPS2:
-            lo = mid
-        else:
-            hi = mid
+    frac = largest_fraction(lambda f: drag_accel(veh, index, f * dx, f * dy, falloff_s) <= MAX_ACCEL_MPS2)
     parts = []
     if falloff is not None:
         parts.append(f"a drag falloff of {falloff:g} s")
-    if lo * d >= 0.01:
-        parts.append(f"a move of at most {lo * d:.2f} m at {falloff_s:g} s")
+    if frac * d >= 0.01:
+        parts.append(f"a move of at most {_cm_down(frac * d):.2f} m at {falloff_s:g} s")
     return " or ".join(parts) if parts else "a smaller move with a longer falloff"
 
 
