@@ -18,7 +18,8 @@ File layout (JSON)::
        "highway_project_video": {"video": "...", "fps": 25.0, "crash": false, "description": "..."}}}
 
 Frames are 0-based indices of decoded frames; boxes are pixels of the full frame at
-``contact_frame``; categories are the Scenario's road-user categories.
+``contact_frame``; categories are the Scenario's road-user categories. A crash the labeller could
+not see has ``contact_frame: null`` and no participants.
 """
 
 from __future__ import annotations
@@ -104,9 +105,12 @@ def _label(clip: str, data: Any, where: str) -> CrashLabel:
         raise UserError(f"{where}: fps must be > 0")
     contact = data.get("contact_frame")
     parts = tuple(_participant(p, f"{where}.participants[{i}]") for i, p in enumerate(data.get("participants", [])))
-    if crash:
+    if crash and contact is None:  # a crash the labeller could not see: no contact, no participants
+        if parts:
+            raise UserError(f"{where}: a crash without a contact_frame has no participants")
+    elif crash:
         if not isinstance(contact, int) or contact < 0:
-            raise UserError(f"{where}: a crash needs contact_frame (a frame index >= 0)")
+            raise UserError(f"{where}: contact_frame must be a frame index >= 0")
         if len(parts) != 2:
             raise UserError(f"{where}: a crash needs exactly two participants (found {len(parts)})")
     elif contact is not None or parts:

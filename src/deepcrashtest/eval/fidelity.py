@@ -271,6 +271,10 @@ def compare_crash(
     if not label.crash:
         out.update(reproduced=first is None, contacts_before_crash=len(contacts), same_pair=None, dt_s=None)
         return out, notes
+    if label.contact_frame is None:
+        notes.append("the label has a crash but no contact frame (not visible to the labeller)")
+        out.update(reproduced=None, contacts_before_crash=None, same_pair=None, dt_s=None)
+        return out, notes
     ids, notes = resolve_participants(label, scenario, tracks)
     t_label = float(label.contact_video_time or 0.0)
     out["label"]["scenario_ids"] = ids

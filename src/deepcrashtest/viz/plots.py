@@ -1,7 +1,7 @@
 """Static plots of Scenarios (matplotlib, Agg backend, no pyplot state), for the report and the demo.
 
 ``birdseye_figure`` draws the world frame from above (x forward to the right, y left upwards, equal
-scale, metres): the road (:func:`deepcrashtest.viz.road.lane_lines`), every trajectory coloured by
+scale, metres): the road (:mod:`deepcrashtest.geometry.road`), every trajectory coloured by
 class (:mod:`deepcrashtest.viz.style`), solid where observed in the video and dotted where
 extrapolated, led in or stepped back, the raw tracks as grey dots when a raw Scenario is given,
 start markers, ids and the collision. A long path (a KITTI drive over a kilometre) gets a second,
@@ -23,8 +23,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from deepcrashtest.fileio import atomic_path
+from deepcrashtest.geometry.road import boundary_polylines
 from deepcrashtest.scenario import Scenario, Vehicle
-from deepcrashtest.viz.road import lane_lines
 from deepcrashtest.viz.style import EGO_COLOUR, vehicle_colour
 
 #: Paths longer than this (metres, along x or y) get a zoomed panel.
@@ -58,16 +58,13 @@ def plot_observed(ax: Any, x: np.ndarray, y: np.ndarray, obs: np.ndarray, colour
 
 
 def draw_road(ax: Any, sc: Scenario) -> None:
-    """Road surface and lane lines (world frame, metres)."""
-    lines = lane_lines(sc.road)
-    b = [np.asarray(line) for line in lines["boundaries"]]
+    """Road surface and lane lines (world frame, metres; :func:`deepcrashtest.geometry.road.boundary_polylines`)."""
+    b = boundary_polylines(sc.road)
     outline = np.vstack([b[0], b[-1][::-1]])
     ax.fill(outline[:, 0], outline[:, 1], color="0.9", zorder=0)
     for i, line in enumerate(b):
-        outer = i in (0, len(b) - 1)
-        ax.plot(
-            line[:, 0], line[:, 1], color="0.55", lw=0.9 if outer else 0.6, ls="-" if outer else (0, (6, 6)), zorder=1
-        )
+        style = {"lw": 0.9, "ls": "-"} if i in (0, len(b) - 1) else {"lw": 0.6, "ls": (0, (6, 6))}
+        ax.plot(line[:, 0], line[:, 1], color="0.55", zorder=1, **style)
 
 
 def _draw_scene(
@@ -86,7 +83,8 @@ def _draw_scene(
         ax.plot(a["x"][0], a["y"][0], "o", ms=3, color=colour, zorder=5)
         if labels and not is_ego:
             k = int(np.argmax(obs)) if obs.any() else 0
-            ax.annotate(str(v.id), (a["x"][k], a["y"][k]), fontsize=7, color="#222", zorder=6)
+            tag = f"{v.id}" if v.category in ("car", "van", "truck", "bus") else f"{v.id} {v.category}"
+            ax.annotate(tag, (a["x"][k], a["y"][k]), fontsize=7, color="#222", zorder=6)
     if sim_paths:
         for path in sim_paths.values():
             p = np.asarray(path, float)

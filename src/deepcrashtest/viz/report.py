@@ -122,8 +122,9 @@ def time_text(sc: Scenario, t: float) -> str:
 def collision_text(sc: Scenario, c: Collision) -> str:
     """One sentence: who collided with whom, when (scenario and video time), how fast, from where."""
     speed = f", relative speed {c.relative_speed:.2f} m/s" if c.relative_speed is not None else ""
+    kind = "" if c.involves_ego else "third-party crash: "
     return (
-        f"{who(sc, c.other_id)} and {who(sc, c.agent_id)} at {time_text(sc, c.time_s)}{speed} "
+        f"{kind}{who(sc, c.other_id)} and {who(sc, c.agent_id)} at {time_text(sc, c.time_s)}{speed} "
         f"({COLLISION_SOURCES.get(c.source, c.source)})"
     )
 
@@ -146,16 +147,13 @@ def flat_items(data: Mapping[str, Any], prefix: str = "") -> list[tuple[str, Any
 def overview_section(sc: Scenario) -> Section:
     """Name, stage, road users, duration, classes, time mapping, collision and provenance."""
     classes = sc.class_counts()
-    cats: dict[str, int] = {}
-    for a in sc.agents:
-        cats[a.category] = cats.get(a.category, 0) + 1
     n = sc.source.frame_count
     rows: list[tuple[str, Any]] = [
         ("name", sc.name),
         ("schema version", sc.schema_version),
         ("stage", sc.stage),
-        ("road users besides the ego", ", ".join(f"{k}: {v}" for k, v in sorted(cats.items())) or "none"),
         ("duration (s)", sc.duration()),
+        ("road users", category_listing(sc)),
         ("trajectory classes", ", ".join(f"{k}: {n}" for k, n in classes.items()) or "-"),
         (
             "time mapping",
@@ -165,7 +163,8 @@ def overview_section(sc: Scenario) -> Section:
         (
             "road",
             f"{sc.road.lane_count} lanes x {sc.road.lane_width:.2f} m, ego lane {sc.road.ego_lane}, "
-            f"from {sc.road.source}",
+            f"from {sc.road.source}"
+            + (" (no lanes seen: inferred from the road users' paths)" if sc.road.source == "road_users" else ""),
         ),
         ("collision in the scenario", collision_text(sc, sc.collision) if sc.collision is not None else "none"),
         ("made by", f"deepcrashtest {sc.provenance.package_version}: {sc.provenance.command or '-'}"),
@@ -181,6 +180,16 @@ def overview_section(sc: Scenario) -> Section:
     if used:
         body += "<p>Classes: " + "; ".join(f"<b>{k}</b> {esc(CLASS_DESCRIPTIONS[k])}" for k in used) + ".</p>"
     return Section("Scenario", body)
+
+
+def category_listing(sc: Scenario) -> str:
+    """Agents per road-user category, e.g. ``car: 3, motorcycle (with rider): 1, pedestrian: 2``."""
+    counts: dict[str, int] = {}
+    for a in sc.agents:
+        counts[a.category] = counts.get(a.category, 0) + 1
+    order = ("car", "van", "truck", "bus", "motorcycle", "bicycle", "pedestrian")
+    label = {"motorcycle": "motorcycle (with rider)", "bicycle": "bicycle (with rider)"}
+    return ", ".join(f"{label.get(k, k)}: {counts[k]}" for k in order if k in counts) or "-"
 
 
 def source_section(sc: Scenario) -> Section:
