@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -150,7 +151,8 @@ def test_crash_compared_with_a_label(kitti8_crash, kitti_root):
         box = tuple(float(v) for v in row[["x1", "y1", "x2", "y2"]].to_numpy()[0])
         return CrashLabel("kitti8", "-", 10.0, True, frame, (Participant(True), Participant(False, box, "car")))
 
-    good = evaluate_fidelity(sc, tracks, sim, label(100, 11)).crash
+    result = evaluate_fidelity(sc, tracks, sim, label(100, 11))
+    good = result.crash
     assert good["label"]["scenario_ids"] == [0, 11]
     assert good["first_contact"]["participants"] == [0, 11]
     assert good["same_pair"] and good["reproduced"] and abs(good["dt_s"]) < 0.05
@@ -162,6 +164,11 @@ def test_crash_compared_with_a_label(kitti8_crash, kitti_root):
     assert wrong["same_pair"] is False and wrong["reproduced"] is False
     none = evaluate_fidelity(sc, tracks, sim, None).crash
     assert none["video_has_crash"] is True and none["first_contact"]["participants"] == [0, 11]
+    from deepcrashtest.eval.fidelity import fidelity_json
+    from deepcrashtest.viz.fidelity_section import fidelity_section
+
+    section = fidelity_section(json.loads(fidelity_json(result)))  # the report reads fidelity.json
+    assert "the replay reproduces the labelled crash" in section.body and "0-11 at video 10" in section.body
 
 
 def test_crash_label_files_load_and_bad_ones_are_refused(tmp_path):
