@@ -535,8 +535,11 @@ def scenario_sections(
     video: str | Path | None = None,
     sim_metrics: Mapping[str, Any] | Any | None = None,
     search: Any | None = None,
+    fidelity: Any | None = None,
 ) -> list[Section]:
-    """Every section a scenario (+ optional annotated video, simulation metrics, search table) gives."""
+    """Every section a scenario (+ optional annotated video, sim metrics, search table, fidelity result) gives."""
+    from deepcrashtest.viz.fidelity_section import fidelity_section
+
     sheet = contact_sheet_section(video, sc=sc) if video is not None else None
     marks = sheet_marks(sc, _frame_count(video)) if video is not None else []
     parts: list[Section | None] = [
@@ -550,6 +553,7 @@ def scenario_sections(
         lane_offset_section(sc),
         simulation_section(sim_metrics, sc=sc) if sim_metrics is not None else None,
         search_section(search) if search is not None else None,
+        fidelity_section(fidelity) if fidelity is not None else None,
     ]
     return [p for p in parts if p is not None]
 
@@ -599,6 +603,7 @@ def write_report(
 BESIDE_VIDEO = ("annotated.mp4",)
 BESIDE_SIM = ("simulation.json",)
 BESIDE_SEARCH = ("results.csv", "search/results.csv")
+BESIDE_FIDELITY = ("fidelity.json", "fidelity/fidelity.json")
 
 
 def load_sim_metrics(path: str | Path) -> dict[str, Any]:
@@ -651,11 +656,15 @@ def build_report(
         require_file(video_p, "video")
     if search_p is not None:
         require_file(search_p, "search table")
+    fidelity_p = _beside(folder, BESIDE_FIDELITY)
+    from deepcrashtest.viz.fidelity_section import load_fidelity
+
     sections = scenario_sections(
         sc,
         video=video_p,
         sim_metrics=load_sim_metrics(sim_p) if sim_p is not None else sim_metrics,
         search=search_p,
+        fidelity=load_fidelity(fidelity_p) if fidelity_p is not None else None,
     )
     path = write_report(output, *sections, title=f"DeepCrashTest report: {sc.name}", force=force)
     return {
