@@ -351,7 +351,8 @@ def test_clicking_a_box_over_the_selected_path_selects_it(browser, crash_case):
     with Server(crash_case) as url:
         page, errors = _open(browser, url, 1280, 720)
         van = sc.vehicle(3).trajectory
-        t = 2.0
+        t = 6.0  # the ego is a few metres behind the parked van
+        page.check("#follow")
         page.evaluate(f"window.dct.setTime({t})")
         assert page.evaluate("window.dct.S.selected") == 0
         x, y = page.evaluate("window.dct.vehicleClientXY(3)")

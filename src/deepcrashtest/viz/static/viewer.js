@@ -418,6 +418,16 @@
     }
   }
 
+  function bringIntoView(x, y) {
+    // centre the view on world (x, y) when it is off the canvas (or under the legend / tools)
+    const [px, py] = worldToScreen(x, y);
+    if (px < 40 || py < 60 || px > S.w - 40 || py > S.h - 40) {
+      $("follow").checked = false;
+      S.view.ox = S.w / 2 - x * S.view.scale;
+      S.view.oy = S.h / 2 + y * S.view.scale;
+    }
+  }
+
   function bounds() {
     let [x0, x1, y0, y1] = [Infinity, -Infinity, Infinity, -Infinity];
     const add = (x, y) => { x0 = Math.min(x0, x); x1 = Math.max(x1, x); y0 = Math.min(y0, y); y1 = Math.max(y1, y); };
@@ -643,7 +653,13 @@
     list.innerHTML = "";
     strip.innerHTML = "";
     for (const c of allCollisions()) {
-      const jump = () => { S.selected = c.pair.includes(S.scenario.ego.id) ? c.pair.find((id) => id !== S.scenario.ego.id) : c.pair[0]; S.wp = null; setTime(c.t); refreshPanels(); };
+      const jump = () => {
+        S.selected = c.pair.includes(S.scenario.ego.id) ? c.pair.find((id) => id !== S.scenario.ego.id) : c.pair[0];
+        S.wp = null;
+        if (c.point) bringIntoView(c.point[0], c.point[1]);
+        setTime(c.t);
+        refreshPanels();
+      };
       const li = document.createElement("li");
       const b = document.createElement("button");
       b.type = "button";
@@ -995,14 +1011,7 @@
     S.wp = null;
     const v = vehicleById(S.selected);
     const st = v && (stateAt(v, S.t) || stateAt(v, v.trajectory.t[0]));
-    if (st) { // bring it into view when it is off the canvas
-      const [px, py] = worldToScreen(st.x, st.y);
-      if (px < 0 || py < 0 || px > S.w || py > S.h) {
-        $("follow").checked = false;
-        S.view.ox = S.w / 2 - st.x * S.view.scale;
-        S.view.oy = S.h / 2 + st.y * S.view.scale;
-      }
-    }
+    if (st) bringIntoView(st.x, st.y);
     refreshPanels();
     draw();
   });
