@@ -421,7 +421,10 @@
   function bringIntoView(x, y) {
     // centre the view on world (x, y) when it is off the canvas (or under the legend / tools)
     const [px, py] = worldToScreen(x, y);
-    if (px < 40 || py < 60 || px > S.w - 40 || py > S.h - 40) {
+    const c = canvas.getBoundingClientRect();
+    const l = $("legend").getBoundingClientRect();
+    const underLegend = px > l.left - c.left - 30 && py < l.bottom - c.top + 30;
+    if (px < 40 || py < 60 || px > S.w - 40 || py > S.h - 40 || underLegend) {
       $("follow").checked = false;
       S.view.ox = S.w / 2 - x * S.view.scale;
       S.view.oy = S.h / 2 + y * S.view.scale;
