@@ -186,7 +186,9 @@ def test_report_command_uses_the_files_beside_the_scenario(tmp_path, kitti8_raw)
     folder.mkdir()
     sc = kitti8_raw.save(folder / "scenario.json")
     shutil.copyfile(SAMPLE_VIDEO, folder / "annotated.mp4")
-    (folder / "simulation.json").write_text(json.dumps({"metrics": {"collided": True, "collision_time": 1.25}}))
+    ego_hit = {"time": 1.25, "vehicles": [0, 9], "point": [1.0, 2.0], "relative_speed": 6.4, "delta_v": {"0": 6.39}}
+    sim_json = {"metrics": {"collided": True, "collision_time": 1.25, "collision_vehicle": 9}, "collisions": [ego_hit]}
+    (folder / "simulation.json").write_text(json.dumps(sim_json))  # the shape of `deepcrashtest simulate --json`
     _search_table().to_csv(folder / "results.csv", index=False)
     out = tmp_path / "report.html"
     proc = _cli("report", str(sc), "-o", str(out), "--json")
@@ -195,7 +197,9 @@ def test_report_command_uses_the_files_beside_the_scenario(tmp_path, kitti8_raw)
     assert res["sections"][4] == "Annotated frames" and "Simulation outcome" in res["sections"]
     assert "Search: start positions" in res["sections"]
     assert res["bytes"] == out.stat().st_size
-    assert len(_pngs(out.read_text())) == 4  # contact sheet, bird's-eye, motion, search
+    text = out.read_text()
+    assert len(_pngs(text)) == 4  # contact sheet, bird's-eye, motion, search
+    assert "ego collision with agent 9 (car" in text and "<th>delta v ego (m/s)</th><td>6.39</td>" in text
     again = _cli("report", str(sc), "-o", str(out))
     assert again.returncode == 2 and "already exists" in again.stderr and len(again.stderr.splitlines()) == 1
     assert _cli("report", str(sc), "-o", str(out), "--force").returncode == 0

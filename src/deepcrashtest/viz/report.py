@@ -441,7 +441,7 @@ def simulation_section(
     if others > 0:
         verdict += f"; {others} collision(s) between other road users"
     first = ("collided", "collision_time", "collision_vehicle", "delta_v_ego", "relative_speed", "min_distance")
-    keys = [k for k in first if k in m] + sorted(k for k in m if k not in first)
+    keys = [k for k in first if k in m] + sorted(k for k in m if k not in first and k != "collisions")
     labels = {"collided": "ego collided", "n_collisions": "collisions in all"}
     rows = [(labels.get(k, k.replace("_", " ")) + (f" ({SIM_UNITS[k]})" if k in SIM_UNITS else ""), m[k]) for k in keys]
     body = f'<p class="verdict">{esc(verdict)}</p>' + table(rows)
@@ -607,7 +607,8 @@ BESIDE_FIDELITY = ("fidelity.json", "fidelity/fidelity.json")
 
 
 def load_sim_metrics(path: str | Path) -> dict[str, Any]:
-    """Metrics from a JSON file: a metrics object, or ``deepcrashtest simulate --json`` output (``metrics`` key)."""
+    """Metrics from a JSON file: a metrics object, or ``deepcrashtest simulate --json`` output (``metrics`` key;
+    its ``collisions`` list is kept under ``collisions``)."""
     import json
 
     from deepcrashtest.fileio import require_file
@@ -620,6 +621,9 @@ def load_sim_metrics(path: str | Path) -> dict[str, Any]:
     m = data.get("metrics", data) if isinstance(data, dict) else data
     if not isinstance(m, dict):
         raise UserError(f"{p}: expected a JSON object of simulation metrics")
+    collisions = data.get("collisions") if isinstance(data, dict) else None
+    if isinstance(collisions, list) and "collisions" not in m:  # every pair, for the outcome's list
+        m = {**m, "collisions": [c for c in collisions if isinstance(c, dict)]}
     return m
 
 
