@@ -118,6 +118,7 @@ def test_report_times_follow_the_one_time_mapping(kitti8_raw):
     assert "after the video&#x27;s end at 39.00 s" in overview_section(late).body
     marks = sheet_marks(sc, 390, 12)
     assert marks[0] == ("#1", pytest.approx(16 / 10 + 5.65)) and len(marks) == 12
+    assert marks[1] == ("#2", pytest.approx(45 / 10 + 5.65))  # the collision's frame 45 replaces frame 48
     motion = motion_section(sc, marks)
     assert "= video t = " in motion.body and len(_pngs(motion.body)) == 1
 

@@ -229,12 +229,21 @@ def camera_section(sc: Scenario) -> Section:
     return Section("Camera and calibration", table(rows))
 
 
-def sheet_frames(frame_count: int, frames: int) -> list[int]:
-    """``frames`` frame indices evenly spread over a video of ``frame_count`` frames (middle of each slice)."""
+def sheet_frames(frame_count: int, frames: int, include: int | None = None) -> list[int]:
+    """``frames`` frame indices evenly spread over a video of ``frame_count`` frames (middle of each slice);
+    ``include`` (the collision's frame) takes the place of the nearest one."""
     if frame_count <= 0:
         return []
     k = min(frames, frame_count)
-    return sorted({int((i + 0.5) * frame_count / k) for i in range(k)})
+    out = sorted({int((i + 0.5) * frame_count / k) for i in range(k)})
+    if include is not None and 0 <= include < frame_count and include not in out:
+        out[int(np.argmin([abs(i - include) for i in out]))] = include
+    return sorted(out)
+
+
+def collision_frame(sc: Scenario | None) -> int | None:
+    """The video frame of the scenario's collision (None without one, or outside the video)."""
+    return None if sc is None or sc.collision is None else sc.video_frame(sc.collision.time_s)
 
 
 def contact_sheet_section(
@@ -253,7 +262,7 @@ def contact_sheet_section(
         raise UserError(f"contact sheet needs frames >= 1 and columns >= 1 (got {frames}, {columns})")
     vf = VideoFrames(video)
     try:
-        indices = sheet_frames(vf.frame_count, frames)
+        indices = sheet_frames(vf.frame_count, frames, collision_frame(sc))
         thumbs = []
         for i in indices:
             rgb = vf.frame(i)
@@ -272,7 +281,9 @@ def contact_sheet_section(
         ax.axis("off")
     for k, (ax, i, im) in enumerate(zip(axes.ravel(), indices, thumbs, strict=False)):
         ax.imshow(im)
-        title = f"#{k + 1}  frame {i}, video {i / info['fps']:.2f} s"
+        title = f"#{k + 1}  frame {i}, video {i / info['fps']:.2f} s" + (
+            "  COLLISION" if i == collision_frame(sc) else ""
+        )
         if sc is not None:
             title += f"\nscenario t = {sc.frame_time(i):.2f} s"
         ax.set_title(title, fontsize=8)
@@ -287,7 +298,8 @@ def contact_sheet_section(
 
 def sheet_marks(sc: Scenario, frame_count: int, frames: int = 12) -> list[tuple[str, float]]:
     """``(#k, scenario time)`` of the contact sheet's frames, for the time plots."""
-    return [(f"#{k + 1}", sc.frame_time(i)) for k, i in enumerate(sheet_frames(frame_count, frames))]
+    indices = sheet_frames(frame_count, frames, collision_frame(sc))
+    return [(f"#{k + 1}", sc.frame_time(i)) for k, i in enumerate(indices)]
 
 
 def birdseye_section(sc: Scenario, sim_states: Mapping[int, np.ndarray] | None = None) -> Section:
