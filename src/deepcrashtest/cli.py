@@ -147,14 +147,11 @@ def scenario_from_kitti(
     """Build a Scenario from KITTI tracking ground truth (labels + poses + calib)."""
     from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti as build
     from deepcrashtest.fileio import ensure_output_dir
+    from deepcrashtest.pipeline.kitti import kitti_scenarios
 
     if sequence < 0:
         raise UserError(f"--sequence must be >= 0 (got {sequence})")
-    sc = build(data, sequence)
-    if not raw:
-        from deepcrashtest.trajectory.pipeline import process_scenario
-
-        sc = process_scenario(sc, seed=seed)
+    sc = build(data, sequence) if raw else kitti_scenarios(data, sequence, seed=seed)[1]
     out = ensure_output_dir(output)
     path = sc.save(out / "scenario.json", force=force)
     emit(
@@ -496,21 +493,16 @@ def evaluate_kitti(
         raise UserError(f"{data}: KITTI tracking folder not found")
     if tracks is not None and not tracks.is_dir():
         raise UserError(f"{tracks}: tracker results folder not found")
-    if output is not None:
-        from deepcrashtest.fileio import check_writable
+    from deepcrashtest.pipeline.kitti import check_results_writable, write_results
 
-        for name in ("results.json", "results.md"):
-            check_writable(output / name, force=force)
+    if output is not None:
+        check_results_writable(output, force)
     kwargs: dict[str, Any] = {"match": match, "detections": detections, "tracks": tracks}
     if online:
         kwargs["offline"] = None
     result = run_eval(data, parse_sequences(sequences), **kwargs)
     if output is not None:
-        from deepcrashtest.fileio import atomic_write_text, ensure_output_dir
-
-        ensure_output_dir(output)
-        atomic_write_text(output / "results.json", json.dumps(result, indent=1, default=_json_default) + "\n", force)
-        atomic_write_text(output / "results.md", results_markdown(result), force)
+        write_results(result, output, results_markdown(result), force)
     emit(result, as_json, _print_kitti_table)
 
 
@@ -551,6 +543,59 @@ def evaluate_egomotion(
     if max_frames is not None and max_frames < 2:
         raise UserError(f"--max-frames must be >= 2 (got {max_frames})")
     emit(run(data, max_frames), as_json)
+
+
+@evaluate_app.command("fidelity")
+def evaluate_fidelity(
+    scenario: Path = typer.Argument(..., help="Scenario JSON file (from extract)."),
+    video: Path | None = typer.Option(None, "--video", help="Video (default: the source video, else annotated.mp4)."),
+    tracks: Path | None = typer.Option(None, "--tracks", help="tracks.csv (default: beside the scenario)."),
+    labels: Path | None = typer.Option(None, "--labels", help="Crash labels JSON (bench/labels/*_crashes.json)."),
+    clip: str | None = typer.Option(None, "--clip", help="Clip name in the labels (default: the video's name)."),
+    controller: str = typer.Option("replay", "--controller", help="Ego controller of the replay."),
+    output: Path | None = typer.Option(None, "-o", "--output", help="Output folder (default: beside the scenario)."),
+    make_video: bool = typer.Option(True, "--video-out/--no-video-out", help="Write fidelity.mp4."),
+    force: bool = ForceOpt,
+    seed: int = SeedOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """Reprojection and crash fidelity of a scenario and its replay against its video (+ fidelity.mp4)."""
+    from deepcrashtest.pipeline.fidelity import run_fidelity
+
+    _, summary = run_fidelity(
+        scenario, output, video, tracks, labels, clip, controller, make_video=make_video, force=force, seed=seed
+    )
+    emit(summary, as_json, _print_fidelity)
+
+
+def _print_fidelity(r: dict[str, Any]) -> None:
+    rep, crash = r["reprojection"], r["crash"]
+    typer.echo(f"{r['scenario']}: {rep['tracked_boxes']} tracked boxes of {rep['tracks_in_scenario']} agents")
+    for src in ("processed", "simulated"):
+        s = rep[src]
+        typer.echo(
+            f"  {src:9s}: mean IoU {_fmt(s['mean_iou'])}, IoU>=0.5 {_fmt(s['share_iou_ge_0_5'])}, "
+            f"median centre error {_fmt(s['median_centre_px'])} px, coverage {_fmt(s['coverage'])}"
+        )
+    first = crash["first_contact"]
+    typer.echo(
+        "  first contact: none"
+        if first is None
+        else f"  first contact: {first['participants']} at video {first['video_time_s']:.2f} s "
+        f"({_fmt(first['relative_speed_mps'])} m/s)"
+    )
+    if crash.get("label") is not None:
+        typer.echo(
+            f"  label: {crash['label']['description']} -> reproduced {crash['reproduced']}, same pair "
+            f"{crash['same_pair']}, dt {_fmt(crash['dt_s'])} s, contacts before {crash['contacts_before_crash']}"
+        )
+    else:
+        typer.echo(f"  video has a crash: {crash['video_has_crash']} ({crash['video_has_crash_source']})")
+    typer.echo(f"  time mapping: {r['time_mapping']['rule']}, offset {r['time_mapping']['time_offset_s']:.3f} s")
+    for note in r["notes"]:
+        typer.echo(f"  note: {note}")
+    for name, path in r["outputs"].items():
+        typer.echo(f"  {name}: {path}")
 
 
 @app.command()
