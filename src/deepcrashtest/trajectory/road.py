@@ -115,9 +115,10 @@ def build_road(
         width, count, ego_lane = inferred_lanes(moving_offsets_m, p.default_lane_width_m)
         source = "road_users" if source == "ego_path" else source
         if warnings is not None:
+            users = f"the spread of {len(moving_offsets_m)} road users' paths" if moving_offsets_m else "no other path"
             warnings.append(
                 f"no lane lines seen: the road ({count} lane(s) x {width:g} m, ego in lane {ego_lane}) is inferred "
-                f"from the ego's path and the spread of {len(moving_offsets_m)} moving road users' paths, not measured"
+                f"from the ego's path and {users}, not measured"
             )
     return Road(
         centerline_x=wp[:, 0].tolist(),
