@@ -54,7 +54,7 @@ def process_video(
     ``*.json`` inputs are Scenario files and go straight to the search.
     """
     src = Path(video)
-    out = ensure_output_dir(outdir)
+    out = Path(outdir)  # made by the first output set (extract or search); absent when the input fails early
     cfg = cfg or SearchConfig()
     if src.suffix.lower() == SCENARIO_SUFFIX:
         scenario = Scenario.load(src)
