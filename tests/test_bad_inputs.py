@@ -372,3 +372,14 @@ def test_no_vehicles_is_said(capsys, tmp_path):
     rc, out, err = cli(capsys, "extract", frames, "-o", tmp_path / "x", "--fps", FPS, "--no-geometry", "--json")
     assert rc == 0, err
     assert "no vehicles found in the video" in json.loads(out)["warnings"]
+
+
+def test_along_road_without_samples_is_no_lane_evidence():
+    """A real clip (DAD 000487, 20 frames) ended in an internal error: a road user whose observed samples were
+    all cut away made the lane inference project zero points."""
+    from deepcrashtest.trajectory.road import along_road
+    from deepcrashtest.trajectory.roadframe import RoadFrame
+
+    frame = RoadFrame.from_path(np.column_stack([np.linspace(0, 50, 20), np.zeros(20)]), 2.0, heading=0.0)
+    assert along_road(frame, np.zeros((0, 2)), 0.0) is False
+    assert along_road(frame, np.array([[10.0, 1.0], [20.0, 1.0]]), 0.0) is True

@@ -64,7 +64,10 @@ def lane_layout(offsets_m: list[float], lane_width: float) -> tuple[int, int]:
 def along_road(frame: RoadFrame, xy: np.ndarray, heading: float, max_angle_deg: float = ALONG_ROAD_DEG) -> bool:
     """True when a road user travelling ``heading`` (rad) through ``xy`` (metres) drives along the road (either
     direction, within ``max_angle_deg``), not across it: only such paths say where lanes are."""
-    s, _ = frame.project(np.asarray(xy, float).reshape(-1, 2))
+    pts = np.asarray(xy, float).reshape(-1, 2)
+    if len(pts) == 0:  # no observed sample left (e.g. all cut away after the collision): no lane evidence
+        return False
+    s, _ = frame.project(pts)
     tangent = float(frame.tangent(float(np.median(s)))[0])
     return bool(abs(np.cos(heading - tangent)) >= np.cos(np.radians(max_angle_deg)))
 
