@@ -1,0 +1,186 @@
+"""Self-calibration of an unknown camera from what a video gives: many tracked boxes and the ego's motion.
+
+Vehicles stand on the road. A box of a vehicle of height ``H`` (its class prior) at depth ``Z`` has
+its bottom row at ``v_b = v_h + fy hc / Z`` and its height ``h = fy H / Z`` pixels, so
+
+    v_b = v_h + hc * (h / H)
+
+for every box: a straight line whose intercept is the **horizon row** ``v_h`` and whose slope is the
+**camera height** ``hc`` in metres (the class priors set the metric scale). It is fitted over all
+detected, uncut boxes with a robust (Huber) line fit; uncertainties by bootstrap over tracks.
+
+The **focal length** then follows from the ego's motion: a parked vehicle at world position ``P``
+is at depth ``Z_k = (P - c_k) . h_k`` from the camera at ``c_k`` heading ``h_k`` (metres, from the
+ego path), and ``Z_k = fy hc / (v_b,k - v_h)``, so per track ``P . h_k - A / (v_b,k - v_h) = c_k . h_k``
+is linear in ``(P, A = fy hc)``. Each track long enough (and seen over enough ego travel) gives one
+``A``; parked vehicles agree, moving ones scatter (a car driving ahead at the ego's speed looks
+infinitely far): the mode of ``log A`` over tracks is kept, ``fy = A / hc``. Without ego motion
+(or too few tracks) the focal length keeps its prior (the camera given) and says so.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from deepcrashtest.geometry.egomotion import EgoMotion
+from deepcrashtest.geometry.mono3d import class_size
+from deepcrashtest.scenario import Camera
+
+MIN_BOXES = 30
+MIN_TRACK_FRAMES = 8
+MIN_TRAVEL_M = 4.0
+
+
+@dataclass
+class SelfCalibration:
+    """Result: the calibrated camera and each quantity's estimate, 1-sigma and source."""
+
+    camera: Camera
+    horizon_v: float
+    horizon_sigma_px: float
+    height_m: float
+    height_sigma_m: float
+    fy: float
+    fy_sigma: float
+    boxes: int
+    tracks: int
+    notes: list[str]
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "horizon_v": round(self.horizon_v, 1), "horizon_sigma_px": round(self.horizon_sigma_px, 2),
+            "height_m": round(self.height_m, 3), "height_sigma_m": round(self.height_sigma_m, 3),
+            "fy": round(self.fy, 1), "fy_sigma": round(self.fy_sigma, 1), "boxes": self.boxes,
+            "focal_tracks": self.tracks, "notes": self.notes,
+        }  # fmt: skip
+
+
+def _huber_line(x: np.ndarray, y: np.ndarray, delta: float = 3.0, iters: int = 20) -> tuple[float, float]:
+    """Robust line ``y = a + b x`` (IRLS, Huber weights, scale by the MAD)."""
+    w = np.ones_like(x)
+    a = b = 0.0
+    for _ in range(iters):
+        X = np.column_stack([np.ones_like(x), x]) * w[:, None]
+        a, b = np.linalg.lstsq(X, y * w, rcond=None)[0]
+        r = y - a - b * x
+        s = 1.4826 * np.median(np.abs(r)) + 1e-6
+        u = np.abs(r) / (delta * s)
+        w = np.sqrt(np.where(u <= 1, 1.0, 1.0 / np.maximum(u, 1e-9)))
+    return float(a), float(b)
+
+
+def _usable(tracks: pd.DataFrame, size: tuple[int, int]) -> pd.DataFrame:
+    w, h = size
+    d = tracks
+    if "state" in d.columns:
+        d = d[d["state"] == "detected"]
+    bh = d["y2"] - d["y1"]
+    ok = (d["y1"] > 1) & (d["y2"] < h - 2) & (d["x1"] > 1) & (d["x2"] < w - 2) & (bh >= 10)
+    ok &= d["category"].isin(["car", "van", "truck", "bus"])
+    return d[ok]
+
+
+def horizon_and_height(
+    tracks: pd.DataFrame, size: tuple[int, int], boot: int = 30, seed: int = 0
+) -> tuple[float, float, float, float, int] | None:
+    """(horizon row px, its sigma, camera height m, its sigma, boxes used) or None (too few boxes)."""
+    d = _usable(tracks, size)
+    if len(d) < MIN_BOXES:
+        return None
+    H = np.array([class_size(str(c))[2] for c in d["category"]])
+    x = (d["y2"] - d["y1"]).to_numpy(float) / H
+    y = d["y2"].to_numpy(float)
+    a, b = _huber_line(x, y)
+    rng = np.random.default_rng(seed)
+    ids = d["track_id"].to_numpy()
+    uniq = np.unique(ids)
+    groups = [np.nonzero(ids == u)[0] for u in uniq]
+    sa, sb = [], []
+    for _ in range(boot):
+        pick = np.concatenate([groups[i] for i in rng.integers(0, len(groups), len(groups))])
+        ai, bi = _huber_line(x[pick], y[pick], iters=8)
+        sa.append(ai)
+        sb.append(bi)
+    prior_rel = 0.07  # the class height prior's spread sets a floor on the metric scale
+    sig_h = math.hypot(float(np.std(sb)), prior_rel * b)
+    return a, float(np.std(sa)), b, sig_h, len(d)
+
+
+def focal_from_motion(
+    tracks: pd.DataFrame, size: tuple[int, int], horizon_v: float, ego: EgoMotion
+) -> tuple[float, float, int] | None:
+    """(A = fy * hc in px m, relative sigma, tracks used) from parked vehicles and the ego's motion."""
+    d = _usable(tracks, size)
+    frame_to_i = {int(f): i for i, f in enumerate(ego.frame)}
+    estimates = []
+    weights = []
+    for _, g in d.groupby("track_id"):
+        g = g[g["frame"].isin(frame_to_i.keys())]
+        below = g["y2"].to_numpy(float) - horizon_v
+        g = g[below > 3.0]
+        if len(g) < MIN_TRACK_FRAMES:
+            continue
+        i = np.array([frame_to_i[int(f)] for f in g["frame"]])
+        c = np.column_stack([ego.x[i], ego.y[i]])
+        if np.hypot(*(c[-1] - c[0])) < MIN_TRAVEL_M:
+            continue
+        hdg = np.column_stack([np.cos(ego.yaw[i]), np.sin(ego.yaw[i])])
+        y = 1.0 / (g["y2"].to_numpy(float) - horizon_v)
+        M = np.column_stack([hdg, -y])
+        rhs = np.sum(c * hdg, axis=1)
+        sol, *_ = np.linalg.lstsq(M, rhs, rcond=None)
+        A = float(sol[2])
+        if A > 0:
+            estimates.append(math.log(A))
+            weights.append(len(g))
+    if len(estimates) < 3:
+        return None
+    e, w = np.array(estimates), np.array(weights, float)
+    grid = np.linspace(e.min(), e.max(), 400)
+    bw = 0.05
+    density = (w[None, :] * np.exp(-0.5 * ((grid[:, None] - e[None, :]) / bw) ** 2)).sum(axis=1)
+    mode = float(grid[density.argmax()])
+    near = np.abs(e - mode) < 0.1
+    est = float(np.average(e[near], weights=w[near]))
+    spread = float(np.sqrt(np.average((e[near] - est) ** 2, weights=w[near])) / math.sqrt(near.sum()))
+    return math.exp(est), max(spread, 0.01), int(near.sum())
+
+
+def self_calibrate(
+    tracks: pd.DataFrame, camera: Camera, size: tuple[int, int], ego: EgoMotion | None = None
+) -> SelfCalibration:
+    """Horizon, camera height and focal length of an uncalibrated camera (see the module docstring).
+
+    ``camera``: the prior (e.g. the unknown-dashcam default); ``tracks``: the image tracker's table;
+    ``ego``: the ego path (metres), for the focal length. What cannot be measured keeps the prior."""
+    notes: list[str] = []
+    hh = horizon_and_height(tracks, size)
+    cam = camera
+    if hh is None:
+        notes.append(f"fewer than {MIN_BOXES} uncut vehicle boxes: horizon and camera height keep their priors")
+        vh = cam.cy - cam.fy * math.tan(cam.pitch_rad)
+        return SelfCalibration(cam, vh, float("nan"), cam.height_m, float("nan"), cam.fy, float("nan"), 0, 0, notes)
+    vh, sig_v, hc, sig_h, n = hh
+    fy, sig_f, used = cam.fy, float("nan"), 0
+    focal = focal_from_motion(tracks, size, vh, ego) if ego is not None else None
+    if focal is not None:
+        A, rel, used = focal
+        fy = A / hc
+        sig_f = fy * math.hypot(rel, sig_h / hc)
+    else:
+        notes.append("focal length not measurable (no ego motion or too few parked vehicles): prior kept")
+    scale = fy / cam.fy
+    update: dict[str, Any] = {
+        "height_m": hc, "height_source": "self_calibration", "height_sigma_m": sig_h,
+        "pitch_source": "self_calibration", "horizon_sigma_px": sig_v,
+    }  # fmt: skip
+    if focal is not None:
+        update |= {"fx": cam.fx * scale, "fy": fy, "intrinsics_source": "self_calibration", "focal_sigma_px": sig_f}
+    cam = cam.model_copy(update=update)
+    cam = cam.model_copy(update={"pitch_rad": math.atan2(cam.cy - vh, cam.fy)})
+    return SelfCalibration(cam, vh, sig_v, hc, sig_h, fy, sig_f, n, used, notes)
