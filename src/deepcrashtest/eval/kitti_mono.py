@@ -253,10 +253,11 @@ def score_sequence(prep: MonoSequence, scenario: Scenario, rule: MatchRule) -> t
 def _position_errors(prep: MonoSequence, hyps: list) -> dict[str, Any]:
     """Ground-position error of evaluated cars matched to a track (Hungarian on distance, gate
     max(2 m, 25 % of the range)), by the car's range: median and 90th percentile (m), and the
-    median as a percentage of the range."""
+    median as a percentage of the range; the median signed range error (percent, > 0: too far)."""
     err: list[np.ndarray] = []
     rng: list[np.ndarray] = []
-    for g, h, r in zip(prep.ground_truth, hyps, prep.gt_range, strict=True):
+    bias: list[np.ndarray] = []
+    for f, (g, h, r) in enumerate(zip(prep.ground_truth, hyps, prep.gt_range, strict=True)):
         ev = g.evaluated
         if not ev.any() or len(h) == 0:
             continue
@@ -268,20 +269,24 @@ def _position_errors(prep: MonoSequence, hyps: list) -> dict[str, Any]:
         ok = d[rows, cols] < 1e6
         err.append(d[rows[ok], cols[ok]])
         rng.append(gr[rows[ok]])
+        hc = prep.world.world_to_camera(f, h.world[cols[ok], :3])
+        bias.append(np.hypot(hc[:, 0], hc[:, 2]) - gr[rows[ok]])
     e = np.concatenate(err) if err else np.zeros(0)
     rr = np.concatenate(rng) if rng else np.zeros(0)
+    bb = np.concatenate(bias) if bias else np.zeros(0)
     out: dict[str, Any] = {}
     for lo, hi in ERROR_BINS:
         m = (rr >= lo) & (rr < hi)
         key = f"{lo:g}-{hi:g} m"
         if not m.any():
-            out[key] = {"n": 0, "median_m": None, "p90_m": None, "median_pct": None}
+            out[key] = {"n": 0, "median_m": None, "p90_m": None, "median_pct": None, "range_bias_pct": None}
             continue
         out[key] = {
             "n": int(m.sum()),
             "median_m": round(float(np.median(e[m])), 3),
             "p90_m": round(float(np.percentile(e[m], 90)), 3),
             "median_pct": round(float(np.median(e[m] / np.maximum(rr[m], 1e-6))) * 100, 2),
+            "range_bias_pct": round(float(np.median(bb[m] / np.maximum(rr[m], 1e-6))) * 100, 2),
         }
     return out
 
