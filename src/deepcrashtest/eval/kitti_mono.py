@@ -88,6 +88,7 @@ class MonoTracking:
     max_age_s: float = 0.5
     min_iou: float = 0.2
     min_detected: int = 5
+    report_predicted: bool = False
     mono: MonoConfig = field(default_factory=MonoConfig)
 
 
@@ -218,12 +219,21 @@ def ego_of(world: KittiWorld) -> EgoMotion:
     return EgoMotion.from_poses(world.poses, KITTI_FPS)
 
 
-def mono_scenario(prep: MonoSequence, config: MonoTracking, camera: str = "kitti") -> tuple[Scenario, Camera]:
-    """The raw Scenario of the monocular path on a prepared sequence (and the camera it used)."""
-    tracks = track_boxes(
+def image_tracks(prep: MonoSequence, config: MonoTracking) -> pd.DataFrame:
+    """The image tracker (``extract``'s :class:`BoxTracker`, no pixels) on a sequence's boxes."""
+    return track_boxes(
         prep.detections, KITTI_FPS, prep.size, min_score=config.min_score, new_track_score=config.new_track_score,
         min_hits=config.min_hits, max_age_s=config.max_age_s, min_iou=config.min_iou,
     )  # fmt: skip
+
+
+def mono_scenario(
+    prep: MonoSequence, config: MonoTracking, camera: str = "kitti", tracks: pd.DataFrame | None = None
+) -> tuple[Scenario, Camera]:
+    """The raw Scenario of the monocular path on a prepared sequence (and the camera it used);
+    ``tracks``: the image tracks when already computed (:func:`image_tracks`)."""
+    if tracks is None:
+        tracks = image_tracks(prep, config)
     ego = ego_of(prep.world)
     if camera == "kitti":
         cam = prep.camera
@@ -241,9 +251,12 @@ def mono_scenario(prep: MonoSequence, config: MonoTracking, camera: str = "kitti
     return sc, cam
 
 
-def score_sequence(prep: MonoSequence, scenario: Scenario, rule: MatchRule) -> tuple[EvalSequence, dict[str, Any]]:
-    """KITTI rules applied to the scenario's tracks, and the position-error-by-distance table."""
-    table = scenario_result_table(scenario, prep.world, prep.P2, image_size=prep.size)
+def score_sequence(
+    prep: MonoSequence, scenario: Scenario, rule: MatchRule, observed_only: bool = True
+) -> tuple[EvalSequence, dict[str, Any]]:
+    """KITTI rules applied to the scenario's tracks, and the position-error-by-distance table
+    (``observed_only``: only the frames where a track was detected, else its predicted ones too)."""
+    table = scenario_result_table(scenario, prep.world, prep.P2, observed_only, image_size=prep.size)
     hyps = hypotheses_from_table(table, prep.world)
     frames = [apply_kitti_rules(g, h, rule) for g, h in zip(prep.ground_truth, hyps, strict=True)]
     errors = _position_errors(prep, hyps)
@@ -309,7 +322,7 @@ def evaluate_mono(
     for s in progress(seqs, "evaluating sequences (monocular)", total=len(seqs)):
         prep = prepare_mono(root, s, boxes, camera, noise)
         sc, cam = mono_scenario(prep, cfg, camera)
-        ev, err = score_sequence(prep, sc, rule)
+        ev, err = score_sequence(prep, sc, rule, not cfg.report_predicted)
         evaluated.append(ev)
         errors[prep.name] = err
         cameras[prep.name] = _camera_summary(cam, prep)
@@ -342,9 +355,21 @@ def _camera_summary(cam: Camera, prep: MonoSequence) -> dict[str, Any]:
     return out
 
 
-def quick_mota(preps: list[MonoSequence], config: MonoTracking, camera: str = "kitti") -> tuple[float, dict]:
-    """Combined MOTA (percent) of ``config`` over prepared sequences, CLEAR only (for tuning)."""
+def quick_mota(
+    preps: list[MonoSequence], config: MonoTracking, camera: str = "kitti", cache: dict | None = None
+) -> tuple[float, dict]:
+    """Combined MOTA (percent) of ``config`` over prepared sequences, CLEAR only (for tuning);
+    ``cache`` (a dict) keeps image tracks per sequence and tracker setting between calls."""
     rule = match_rule("distance")
-    evs = [score_sequence(p, mono_scenario(p, config, camera)[0], rule)[0] for p in preps]
+    key = (config.min_score, config.new_track_score, config.min_hits, config.max_age_s, config.min_iou)
+    evs = []
+    for p in preps:
+        tracks = None
+        if cache is not None:
+            tracks = cache.get((p.name, key))
+            if tracks is None:
+                tracks = cache[(p.name, key)] = image_tracks(p, config)
+        sc = mono_scenario(p, config, camera, tracks)[0]
+        evs.append(score_sequence(p, sc, rule, not config.report_predicted)[0])
     res = clear_only(evs, rule)
     return 100 * float(res["combined"]["MOTA"]), res

@@ -81,13 +81,13 @@ class MonoConfig:
     Chosen on the KITTI tracking training sequences other than 3, 8 and 10 (``bench/tune_mono.py``)."""
 
     bottom_sigma_px: float = 2.0
-    road_height_rel: float = 0.12
-    height_sigma_px: float = 1.5
+    road_height_rel: float = 0.3
+    height_sigma_px: float = 0.7
     width_sigma_rel: float = 0.12
     bearing_sigma_px: float = 3.0
     accel_std: float = 1.5
     init_speed_std: float = 15.0
-    size_sample_inflation: float = 3.0
+    size_sample_inflation: float = 100.0
     gate_chi2: float = 25.0
     frame_horizon: bool = True
 

@@ -186,14 +186,20 @@ def _mono_agents(
             Vehicle(
                 id=int(tid),  # type: ignore[arg-type]
                 category=str(g["category"].iloc[0]),  # type: ignore[arg-type]
-                length=float(g["length"].iloc[0]), width=float(g["width"].iloc[0]),
+                length=float(g["length"].iloc[0]),
+                width=float(g["width"].iloc[0]),
                 height=float(g["height"].iloc[0]),
                 confidence=float(np.clip(g["score"].to_numpy(float)[det].mean(), 0.0, 1.0)),
-                first_frame=int(g["frame"].iloc[0]), last_frame=int(g["frame"].iloc[-1]),
+                first_frame=int(g["frame"].iloc[0]),
+                last_frame=int(g["frame"].iloc[-1]),
                 start_delay_s=max(0.0, float(t[0])),
                 trajectory=Trajectory.from_arrays(
-                    t, g["x"].to_numpy(float) - origin[0], g["y"].to_numpy(float) - origin[1],
-                    g["yaw"].to_numpy(float), speed, det,
+                    t,
+                    g["x"].to_numpy(float) - origin[0],
+                    g["y"].to_numpy(float) - origin[1],
+                    g["yaw"].to_numpy(float),
+                    speed,
+                    det,
                 ),
             )  # fmt: skip
         )

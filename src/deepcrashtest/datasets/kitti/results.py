@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from deepcrashtest.datasets.kitti.files import KITTI_IMAGE_SIZE, LABEL_COLUMNS
-from deepcrashtest.eval.boxes import project_box
+from deepcrashtest.eval.boxes import project_boxes
 from deepcrashtest.eval.kitti_world import KittiWorld
 from deepcrashtest.fileio import atomic_path
 from deepcrashtest.geometry.frames import camera_points_to_world
@@ -54,19 +54,27 @@ def scenario_result_table(
         f = frames[keep]
         n = len(f)
         parts.append(
-            pd.DataFrame({
-                "frame": f, "track_id": a.id, "type": KITTI_TYPES[a.category], "wx": arr["x"][keep],
-                "wy": arr["y"][keep], "wz": cam_z[f] - scenario.camera.height_m, "yaw": arr["yaw"][keep],
-                "h": np.full(n, a.height), "w": np.full(n, a.width), "l": np.full(n, a.length),
-                "score": np.full(n, a.confidence),
-            })  # fmt: skip
+            pd.DataFrame(
+                {
+                    "frame": f,
+                    "track_id": a.id,
+                    "type": KITTI_TYPES[a.category],
+                    "wx": arr["x"][keep],
+                    "wy": arr["y"][keep],
+                    "wz": cam_z[f] - scenario.camera.height_m,
+                    "yaw": arr["yaw"][keep],
+                    "h": np.full(n, a.height),
+                    "w": np.full(n, a.width),
+                    "l": np.full(n, a.length),
+                    "score": np.full(n, a.confidence),
+                }
+            )  # fmt: skip
         )
     if not parts:
         return pd.DataFrame({c: pd.Series(dtype=float) for c in RESULT_COLUMNS})
     t = pd.concat(parts, ignore_index=True).sort_values(["frame", "track_id"], ignore_index=True)
     xyz = np.zeros((len(t), 3))
     ry = np.zeros(len(t))
-    box = np.full((len(t), 4), np.nan)
     fr = t["frame"].to_numpy()
     world_xyz = t[["wx", "wy", "wz"]].to_numpy(float)
     lwh = t[["l", "w", "h"]].to_numpy(float)
@@ -74,8 +82,7 @@ def scenario_result_table(
         idx = np.nonzero(fr == f)[0]
         xyz[idx] = world.world_to_camera(int(f), world_xyz[idx])
         ry[idx] = world.yaw_to_camera(int(f), t["yaw"].to_numpy(float)[idx])
-        for i in idx:
-            box[i] = project_box(P2, xyz[i], lwh[i, 0], lwh[i, 1], lwh[i, 2], ry[i], image_size)
+    box = project_boxes(P2, xyz, lwh, ry, image_size)
     t["x"], t["y"], t["z"], t["ry"] = xyz[:, 0], xyz[:, 1], xyz[:, 2], ry
     t["x1"], t["y1"], t["x2"], t["y2"] = box.T
     t["alpha"] = ry - np.arctan2(xyz[:, 0], xyz[:, 2])
