@@ -87,7 +87,7 @@ class MonoTracking:
     min_hits: int = 3
     max_age_s: float = 0.5
     min_iou: float = 0.2
-    min_detected: int = 5
+    min_detected: int = 12
     report_predicted: bool = False
     mono: MonoConfig = field(default_factory=MonoConfig)
 

@@ -81,13 +81,15 @@ class MonoConfig:
     Chosen on the KITTI tracking training sequences other than 3, 8 and 10 (``bench/tune_mono.py``)."""
 
     bottom_sigma_px: float = 2.0
-    road_height_rel: float = 0.3
-    height_sigma_px: float = 0.7
-    width_sigma_rel: float = 0.12
+    road_height_rel: float = 0.5
+    height_sigma_px: float = 0.4
+    width_sigma_rel: float = 0.2
     bearing_sigma_px: float = 3.0
-    accel_std: float = 1.5
+    accel_std: float = 3.0
     init_speed_std: float = 15.0
     size_sample_inflation: float = 100.0
+    class_sample_inflation: float = 3.0
+    class_switch_cost: float = 1.0
     gate_chi2: float = 25.0
     frame_horizon: bool = True
 
@@ -158,15 +160,20 @@ def _track_size(
     use = rows[det[rows] & ~cues.cut_v[rows] & np.isfinite(cues.z_bottom[rows])]
     h_samples = cues.box_h[use] * cues.z_bottom[use] / camera.fy
     h_rel = np.hypot(cues.r_bottom[use], cfg.height_sigma_px / cues.box_h[use])
-    best: tuple[float, str, float, float] | None = None
-    for cls in CANDIDATES.get(category, (category,)):
+    best: tuple[float, str] | None = None
+    for cls in CANDIDATES.get(category, (category,)):  # the class: the likeliest prior given the samples
         prior_h, prior_rel = class_size(cls)[2] * scale, _size_sigma(cls)
-        value, rel, loglik = _pool_log(h_samples, h_rel, prior_h, prior_rel, cfg.size_sample_inflation)
-        loglik -= 0.0 if cls == category else 1.0  # the detector's own class is a priori likelier
+        _, _, loglik = _pool_log(h_samples, h_rel, prior_h, prior_rel, cfg.class_sample_inflation)
+        loglik -= 0.0 if cls == category else cfg.class_switch_cost  # the detector's own class is likelier
         if best is None or loglik > best[0]:
-            best = (loglik, cls, value, rel)
+            best = (loglik, cls)
     assert best is not None
-    _, cls, height, h_rel_post = best
+    cls = best[1]
+    height, h_rel_post, _ = _pool_log(
+        h_samples, h_rel, class_size(cls)[2] * scale, _size_sigma(cls), cfg.size_sample_inflation
+    )
+    best_full = (0.0, cls, height, h_rel_post)
+    _, cls, height, h_rel_post = best_full
     length, width, prior_h = class_size(cls)
     scale = height / prior_h  # the posterior height scales the class's length and width
     # width cue scale: apparent width against the class's, for a vehicle parallel to the ego
