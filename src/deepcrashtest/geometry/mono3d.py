@@ -92,6 +92,7 @@ class MonoConfig:
     class_switch_cost: float = 1.0
     gate_chi2: float = 25.0
     frame_horizon: bool = True
+    horizon_shrink: float = 0.3
 
 
 def class_size(category: str) -> tuple[float, float, float]:
@@ -152,8 +153,15 @@ def _pool_log(samples: np.ndarray, rel_sigma: np.ndarray, prior: float, prior_re
 
 
 def _track_size(
-    category: str, cues: _Cues, rows: np.ndarray, det: np.ndarray, camera: Camera, cfg: MonoConfig, scale: float
-):  # fmt: skip
+    category: str,
+    cues: _Cues,
+    rows: np.ndarray,
+    det: np.ndarray,
+    camera: Camera,
+    cfg: MonoConfig,
+    scale: float,
+    choose_class: bool = True,
+):
     """(class, length, width, height, height rel sigma, width scale, width-scale rel sigma) of one track.
 
     ``scale``: the box source's size convention (see :func:`size_scale`), multiplies the priors."""
@@ -161,7 +169,8 @@ def _track_size(
     h_samples = cues.box_h[use] * cues.z_bottom[use] / camera.fy
     h_rel = np.hypot(cues.r_bottom[use], cfg.height_sigma_px / cues.box_h[use])
     best: tuple[float, str] | None = None
-    for cls in CANDIDATES.get(category, (category,)):  # the class: the likeliest prior given the samples
+    candidates = CANDIDATES.get(category, (category,)) if choose_class else (category,)
+    for cls in candidates:  # the class: the likeliest prior given the samples
         prior_h, prior_rel = class_size(cls)[2] * scale, _size_sigma(cls)
         _, _, loglik = _pool_log(h_samples, h_rel, prior_h, prior_rel, cfg.class_sample_inflation)
         loglik -= 0.0 if cls == category else cfg.class_switch_cost  # the detector's own class is likelier
@@ -329,7 +338,7 @@ def localize_tracks(
     cues = _cues(b, camera, image_size, vh_rows, cfg)
     scale = size_scale(df, cues, det_all, camera)
     sizes = [
-        _track_size(cats[s0], cues, np.arange(s0, s1), det_all, camera, cfg, scale)
+        _track_size(cats[s0], cues, np.arange(s0, s1), det_all, camera, cfg, scale, not cfg.frame_horizon)
         for s0, s1 in zip(starts[:-1], starts[1:], strict=True)
     ]
     if cfg.frame_horizon:
@@ -337,7 +346,7 @@ def localize_tracks(
         for (s0, s1), sz in zip(zip(starts[:-1], starts[1:], strict=True), sizes, strict=True):
             z_size[s0:s1] = camera.fy * sz[3] / cues.box_h[s0:s1]
         z_size[~det_all | cues.cut_v] = np.nan
-        vh_rows = frame_horizon(frames_all, b[:, 3], z_size, camera, vh)
+        vh_rows = frame_horizon(frames_all, b[:, 3], z_size, camera, vh, cfg.horizon_shrink)
         cues = _cues(b, camera, image_size, vh_rows, cfg)
         sizes = [
             _track_size(cats[s0], cues, np.arange(s0, s1), det_all, camera, cfg, scale)

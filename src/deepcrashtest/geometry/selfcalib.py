@@ -20,6 +20,7 @@ infinitely far): the mode of ``log A`` over tracks is kept, ``fy = A / hc``. Wit
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -50,6 +51,7 @@ class SelfCalibration:
     boxes: int
     tracks: int
     notes: list[str]
+    ego_scale: float = 1.0
 
     def summary(self) -> dict[str, Any]:
         return {
@@ -233,12 +235,18 @@ def combine_focal(
 
 
 def self_calibrate(
-    tracks: pd.DataFrame, camera: Camera, size: tuple[int, int], ego: EgoMotion | None = None
+    tracks: pd.DataFrame,
+    camera: Camera,
+    size: tuple[int, int],
+    ego: EgoMotion | None = None,
+    ego_scaled_by_height: bool = False,
 ) -> SelfCalibration:
     """Horizon, camera height and focal length of an uncalibrated camera (see the module docstring).
 
     ``camera``: the prior (e.g. the unknown-dashcam default); ``tracks``: the image tracker's table;
-    ``ego``: the ego path (metres), for the focal length. What cannot be measured keeps the prior."""
+    ``ego``: the ego path (metres), for the focal length. ``ego_scaled_by_height``: the ego path's
+    metric scale came from ``camera.height_m`` (monocular ego-motion): it is rescaled by the measured
+    height first (``SelfCalibration.ego_scale``). What cannot be measured keeps the prior."""
     notes: list[str] = []
     hh = horizon_and_height(tracks, size)
     cam = camera
@@ -249,7 +257,10 @@ def self_calibrate(
     vh, sig_v, hc, sig_h, n = hh
     fy, sig_f, used = cam.fy, float("nan"), 0
     focal = None
+    ego_scale = hc / cam.height_m if ego_scaled_by_height else 1.0
     if ego is not None:
+        if ego_scale != 1.0:
+            ego = dataclasses.replace(ego, x=ego.x * ego_scale, y=ego.y * ego_scale)
         focal = combine_focal(
             cam.fy, focal_from_motion(tracks, size, cam.cx, ego), focal_from_rotation(tracks, size, cam.cx, ego, cam.fy)
         )
@@ -268,4 +279,4 @@ def self_calibrate(
         update |= {"fx": cam.fx * scale, "fy": fy, "intrinsics_source": "self_calibration", "focal_sigma_px": sig_f}
     cam = cam.model_copy(update=update)
     cam = cam.model_copy(update={"pitch_rad": math.atan2(cam.cy - vh, cam.fy)})
-    return SelfCalibration(cam, vh, sig_v, hc, sig_h, fy, sig_f, n, used, notes)
+    return SelfCalibration(cam, vh, sig_v, hc, sig_h, fy, sig_f, n, used, notes, ego_scale)

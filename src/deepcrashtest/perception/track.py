@@ -343,4 +343,4 @@ def track_video(
         if on_frame is not None:
             on_frame(ft)
         records.extend(frame_records(ft))
-    return records_table(records)
+    return records_table(records).sort_values(["frame", "track_id"], ignore_index=True)
