@@ -61,7 +61,7 @@ __all__ = [
 
 _NO_IMAGE = np.zeros((0, 0, 3), np.uint8)
 TRACK_COLUMNS = ["frame", "time", "track_id", "category", "x1", "y1", "x2", "y2", "score", "state"]
-_GROUP = {"car": 0, "truck": 0, "bus": 0, "motorcycle": 1, "bicycle": 1}
+_GROUP = {"car": 0, "van": 0, "truck": 0, "bus": 0, "motorcycle": 1, "bicycle": 1, "pedestrian": 2}
 
 
 @dataclass
@@ -214,7 +214,7 @@ class BoxTracker:
         cost = np.ones((len(tracks), len(dets)))
         if len(tracks) and len(dets):
             cost = 1.0 - iou_matrix(np.stack([t.box for t in tracks]), dets.boxes)
-            tg = np.array([_GROUP[t.category] for t in tracks])
+            tg = np.array([_GROUP.get(t.category, 0) for t in tracks])
             dg = np.array([_GROUP.get(str(c), 0) for c in dets.categories])
             cost[tg[:, None] != dg[None, :]] = np.inf
         result = self.core.step(cost, max_cost=1.0 - self.min_iou)
