@@ -118,7 +118,9 @@ def project_box(
     return np.array([x1, y1, x2, y2])
 
 
-def project_boxes(P: np.ndarray, bottom: np.ndarray, lwh: np.ndarray, ry: np.ndarray, image_size: tuple[int, int]):
+def project_boxes(
+    P: np.ndarray, bottom: np.ndarray, lwh: np.ndarray, ry: np.ndarray, image_size: tuple[int, int]
+) -> np.ndarray:
     """:func:`project_box` for (n,) boxes at once: bottom centres (n, 3), sizes (n, 3) l w h, yaws (n,)
     -> (n, 4) pixels (NaN rows: behind the camera or outside the image)."""
     bottom = np.asarray(bottom, dtype=float).reshape(-1, 3)
@@ -132,7 +134,7 @@ def project_boxes(P: np.ndarray, bottom: np.ndarray, lwh: np.ndarray, ry: np.nda
     corners = np.stack([c[:, None] * x + s[:, None] * z, y, -s[:, None] * x + c[:, None] * z], axis=-1)
     corners += bottom[:, None, :]
     uvw = np.concatenate([corners, np.ones((n, 8, 1))], axis=-1) @ P.T
-    behind = (corners[:, :, 2] < 0.1).any(axis=1)
+    behind: np.ndarray = np.asarray((corners[:, :, 2] < 0.1).any(axis=1))
     uv = uvw[:, :, :2] / np.where(behind[:, None, None], 1.0, uvw[:, :, 2:3])
     width, height = image_size
     lo = np.clip(uv.min(axis=1), 0, [width - 1, height - 1])

@@ -299,6 +299,93 @@ def _kalman(
     return span, xs
 
 
+@dataclass
+class _Rows:
+    """The rows of all tracks, sorted by track then frame, with their ego index and per-track spans."""
+
+    df: pd.DataFrame
+    boxes: np.ndarray
+    detected: np.ndarray
+    frames: np.ndarray
+    ego_i: np.ndarray
+    spans: list[tuple[int, int]]
+
+
+def _rows(tracks: pd.DataFrame, ego: EgoMotion) -> _Rows:
+    frame_to_i = {int(f): i for i, f in enumerate(ego.frame)}
+    df = tracks[tracks["frame"].isin(frame_to_i.keys())].sort_values(["track_id", "frame"])
+    df = df.drop_duplicates(["track_id", "frame"])
+    if "state" not in df.columns:
+        df = df.assign(state="detected")
+    if "score" not in df.columns:
+        df = df.assign(score=1.0)
+    tid = df["track_id"].to_numpy()
+    starts = np.r_[0, np.nonzero(np.diff(tid))[0] + 1, len(df)] if len(df) else np.zeros(1, int)
+    return _Rows(
+        df=df,
+        boxes=df[["x1", "y1", "x2", "y2"]].to_numpy(float),
+        detected=(df["state"] == "detected").to_numpy(),
+        frames=df["frame"].to_numpy(int),
+        ego_i=np.array([frame_to_i[int(f)] for f in df["frame"]], dtype=int),
+        spans=[(int(a), int(b)) for a, b in zip(starts[:-1], starts[1:], strict=True)],
+    )
+
+
+def _sizes_and_cues(
+    r: _Rows, camera: Camera, image_size: tuple[int, int], vh: float, cfg: MonoConfig
+) -> tuple[list, _Cues]:
+    """Each track's size (:func:`_track_size`) and the rows' cues, with the per-frame horizon."""
+    cats = r.df["category"].to_numpy(dtype=str)
+    cues = _cues(r.boxes, camera, image_size, np.full(len(r.df), vh), cfg)
+    scale = size_scale(r.df, cues, r.detected, camera)
+
+    def sizes(choose: bool) -> list:
+        return [_track_size(cats[a], cues, np.arange(a, b), r.detected, camera, cfg, scale, choose) for a, b in r.spans]
+
+    if not cfg.frame_horizon:
+        return sizes(True), cues
+    first = sizes(False)  # the detector's classes first: the horizon must not depend on the class choice
+    z_size = np.full(len(r.df), np.nan)
+    for (a, b), sz in zip(r.spans, first, strict=True):
+        z_size[a:b] = camera.fy * sz[3] / cues.box_h[a:b]
+    z_size[~r.detected | cues.cut_v] = np.nan
+    vh_rows = frame_horizon(r.frames, r.boxes[:, 3], z_size, camera, vh, cfg.horizon_shrink)
+    cues = _cues(r.boxes, camera, image_size, vh_rows, cfg)
+    return sizes(True), cues
+
+
+def _measurements(
+    rows: np.ndarray, size: tuple, cues: _Cues, r: _Rows, ego: EgoMotion, camera: Camera, cfg: MonoConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """World-frame centres (n, 2; NaN: no measurement), their covariances (n, 2, 2) and the
+    camera-to-centre ranges (n,) of one track's rows."""
+    _, length, width, height, h_rel, w_scale, w_rel = size
+    z_near, rel = _fuse_depth(cues, rows, (length, width, height), h_rel, w_scale, w_rel, camera, cfg)
+    bearing = cues.bearing[rows]
+    a = np.arctan(bearing)
+    off = 0.5 * (length * np.abs(np.cos(a)) + width * np.abs(np.sin(a)))
+    ray = np.column_stack([bearing, np.ones(len(rows))])
+    ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+    near = np.column_stack([bearing * z_near, z_near])
+    centre = near + off[:, None] * ray  # camera frame (x right, z forward)
+    rng = np.linalg.norm(centre, axis=1)
+    ei = r.ego_i[rows]
+    yaw_e = ego.yaw[ei]
+    c, s = np.cos(yaw_e), np.sin(yaw_e)
+    fwd, left = centre[:, 1], -centre[:, 0]
+    meas = np.column_stack([ego.x[ei] + c * fwd - s * left, ego.y[ei] + s * fwd + c * left])
+    meas[~r.detected[rows] | ~np.isfinite(z_near)] = np.nan
+    # covariance: range error along the line of sight, bearing error across it (world frame)
+    sig_r = np.linalg.norm(near, axis=1) * np.nan_to_num(rel, nan=1.0)
+    sig_c = rng * cfg.bearing_sigma_px / camera.fx
+    ang = yaw_e + np.arctan2(-ray[:, 0], ray[:, 1])
+    u = np.column_stack([np.cos(ang), np.sin(ang)])
+    v = np.column_stack([-u[:, 1], u[:, 0]])
+    covs = sig_r[:, None, None] ** 2 * u[:, :, None] * u[:, None, :]
+    covs += sig_c[:, None, None] ** 2 * v[:, :, None] * v[:, None, :]
+    return meas, covs, rng
+
+
 def localize_tracks(
     tracks: pd.DataFrame,
     camera: Camera,
@@ -311,108 +398,42 @@ def localize_tracks(
     """World-frame states of every track (columns :data:`OUTPUT_COLUMNS`), see the module docstring.
 
     ``tracks``: the image tracker's rows (``state`` 'detected' rows carry measurements; 'predicted'
-    rows between detections are filled by the filter, those after a track's last detection dropped).
-    ``ego``: the camera path, one entry per video frame in ``ego.frame``; rows of other frames are
-    ignored. ``horizon_v``: the horizon row (pixels), else the camera's pitch gives it. Positions are
-    in the frame of ``ego.x``/``ego.y``; ``range`` is the camera-to-centre ground distance (m)."""
+    rows between detections are filled by the filter; rows before a track's first and after its last
+    measured frame are dropped). ``ego``: the camera path, one entry per video frame in ``ego.frame``;
+    rows of other frames are ignored. ``horizon_v``: the horizon row (pixels), else the camera's pitch
+    gives it. Positions are in the frame of ``ego.x``/``ego.y``; ``range`` is the camera-to-centre
+    ground distance (m) of each row's measurement."""
     cfg = config or MonoConfig()
     vh = horizon_row(camera) if horizon_v is None else float(horizon_v)
-    frame_to_i = {int(f): i for i, f in enumerate(ego.frame)}
-    df = tracks[tracks["frame"].isin(frame_to_i.keys())].sort_values(["track_id", "frame"])
-    df = df.drop_duplicates(["track_id", "frame"])
-    if "state" not in df.columns:
-        df = df.assign(state="detected")
-    if "score" not in df.columns:
-        df = df.assign(score=1.0)
-    out_cols: dict[str, list[np.ndarray]] = {c: [] for c in OUTPUT_COLUMNS}
-    if len(df) == 0:
+    r = _rows(tracks, ego)
+    out: dict[str, list[np.ndarray]] = {c: [] for c in OUTPUT_COLUMNS}
+    if len(r.df) == 0:
         return pd.DataFrame({c: [] for c in OUTPUT_COLUMNS})
-    b = df[["x1", "y1", "x2", "y2"]].to_numpy(float)
-    det_all = (df["state"] == "detected").to_numpy()
-    ego_i = np.array([frame_to_i[int(f)] for f in df["frame"]])
-    frames_all = df["frame"].to_numpy(int)
-    tid_all = df["track_id"].to_numpy()
-    starts = np.r_[0, np.nonzero(np.diff(tid_all))[0] + 1, len(df)]
-    cats = df["category"].to_numpy(dtype=str)
-    vh_rows = np.full(len(df), vh)
-    cues = _cues(b, camera, image_size, vh_rows, cfg)
-    scale = size_scale(df, cues, det_all, camera)
-    sizes = [
-        _track_size(cats[s0], cues, np.arange(s0, s1), det_all, camera, cfg, scale, not cfg.frame_horizon)
-        for s0, s1 in zip(starts[:-1], starts[1:], strict=True)
-    ]
-    if cfg.frame_horizon:
-        z_size = np.full(len(df), np.nan)
-        for (s0, s1), sz in zip(zip(starts[:-1], starts[1:], strict=True), sizes, strict=True):
-            z_size[s0:s1] = camera.fy * sz[3] / cues.box_h[s0:s1]
-        z_size[~det_all | cues.cut_v] = np.nan
-        vh_rows = frame_horizon(frames_all, b[:, 3], z_size, camera, vh, cfg.horizon_shrink)
-        cues = _cues(b, camera, image_size, vh_rows, cfg)
-        sizes = [
-            _track_size(cats[s0], cues, np.arange(s0, s1), det_all, camera, cfg, scale)
-            for s0, s1 in zip(starts[:-1], starts[1:], strict=True)
-        ]
-    for (s0, s1), size in zip(zip(starts[:-1], starts[1:], strict=True), sizes, strict=True):
+    sizes, cues = _sizes_and_cues(r, camera, image_size, vh, cfg)
+    for (s0, s1), size in zip(r.spans, sizes, strict=True):
         rows = np.arange(s0, s1)
-        det = det_all
-        last = rows[det[rows]]
-        if len(last) == 0:
-            continue
-        rows = rows[rows <= last[-1]]
-        cls, length, width, height, h_rel, w_scale, w_rel = size
-        z_near, r = _fuse_depth(cues, rows, (length, width, height), h_rel, w_scale, w_rel, camera, cfg)
-        bearing = cues.bearing[rows]
-        a = np.arctan(bearing)
-        off = 0.5 * (length * np.abs(np.cos(a)) + width * np.abs(np.sin(a)))
-        ray = np.column_stack([bearing, np.ones(len(rows))])
-        ray /= np.linalg.norm(ray, axis=1, keepdims=True)
-        near = np.column_stack([bearing * z_near, z_near])
-        centre = near + off[:, None] * ray  # camera frame (x right, z forward)
-        rng = np.linalg.norm(centre, axis=1)
-        ei = ego_i[rows]
-        yaw_e = ego.yaw[ei]
-        c, s = np.cos(yaw_e), np.sin(yaw_e)
-        fwd, left = centre[:, 1], -centre[:, 0]
-        wx = ego.x[ei] + c * fwd - s * left
-        wy = ego.y[ei] + s * fwd + c * left
-        meas = np.column_stack([wx, wy])
-        meas[~det[rows] | ~np.isfinite(z_near)] = np.nan
-        # covariance: range error along the line of sight, bearing error across it (world frame)
-        sig_r = np.linalg.norm(near, axis=1) * np.nan_to_num(r, nan=1.0)
-        sig_c = rng * cfg.bearing_sigma_px / camera.fx
-        ang = yaw_e + np.arctan2(-ray[:, 0], ray[:, 1])
-        u = np.column_stack([np.cos(ang), np.sin(ang)])
-        v = np.column_stack([-u[:, 1], u[:, 0]])
-        covs = sig_r[:, None, None] ** 2 * u[:, :, None] * u[:, None, :]
-        covs += sig_c[:, None, None] ** 2 * v[:, :, None] * v[:, None, :]
+        meas, covs, rng = _measurements(rows, size, cues, r, ego, camera, cfg)
         valid = np.nonzero(np.isfinite(meas[:, 0]))[0]
         if len(valid) == 0:
             continue
         inside = slice(valid[0], valid[-1] + 1)  # frames from the first to the last measured one
         rows, meas, covs, rng = rows[inside], meas[inside], covs[inside], rng[inside]
-        span, xs = _kalman(frames_all[rows], meas, covs, fps, cfg)
-        span = frames_all[rows]
-        xs = xs[span - span[0]]
+        span = r.frames[rows]
+        xs = _kalman(span, meas, covs, fps, cfg)[1][span - span[0]]
         speed = np.hypot(xs[:, 2], xs[:, 3])
-        yaw_ego = np.interp(span, ego.frame, ego.yaw)
-        yaw = np.where(speed > 1.5, np.arctan2(xs[:, 3], xs[:, 2]), yaw_ego)
+        yaw = np.where(speed > 1.5, np.arctan2(xs[:, 3], xs[:, 2]), np.interp(span, ego.frame, ego.yaw))
         n = len(span)
-        sub = df.iloc[rows]
-        out_cols["frame"].append(span)
-        out_cols["time"].append(sub["time"].to_numpy(float))
-        out_cols["track_id"].append(np.full(n, int(tid_all[s0])))
-        out_cols["category"].append(np.full(n, cls, dtype=object))
-        for k, name in enumerate(("x", "y", "vx", "vy")):
-            out_cols[name].append(xs[:, k])
-        out_cols["yaw"].append(np.unwrap(yaw))
-        out_cols["speed"].append(speed)
-        out_cols["length"].append(np.full(n, length))
-        out_cols["width"].append(np.full(n, width))
-        out_cols["height"].append(np.full(n, height))
-        out_cols["range"].append(rng)
-        out_cols["detected"].append(det[rows])
-        for name in ("x1", "y1", "x2", "y2", "score"):
-            out_cols[name].append(sub[name].to_numpy(float))
-    if not out_cols["frame"]:
+        sub = r.df.iloc[rows]
+        cls, length, width, height = size[:4]
+        cols = {
+            "frame": span, "time": sub["time"].to_numpy(float), "track_id": sub["track_id"].to_numpy(int),
+            "category": np.full(n, cls, dtype=object), "x": xs[:, 0], "y": xs[:, 1], "vx": xs[:, 2],
+            "vy": xs[:, 3], "yaw": np.unwrap(yaw), "speed": speed, "length": np.full(n, length),
+            "width": np.full(n, width), "height": np.full(n, height), "range": rng, "detected": r.detected[rows],
+        }  # fmt: skip
+        cols |= {k: sub[k].to_numpy(float) for k in ("x1", "y1", "x2", "y2", "score")}
+        for k, v in cols.items():
+            out[k].append(v)
+    if not out["frame"]:
         return pd.DataFrame({c: [] for c in OUTPUT_COLUMNS})
-    return pd.DataFrame({c: np.concatenate(v) for c, v in out_cols.items()})
+    return pd.DataFrame({c: np.concatenate(v) for c, v in out.items()})

@@ -173,11 +173,11 @@ def focal_from_rotation(
     d = _usable(tracks, size).sort_values(["track_id", "frame"])
     frame_to_i = {int(f): i for i, f in enumerate(ego.frame)}
     d = d[d["frame"].isin(frame_to_i.keys())]
-    f = d["frame"].to_numpy(int)
-    same = (np.diff(d["track_id"].to_numpy()) == 0) & (np.diff(f) == 1)
+    frames = d["frame"].to_numpy(int)
+    same = (np.diff(d["track_id"].to_numpy()) == 0) & (np.diff(frames) == 1)
     if same.sum() < MIN_BOXES:
         return None
-    i = np.array([frame_to_i[int(v)] for v in f])
+    i = np.array([frame_to_i[int(v)] for v in frames])
     u = 0.5 * (d["x1"] + d["x2"]).to_numpy(float) - cx
     h = (d["y2"] - d["y1"]).to_numpy(float)
     H = np.array([class_size(str(c))[2] for c in d["category"]])

@@ -292,7 +292,9 @@ def iter_tracks(
 
 def frame_records(ft: FrameTracks) -> list[tuple[object, ...]]:
     """Rows of :data:`TRACK_COLUMNS`: this frame's tracks, then the backfilled rows of earlier frames."""
-    rows = [(ft.frame.index, ft.frame.time, b.track_id, b.category, *b.box, b.score, b.state) for b in ft.tracks]
+    rows: list[tuple[object, ...]] = [
+        (ft.frame.index, ft.frame.time, b.track_id, b.category, *b.box, b.score, b.state) for b in ft.tracks
+    ]
     return rows + [(f, s, b.track_id, b.category, *b.box, b.score, b.state) for f, s, b in ft.backfill]
 
 

@@ -95,7 +95,7 @@ def scenario_result_table(
 def write_results(table: pd.DataFrame, path: str | Path, force: bool = False) -> Path:
     """Write result rows (:data:`RESULT_COLUMNS`) as a KITTI tracking result file, atomically."""
     lines = [
-        f"{int(r.frame)} {int(r.track_id)} {r.type} {r.truncated:g} {int(r.occluded)} {r.alpha:.4f} "
+        f"{r.frame:.0f} {r.track_id:.0f} {r.type} {r.truncated:g} {r.occluded:.0f} {r.alpha:.4f} "
         f"{r.x1:.2f} {r.y1:.2f} {r.x2:.2f} {r.y2:.2f} {r.h:.4f} {r.w:.4f} {r.l:.4f} "
         f"{r.x:.4f} {r.y:.4f} {r.z:.4f} {r.ry:.4f} {r.score:.4f}"
         for r in table.itertuples(index=False)
