@@ -114,7 +114,9 @@ def extract_geometry(
         raise UserError("the video has fewer than 2 frames")
     cam, rows, horizon_source = estimate_camera([f.image for f, _ in buffer], camera, dashboard_rows)
     ego_est = EgoMotionEstimator(cam, mask_bottom_rows=rows, max_width=max_width, seed=seed)
-    lane_det: Any = lane_detector or (ClassicalLaneDetector(cam, mask_bottom_rows=rows, seed=seed) if lanes else None)
+    lane_det: LaneDetector | None = lane_detector or (
+        ClassicalLaneDetector(cam, mask_bottom_rows=rows, seed=seed) if lanes else None
+    )
     lane_states: dict[int, LaneState] = {}
     indices: list[int] = []
 
@@ -123,11 +125,7 @@ def extract_geometry(
         indices.append(int(frame.index))
         ego_est.update(frame.image, float(frame.time), boxes)
         if lane_det is not None:
-            lane_states[int(frame.index)] = (
-                lane_det.update(frame.image, float(frame.time), boxes)
-                if isinstance(lane_det, ClassicalLaneDetector)
-                else lane_det.update(frame.image, float(frame.time))
-            )
+            lane_states[int(frame.index)] = lane_det.update(frame.image, float(frame.time), boxes)
         if len(trk):
             all_tracks.append(trk)
         if on_frame is not None:
@@ -139,7 +137,7 @@ def extract_geometry(
         process(frame, trk)
     ego = ego_est.result()
     ego.frame = np.array(indices, dtype=int)  # the estimator counts 0..n-1: use the video's indices
-    lane_tl = lane_det.timeline() if isinstance(lane_det, ClassicalLaneDetector) else None
+    lane_tl = lane_det.timeline() if lane_det is not None else None
     tracks = pd.concat(all_tracks, ignore_index=True) if all_tracks else pd.DataFrame(columns=list(TRACK_COLUMNS))
     calibration = None
     if cam.intrinsics_source == "default" and len(tracks):  # no calibration given: the video calibrates it
@@ -150,7 +148,8 @@ def extract_geometry(
         ego = dataclasses.replace(ego, x=ego.x * s, y=ego.y * s, speed=ego.speed * s)
         horizon_source = cam.pitch_source
     sc = raw_scenario_from_tracks(tracks, meta, cam, ego, lane_tl, localizer, name=name, seed=seed)
-    sc.provenance.parameters.update({"dashboard_rows": rows, "horizon_source": horizon_source})
+    params = {**sc.provenance.parameters, "dashboard_rows": rows, "horizon_source": horizon_source}
     if calibration is not None:
-        sc.provenance.parameters["self_calibration"] = calibration.summary()
+        params["self_calibration"] = calibration.summary()
+    sc = sc.evolve(provenance=sc.provenance.model_copy(update={"parameters": params}))
     return GeometryResult(sc, cam, ego, lane_tl, lane_states, rows, horizon_source, calibration)

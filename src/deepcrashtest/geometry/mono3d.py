@@ -336,11 +336,15 @@ def _sizes_and_cues(
 ) -> tuple[list, _Cues]:
     """Each track's size (:func:`_track_size`) and the rows' cues, with the per-frame horizon."""
     cats = r.df["category"].to_numpy(dtype=str)
+    track_cat = [pd.Series(cats[a:b]).mode().iloc[0] for a, b in r.spans]  # the class most frames agree on
     cues = _cues(r.boxes, camera, image_size, np.full(len(r.df), vh), cfg)
     scale = size_scale(r.df, cues, r.detected, camera)
 
     def sizes(choose: bool) -> list:
-        return [_track_size(cats[a], cues, np.arange(a, b), r.detected, camera, cfg, scale, choose) for a, b in r.spans]
+        return [
+            _track_size(c, cues, np.arange(a, b), r.detected, camera, cfg, scale, choose)
+            for c, (a, b) in zip(track_cat, r.spans, strict=True)
+        ]
 
     if not cfg.frame_horizon:
         return sizes(True), cues
