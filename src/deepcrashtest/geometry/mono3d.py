@@ -54,7 +54,7 @@ import pandas as pd
 from filterpy.kalman import KalmanFilter
 
 from deepcrashtest.geometry.egomotion import EgoMotion
-from deepcrashtest.geometry.localize import CLASS_DIMENSIONS, SIZE_PRIOR_SIGMA, horizon_row
+from deepcrashtest.geometry.localize import CLASS_DIMENSIONS, SIZE_PRIOR_SIGMA
 from deepcrashtest.scenario import Camera
 
 #: Classes a detector's category may really be (the size decides among them).
@@ -67,7 +67,6 @@ CANDIDATES: dict[str, tuple[str, ...]] = {
     "bicycle": ("bicycle", "motorcycle"),
     "pedestrian": ("pedestrian",),
 }
-_PEDESTRIAN = (0.6, 0.6, 1.7)
 OUTPUT_COLUMNS = (
     "frame", "time", "track_id", "category", "x", "y", "vx", "vy", "yaw", "speed",
     "length", "width", "height", "range", "detected", "x1", "y1", "x2", "y2", "score",
@@ -96,9 +95,7 @@ class MonoConfig:
 
 
 def class_size(category: str) -> tuple[float, float, float]:
-    """(length, width, height) metres of a class (pedestrian included)."""
-    if category == "pedestrian":
-        return _PEDESTRIAN
+    """(length, width, height) metres of a class (cars for unknown ones)."""
     return CLASS_DIMENSIONS.get(category, CLASS_DIMENSIONS["car"])
 
 
@@ -408,7 +405,7 @@ def localize_tracks(
     gives it. Positions are in the frame of ``ego.x``/``ego.y``; ``range`` is the camera-to-centre
     ground distance (m) of each row's measurement."""
     cfg = config or MonoConfig()
-    vh = horizon_row(camera) if horizon_v is None else float(horizon_v)
+    vh = camera.horizon_v() if horizon_v is None else float(horizon_v)
     r = _rows(tracks, ego)
     out: dict[str, list[np.ndarray]] = {c: [] for c in OUTPUT_COLUMNS}
     if len(r.df) == 0:
