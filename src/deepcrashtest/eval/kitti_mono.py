@@ -82,12 +82,12 @@ class MonoTracking:
 
     Chosen on the 18 KITTI training sequences other than 3, 8 and 10 (``bench/tune_mono.py``)."""
 
-    min_score: float = 0.5
-    new_track_score: float = 0.9
-    min_hits: int = 3
-    max_age_s: float = 0.5
+    min_score: float = 0.7
+    new_track_score: float = 0.97
+    min_hits: int = 5
+    max_age_s: float = 1.0
     min_iou: float = 0.2
-    min_detected: int = 12
+    min_detected: int = 8
     report_predicted: bool = False
     mono: MonoConfig = field(default_factory=MonoConfig)
 

@@ -84,14 +84,14 @@ class MonoConfig:
     height_sigma_px: float = 0.4
     width_sigma_rel: float = 0.2
     bearing_sigma_px: float = 3.0
-    accel_std: float = 3.0
+    accel_std: float = 5.0
     init_speed_std: float = 15.0
     size_sample_inflation: float = 100.0
-    class_sample_inflation: float = 3.0
+    class_sample_inflation: float = 1.5
     class_switch_cost: float = 1.0
     gate_chi2: float = 25.0
     frame_horizon: bool = True
-    horizon_shrink: float = 0.3
+    horizon_shrink: float = 1.0
 
 
 def class_size(category: str) -> tuple[float, float, float]:
