@@ -80,7 +80,7 @@ def test_mono_path_real_numbers_kitti_camera(kitti_root):
     """PointRCNN's 2D boxes only, ORB-SLAM3 ego, KITTI camera: a real score that can fail."""
     res = evaluate_mono(kitti_root, [SEQ])
     row = res["sequences"]["0014"]
-    assert row["MOTA"] > 35.0  # measured 46.2 with the tuned defaults
+    assert row["MOTA"] > 35.0  # measured 42.3 with the tuned defaults
     for b in ("0-20 m", "20-40 m"):
         assert row["position_error"][b]["n"] > 50
         assert row["position_error"][b]["median_pct"] <= 5.0  # the issue's goal up to 40 m
