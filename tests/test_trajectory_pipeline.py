@@ -96,7 +96,8 @@ def test_curved_road_follows_the_ego(kitti, sequence):
     heading = frame.tangent(np.linspace(0, frame.length, 200))
     assert np.ptp(np.unwrap(heading)) > 0.15  # the road really curves (KITTI 0008/0010 bend)
     assert s.min() > 0 and s.max() < frame.length  # the road covers the whole drive incl. the step-back
-    assert sc.road.lane_width == 3.5 and sc.road.source == "ego_path"
+    # KITTI labels carry no lane lines: the lanes are inferred from the road users' paths, and said so
+    assert 3.0 <= sc.road.lane_width <= 3.75 and sc.road.source == "road_users"
 
 
 def test_deterministic(kitti_root):
