@@ -106,6 +106,7 @@ def test_exact_replay_reprojects_like_the_scenario(kitti8_raw, kitti_root):
     # real labels placed with ORB-SLAM poses: the scenario's flat road (the ground under these cars lies
     # ~2.1 m below the camera, not 1.65 m) shifts boxes down by ~9 px, which caps the IoU near 0.55
     assert proc["mean_iou"] >= 0.45 and proc["share_iou_ge_0_5"] >= 0.5
+    assert abs(proc["median_du_px"]) < 3.0 and proc["median_dv_px"] < -5.0  # right bearing, ground too high
     assert sim["pairs"] == proc["pairs"] and sim["coverage"] == 1.0
     assert abs(sim["mean_iou"] - proc["mean_iou"]) < 0.02
     assert abs(sim["median_centre_px"] - proc["median_centre_px"]) < 2.0

@@ -175,7 +175,26 @@ def _stats(df: pd.DataFrame, src: str) -> dict[str, Any]:
         "mean_iou": round(float(iou[ok].mean()), 4) if n else None,
         "share_iou_ge_0_5": round(float((iou[ok] >= IOU_MATCH).mean()), 4) if n else None,
         "median_centre_px": round(float(np.median(err)), 2) if len(err) else None,
+        **_offsets(df, src),
     }
+
+
+def _offsets(df: pd.DataFrame, src: str) -> dict[str, float | None]:
+    """Where the error comes from (medians over pairs with a projected box): the projected centre's offset
+    right (``du``) and down (``dv``) of the tracked one, pixels, and projected / tracked width and height.
+    A large ``dv`` points at the camera's pitch or height, width ratios >> 1 at headings."""
+    keys = ("median_du_px", "median_dv_px", "median_width_ratio", "median_height_ratio")
+    has = [b is not None for b in df[f"{src}_box"]] if len(df) else []
+    if not any(has):
+        return dict.fromkeys(keys)
+    sel = df[has]
+    b = np.stack(list(sel[f"{src}_box"]))
+    t = sel[["x1", "y1", "x2", "y2"]].to_numpy(float)
+    du = 0.5 * (b[:, 0] + b[:, 2] - t[:, 0] - t[:, 2])
+    dv = 0.5 * (b[:, 1] + b[:, 3] - t[:, 1] - t[:, 3])
+    wr = (b[:, 2] - b[:, 0]) / np.maximum(t[:, 2] - t[:, 0], 1.0)
+    hr = (b[:, 3] - b[:, 1]) / np.maximum(t[:, 3] - t[:, 1], 1.0)
+    return {k: round(float(np.median(v)), 3) for k, v in zip(keys, (du, dv, wr, hr), strict=True)}
 
 
 def summarise_reprojection(pairs: pd.DataFrame) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
