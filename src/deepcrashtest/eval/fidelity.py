@@ -238,6 +238,9 @@ def resolve_participants(
         elif best[1] not in agent_ids:
             ids.append(None)
             notes.append(f"labelled {p.describe()} is track {best[1]}, which is not an agent of the scenario")
+        elif best[1] in ids:
+            ids.append(None)
+            notes.append(f"labelled {p.describe()} is track {best[1]}, the same track as the other participant")
         else:
             ids.append(best[1])
     return ids, notes
