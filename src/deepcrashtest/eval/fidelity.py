@@ -84,15 +84,16 @@ def read_tracks(path: str | Path) -> pd.DataFrame:
 # --------------------------------------------------------------------------- poses
 class _Poses:
     """(x, y, yaw) of scenario vehicles at scenario time ``t`` (linear interpolation), None outside
-    a vehicle's trajectory span. Arrays are built once per vehicle."""
+    a vehicle's trajectory span or before its start delay (as the viewer, ``viz.projection``)."""
 
     def __init__(self, scenario: Scenario) -> None:
         self._arrays = {v.id: v.trajectory.arrays() for v in scenario.vehicles()}
+        self._delay = {v.id: v.start_delay_s for v in scenario.vehicles()}
 
     def __call__(self, vehicle_id: int, t: float) -> tuple[float, float, float] | None:
         a = self._arrays[vehicle_id]
         ts = a["t"]
-        if t < ts[0] - 1e-6 or t > ts[-1] + 1e-6:
+        if t < max(ts[0], self._delay[vehicle_id]) - 1e-6 or t > ts[-1] + 1e-6:
             return None
         return float(np.interp(t, ts, a["x"])), float(np.interp(t, ts, a["y"])), float(np.interp(t, ts, a["yaw"]))
 
