@@ -111,3 +111,70 @@ def _median_scale(pa: np.ndarray, pb: np.ndarray, max_pairs: int = 64) -> float:
     if keep.sum() < 3:
         return 1.0
     return float(np.clip(np.median(db[keep] / da[keep]), 0.9, 1.1))
+
+
+# --------------------------------------------------------------------------- sparse scene points
+def track_points(
+    prev: np.ndarray,
+    cur: np.ndarray,
+    p0: np.ndarray,
+    guess: np.ndarray | None = None,
+    win: int = 15,
+    levels: int = 3,
+    fb_max_px: float = 0.5,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Lucas-Kanade tracks of (N, 2) points from grey image ``prev`` to ``cur`` (pixels).
+
+    ``guess`` (N, 2): predicted positions in ``cur`` (e.g. from the last frame's motion); LK starts
+    there, which keeps large near-road displacements from converging short. A point is good when
+    both directions converge and the backward track returns within ``fb_max_px``.
+    Returns (positions in ``cur`` (N, 2) float32, good mask (N,)).
+    """
+    import cv2
+
+    n = len(p0)
+    if n == 0:
+        return np.zeros((0, 2), np.float32), np.zeros(0, bool)
+    a = np.ascontiguousarray(p0, np.float32).reshape(-1, 1, 2)
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.01)
+    flags = 0
+    b = a.copy()
+    if guess is not None:
+        b = np.ascontiguousarray(guess, np.float32).reshape(-1, 1, 2)
+        flags = cv2.OPTFLOW_USE_INITIAL_FLOW
+    lk = cv2.calcOpticalFlowPyrLK
+    p1, st1, _ = lk(prev, cur, a, b, winSize=(win, win), maxLevel=levels, criteria=crit, flags=flags)
+    back = p1.copy()  # p1 is near the truth: start the backward pass from p0, one pyramid level fewer
+    back[:] = a
+    p0r, st2, _ = lk(
+        cur, prev, p1, back, winSize=(win, win), maxLevel=levels, criteria=crit, flags=cv2.OPTFLOW_USE_INITIAL_FLOW
+    )
+    fb = np.linalg.norm((p0r - a).reshape(-1, 2), axis=1)
+    h, w = prev.shape[:2]
+    q = p1.reshape(-1, 2)
+    inside = (q[:, 0] >= 0) & (q[:, 1] >= 0) & (q[:, 0] <= w - 1) & (q[:, 1] <= h - 1)
+    good = (st1.ravel() == 1) & (st2.ravel() == 1) & (fb <= fb_max_px) & inside
+    return q.astype(np.float32), good
+
+
+def top_up_corners(
+    grey: np.ndarray,
+    mask: np.ndarray,
+    existing: np.ndarray,
+    target: int,
+    quality: float = 0.01,
+    min_distance: int = 8,
+) -> np.ndarray:
+    """New corners (M, 2) inside ``mask`` and at least ``min_distance`` px from ``existing`` points,
+    so that ``len(existing) + M`` reaches about ``target``. Corners are reused from frame to frame;
+    only the gaps are filled (cheap: one ``goodFeaturesToTrack`` on a masked image)."""
+    import cv2
+
+    need = int(target) - len(existing)
+    if need <= max(4, target // 10):
+        return np.zeros((0, 2), np.float32)
+    m = mask.copy()
+    for x, y in np.asarray(existing, np.float32).reshape(-1, 2):
+        cv2.circle(m, (int(x), int(y)), int(min_distance), 0, -1)
+    pts = cv2.goodFeaturesToTrack(grey, maxCorners=need, qualityLevel=quality, minDistance=min_distance, mask=m)
+    return np.zeros((0, 2), np.float32) if pts is None else pts.reshape(-1, 2).astype(np.float32)
