@@ -189,6 +189,15 @@ def fit_plane_motion(
     return PlaneFit(float(p[0]), math.sqrt(max(var, 0.0)), _tilted(n_prior, p[1], p[2]), int(inl.sum()))
 
 
+def _epipolar_px(E: np.ndarray, p0: np.ndarray, p1: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Distance (pixels) of each ``p1`` from the epipolar line of its ``p0`` under ``E``."""
+    Ki = np.linalg.inv(K)
+    h0 = np.column_stack([p0, np.ones(len(p0))]) @ Ki.T
+    h1 = np.column_stack([p1, np.ones(len(p1))]) @ Ki.T
+    lines = h0 @ E.T
+    return np.abs(np.sum(h1 * lines, axis=1)) / np.maximum(np.hypot(lines[:, 0], lines[:, 1]), 1e-12) * K[0, 0]
+
+
 class _SpeedFilter:
     """Constant-acceleration Kalman filter on speed (m/s) with gating, and an RTS smoother.
 
@@ -264,7 +273,7 @@ class EgoMotionEstimator:
         horizon_v: float | None = None,
         static_flow_px: float = 0.5,
         smooth_window: int = 5,
-        road_half_width_m: float = 3.0,
+        road_half_width_m: float = 1.5,
         scale_method: str = "homography",
         seed: int = 0,
         min_parallax_px: float = 3.0,
@@ -274,8 +283,9 @@ class EgoMotionEstimator:
         road_corners: int = 250,
         fb_max_px: float = 0.5,
         ransac_px: float = 0.5,
-        jerk: float = 3.0,
+        jerk: float = 1.0,
         lk_win: int = 15,
+        speed_noise_rel: float = 0.05,
         max_road_m: float = 30.0,
     ) -> None:
         if scale_method != "homography":
@@ -296,6 +306,7 @@ class EgoMotionEstimator:
         self.ransac_px = ransac_px
         self.seed = seed
         self.lk_win = lk_win
+        self.speed_noise_rel = speed_noise_rel
         self.max_road_m = max_road_m
         self._scale_f = 1.0
         self._K: np.ndarray | None = None
@@ -416,9 +427,17 @@ class EgoMotionEstimator:
         """Keyframe pair -> (metres or NaN, yaw change rad, road inliers, R, t, plane fit) or None."""
         assert self._K is not None
         K = self._K
-        E, inl = cv2.findEssentialMat(p0, p1, K, method=cv2.USAC_MAGSAC, prob=0.999, threshold=self.ransac_px)
+        scene = ~self._road_region(p0[:, 0], p0[:, 1], h)
+        if scene.sum() < MIN_MATCHES:
+            scene[:] = True
+        E, inl = cv2.findEssentialMat(
+            p0[scene], p1[scene], K, method=cv2.USAC_ACCURATE, prob=0.999, threshold=self.ransac_px
+        )
         if E is None or E.shape != (3, 3):
             return None
+        inl_all = (_epipolar_px(E, p0, p1, K) < 2.0 * self.ransac_px).astype(np.uint8).reshape(-1, 1)
+        inl_all[scene] = inl.reshape(-1, 1)
+        inl = inl_all
         _, R, t, inl2 = cv2.recoverPose(E, p0, p1, K, mask=inl.copy())
         ok = inl2.ravel() > 0
         if ok.sum() < MIN_MATCHES:
@@ -501,7 +520,9 @@ class EgoMotionEstimator:
                         self._vote_overlay(q0, q1, cur.shape)
                     if fit is not None and np.isfinite(metres):
                         raw = metres / max(span, 1e-3)
-                        var = (fit.sigma_std * self.camera.height_m / max(span, 1e-3)) ** 2 + (0.02 * raw) ** 2
+                        var = (fit.sigma_std * self.camera.height_m / max(span, 1e-3)) ** 2 + (
+                            self.speed_noise_rel * raw
+                        ) ** 2
                         self._normal = _tilted_towards(self._normal, fit.normal, 0.1)
                         rv, _ = cv2.Rodrigues(R)
                         Rk, _ = cv2.Rodrigues(rv / k)
