@@ -312,6 +312,9 @@ class EgoMotionEstimator:
         self._K: np.ndarray | None = None
         self._down = _down_vector(camera.pitch_rad, camera.roll_rad)
         self._normal = self._down.copy()
+        self._travel: np.ndarray | None = None  # direction of travel, camera frame (running mean)
+        self._travels = 0
+        self._pitch_from_motion = horizon_v is None and camera.pitch_source not in ("user", "kitti_calib")
         self._filter = _SpeedFilter(jerk=jerk)
         self._states: list[EgoState] = []
         self._dt: list[float] = []
@@ -358,7 +361,8 @@ class EgoMotionEstimator:
                 max(0, int((x1 - pad) * s)) : max(0, int((x2 + pad) * s)),
             ] = 0
         if self._overlay is not None:
-            still = cv2.resize((self._overlay >= 3).astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST)
+            cells = (self._overlay[0] >= 3) & (self._overlay[0] >= 3 * self._overlay[1])
+            still = cv2.resize(cells.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST)
             mask[still > 0] = 0
         return mask
 
@@ -366,17 +370,22 @@ class EgoMotionEstimator:
         assert self._K is not None
         if self.horizon_v is not None:
             return self.horizon_v * self._scale_f
+        if self._pitch_from_motion and self._travel is not None and self._travel[2] > 0.5:
+            return float(self._K[1, 2] + self._K[1, 1] * self._travel[1] / self._travel[2])
         return float(self._K[1, 2] - self._K[1, 1] * math.tan(self.camera.pitch_rad))
 
-    def _road_region(self, u: np.ndarray, v: np.ndarray, h: int) -> np.ndarray:
+    def _road_region(self, u: np.ndarray, v: np.ndarray, h: int, width_factor: float = 1.0) -> np.ndarray:
         """Points on the road ahead: below the horizon, within ``road_half_width_m``, nearer than 30 m."""
         assert self._K is not None
         K = self._K
         hv = self._horizon_row()
         below = np.maximum(v - hv, 1e-6)
-        lateral = np.abs(u - K[0, 2]) / K[0, 0] * K[1, 1] * self.camera.height_m / below
+        u_travel = K[0, 2]  # the column the road ahead runs to: the direction of travel when known
+        if self._travel is not None and self._travel[2] > 0.5:
+            u_travel = K[0, 2] + K[0, 0] * self._travel[0] / self._travel[2]
+        lateral = np.abs(u - u_travel) / K[0, 0] * K[1, 1] * self.camera.height_m / below
         ahead = K[1, 1] * self.camera.height_m / below
-        return (v > hv + 0.04 * h) & (lateral < self.road_half_width_m) & (ahead < self.max_road_m)
+        return (v > hv + 0.04 * h) & (lateral < width_factor * self.road_half_width_m) & (ahead < self.max_road_m)
 
     def _road_mask(self, mask: np.ndarray) -> np.ndarray:
         h, w = mask.shape
@@ -410,16 +419,38 @@ class EgoMotionEstimator:
         return p1, good
 
     def _vote_overlay(self, p0: np.ndarray, p1: np.ndarray, shape: tuple[int, int]) -> None:
-        """Points that stay still (< 0.3 px) while the scene's median parallax is large are burned-in
-        overlays, dashboard parts or lens vignetting: vote their 16-px cells out of future masks."""
+        """Count, per 16-px cell, points that stay still (< 0.3 px) and points that move (> 1 px) while
+        the scene's parallax is large; cells mostly still are burned-in overlays,
+        dashboard parts or lens vignetting and leave future masks (see :meth:`_static_mask`)."""
         h, w = shape
         if self._overlay is None:
-            self._overlay = np.zeros(((h + 15) // 16, (w + 15) // 16), np.int32)
-        still = np.linalg.norm(p1 - p0, axis=1) < 0.3
-        for x, y in p1[still]:
-            self._overlay[
-                min(int(y) // 16, self._overlay.shape[0] - 1), min(int(x) // 16, self._overlay.shape[1] - 1)
-            ] += 1
+            self._overlay = np.zeros((2, (h + 15) // 16, (w + 15) // 16), np.int32)
+        d = np.linalg.norm(p1 - p0, axis=1)
+        still = d < 0.3
+        moving = d > 1.0
+        iy = np.clip(p1[:, 1].astype(int) // 16, 0, self._overlay.shape[1] - 1)
+        ix = np.clip(p1[:, 0].astype(int) // 16, 0, self._overlay.shape[2] - 1)
+        np.add.at(self._overlay[0], (iy[still], ix[still]), 1)
+        np.add.at(self._overlay[1], (iy[moving], ix[moving]), 1)
+
+    def _learn_travel(self, R: np.ndarray, t: np.ndarray, dyaw: float) -> None:
+        """Running mean of the direction of travel (camera frame): the camera centre's motion turned
+        back by half the yaw (a car moves along the arc of its turn). Travel is parallel to the
+        road, so unless the pitch was calibrated it sets the horizon and the road normal's pitch:
+        a wrong default or a mis-detected vanishing point then no longer hides the road."""
+        c = -R.T @ t
+        back, _ = cv2.Rodrigues(self._normal * (0.5 * dyaw))
+        c = back @ c
+        if c[2] <= 0.5:
+            return
+        self._travels += 1
+        rate = max(0.05, 1.0 / self._travels)
+        self._travel = c if self._travel is None else _tilted_towards(self._travel, c, rate)
+        if self._pitch_from_motion:
+            tr = self._travel
+            self._down = _down_vector(math.atan2(-tr[1], tr[2]), self.camera.roll_rad)
+            n = self._normal - (self._normal @ tr) * tr
+            self._normal = n / np.linalg.norm(n)
 
     def _solve(
         self, p0: np.ndarray, p1: np.ndarray, h: int
@@ -444,7 +475,10 @@ class EgoMotionEstimator:
             return None
         t = t.ravel()
         dyaw = _rotation_yaw(R.T, self._normal)
+        self._learn_travel(R, t, dyaw)
         road = ok & self._road_region(p0[:, 0], p0[:, 1], h)
+        if road.sum() < 2 * MIN_ROAD_POINTS:  # a narrow or textureless lane: take the shoulders too
+            road = ok & self._road_region(p0[:, 0], p0[:, 1], h, width_factor=3.0)
         if road.sum() < MIN_ROAD_POINTS:
             return float("nan"), dyaw, int(road.sum()), R, t, None
         x0 = cv2.undistortPoints(p0[road].reshape(-1, 1, 2).astype(np.float64), K, None).reshape(-1, 2)
@@ -574,7 +608,8 @@ class EgoMotionEstimator:
         about static, dark or featureless input."""
         s = self._states
         warnings: list[str] = []
-        static = self._pairs > 0 and self._static >= 0.9 * self._pairs
+        decided = self._pairs - self._kf_frames  # frames after the last keyframe are still open
+        static = self._pairs > 0 and self._static >= 0.9 * max(1, decided)
         if static:
             warnings.append("ego-motion: the camera does not move (static camera?); ego speed set to 0")
         if self._pairs and self._invalid > 0.2 * self._pairs:
