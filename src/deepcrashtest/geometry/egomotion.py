@@ -269,7 +269,7 @@ class EgoMotionEstimator:
         self,
         camera: Camera,
         mask_bottom_rows: int = 0,
-        max_width: int = 640,
+        max_width: int = 960,
         horizon_v: float | None = None,
         static_flow_px: float = 0.5,
         smooth_window: int = 5,
@@ -279,14 +279,15 @@ class EgoMotionEstimator:
         min_parallax_px: float = 3.0,
         static_window_s: float = 0.25,
         max_keyframe_s: float = 1.0,
-        corners: int = 300,
-        road_corners: int = 250,
+        corners: int = 200,
+        road_corners: int = 200,
         fb_max_px: float = 0.5,
         ransac_px: float = 0.5,
         jerk: float = 1.0,
-        lk_win: int = 15,
+        lk_win: int = 11,
         speed_noise_rel: float = 0.05,
         max_road_m: float = 30.0,
+        coarse_corners: bool = True,
     ) -> None:
         if scale_method != "homography":
             raise ValueError(f"scale_method must be 'homography' (got {scale_method!r})")
@@ -308,6 +309,7 @@ class EgoMotionEstimator:
         self.lk_win = lk_win
         self.speed_noise_rel = speed_noise_rel
         self.max_road_m = max_road_m
+        self.coarse_corners = coarse_corners
         self._scale_f = 1.0
         self._K: np.ndarray | None = None
         self._down = _down_vector(camera.pitch_rad, camera.roll_rad)
@@ -594,7 +596,9 @@ class EgoMotionEstimator:
         in_road = self._road_region(self._p[:, 0], self._p[:, 1], cur.shape[0]) if len(self._p) else np.zeros(0, bool)
         new_road = top_up_corners(cur, road, self._p[in_road], self.road_corners, quality=0.001, min_distance=5)
         pts = np.concatenate([self._p, new_road])
-        new = top_up_corners(cur, mask, pts, self.corners + self.road_corners, quality=0.01, min_distance=8)
+        new = top_up_corners(
+            cur, mask, pts, self.corners + self.road_corners, quality=0.01, min_distance=8, coarse=self.coarse_corners
+        )
         added = np.concatenate([new_road, new])
         if not len(added):
             return

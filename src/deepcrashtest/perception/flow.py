@@ -164,10 +164,13 @@ def top_up_corners(
     target: int,
     quality: float = 0.01,
     min_distance: int = 8,
+    coarse: bool = False,
 ) -> np.ndarray:
     """New corners (M, 2) inside ``mask`` and at least ``min_distance`` px from ``existing`` points,
     so that ``len(existing) + M`` reaches about ``target``. Corners are reused from frame to frame;
-    only the gaps are filled (cheap: one ``goodFeaturesToTrack`` on a masked image)."""
+    only the gaps are filled, inside the mask's bounding box (``quality`` is relative to the best
+    corner there). ``coarse``: look for them at half resolution (4x cheaper; LK then tracks the
+    patch around each point at full resolution, so nothing is lost but corner sharpness)."""
     import cv2
 
     need = int(target) - len(existing)
@@ -176,5 +179,16 @@ def top_up_corners(
     m = mask.copy()
     for x, y in np.asarray(existing, np.float32).reshape(-1, 2):
         cv2.circle(m, (int(x), int(y)), int(min_distance), 0, -1)
-    pts = cv2.goodFeaturesToTrack(grey, maxCorners=need, qualityLevel=quality, minDistance=min_distance, mask=m)
-    return np.zeros((0, 2), np.float32) if pts is None else pts.reshape(-1, 2).astype(np.float32)
+    x0, y0, bw, bh = cv2.boundingRect(m)
+    if bw < 8 or bh < 8:
+        return np.zeros((0, 2), np.float32)
+    g, mm = grey[y0 : y0 + bh, x0 : x0 + bw], m[y0 : y0 + bh, x0 : x0 + bw]
+    f = 2.0 if coarse else 1.0
+    if coarse:
+        g = cv2.resize(g, (bw // 2, bh // 2), interpolation=cv2.INTER_AREA)
+        mm = cv2.resize(mm, (bw // 2, bh // 2), interpolation=cv2.INTER_NEAREST)
+    dist = max(1, int(round(min_distance / f)))
+    pts = cv2.goodFeaturesToTrack(g, maxCorners=need, qualityLevel=quality, minDistance=dist, mask=mm)
+    if pts is None:
+        return np.zeros((0, 2), np.float32)
+    return (pts.reshape(-1, 2) * f + np.array([x0, y0], np.float32)).astype(np.float32)
