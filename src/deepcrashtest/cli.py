@@ -21,7 +21,7 @@ import typer
 from typer._click import exceptions as click_exc  # typer >= 0.29 vendors its own click
 
 from deepcrashtest import __version__
-from deepcrashtest.errors import NotImplementedYet, UserError
+from deepcrashtest.errors import UserError
 from deepcrashtest.ui import console_err, set_quiet
 
 app = typer.Typer(
@@ -41,6 +41,9 @@ _STATE: dict[str, bool] = {"debug": False}
 JsonOpt = typer.Option(False, "--json", help="Print one machine-readable JSON object on stdout.")
 ForceOpt = typer.Option(False, "--force", help="Overwrite existing outputs.")
 SeedOpt = typer.Option(0, "--seed", help="Seed for every random choice.")
+ConfigOpt = typer.Option(
+    None, "--config", help="YAML file of settings (sections stage2, search) merged over the defaults."
+)
 
 
 def _version(value: bool) -> None:
@@ -144,14 +147,11 @@ def scenario_from_kitti(
     """Build a Scenario from KITTI tracking ground truth (labels + poses + calib)."""
     from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti as build
     from deepcrashtest.fileio import ensure_output_dir
+    from deepcrashtest.pipeline.kitti import kitti_scenarios
 
     if sequence < 0:
         raise UserError(f"--sequence must be >= 0 (got {sequence})")
-    sc = build(data, sequence)
-    if not raw:
-        from deepcrashtest.trajectory.pipeline import process_scenario
-
-        sc = process_scenario(sc, seed=seed)
+    sc = build(data, sequence) if raw else kitti_scenarios(data, sequence, seed=seed)[1]
     out = ensure_output_dir(output)
     path = sc.save(out / "scenario.json", force=force)
     emit(
@@ -171,17 +171,20 @@ def scenario_from_kitti(
 def scenario_build(
     raw: Path = typer.Argument(..., help="Raw Scenario JSON (stage=raw: world-frame tracks)."),
     output: Path = typer.Option(..., "-o", "--output", help="Processed Scenario JSON to write."),
+    config: Path | None = ConfigOpt,
     force: bool = ForceOpt,
     seed: int = SeedOpt,
     as_json: bool = JsonOpt,
 ) -> None:
     """Stage 2: smooth, classify, extrapolate, step back -> a simulation-ready Scenario."""
+    from deepcrashtest.config import load_config
     from deepcrashtest.fileio import check_writable
     from deepcrashtest.trajectory.pipeline import process_scenario
 
+    cfg = load_config(config)
     sc_raw = _load(raw)
     check_writable(output, force)
-    sc = process_scenario(sc_raw, seed=seed)
+    sc = process_scenario(sc_raw, seed=seed, params=cfg.stage2)
     path = sc.save(output, force=force)
     c = sc.collision
     emit(
@@ -192,7 +195,9 @@ def scenario_build(
             "duration_s": round(sc.duration(), 3),
             "t_max_s": round(float(sc.provenance.parameters["t_max_s"]), 3),
             "classes": sc.class_counts(),
-            "collision": None if c is None else {"time_s": round(c.time_s, 3), "agent_id": c.agent_id},
+            "collision": None
+            if c is None
+            else {"time_s": round(c.time_s, 3), "other_id": c.other_id, "agent_id": c.agent_id, "source": c.source},
             "warnings": sc.warnings,
         },
         as_json,
@@ -222,6 +227,9 @@ def extract(
         True, "--geometry/--no-geometry", help="Build the scenario (ego-motion, 3D positions, stage 2)."
     ),
     report: bool = typer.Option(True, "--report/--no-report", help="Write report.html."),
+    shots: bool = typer.Option(
+        True, "--shots/--no-shots", help="Find shot cuts first: a compilation gives one scenario per shot."
+    ),
     force: bool = ForceOpt,
     seed: int = SeedOpt,
     as_json: bool = JsonOpt,
@@ -258,11 +266,20 @@ def extract(
         lanes=lanes,
         report=report,
         seed=seed,
+        shots=shots,
     )
     emit(result, as_json, _extract_summary)
 
 
 def _extract_summary(r: dict[str, Any]) -> None:
+    if "shots" in r:  # a compilation: one extraction per shot
+        typer.echo(f"{len(r['shots'])} shot(s) extracted; cuts at {r['cuts_s']} s")
+        for shot in r["shots"]:
+            typer.echo(f"--- {shot['shot']}: frames {shot['first_frame']}-{shot['last_frame']} -> {shot['output']}")
+            _extract_summary({**shot, "warnings": []})
+        for w in r["warnings"]:
+            typer.echo(f"warning: {w}")
+        return
     typer.echo(
         f"{r['frames']} frames ({r['width']}x{r['height']} @ {r['fps_video']} fps), {r['tracks']} tracks, "
         f"mean track length {r['mean_track_length_frames']} frames, {r['fps_achieved']} fps achieved"
@@ -281,7 +298,8 @@ def _extract_summary(r: dict[str, Any]) -> None:
         typer.echo("classes: " + ", ".join(f"{k} {v}" for k, v in r["classes"].items()))
     if r.get("collision"):
         c = r["collision"]
-        typer.echo(f"collision: ego with agent {c['agent_id']} at t = {c['time_s']:.2f} s")
+        pair = " with ".join("ego" if v == 0 else f"road user {v}" for v in (c.get("other_id", 0), c["agent_id"]))
+        typer.echo(f"collision: {pair} at t = {c['time_s']:.2f} s")
     for w in r["warnings"]:
         typer.echo(f"warning: {w}")
 
@@ -334,6 +352,10 @@ def _print_sim(r: dict[str, Any]) -> None:
         )
     else:
         typer.echo("no collision of the ego")
+    for c in r["collisions"]:
+        if 0 not in c["vehicles"]:  # a third-party crash, between two agents
+            a, b = c["vehicles"]
+            typer.echo(f"contact of road users {a} and {b} at {c['time']:.2f} s: {_fmt(c['relative_speed'])} m/s")
     typer.echo(f"min distance {_fmt(m['min_distance'])} m, min TTC {_fmt(m['min_ttc'])} s, AEB {_fmt(m['aeb_time'])} s")
     rms = r["replay_rms_m"]
     typer.echo(f"replay RMS error: ego {_fmt(rms['ego'])} m, agents {_fmt(rms['agents'])} m")
@@ -349,28 +371,38 @@ def _fmt(v: float | None) -> str:
 def search(
     scenario: Path = typer.Argument(..., help="Scenario JSON file."),
     output: Path = typer.Option(..., "-o", "--output", help="Output folder."),
-    starts: int = typer.Option(32, "--starts", help="Random ego start positions in the box."),
-    noise_variants: int = typer.Option(4, "--noise-variants", help="Noisy ego paths per start."),
-    box_lateral: float = typer.Option(4.0, "--box-lateral", help="Start box width, metres (+-half)."),
-    box_longitudinal: float = typer.Option(8.0, "--box-longitudinal", help="Start box length, metres (+-half)."),
-    noise_sigma: float = typer.Option(0.3, "--noise-sigma", help="Std of the control-point noise, metres."),
-    controller: str = typer.Option("replay", "--controller", help="Ego controller: replay | aeb | module:callable"),
-    method: str = typer.Option("both", "--method", help="random | cem | both"),
+    starts: int | None = typer.Option(None, "--starts", help="Random ego start positions in the box [32]."),
+    noise_variants: int | None = typer.Option(None, "--noise-variants", help="Noisy ego paths per start [4]."),
+    box_lateral: float | None = typer.Option(None, "--box-lateral", help="Start box width, metres (+-half) [4]."),
+    box_longitudinal: float | None = typer.Option(
+        None, "--box-longitudinal", help="Start box length, metres (+-half) [8]."
+    ),
+    noise_sigma: float | None = typer.Option(None, "--noise-sigma", help="Std of the control-point noise, m [0.3]."),
+    controller: str | None = typer.Option(
+        None, "--controller", help="Ego controller: replay | aeb | module:callable [replay]"
+    ),
+    method: str | None = typer.Option(None, "--method", help="random | cem | both [both]"),
     workers: int = typer.Option(1, "--workers", help="Processes (local) or Ray CPUs."),
     engine: str = typer.Option("local", "--engine", help="local | ray"),
-    boundary_directions: int = typer.Option(16, "--boundary-directions", help="Rays of the boundary scan (0: none)."),
-    max_scenarios: int = typer.Option(32, "--max-scenarios", help="Safe variants written as Scenario files."),
+    boundary_directions: int | None = typer.Option(
+        None, "--boundary-directions", help="Rays of the boundary scan (0: none) [16]."
+    ),
+    max_scenarios: int | None = typer.Option(None, "--max-scenarios", help="Safe variants written as files [32]."),
     duration: float | None = typer.Option(None, "--duration", help="Seconds simulated (default: whole scenario)."),
     no_video: bool = typer.Option(False, "--no-video", help="Skip the bird's-eye comparison video."),
+    config: Path | None = ConfigOpt,
     force: bool = ForceOpt,
     seed: int = SeedOpt,
     as_json: bool = JsonOpt,
 ) -> None:
-    """Search perturbed ego starts and trajectories for variants that avoid the crash."""
-    from deepcrashtest.search.run import SearchConfig, run_search
+    """Search perturbed ego starts and trajectories for variants that avoid the crash.
 
-    sc = _load(scenario)
-    cfg = SearchConfig(
+    Defaults in brackets come from ``SearchConfig``; a ``--config`` file's ``search:`` section overrides them.
+    """
+    from deepcrashtest.config import load_config
+    from deepcrashtest.search.run import run_search
+
+    cfg = load_config(config).with_search(
         starts=starts,
         noise_variants=noise_variants,
         box_lateral=box_lateral,
@@ -381,9 +413,10 @@ def search(
         seed=seed,
         boundary_directions=boundary_directions,
         max_scenarios=max_scenarios,
-        video=not no_video,
+        video=False if no_video else None,
         duration=duration,
     )
+    sc = _load(scenario)
     emit(run_search(sc, output, cfg, engine=engine, workers=workers, force=force), as_json, _search_human)
 
 
@@ -393,6 +426,13 @@ def _search_human(s: dict[str, Any]) -> None:
         f"scenario {s['scenario']} (controller {s['controller']}, seed {s['seed']}): original "
         f"{'collides' if o['collided'] else 'does not collide'} (robustness {o['robustness']} m)"
     )
+    c = s.get("crash") or {}
+    if c.get("kind") == "third-party":
+        seen = f"reproduced at {c['simulated_time_s']} s" if c["reproduced"] else "NOT reproduced by the replay"
+        typer.echo(
+            f"  third-party crash of road users {c['pair'][0]} and {c['pair'][1]} at {c['observed_time_s']} s "
+            f"(replayed in every variant; {seen}); a variant is safe when {c['safe_means']}"
+        )
     for name, m in s["methods"].items():
         if m["first_safe_at"] is None:
             found = "no safe variant found"
@@ -453,21 +493,16 @@ def evaluate_kitti(
         raise UserError(f"{data}: KITTI tracking folder not found")
     if tracks is not None and not tracks.is_dir():
         raise UserError(f"{tracks}: tracker results folder not found")
-    if output is not None:
-        from deepcrashtest.fileio import check_writable
+    from deepcrashtest.pipeline.kitti import check_results_writable, write_results
 
-        for name in ("results.json", "results.md"):
-            check_writable(output / name, force=force)
+    if output is not None:
+        check_results_writable(output, force)
     kwargs: dict[str, Any] = {"match": match, "detections": detections, "tracks": tracks}
     if online:
         kwargs["offline"] = None
     result = run_eval(data, parse_sequences(sequences), **kwargs)
     if output is not None:
-        from deepcrashtest.fileio import atomic_write_text, ensure_output_dir
-
-        ensure_output_dir(output)
-        atomic_write_text(output / "results.json", json.dumps(result, indent=1, default=_json_default) + "\n", force)
-        atomic_write_text(output / "results.md", results_markdown(result), force)
+        write_results(result, output, results_markdown(result), force)
     emit(result, as_json, _print_kitti_table)
 
 
@@ -510,6 +545,59 @@ def evaluate_egomotion(
     emit(run(data, max_frames), as_json)
 
 
+@evaluate_app.command("fidelity")
+def evaluate_fidelity(
+    scenario: Path = typer.Argument(..., help="Scenario JSON file (from extract)."),
+    video: Path | None = typer.Option(None, "--video", help="Video (default: the source video, else annotated.mp4)."),
+    tracks: Path | None = typer.Option(None, "--tracks", help="tracks.csv (default: beside the scenario)."),
+    labels: Path | None = typer.Option(None, "--labels", help="Crash labels JSON (bench/labels/*_crashes.json)."),
+    clip: str | None = typer.Option(None, "--clip", help="Clip name in the labels (default: the video's name)."),
+    controller: str = typer.Option("replay", "--controller", help="Ego controller of the replay."),
+    output: Path | None = typer.Option(None, "-o", "--output", help="Output folder (default: beside the scenario)."),
+    make_video: bool = typer.Option(True, "--video-out/--no-video-out", help="Write fidelity.mp4."),
+    force: bool = ForceOpt,
+    seed: int = SeedOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """Reprojection and crash fidelity of a scenario and its replay against its video (+ fidelity.mp4)."""
+    from deepcrashtest.pipeline.fidelity import run_fidelity
+
+    _, summary = run_fidelity(
+        scenario, output, video, tracks, labels, clip, controller, make_video=make_video, force=force, seed=seed
+    )
+    emit(summary, as_json, _print_fidelity)
+
+
+def _print_fidelity(r: dict[str, Any]) -> None:
+    rep, crash = r["reprojection"], r["crash"]
+    typer.echo(f"{r['scenario']}: {rep['tracked_boxes']} tracked boxes of {rep['tracks_in_scenario']} agents")
+    for src in ("processed", "simulated"):
+        s = rep[src]
+        typer.echo(
+            f"  {src:9s}: mean IoU {_fmt(s['mean_iou'])}, IoU>=0.5 {_fmt(s['share_iou_ge_0_5'])}, "
+            f"median centre error {_fmt(s['median_centre_px'])} px, coverage {_fmt(s['coverage'])}"
+        )
+    first = crash["first_contact"]
+    typer.echo(
+        "  first contact: none"
+        if first is None
+        else f"  first contact: {first['participants']} at video {first['video_time_s']:.2f} s "
+        f"({_fmt(first['relative_speed_mps'])} m/s)"
+    )
+    if crash.get("label") is not None:
+        typer.echo(
+            f"  label: {crash['label']['description']} -> reproduced {crash['reproduced']}, same pair "
+            f"{crash['same_pair']}, dt {_fmt(crash['dt_s'])} s, contacts before {crash['contacts_before_crash']}"
+        )
+    else:
+        typer.echo(f"  video has a crash: {crash['video_has_crash']} ({crash['video_has_crash_source']})")
+    typer.echo(f"  time mapping: {r['time_mapping']['rule']}, offset {r['time_mapping']['time_offset_s']:.3f} s")
+    for note in r["notes"]:
+        typer.echo(f"  note: {note}")
+    for name, path in r["outputs"].items():
+        typer.echo(f"  {name}: {path}")
+
+
 @app.command()
 def batch(
     videos: Path = typer.Argument(..., help="Folder of videos (and/or Scenario *.json files)."),
@@ -517,11 +605,12 @@ def batch(
     engine: str = typer.Option("local", "--engine", help="local | ray"),
     workers: int = typer.Option(1, "--workers", help="Processes (local) or Ray CPUs for each search."),
     resume: bool = typer.Option(False, "--resume", help="Skip the inputs the manifest marks done."),
-    starts: int = typer.Option(32, "--starts", help="Random ego start positions per video."),
-    noise_variants: int = typer.Option(4, "--noise-variants", help="Noisy ego paths per start."),
-    method: str = typer.Option("both", "--method", help="random | cem | both"),
-    controller: str = typer.Option("replay", "--controller", help="Ego controller."),
+    starts: int | None = typer.Option(None, "--starts", help="Random ego start positions per video [32]."),
+    noise_variants: int | None = typer.Option(None, "--noise-variants", help="Noisy ego paths per start [4]."),
+    method: str | None = typer.Option(None, "--method", help="random | cem | both [both]"),
+    controller: str | None = typer.Option(None, "--controller", help="Ego controller [replay]."),
     duration: float | None = typer.Option(None, "--duration", help="Seconds simulated (default: whole scenario)."),
+    config: Path | None = ConfigOpt,
     force: bool = ForceOpt,
     seed: int = SeedOpt,
     as_json: bool = JsonOpt,
@@ -530,10 +619,10 @@ def batch(
 
     A failed input is recorded and the batch goes on; the exit code is 1 when any input failed.
     """
+    from deepcrashtest.config import load_config
     from deepcrashtest.pipeline.batch import run_batch
-    from deepcrashtest.search.run import SearchConfig
 
-    cfg = SearchConfig(
+    cfg = load_config(config).with_search(
         starts=starts,
         noise_variants=noise_variants,
         method=method,
@@ -636,7 +725,7 @@ def main(argv: list[str] | None = None) -> int:
     except click_exc.ClickException as exc:
         sys.stderr.write(f"deepcrashtest: error: {exc.format_message()}\n")
         return 2
-    except (UserError, NotImplementedYet) as exc:
+    except UserError as exc:
         if debug:
             traceback.print_exc()
         sys.stderr.write(f"deepcrashtest: error: {exc}\n")

@@ -4,7 +4,7 @@
   Scenario time ``k * dt``. Every trajectory is resampled (linear interpolation of x, y, yaw,
   speed) at the steps inside its span.
 * Lanelet network: one lanelet per lane of ``Scenario.road``, same layout as the OpenDRIVE export
-  (:func:`deepcrashtest.export.opendrive.lane_boundary_offsets` around the same reference line,
+  (:func:`deepcrashtest.geometry.road.boundary_offsets` around the same reference line,
   sampled every ``LANELET_STEP_M`` metres). Lanelet id ``1 + lane index`` (0 = rightmost); neighbours
   are linked as adjacent in the same direction.
 * Agents: dynamic obstacles (id ``OBSTACLE_ID_BASE + vehicle id``), rectangle shape of the
@@ -13,9 +13,9 @@
   (reported).
 * Ego: the planning problem (id ``OBSTACLE_ID_BASE + ego id``): initial state at its first step;
   goal region: a ``GOAL_LENGTH_M`` x road-width rectangle centred ``GOAL_AHEAD_M`` metres past the
-  crash point (``Scenario.collision`` x/y, or the ego's position at the collision time; without a
-  collision the ego's last position) along the ego's heading there, reachable from the step after
-  the crash on.
+  crash point (``Scenario.collision`` x/y when the ego is in it, else the ego's position at the
+  collision time; without a collision the ego's last position) along the ego's heading there,
+  reachable from the step after the crash on.
 * Written with commonroad-io's validity check (the CommonRoad XSD) on.
 
 :func:`ego_collision_steps` runs the CommonRoad drivability checker's collision checker for the
@@ -35,8 +35,9 @@ from typing import Any
 import numpy as np
 
 from deepcrashtest.errors import UserError
-from deepcrashtest.export.opendrive import lane_boundary_offsets, reference_line, sample_reference_line
+from deepcrashtest.export.opendrive import reference_line, sample_reference_line
 from deepcrashtest.fileio import atomic_path
+from deepcrashtest.geometry.road import boundary_offsets
 from deepcrashtest.scenario import Scenario, Vehicle, wrap_angle
 
 COMMONROAD_DT_S = 0.1
@@ -75,6 +76,7 @@ _OBSTACLE_TYPE = {
     "bus": "BUS",
     "motorcycle": "MOTORCYCLE",
     "bicycle": "BICYCLE",
+    "pedestrian": "PEDESTRIAN",
 }
 
 
@@ -98,7 +100,7 @@ def _lanelet_network(sc: Scenario) -> Any:
 
     pts, hdg = sample_reference_line(reference_line(sc.road), LANELET_STEP_M)
     normal = np.column_stack([-np.sin(hdg), np.cos(hdg)])
-    offsets = lane_boundary_offsets(sc.road)
+    offsets = boundary_offsets(sc.road)
     n = sc.road.lane_count
     net = LaneletNetwork()
     for k in range(n):
@@ -167,8 +169,8 @@ def crash_point(sc: Scenario) -> tuple[np.ndarray, float, float]:
         return np.array([s["x"], s["y"]]), s["yaw"], float(ego.t[-1])
     s = ego.state_at(sc.collision.time_s)
     xy = np.array([s["x"], s["y"]])
-    if sc.collision.x is not None and sc.collision.y is not None:
-        xy = np.array([sc.collision.x, sc.collision.y])
+    if sc.collision.involves_ego and sc.collision.x is not None and sc.collision.y is not None:
+        xy = np.array([sc.collision.x, sc.collision.y])  # a third-party crash point is not on the ego's way
     return xy, s["yaw"], float(sc.collision.time_s)
 
 

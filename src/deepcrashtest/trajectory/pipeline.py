@@ -54,7 +54,7 @@ from deepcrashtest.trajectory.classify import (
 from deepcrashtest.trajectory.collision import BoxTrack, Contact, first_contact
 from deepcrashtest.trajectory.extrapolate import continue_after, continue_before, overtaker_relative_station
 from deepcrashtest.trajectory.params import Stage2Params
-from deepcrashtest.trajectory.road import build_road, extend_head_on
+from deepcrashtest.trajectory.road import along_road, build_road, extend_head_on
 from deepcrashtest.trajectory.roadframe import RoadFrame
 from deepcrashtest.trajectory.smoothing import eval_xy, fit_xy_spline, smooth_track, spline_params
 from deepcrashtest.trajectory.stepback import plan_step_back, step_back_prefix
@@ -229,7 +229,9 @@ def process_scenario(raw: Scenario, seed: int = 0, params: Stage2Params | None =
     road_frame = RoadFrame.from_path(ego_dense.xy, p.road_sigma_m, heading=ego_heading0)
     source = "ego_path"
     if collision is not None:
-        hit = next((d for d in dense if d.vehicle.id == collision.agent_id), None)
+        ego_id = ego_dense.vehicle.id
+        other = next((v for v in collision.participants if v != ego_id), None) if collision.involves_ego else None
+        hit = next((d for d in dense if d.vehicle.id == other), None)
         if hit is not None and hit.cls is not None and hit.cls.startswith("D1"):
             s_c = float(road_frame.project(np.array([[collision.x or 0.0, collision.y or 0.0]]))[0][0])
             road_frame = extend_head_on(road_frame, s_c, hit.xy[hit.observed], p.road_sigma_m)
@@ -248,9 +250,10 @@ def process_scenario(raw: Scenario, seed: int = 0, params: Stage2Params | None =
         road_frame,
         raw_road,
         [d.xy for d in [ego_dense, *dense]],
-        [d.lateral_m for d in dense if not d.static],
+        [d.lateral_m for d in dense if _lane_evidence(d, road_frame)],
         p,
         source,
+        warnings,
     )
 
     params_out = dict(raw.provenance.parameters)
@@ -280,6 +283,13 @@ def process_scenario(raw: Scenario, seed: int = 0, params: Stage2Params | None =
         ),
         warnings=warnings,
     )
+
+
+def _lane_evidence(d: _Dense, frame: RoadFrame) -> bool:
+    """A vehicle (not a pedestrian) moving along the road: its lateral offset says where a lane is."""
+    if d.static or d.vehicle.category == "pedestrian":
+        return False
+    return along_road(frame, d.xy[d.observed], d.heading)
 
 
 def _first_speed(d: _Dense) -> float:
@@ -396,8 +406,9 @@ def _agent_dense(
 def _collision(raw: Scenario, ego: _Dense, dense: list[_Dense], t0: float, t_max: float) -> Collision | None:
     if raw.collision is not None:
         c = raw.collision
-        if all(d.vehicle.id != c.agent_id for d in dense) and c.agent_id != raw.ego.id:
-            raise UserError(f"collision.agent_id {c.agent_id} was dropped in stage 2 (track too short)")
+        for vid in c.participants:
+            if vid != raw.ego.id and all(d.vehicle.id != vid for d in dense):
+                raise UserError(f"collision participant {vid} was dropped in stage 2 (track too short)")
         return c.model_copy(update={"time_s": c.time_s - t0 + t_max})
     ego_box = ego.box_track()
     best: tuple[Contact, int] | None = None
