@@ -28,7 +28,7 @@ import pandas as pd
 
 from deepcrashtest.datasets.crash_labels import CrashLabel
 from deepcrashtest.errors import UserError
-from deepcrashtest.geometry.project import project_box
+from deepcrashtest.geometry.project import project_box, scenario_poses
 from deepcrashtest.perception.boxes import iou_matrix
 from deepcrashtest.scenario import Scenario
 
@@ -82,22 +82,6 @@ def read_tracks(path: str | Path) -> pd.DataFrame:
 
 
 # --------------------------------------------------------------------------- poses
-class _Poses:
-    """(x, y, yaw) of scenario vehicles at scenario time ``t`` (linear interpolation), None outside
-    a vehicle's trajectory span or before its start delay (as the viewer, ``viz.projection``)."""
-
-    def __init__(self, scenario: Scenario) -> None:
-        self._arrays = {v.id: v.trajectory.arrays() for v in scenario.vehicles()}
-        self._delay = {v.id: v.start_delay_s for v in scenario.vehicles()}
-
-    def __call__(self, vehicle_id: int, t: float) -> tuple[float, float, float] | None:
-        a = self._arrays[vehicle_id]
-        ts = a["t"]
-        if t < max(ts[0], self._delay[vehicle_id]) - 1e-6 or t > ts[-1] + 1e-6:
-            return None
-        return float(np.interp(t, ts, a["x"])), float(np.interp(t, ts, a["y"])), float(np.interp(t, ts, a["yaw"]))
-
-
 def _pose_sim(sim: Any, index: int, t: float) -> tuple[float, float, float] | None:
     """(x, y, yaw) of vehicle column ``index`` of a SimResult at scenario time ``t``, None when absent."""
     k = int(round(t / sim.dt))
@@ -124,7 +108,7 @@ def reprojection_pairs(scenario: Scenario, tracks: pd.DataFrame, sim: Any | None
     sim_col = {vid: i for i, vid in enumerate(sim.vehicle_ids)} if sim is not None else {}
     rows: list[dict[str, Any]] = []
     ego = scenario.ego
-    pose_at = _Poses(scenario)
+    pose_at = scenario_poses(scenario)
     for r in tracks.itertuples(index=False):
         agent = agents.get(int(r.track_id))  # type: ignore[arg-type]
         if agent is None:
