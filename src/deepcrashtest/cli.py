@@ -608,7 +608,9 @@ def _print_fidelity(r: dict[str, Any]) -> None:
         s = rep[src]
         typer.echo(
             f"  {src:9s}: mean IoU {_fmt(s['mean_iou'])}, IoU>=0.5 {_fmt(s['share_iou_ge_0_5'])}, "
-            f"median centre error {_fmt(s['median_centre_px'])} px, coverage {_fmt(s['coverage'])}"
+            f"median centre error {_fmt(s['median_centre_px'])} px (right {_fmt(s['median_du_px'])}, down "
+            f"{_fmt(s['median_dv_px'])}), size ratio w {_fmt(s['median_width_ratio'])} h "
+            f"{_fmt(s['median_height_ratio'])}, coverage {_fmt(s['coverage'])}"
         )
     first = crash["first_contact"]
     typer.echo(
