@@ -180,10 +180,10 @@ def test_egomotion_kitti_seq06():
 
     ego, poses, times = run_odometry(need(SEQ06))
     r = egomotion_errors(ego, poses, times)
-    # measured: distance 2.0 %, median speed 3.4 %, final yaw error 0.87 deg over 60 m
-    assert r["distance_error_pct"] <= 3.0
-    assert r["speed_error_median_pct"] <= 5.0
-    assert r["yaw_error_final_deg"] <= 1.2
+    # measured (960 px, parameters tuned on this sequence): distance 0.3 %, median speed 0.8 %, final yaw 0.34 deg
+    assert r["distance_error_pct"] <= 2.0
+    assert r["speed_error_median_pct"] <= 3.0
+    assert r["yaw_error_final_deg"] <= 0.6
     assert r["valid_fraction"] == 1.0 and not r["warnings"]
 
 
@@ -193,9 +193,9 @@ def test_egomotion_kitti_seq00():
 
     ego, poses, times = run_odometry(need(SEQ00))
     r = egomotion_errors(ego, poses, times)
-    # measured: distance 5.3 %, median speed 6.9 %, yaw drift 0.38 deg/100 m through an 86-deg turn
-    assert r["distance_error_pct"] <= 7.0
-    assert r["speed_error_median_pct"] <= 9.0
+    # measured (parameters chosen on seq06): distance 2.9 %, median speed 2.2 %, yaw drift 0.35 deg/100 m
+    assert r["distance_error_pct"] <= 4.0
+    assert r["speed_error_median_pct"] <= 3.0
     assert r["yaw_drift_deg_per_100m"] <= 0.6
 
 
@@ -253,8 +253,15 @@ def test_world_tracks_match_kitti_ground_truth(kitti_root):
     to_world, _, _ = kitti_world_transform(poses, 0.3)
     errs = []
     for a in sc.agents:
-        lab = labels[labels["track_id"] == a.id - 1].drop_duplicates("frame")
-        truth = np.array([to_world(int(r.frame), np.array([[r.x, r.y, r.z + 0.0]]))[0] for r in lab.itertuples()])
+        lab = labels[labels["track_id"] == a.id - 1].drop_duplicates("frame").set_index("frame")
+        frames = np.round(sc.video_time(np.asarray(a.trajectory.t)) * 10.0).astype(int)  # frames with a state
+        lab = lab.loc[frames]
+        truth = np.array(
+            [
+                to_world(int(f), np.array([[r.x, r.y, r.z + 0.0]]))[0]
+                for f, r in zip(frames, lab.itertuples(), strict=True)
+            ]
+        )
         dist = np.hypot(lab["x"], lab["z"]).to_numpy()
         est = np.column_stack([a.trajectory.x, a.trajectory.y])
         keep = dist < 40
