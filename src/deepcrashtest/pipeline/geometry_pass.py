@@ -1,4 +1,6 @@
-"""One decoding pass: camera estimation + ego-motion + lanes + localisation -> raw Scenario.
+"""The geometry part of extract's one decoding pass: camera estimation + ego-motion + lanes +
+localisation -> raw Scenario (orchestration: it chains perception's lane detector and the geometry
+libraries; the stages themselves stay libraries).
 
 :func:`extract_geometry` consumes ``(frame, tracks_at_that_frame)`` pairs, where ``frame`` has
 ``index`` (int), ``time`` (s) and ``image`` (BGR array, full resolution) - the ``Frame`` of
@@ -9,13 +11,16 @@ The first ``calib_seconds`` of frames are buffered to estimate what the stream n
 starts: the dashboard/bonnet rows (still rows under optical flow, unless given), and the horizon
 (vanishing point of the lane lines, else the focus of expansion of the flow, else the camera's
 own pitch). Then every buffered and later frame goes through the ego-motion estimator and the
-lane detector once; frames are never decoded twice.
+lane detector once; frames are never decoded twice. Lanes run in a second thread beside the
+ego-motion estimator (both spend their time in OpenCV / NumPy, which release the GIL).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
+from itertools import chain
 from typing import Any, Protocol
 
 import numpy as np
@@ -97,40 +102,31 @@ def extract_geometry(
     ``on_frame(frame, tracks, lane_state)`` is called once per frame, in order, after the frame went
     through ego-motion and lanes (annotation draws the lanes in the same pass).
     """
-    buffer: list[tuple[FrameLike, pd.DataFrame]] = []
-    all_tracks: list[pd.DataFrame] = []
-    it = iter(frames)
-    for item in it:
-        buffer.append(item)
-        if item[0].time - buffer[0][0].time >= calib_seconds and len(buffer) >= 3:
-            break
-    if len(buffer) < 2:
-        raise UserError("the video has fewer than 2 frames")
+    buffer, rest = _calibration_frames(frames, calib_seconds)
     cam, rows, horizon_source = estimate_camera([f.image for f, _ in buffer], camera, dashboard_rows)
     ego_est = EgoMotionEstimator(cam, mask_bottom_rows=rows, max_width=max_width, seed=seed)
     lane_det: Any = lane_detector or (ClassicalLaneDetector(cam, mask_bottom_rows=rows, seed=seed) if lanes else None)
     lane_states: dict[int, LaneState] = {}
     indices: list[int] = []
+    all_tracks: list[pd.DataFrame] = []
 
-    def process(frame: FrameLike, trk: pd.DataFrame) -> None:
-        boxes = trk[["x1", "y1", "x2", "y2"]].to_numpy(float) if len(trk) else np.zeros((0, 4))
-        indices.append(int(frame.index))
-        ego_est.update(frame.image, float(frame.time), boxes)
-        if lane_det is not None:
-            lane_states[int(frame.index)] = (
-                lane_det.update(frame.image, float(frame.time), boxes)
-                if isinstance(lane_det, ClassicalLaneDetector)
-                else lane_det.update(frame.image, float(frame.time))
-            )
-        if len(trk):
-            all_tracks.append(trk)
-        if on_frame is not None:
-            on_frame(frame, trk, lane_states.get(int(frame.index)))
+    def lane_update(frame: FrameLike, boxes: np.ndarray) -> LaneState:
+        if isinstance(lane_det, ClassicalLaneDetector):
+            return lane_det.update(frame.image, float(frame.time), boxes)
+        return lane_det.update(frame.image, float(frame.time))  # type: ignore[no-any-return]
 
-    for frame, trk in buffer:
-        process(frame, trk)
-    for frame, trk in it:
-        process(frame, trk)
+    with ThreadPoolExecutor(1, thread_name_prefix="lanes") as pool:
+        for frame, trk in chain(buffer, rest):
+            boxes = trk[["x1", "y1", "x2", "y2"]].to_numpy(float) if len(trk) else np.zeros((0, 4))
+            indices.append(int(frame.index))
+            lanes_job: Future[LaneState] | None = pool.submit(lane_update, frame, boxes) if lane_det else None
+            ego_est.update(frame.image, float(frame.time), boxes)
+            if lanes_job is not None:
+                lane_states[int(frame.index)] = lanes_job.result()
+            if len(trk):
+                all_tracks.append(trk)
+            if on_frame is not None:
+                on_frame(frame, trk, lane_states.get(int(frame.index)))
     ego = ego_est.result()
     ego.frame = np.array(indices, dtype=int)  # the estimator counts 0..n-1: use the video's indices
     lane_tl = lane_det.timeline() if isinstance(lane_det, ClassicalLaneDetector) else None
@@ -138,3 +134,18 @@ def extract_geometry(
     sc = raw_scenario_from_tracks(tracks, meta, cam, ego, lane_tl, localizer, name=name, seed=seed)
     sc.provenance.parameters.update({"dashboard_rows": rows, "horizon_source": horizon_source})
     return GeometryResult(sc, cam, ego, lane_tl, lane_states, rows, horizon_source)
+
+
+def _calibration_frames(
+    frames: Iterable[tuple[FrameLike, pd.DataFrame]], calib_seconds: float
+) -> tuple[list[tuple[FrameLike, pd.DataFrame]], Iterable[tuple[FrameLike, pd.DataFrame]]]:
+    """The first ``calib_seconds`` of (frame, tracks) pairs (at least 3 frames) and the rest."""
+    buffer: list[tuple[FrameLike, pd.DataFrame]] = []
+    it = iter(frames)
+    for item in it:
+        buffer.append(item)
+        if item[0].time - buffer[0][0].time >= calib_seconds and len(buffer) >= 3:
+            break
+    if len(buffer) < 2:
+        raise UserError("the video has fewer than 2 frames")
+    return buffer, it
