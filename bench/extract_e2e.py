@@ -82,7 +82,9 @@ def main() -> None:
         )
     if len(variants) > 1:
         a, b = (min(runs[n], key=lambda x: x["wall"]) for n in (variants[0][0], variants[1][0]))
-        print(f"{variants[1][0]} vs {variants[0][0]}: wall {a['wall'] / b['wall']:.2f}x, CPU {a['cpu'] / b['cpu']:.2f}x")
+        print(
+            f"{variants[1][0]} vs {variants[0][0]}: wall {a['wall'] / b['wall']:.2f}x, CPU {a['cpu'] / b['cpu']:.2f}x"
+        )
 
 
 if __name__ == "__main__":

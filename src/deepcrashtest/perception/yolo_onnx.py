@@ -1,8 +1,10 @@
 """YOLO-format ONNX detectors (Ultralytics export layout) through onnxruntime, boxes and optional masks.
 
 Layout handled: input ``[1, 3, H, W]`` float RGB in [0, 1], letterboxed (grey 114 padding, centred;
-a model with dynamic H, W gets an input of the image's aspect, long side ``long_side``, sides rounded
-up to multiples of 32, so a 1280x720 frame runs at 640x384 with 12 rows of padding);
+a model with dynamic H, W gets an input of the image's aspect holding about ``input_area`` pixels,
+sides rounded to multiples of 32: 864x480 for a 1280x720 frame, 1184x352 for a 1242x375 KITTI frame,
+as many pixels as the usual 640x640 letterbox but none spent on padding; ``long_side`` instead fixes
+the long side);
 ``output0`` ``[1, 4 + nc (+ nm), N]`` (or transposed) with rows cx, cy, w, h (input pixels), nc class
 scores, and for segmentation models nm mask coefficients; ``output1`` ``[1, nm, mh, mw]`` mask
 prototypes. Class names come from the model's ``names`` metadata (COCO-80 when absent and nc = 80)
@@ -59,7 +61,8 @@ class OnnxYoloDetector:
         iou_threshold: float = 0.5,
         masks: bool = True,
         threads: int = 0,
-        long_side: int = 640,
+        input_area: int = 640 * 640,
+        long_side: int | None = None,
     ) -> None:
         import onnxruntime as ort
 
@@ -78,8 +81,9 @@ class OnnxYoloDetector:
         self.input_name = inp.name
         h, w = inp.shape[2], inp.shape[3]
         self.dynamic = not (isinstance(h, int) and isinstance(w, int))
-        self.long_side = int(long_side)
-        self.input_hw = (h, w) if not self.dynamic else (self.long_side, self.long_side)
+        self.input_area = int(input_area)
+        self.long_side = long_side
+        self.input_hw = (h, w) if not self.dynamic else (640, 640)
         self.names = _class_names(self.session.get_modelmeta().custom_metadata_map)
         self.score_threshold = float(score_threshold)
         self.iou_threshold = float(iou_threshold)
@@ -90,8 +94,8 @@ class OnnxYoloDetector:
         """Network input (rows, columns) for an ``h`` x ``w`` image: fixed, or its aspect (dynamic)."""
         if not self.dynamic:
             return self.input_hw
-        r = self.long_side / max(h, w)
-        return (int(np.ceil(h * r / 32)) * 32, int(np.ceil(w * r / 32)) * 32)
+        r = self.long_side / max(h, w) if self.long_side else float(np.sqrt(self.input_area / (h * w)))
+        return (max(32, int(round(h * r / 32)) * 32), max(32, int(round(w * r / 32)) * 32))
 
     def _letterbox(self, image: np.ndarray) -> tuple[np.ndarray, float, float, float]:
         """Image -> (NCHW float32 blob, scale, pad x, pad y) with the Ultralytics centred letterbox."""

@@ -52,6 +52,13 @@ class SearchConfig:
             raise UserError(f"--duration must be a positive number of seconds (got {self.duration})")
 
 
+def _expected_simulations(cfg: SearchConfig) -> int:
+    """About how many variants the search simulates (the progress bar's total)."""
+    random = cfg.starts * cfg.noise_variants if cfg.method in ("random", "both") else 0
+    cem = (cfg.cem_budget or cfg.starts * cfg.noise_variants) if cfg.method in ("cem", "both") else 0
+    return 1 + random + cem
+
+
 def run_search(
     scenario: Scenario,
     output: str | Path,
@@ -70,7 +77,10 @@ def run_search(
     log = Log()
     cem_best: np.ndarray | None = None
     boundary = None
-    with Evaluator(scenario, space, cfg.controller, cfg.seed, engine, workers, cfg.duration) as ev:
+    with (
+        progress_bar("search", _expected_simulations(cfg)) as advance,
+        Evaluator(scenario, space, cfg.controller, cfg.seed, engine, workers, cfg.duration, on_progress=advance) as ev,
+    ):
         original = ev(np.zeros((1, space.dim)))
         log.add("original", 0, np.zeros((1, space.dim)), original)
         if cfg.method in ("random", "both"):
