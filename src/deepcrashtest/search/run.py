@@ -17,6 +17,7 @@ from deepcrashtest.search import outputs
 from deepcrashtest.search.evaluate import Evaluator
 from deepcrashtest.search.methods import CemConfig, Log, boundary_scan, cem_search, first_safe, is_safe, random_search
 from deepcrashtest.search.space import SearchSpace
+from deepcrashtest.ui import progress_bar
 
 METHODS = ("random", "cem", "both")
 OUTPUT_FILES = ("results.csv", "summary.json", "starts.png")
