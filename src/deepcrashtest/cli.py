@@ -60,6 +60,12 @@ def _root(
     set_quiet(quiet)
 
 
+def _quiet_if_json(as_json: bool) -> None:
+    """No progress bar when the output is one JSON object (the bar also hides when stderr is no terminal)."""
+    if as_json:
+        set_quiet(True)
+
+
 def emit(result: dict[str, Any], as_json: bool, human: Callable[[dict[str, Any]], None] | None = None) -> None:
     """Print a command's result: one JSON object with ``--json``, else a readable summary."""
     if as_json:
@@ -231,6 +237,7 @@ def extract(
     as_json: bool = JsonOpt,
 ) -> None:
     """Stage 1 + 2: detect, track, ego-motion, lanes, 3D positions -> tracks.csv, annotated.mp4, scenario.json."""
+    _quiet_if_json(as_json)
     from functools import partial
 
     from deepcrashtest.fileio import require_file
@@ -385,6 +392,7 @@ def search(
     as_json: bool = JsonOpt,
 ) -> None:
     """Search perturbed ego starts and trajectories for variants that avoid the crash."""
+    _quiet_if_json(as_json)
     from deepcrashtest.search.run import SearchConfig, run_search
 
     sc = _load(scenario)
@@ -471,6 +479,7 @@ def evaluate_kitti(
     as_json: bool = JsonOpt,
 ) -> None:
     """CLEAR-MOT of the tracker on KITTI tracking, in world coordinates."""
+    _quiet_if_json(as_json)
     from deepcrashtest.eval.kitti import evaluate_kitti as run_eval
     from deepcrashtest.eval.kitti import parse_sequences, results_markdown
 
@@ -526,6 +535,7 @@ def evaluate_egomotion(
     as_json: bool = JsonOpt,
 ) -> None:
     """Monocular ego-motion speed error and yaw drift against ground-truth poses."""
+    _quiet_if_json(as_json)
     from deepcrashtest.eval.egomotion import evaluate_egomotion as run
 
     if not data.is_dir():
@@ -555,6 +565,7 @@ def batch(
 
     A failed input is recorded and the batch goes on; the exit code is 1 when any input failed.
     """
+    _quiet_if_json(as_json)
     from deepcrashtest.pipeline.batch import run_batch
     from deepcrashtest.search.run import SearchConfig
 

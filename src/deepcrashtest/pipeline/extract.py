@@ -10,6 +10,7 @@ pass through ``on_frame`` callbacks and add their outputs after tracking (see th
 from __future__ import annotations
 
 import contextlib
+import gc
 import time
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import closing
@@ -86,7 +87,8 @@ def run_extract(
     det = make_detector(detector)
     t0 = time.perf_counter()
     plan = _Pass(src_path, out, paths, det, detect_every, max_frames, fps, force, frame_range, seed)
-    records, geo, meta = plan.run(camera, dashboard_rows, geometry, lanes)
+    with _few_gc_passes():
+        records, geo, meta = plan.run(camera, dashboard_rows, geometry, lanes)
     elapsed = time.perf_counter() - t0
     if meta.decoded_frames == 0:
         raise UserError(f"{src_path}: no frame could be decoded")
@@ -97,6 +99,23 @@ def run_extract(
     if geo is not None:
         result.update(_finish_scenario(geo, paths, force, seed, report, result["warnings"]))
     return result
+
+
+@contextlib.contextmanager
+def _few_gc_passes() -> Iterator[None]:
+    """Fewer cyclic-GC passes during the frame loop, none over the imported modules' objects.
+
+    Profiled: the collector took ~9 % of the main thread's time, walking the long-lived objects of the
+    imports on every full pass; the loop makes few reference cycles.
+    """
+    gc.freeze()
+    threshold = gc.get_threshold()
+    gc.set_threshold(max(threshold[0], 10_000), threshold[1], threshold[2])
+    try:
+        yield
+    finally:
+        gc.set_threshold(*threshold)
+        gc.unfreeze()
 
 
 def _check_options(detect_every: int, max_frames: int | None) -> None:
