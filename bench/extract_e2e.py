@@ -55,6 +55,7 @@ def main() -> None:
     ap.add_argument("--baseline-args", default="", help="extra CLI arguments of the baseline runs")
     ap.add_argument("--variant", action="append", default=[], help="NAME=EXTRA CLI ARGS (this checkout)")
     ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--common", default="", help="extra CLI arguments of every run (e.g. '--max-frames 100')")
     args = ap.parse_args()
     variants: list[tuple[str, Path, list[str]]] = []
     if args.baseline_src is not None:
@@ -69,7 +70,7 @@ def main() -> None:
         for _ in range(args.repeat):
             for name, src, extra in variants:
                 loads.append(os.getloadavg()[0])
-                runs[name].append(run_once(src, args.video, extra, Path(tmp) / "out"))
+                runs[name].append(run_once(src, args.video, shlex.split(args.common) + extra, Path(tmp) / "out"))
     print(f"{args.video}: {runs[variants[0][0]][0]['frames']} frames, {os.cpu_count()} cores")
     print(f"load average during the runs: {min(loads):.1f}-{max(loads):.1f} (1 min)")
     print("| variant | wall fps (process) | wall s | CPU s | CPU s / frame | fps inside | peak RSS MB |")

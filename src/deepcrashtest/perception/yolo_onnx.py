@@ -2,7 +2,7 @@
 
 Layout handled: input ``[1, 3, H, W]`` float RGB in [0, 1], letterboxed (grey 114 padding, centred;
 a model with dynamic H, W gets an input of the image's aspect holding about ``input_area`` pixels,
-sides rounded to multiples of 32: 864x480 for a 1280x720 frame, 1184x352 for a 1242x375 KITTI frame,
+sides rounded to multiples of 32: 864x480 for a 1280x720 frame, 1152x352 for a 1242x375 KITTI frame,
 as many pixels as the usual 640x640 letterbox but none spent on padding; ``long_side`` instead fixes
 the long side);
 ``output0`` ``[1, 4 + nc (+ nm), N]`` (or transposed) with rows cx, cy, w, h (input pixels), nc class
