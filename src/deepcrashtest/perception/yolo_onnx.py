@@ -2,8 +2,8 @@
 
 Layout handled: input ``[1, 3, H, W]`` float RGB in [0, 1], letterboxed (grey 114 padding, centred;
 a model with dynamic H, W gets an input of the image's aspect holding about ``input_area`` pixels,
-sides rounded to multiples of 32: by default 1280 x 384 pixels, a KITTI frame's own size (1280x384
-for 1242x375, 928x512 for 1280x720), no pixel spent on letterbox padding; ``long_side`` instead
+sides rounded to multiples of 32: by default as many pixels as the usual 640x640 letterbox (864x480
+for 1280x720, 1152x352 for a 1242x375 KITTI frame) but none spent on padding; ``long_side`` instead
 fixes the long side);
 ``output0`` ``[1, 4 + nc (+ nm), N]`` (or transposed) with rows cx, cy, w, h (input pixels), nc class
 scores, and for segmentation models nm mask coefficients; ``output1`` ``[1, nm, mh, mw]`` mask
@@ -61,7 +61,7 @@ class OnnxYoloDetector:
         iou_threshold: float = 0.5,
         masks: bool = True,
         threads: int = 0,
-        input_area: int = 1280 * 384,
+        input_area: int = 640 * 640,
         long_side: int | None = None,
     ) -> None:
         import onnxruntime as ort

@@ -3,14 +3,20 @@
 A fast scan for shot cuts comes first (a compilation gives one extraction per shot, never one scenario
 across a cut: :mod:`deepcrashtest.video.shots`).
 
-Stage 1a (this module today): detect + track vehicles, draw them. Later stages hook into the same
-pass through ``on_frame`` callbacks and add their outputs after tracking (see the marked place).
+Phases of :func:`run_extract`: check the options and outputs, (shot scan,) the one decoding pass
+(:class:`_Pass`), tracks.csv, the summary, then stage 2 and the report (:func:`_finish_scenario`).
+The pass is pipelined, one thread per stage with bounded queues between: decode | detect + track |
+ego-motion (+ lanes in a second thread, :mod:`.geometry_pass`) | draw + H.264 encode. Decoding,
+onnxruntime, OpenCV and the encoder release the GIL, so two cores stay busy; results are the same as
+a sequential run (each stage sees the frames in order).
 """
 
 from __future__ import annotations
 
 import contextlib
 import gc
+import importlib
+import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import closing
@@ -31,13 +37,14 @@ from deepcrashtest.perception.track import FrameTracks, frame_records, iter_trac
 from deepcrashtest.pipeline.geometry_pass import GeometryResult, extract_geometry
 from deepcrashtest.pipeline.threads import Worker, prefetch
 from deepcrashtest.scenario import Camera, VideoSource
-from deepcrashtest.trajectory.pipeline import process_scenario
 from deepcrashtest.ui import track as progress
 from deepcrashtest.video.shots import Shot
 from deepcrashtest.video.source import Frame, VideoMeta, open_video
 from deepcrashtest.video.writer import VideoWriter
 
 DEFAULT_DETECT_EVERY = 5
+#: Modules of the later phases imported in the background at the start (:func:`_warm_imports`).
+WARM_IMPORTS = ("sklearn.cluster", "deepcrashtest.geometry.world_tracks", "deepcrashtest.trajectory.pipeline")
 #: Shots of a compilation shorter than this (seconds) are not extracted.
 MIN_EXTRACT_SHOT_S = 1.0
 
@@ -85,6 +92,8 @@ def run_extract(
             options |= dict(camera=camera, dashboard_rows=dashboard_rows, lanes=lanes, report=report, seed=seed)
             return _extract_shots(src_path, out, found, force, options)
     det = make_detector(detector)
+    if geometry:
+        _warm_imports(WARM_IMPORTS + (("deepcrashtest.viz.report", "matplotlib.figure") if report else ()))
     t0 = time.perf_counter()
     plan = _Pass(src_path, out, paths, det, detect_every, max_frames, fps, force, frame_range, seed)
     with _few_gc_passes():
@@ -99,6 +108,22 @@ def run_extract(
     if geo is not None:
         result.update(_finish_scenario(geo, paths, force, seed, report, result["warnings"]))
     return result
+
+
+def _warm_imports(modules: tuple[str, ...]) -> None:
+    """Import what the later phases need in a background thread while the frames flow.
+
+    The frame loop spends most of its time in OpenCV / onnxruntime / PyAV with the GIL released, so the
+    ~2.5 s of CPU these imports cost (scikit-learn, SciPy's signal, matplotlib) overlap it. Python's
+    import lock makes a phase that gets there first wait for the module instead of importing it twice.
+    """
+
+    def load() -> None:
+        for name in modules:
+            with contextlib.suppress(ImportError):
+                importlib.import_module(name)
+
+    threading.Thread(target=load, name="imports", daemon=True).start()
 
 
 @contextlib.contextmanager
@@ -297,6 +322,8 @@ def _finish_scenario(
         "dashboard_rows": geo.dashboard_rows,
     }
     warnings.extend(raw.warnings)
+    from deepcrashtest.trajectory.pipeline import process_scenario
+
     try:
         processed = process_scenario(raw, seed=seed)
     except UserError as exc:  # e.g. no usable track: keep the raw scenario, say why

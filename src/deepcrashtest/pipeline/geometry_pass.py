@@ -35,8 +35,8 @@ from deepcrashtest.geometry.camera import (
 )
 from deepcrashtest.geometry.egomotion import EgoMotion, EgoMotionEstimator
 from deepcrashtest.geometry.localize import Localizer
-from deepcrashtest.geometry.world_tracks import TRACK_COLUMNS, raw_scenario_from_tracks
 from deepcrashtest.perception.lanes import ClassicalLaneDetector, LaneDetector, LaneState, LaneTimelineResult
+from deepcrashtest.perception.track import TRACK_COLUMNS
 from deepcrashtest.scenario import Camera, Scenario, VideoSource
 
 
@@ -131,6 +131,8 @@ def extract_geometry(
     ego.frame = np.array(indices, dtype=int)  # the estimator counts 0..n-1: use the video's indices
     lane_tl = lane_det.timeline() if isinstance(lane_det, ClassicalLaneDetector) else None
     tracks = pd.concat(all_tracks, ignore_index=True) if all_tracks else pd.DataFrame(columns=list(TRACK_COLUMNS))
+    from deepcrashtest.geometry.world_tracks import raw_scenario_from_tracks  # SciPy's signal: imported late
+
     sc = raw_scenario_from_tracks(tracks, meta, cam, ego, lane_tl, localizer, name=name, seed=seed)
     sc.provenance.parameters.update({"dashboard_rows": rows, "horizon_source": horizon_source})
     return GeometryResult(sc, cam, ego, lane_tl, lane_states, rows, horizon_source)
