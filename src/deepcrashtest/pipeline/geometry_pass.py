@@ -105,21 +105,20 @@ def extract_geometry(
     buffer, rest = _calibration_frames(frames, calib_seconds)
     cam, rows, horizon_source = estimate_camera([f.image for f, _ in buffer], camera, dashboard_rows)
     ego_est = EgoMotionEstimator(cam, mask_bottom_rows=rows, max_width=max_width, seed=seed)
-    lane_det: Any = lane_detector or (ClassicalLaneDetector(cam, mask_bottom_rows=rows, seed=seed) if lanes else None)
+    lane_det: LaneDetector | None = lane_detector or (
+        ClassicalLaneDetector(cam, mask_bottom_rows=rows, seed=seed) if lanes else None
+    )
     lane_states: dict[int, LaneState] = {}
     indices: list[int] = []
     all_tracks: list[pd.DataFrame] = []
-
-    def lane_update(frame: FrameLike, boxes: np.ndarray) -> LaneState:
-        if isinstance(lane_det, ClassicalLaneDetector):
-            return lane_det.update(frame.image, float(frame.time), boxes)
-        return lane_det.update(frame.image, float(frame.time))  # type: ignore[no-any-return]
 
     with ThreadPoolExecutor(1, thread_name_prefix="lanes") as pool:
         for frame, trk in chain(buffer, rest):
             boxes = trk[["x1", "y1", "x2", "y2"]].to_numpy(float) if len(trk) else np.zeros((0, 4))
             indices.append(int(frame.index))
-            lanes_job: Future[LaneState] | None = pool.submit(lane_update, frame, boxes) if lane_det else None
+            lanes_job: Future[LaneState] | None = None
+            if lane_det is not None:
+                lanes_job = pool.submit(lane_det.update, frame.image, float(frame.time), boxes)
             ego_est.update(frame.image, float(frame.time), boxes)
             if lanes_job is not None:
                 lane_states[int(frame.index)] = lanes_job.result()
@@ -129,12 +128,13 @@ def extract_geometry(
                 on_frame(frame, trk, lane_states.get(int(frame.index)))
     ego = ego_est.result()
     ego.frame = np.array(indices, dtype=int)  # the estimator counts 0..n-1: use the video's indices
-    lane_tl = lane_det.timeline() if isinstance(lane_det, ClassicalLaneDetector) else None
+    lane_tl = lane_det.timeline() if lane_det is not None else None
     tracks = pd.concat(all_tracks, ignore_index=True) if all_tracks else pd.DataFrame(columns=list(TRACK_COLUMNS))
     from deepcrashtest.geometry.world_tracks import raw_scenario_from_tracks  # SciPy's signal: imported late
 
     sc = raw_scenario_from_tracks(tracks, meta, cam, ego, lane_tl, localizer, name=name, seed=seed)
-    sc.provenance.parameters.update({"dashboard_rows": rows, "horizon_source": horizon_source})
+    params = {**sc.provenance.parameters, "dashboard_rows": rows, "horizon_source": horizon_source}
+    sc = sc.evolve(provenance=sc.provenance.model_copy(update={"parameters": params}))
     return GeometryResult(sc, cam, ego, lane_tl, lane_states, rows, horizon_source)
 
 

@@ -54,7 +54,7 @@ from deepcrashtest.trajectory.classify import (
 from deepcrashtest.trajectory.collision import BoxTrack, Contact, first_contact
 from deepcrashtest.trajectory.extrapolate import continue_after, continue_before, overtaker_relative_station
 from deepcrashtest.trajectory.params import Stage2Params
-from deepcrashtest.trajectory.road import build_road, extend_head_on
+from deepcrashtest.trajectory.road import along_road, build_road, extend_head_on
 from deepcrashtest.trajectory.roadframe import RoadFrame
 from deepcrashtest.trajectory.smoothing import eval_xy, fit_xy_spline, smooth_track, spline_params
 from deepcrashtest.trajectory.stepback import plan_step_back, step_back_prefix
@@ -250,7 +250,7 @@ def process_scenario(raw: Scenario, seed: int = 0, params: Stage2Params | None =
         road_frame,
         raw_road,
         [d.xy for d in [ego_dense, *dense]],
-        [d.lateral_m for d in dense if not d.static and d.vehicle.category != "pedestrian"],
+        [d.lateral_m for d in dense if _lane_evidence(d, road_frame)],
         p,
         source,
         warnings,
@@ -283,6 +283,13 @@ def process_scenario(raw: Scenario, seed: int = 0, params: Stage2Params | None =
         ),
         warnings=warnings,
     )
+
+
+def _lane_evidence(d: _Dense, frame: RoadFrame) -> bool:
+    """A vehicle (not a pedestrian) moving along the road: its lateral offset says where a lane is."""
+    if d.static or d.vehicle.category == "pedestrian":
+        return False
+    return along_road(frame, d.xy[d.observed], d.heading)
 
 
 def _first_speed(d: _Dense) -> float:
