@@ -17,7 +17,7 @@ ego-motion estimator (both spend their time in OpenCV / NumPy, which release the
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from itertools import chain
@@ -113,7 +113,7 @@ def extract_geometry(
     all_tracks: list[pd.DataFrame] = []
 
     with ThreadPoolExecutor(1, thread_name_prefix="lanes") as pool:
-        for frame, trk in chain(buffer, rest):
+        for frame, trk in chain(_drain(buffer), rest):
             boxes = trk[["x1", "y1", "x2", "y2"]].to_numpy(float) if len(trk) else np.zeros((0, 4))
             indices.append(int(frame.index))
             lanes_job: Future[LaneState] | None = None
@@ -136,6 +136,13 @@ def extract_geometry(
     params = {**sc.provenance.parameters, "dashboard_rows": rows, "horizon_source": horizon_source}
     sc = sc.evolve(provenance=sc.provenance.model_copy(update={"parameters": params}))
     return GeometryResult(sc, cam, ego, lane_tl, lane_states, rows, horizon_source)
+
+
+def _drain(buffer: list[tuple[FrameLike, pd.DataFrame]]) -> Iterator[tuple[FrameLike, pd.DataFrame]]:
+    """The buffered pairs in order, each let go as it is taken (2 s of full frames are ~150 MB)."""
+    buffer.reverse()
+    while buffer:
+        yield buffer.pop()
 
 
 def _calibration_frames(
