@@ -36,6 +36,7 @@ import numpy as np
 from deepcrashtest.errors import UserError
 from deepcrashtest.scenario import (
     MAX_ACCEL_MPS2,
+    MAX_SPEED_MPS,
     Collision,
     LaneTimeline,
     Provenance,
@@ -433,15 +434,23 @@ def _final_vehicle(d: _Dense, p: Stage2Params, cls: str | None) -> Vehicle:
         xy = eval_xy(tck, d.t)
         vel = eval_xy(tck, d.t, der=1)
         speed = np.zeros(len(d.t)) if d.static else np.hypot(vel[:, 0], vel[:, 1])
+        if speed.max(initial=0.0) > MAX_SPEED_MPS:  # too noisy for this fit: a stronger one, else dropped
+            amax, i = float("inf"), int(np.argmax(speed))
+            continue
         yaw = headings(d.t, xy, d.heading, vel)
         traj = Trajectory.from_arrays(d.t, xy[:, 0], xy[:, 1], yaw, speed, observed=d.observed)
         amax, i = traj.max_abs_accel()
         if amax <= MAX_ACCEL_MPS2:
             break
     else:
+        what = (
+            f"exceeds {MAX_SPEED_MPS:.0f} m/s"
+            if math.isinf(amax)
+            else f"accelerates at {amax:.1f} m/s^2 (limit {MAX_ACCEL_MPS2})"
+        )
         raise UserError(
-            f"{label}: processed trajectory accelerates at {amax:.1f} m/s^2 at t={d.t[i]:.2f} s "
-            f"(limit {MAX_ACCEL_MPS2}); the track is too noisy for the smoothing parameters"
+            f"{label}: processed trajectory {what} at t={d.t[i]:.2f} s; the track is too noisy for the "
+            "smoothing parameters"
         )
     delay = float(d.t[0]) if d.t[0] > _EPS_T else 0.0
     return d.vehicle.model_copy(
