@@ -101,7 +101,7 @@ def run_extract(
     elapsed = time.perf_counter() - t0
     if meta.decoded_frames == 0:
         raise UserError(f"{src_path}: no frame could be decoded")
-    df = records_table(records)
+    df = records_table(records).sort_values(["frame", "track_id"], ignore_index=True)
     with atomic_path(paths["tracks_csv"], force=force) as tmp:
         df.to_csv(tmp, index=False, float_format="%.3f")
     result = _summary(plan, meta, df, elapsed)

@@ -12,11 +12,16 @@ starts: the dashboard/bonnet rows (still rows under optical flow, unless given),
 (vanishing point of the lane lines, else the focus of expansion of the flow, else the camera's
 own pitch). Then every buffered and later frame goes through the ego-motion estimator and the
 lane detector once; frames are never decoded twice. Lanes run in a second thread beside the
-ego-motion estimator (both spend their time in OpenCV / NumPy, which release the GIL).
+ego-motion estimator (both spend their time in OpenCV / NumPy, which release the GIL). When no
+calibration was given (the camera's intrinsics are the unknown-dashcam default), the whole video's
+tracks then calibrate the camera (:func:`~deepcrashtest.geometry.selfcalib.self_calibrate`: horizon,
+camera height, focal length, each with its uncertainty and source) and the ego path is rescaled to
+the measured camera height.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
@@ -35,6 +40,7 @@ from deepcrashtest.geometry.camera import (
 )
 from deepcrashtest.geometry.egomotion import EgoMotion, EgoMotionEstimator
 from deepcrashtest.geometry.localize import Localizer
+from deepcrashtest.geometry.selfcalib import SelfCalibration, self_calibrate
 from deepcrashtest.perception.lanes import ClassicalLaneDetector, LaneDetector, LaneState, LaneTimelineResult
 from deepcrashtest.perception.track import TRACK_COLUMNS
 from deepcrashtest.scenario import Camera, Scenario, VideoSource
@@ -57,6 +63,7 @@ class GeometryResult:
     lane_states: dict[int, LaneState]
     dashboard_rows: int
     horizon_source: str
+    calibration: SelfCalibration | None = None
 
 
 def estimate_camera(
@@ -104,6 +111,7 @@ def extract_geometry(
     """
     buffer, rest = _calibration_frames(frames, calib_seconds)
     cam, rows, horizon_source = estimate_camera([f.image for f, _ in buffer], camera, dashboard_rows)
+    size = (int(buffer[0][0].image.shape[1]), int(buffer[0][0].image.shape[0]))  # width, height (px)
     ego_est = EgoMotionEstimator(cam, mask_bottom_rows=rows, max_width=max_width, seed=seed)
     lane_det: LaneDetector | None = lane_detector or (
         ClassicalLaneDetector(cam, mask_bottom_rows=rows, seed=seed) if lanes else None
@@ -130,12 +138,21 @@ def extract_geometry(
     ego.frame = np.array(indices, dtype=int)  # the estimator counts 0..n-1: use the video's indices
     lane_tl = lane_det.timeline() if lane_det is not None else None
     tracks = pd.concat(all_tracks, ignore_index=True) if all_tracks else pd.DataFrame(columns=list(TRACK_COLUMNS))
+    calibration = None
+    if cam.intrinsics_source == "default" and len(tracks):  # no calibration given: the video calibrates it
+        calibration = self_calibrate(tracks, cam, size, ego, ego_scaled_by_height=True)
+        cam = calibration.camera
+        s = calibration.ego_scale
+        ego = dataclasses.replace(ego, x=ego.x * s, y=ego.y * s, speed=ego.speed * s)
+        horizon_source = cam.pitch_source
     from deepcrashtest.geometry.world_tracks import raw_scenario_from_tracks  # SciPy's signal: imported late
 
     sc = raw_scenario_from_tracks(tracks, meta, cam, ego, lane_tl, localizer, name=name, seed=seed)
     params = {**sc.provenance.parameters, "dashboard_rows": rows, "horizon_source": horizon_source}
+    if calibration is not None:
+        params["self_calibration"] = calibration.summary()
     sc = sc.evolve(provenance=sc.provenance.model_copy(update={"parameters": params}))
-    return GeometryResult(sc, cam, ego, lane_tl, lane_states, rows, horizon_source)
+    return GeometryResult(sc, cam, ego, lane_tl, lane_states, rows, horizon_source, calibration)
 
 
 def _drain(buffer: list[tuple[FrameLike, pd.DataFrame]]) -> Iterator[tuple[FrameLike, pd.DataFrame]]:
