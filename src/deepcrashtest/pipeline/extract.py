@@ -31,7 +31,8 @@ from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import atomic_path, check_writable, ensure_output_dir
 from deepcrashtest.geometry.camera import default_camera
 from deepcrashtest.perception.annotate import Annotator
-from deepcrashtest.perception.detect import DEFAULT_DETECTOR, Detector, make_detector
+from deepcrashtest.perception.detect import DEFAULT_DETECTOR, make_detector
+from deepcrashtest.perception.detections import Detector
 from deepcrashtest.perception.lanes import LaneState, draw_lanes
 from deepcrashtest.perception.track import FrameTracks, frame_records, iter_tracks, records_table
 from deepcrashtest.pipeline.geometry_pass import GeometryResult, extract_geometry
