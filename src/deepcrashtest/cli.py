@@ -510,6 +510,59 @@ def evaluate_egomotion(
     emit(run(data, max_frames), as_json)
 
 
+@evaluate_app.command("fidelity")
+def evaluate_fidelity(
+    scenario: Path = typer.Argument(..., help="Scenario JSON file (from extract)."),
+    video: Path | None = typer.Option(None, "--video", help="Video (default: the source video, else annotated.mp4)."),
+    tracks: Path | None = typer.Option(None, "--tracks", help="tracks.csv (default: beside the scenario)."),
+    labels: Path | None = typer.Option(None, "--labels", help="Crash labels JSON (bench/labels/*_crashes.json)."),
+    clip: str | None = typer.Option(None, "--clip", help="Clip name in the labels (default: the video's name)."),
+    controller: str = typer.Option("replay", "--controller", help="Ego controller of the replay."),
+    output: Path | None = typer.Option(None, "-o", "--output", help="Output folder (default: beside the scenario)."),
+    make_video: bool = typer.Option(True, "--video-out/--no-video-out", help="Write fidelity.mp4."),
+    force: bool = ForceOpt,
+    seed: int = SeedOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """Reprojection and crash fidelity of a scenario and its replay against its video (+ fidelity.mp4)."""
+    from deepcrashtest.pipeline.fidelity import run_fidelity
+
+    _, summary = run_fidelity(
+        scenario, output, video, tracks, labels, clip, controller, make_video=make_video, force=force, seed=seed
+    )
+    emit(summary, as_json, _print_fidelity)
+
+
+def _print_fidelity(r: dict[str, Any]) -> None:
+    rep, crash = r["reprojection"], r["crash"]
+    typer.echo(f"{r['scenario']}: {rep['tracked_boxes']} tracked boxes of {rep['tracks_in_scenario']} agents")
+    for src in ("processed", "simulated"):
+        s = rep[src]
+        typer.echo(
+            f"  {src:9s}: mean IoU {_fmt(s['mean_iou'])}, IoU>=0.5 {_fmt(s['share_iou_ge_0_5'])}, "
+            f"median centre error {_fmt(s['median_centre_px'])} px, coverage {_fmt(s['coverage'])}"
+        )
+    first = crash["first_contact"]
+    typer.echo(
+        "  first contact: none"
+        if first is None
+        else f"  first contact: {first['participants']} at video {first['video_time_s']:.2f} s "
+        f"({_fmt(first['relative_speed_mps'])} m/s)"
+    )
+    if crash.get("label") is not None:
+        typer.echo(
+            f"  label: {crash['label']['description']} -> reproduced {crash['reproduced']}, same pair "
+            f"{crash['same_pair']}, dt {_fmt(crash['dt_s'])} s, contacts before {crash['contacts_before_crash']}"
+        )
+    else:
+        typer.echo(f"  video has a crash: {crash['video_has_crash']} ({crash['video_has_crash_source']})")
+    typer.echo(f"  time mapping: {r['time_mapping']['rule']}, offset {r['time_mapping']['time_offset_s']:.3f} s")
+    for note in r["notes"]:
+        typer.echo(f"  note: {note}")
+    for name, path in r["outputs"].items():
+        typer.echo(f"  {name}: {path}")
+
+
 @app.command()
 def batch(
     videos: Path = typer.Argument(..., help="Folder of videos (and/or Scenario *.json files)."),
