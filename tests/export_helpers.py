@@ -69,6 +69,7 @@ def read_xosc(path: Path, overrides: dict[str, float] | None = None) -> dict[str
     ents: dict[str, EntityReplay] = {}
     for obj in root.iterfind("Entities/ScenarioObject"):
         centre = obj.find("Vehicle/BoundingBox/Center")
+        centre = centre if centre is not None else obj.find("Pedestrian/BoundingBox/Center")
         ents[obj.get("name")] = EntityReplay(obj.get("name"), float(centre.get("x")))
     for priv in root.iterfind("Storyboard/Init/Actions/Private"):
         tele = priv.find("PrivateAction/TeleportAction/Position")

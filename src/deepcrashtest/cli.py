@@ -192,7 +192,9 @@ def scenario_build(
             "duration_s": round(sc.duration(), 3),
             "t_max_s": round(float(sc.provenance.parameters["t_max_s"]), 3),
             "classes": sc.class_counts(),
-            "collision": None if c is None else {"time_s": round(c.time_s, 3), "agent_id": c.agent_id},
+            "collision": None
+            if c is None
+            else {"time_s": round(c.time_s, 3), "other_id": c.other_id, "agent_id": c.agent_id, "source": c.source},
             "warnings": sc.warnings,
         },
         as_json,
@@ -222,6 +224,9 @@ def extract(
         True, "--geometry/--no-geometry", help="Build the scenario (ego-motion, 3D positions, stage 2)."
     ),
     report: bool = typer.Option(True, "--report/--no-report", help="Write report.html."),
+    shots: bool = typer.Option(
+        True, "--shots/--no-shots", help="Find shot cuts first: a compilation gives one scenario per shot."
+    ),
     force: bool = ForceOpt,
     seed: int = SeedOpt,
     as_json: bool = JsonOpt,
@@ -258,11 +263,20 @@ def extract(
         lanes=lanes,
         report=report,
         seed=seed,
+        shots=shots,
     )
     emit(result, as_json, _extract_summary)
 
 
 def _extract_summary(r: dict[str, Any]) -> None:
+    if "shots" in r:  # a compilation: one extraction per shot
+        typer.echo(f"{len(r['shots'])} shot(s) extracted; cuts at {r['cuts_s']} s")
+        for shot in r["shots"]:
+            typer.echo(f"--- {shot['shot']}: frames {shot['first_frame']}-{shot['last_frame']} -> {shot['output']}")
+            _extract_summary({**shot, "warnings": []})
+        for w in r["warnings"]:
+            typer.echo(f"warning: {w}")
+        return
     typer.echo(
         f"{r['frames']} frames ({r['width']}x{r['height']} @ {r['fps_video']} fps), {r['tracks']} tracks, "
         f"mean track length {r['mean_track_length_frames']} frames, {r['fps_achieved']} fps achieved"
@@ -281,7 +295,8 @@ def _extract_summary(r: dict[str, Any]) -> None:
         typer.echo("classes: " + ", ".join(f"{k} {v}" for k, v in r["classes"].items()))
     if r.get("collision"):
         c = r["collision"]
-        typer.echo(f"collision: ego with agent {c['agent_id']} at t = {c['time_s']:.2f} s")
+        pair = " with ".join("ego" if v == 0 else f"road user {v}" for v in (c.get("other_id", 0), c["agent_id"]))
+        typer.echo(f"collision: {pair} at t = {c['time_s']:.2f} s")
     for w in r["warnings"]:
         typer.echo(f"warning: {w}")
 
@@ -334,6 +349,10 @@ def _print_sim(r: dict[str, Any]) -> None:
         )
     else:
         typer.echo("no collision of the ego")
+    for c in r["collisions"]:
+        if 0 not in c["vehicles"]:  # a third-party crash, between two agents
+            a, b = c["vehicles"]
+            typer.echo(f"contact of road users {a} and {b} at {c['time']:.2f} s: {_fmt(c['relative_speed'])} m/s")
     typer.echo(f"min distance {_fmt(m['min_distance'])} m, min TTC {_fmt(m['min_ttc'])} s, AEB {_fmt(m['aeb_time'])} s")
     rms = r["replay_rms_m"]
     typer.echo(f"replay RMS error: ego {_fmt(rms['ego'])} m, agents {_fmt(rms['agents'])} m")
@@ -393,6 +412,13 @@ def _search_human(s: dict[str, Any]) -> None:
         f"scenario {s['scenario']} (controller {s['controller']}, seed {s['seed']}): original "
         f"{'collides' if o['collided'] else 'does not collide'} (robustness {o['robustness']} m)"
     )
+    c = s.get("crash") or {}
+    if c.get("kind") == "third-party":
+        seen = f"reproduced at {c['simulated_time_s']} s" if c["reproduced"] else "NOT reproduced by the replay"
+        typer.echo(
+            f"  third-party crash of road users {c['pair'][0]} and {c['pair'][1]} at {c['observed_time_s']} s "
+            f"(replayed in every variant; {seen}); a variant is safe when {c['safe_means']}"
+        )
     for name, m in s["methods"].items():
         if m["first_safe_at"] is None:
             found = "no safe variant found"

@@ -260,7 +260,11 @@ class Road(_Model):
     lane_width: PositiveFloat = Field(default=3.5, description="Metres")
     lane_count: int = Field(default=2, ge=1, le=12)
     ego_lane: int = Field(default=0, ge=0, description="Lane of the ego at t=0, 0 = rightmost")
-    source: Literal["ego_path", "ego_path+oncoming", "lanes", "user"] = "ego_path"
+    source: Literal["ego_path", "ego_path+oncoming", "lanes", "road_users", "user"] = Field(
+        default="ego_path",
+        description="ego_path: along the ego path (lane width assumed); lanes: lane lines seen in the video; "
+        "road_users: no lanes seen, width and lane count from the spread of the road users' paths; user: edited",
+    )
     lane_timeline: LaneTimeline | None = None
 
     @model_validator(mode="after")

@@ -13,9 +13,9 @@
   (reported).
 * Ego: the planning problem (id ``OBSTACLE_ID_BASE + ego id``): initial state at its first step;
   goal region: a ``GOAL_LENGTH_M`` x road-width rectangle centred ``GOAL_AHEAD_M`` metres past the
-  crash point (``Scenario.collision`` x/y, or the ego's position at the collision time; without a
-  collision the ego's last position) along the ego's heading there, reachable from the step after
-  the crash on.
+  crash point (``Scenario.collision`` x/y when the ego is in it, else the ego's position at the
+  collision time; without a collision the ego's last position) along the ego's heading there,
+  reachable from the step after the crash on.
 * Written with commonroad-io's validity check (the CommonRoad XSD) on.
 
 :func:`ego_collision_steps` runs the CommonRoad drivability checker's collision checker for the
@@ -75,6 +75,7 @@ _OBSTACLE_TYPE = {
     "bus": "BUS",
     "motorcycle": "MOTORCYCLE",
     "bicycle": "BICYCLE",
+    "pedestrian": "PEDESTRIAN",
 }
 
 
@@ -167,8 +168,8 @@ def crash_point(sc: Scenario) -> tuple[np.ndarray, float, float]:
         return np.array([s["x"], s["y"]]), s["yaw"], float(ego.t[-1])
     s = ego.state_at(sc.collision.time_s)
     xy = np.array([s["x"], s["y"]])
-    if sc.collision.x is not None and sc.collision.y is not None:
-        xy = np.array([sc.collision.x, sc.collision.y])
+    if sc.collision.involves_ego and sc.collision.x is not None and sc.collision.y is not None:
+        xy = np.array([sc.collision.x, sc.collision.y])  # a third-party crash point is not on the ego's way
     return xy, s["yaw"], float(sc.collision.time_s)
 
 

@@ -11,7 +11,7 @@ column         unit    meaning
 t_s            s       scenario time of the sample
 vehicle_id     -       Scenario vehicle id (the ego is ``role`` ego)
 role           -       ``ego`` or ``agent``
-category       -       car, van, truck, bus, motorcycle, bicycle
+category       -       car, van, truck, bus, motorcycle, bicycle (with rider), pedestrian
 x_m            m       centre x (forward)
 y_m            m       centre y (left)
 yaw_rad        rad     heading, counter-clockwise from +x, unwrapped

@@ -6,10 +6,12 @@ What the file holds:
   :mod:`deepcrashtest.export.opendrive`). Both files use the Scenario's world frame (x forward,
   y left, metres, origin at the ego's start), so world positions need no transformation.
 * One ``Vehicle`` entity per vehicle (``Ego``, ``Agent<id>``) with its bounding box and class
-  (car, van, truck, bus, motorbike, bicycle). The entity reference point is, as OpenSCENARIO
-  defines it, the rear axle projected on the ground; it sits ``REAR_AXLE_FRACTION * length``
-  behind the box centre, so ``BoundingBox/Center/@x`` is that distance and every position written
-  is the box centre (Scenario trajectory point) moved back along the heading by it.
+  (car, van, truck, bus, motorbike, bicycle; a two-wheeler includes its rider). The entity reference
+  point is, as OpenSCENARIO defines it, the rear axle projected on the ground; it sits
+  ``REAR_AXLE_FRACTION * length`` behind the box centre, so ``BoundingBox/Center/@x`` is that
+  distance and every position written is the box centre (Scenario trajectory point) moved back along
+  the heading by it. A pedestrian is a ``Pedestrian`` entity (category pedestrian, mass
+  ``PEDESTRIAN_MASS_KG``) whose reference point is its box centre on the ground.
 * ``ParameterDeclarations``: ``EgoStartDx``, ``EgoStartDy`` (metres, world frame, default 0):
   a shift of the ego's start (and of its whole recorded path, when it follows one). The search's
   variants are written against them by :func:`write_parameter_distribution`.
@@ -43,6 +45,7 @@ OSC_MINOR_VERSION = 2
 #: Rear axle behind the box centre, as a fraction of the vehicle length (wheelbase ~0.6 length).
 REAR_AXLE_FRACTION = 0.3
 EGO_NAME = "Ego"
+PEDESTRIAN_MASS_KG = 75.0
 #: Parameters declared in every exported scenario (metres, world frame), all default 0.
 EGO_START_PARAMETERS = ("EgoStartDx", "EgoStartDy")
 
@@ -89,8 +92,13 @@ def _shifted(value: float, parameter: str) -> str:
     return f"${{${parameter} {sign} {_fmt(abs(value))}}}"
 
 
+def _rear_axle_back(vehicle: Vehicle) -> float:
+    """Metres from the box centre back to the entity's reference point (0 for a pedestrian)."""
+    return 0.0 if vehicle.category == "pedestrian" else REAR_AXLE_FRACTION * vehicle.length
+
+
 def _reference_points(vehicle: Vehicle, x: np.ndarray, y: np.ndarray, yaw: np.ndarray) -> tuple[Any, Any]:
-    back = REAR_AXLE_FRACTION * vehicle.length
+    back = _rear_axle_back(vehicle)
     return x - back * np.cos(yaw), y - back * np.sin(yaw)
 
 
@@ -112,7 +120,9 @@ def _world_positions(vehicle: Vehicle, samples: dict[str, np.ndarray], shift: bo
 def _vehicle_entity(vehicle: Vehicle, name: str) -> Any:
     from scenariogeneration import xosc
 
-    back = REAR_AXLE_FRACTION * vehicle.length
+    if vehicle.category == "pedestrian":
+        return _pedestrian_entity(vehicle, name)
+    back = _rear_axle_back(vehicle)
     wheel = 0.6 if vehicle.category not in ("motorcycle", "bicycle") else 0.65
     bbox = xosc.BoundingBox(vehicle.width, vehicle.length, vehicle.height, back, 0.0, vehicle.height / 2.0)
     track = max(0.1, vehicle.width - 0.3)
@@ -131,6 +141,16 @@ def _vehicle_entity(vehicle: Vehicle, name: str) -> Any:
     veh.add_property("deepcrashtest_id", str(vehicle.id))
     veh.add_property("deepcrashtest_role", "ego" if name == EGO_NAME else "agent")
     return veh
+
+
+def _pedestrian_entity(vehicle: Vehicle, name: str) -> Any:
+    from scenariogeneration import xosc
+
+    bbox = xosc.BoundingBox(vehicle.width, vehicle.length, vehicle.height, 0.0, 0.0, vehicle.height / 2.0)
+    ped = xosc.Pedestrian(name, PEDESTRIAN_MASS_KG, xosc.PedestrianCategory.pedestrian, bbox, model="pedestrian")
+    ped.add_property("deepcrashtest_id", str(vehicle.id))
+    ped.add_property("deepcrashtest_role", "agent")
+    return ped
 
 
 def _time_trigger(name: str, t: float, point: str = "start") -> Any:

@@ -31,17 +31,29 @@ import numpy as np
 
 from deepcrashtest.scenario import Camera
 
-#: Class dimension priors: length, width, height (metres) of typical vehicles.
+#: Class dimension priors: length, width, height (metres) of typical road users. A two-wheeler is
+#: measured with its rider (the detection box runs from the rider's head to the wheels): a scooter or
+#: motorcycle with a seated rider stands ~1.6 m tall, a bicycle with its rider ~1.75 m. A pedestrian
+#: is an adult (mean stature ~1.7 m) seen as a 0.6 m wide, 0.5 m deep body.
 CLASS_DIMENSIONS: dict[str, tuple[float, float, float]] = {
     "car": (4.4, 1.8, 1.5),
     "van": (5.0, 1.95, 2.1),
     "truck": (8.0, 2.5, 3.2),
     "bus": (11.0, 2.55, 3.1),
-    "motorcycle": (2.1, 0.8, 1.4),
-    "bicycle": (1.8, 0.6, 1.6),
+    "motorcycle": (2.1, 0.8, 1.6),
+    "bicycle": (1.8, 0.6, 1.75),
+    "pedestrian": (0.5, 0.6, 1.7),
 }
-#: Relative spread of the class height prior (1 sigma).
-SIZE_PRIOR_SIGMA = {"car": 0.07, "van": 0.12, "truck": 0.15, "bus": 0.1, "motorcycle": 0.12, "bicycle": 0.12}
+#: Relative spread of the class height prior (1 sigma); pedestrians include children and bent walkers.
+SIZE_PRIOR_SIGMA = {
+    "car": 0.07,
+    "van": 0.12,
+    "truck": 0.15,
+    "bus": 0.1,
+    "motorcycle": 0.12,
+    "bicycle": 0.12,
+    "pedestrian": 0.12,
+}
 #: Assumed 1-sigma error of a box's bottom edge, pixels.
 BOTTOM_EDGE_SIGMA_PX = 3.0
 #: Assumed 1-sigma slope of the road under a vehicle relative to the camera's road (pitch and grade

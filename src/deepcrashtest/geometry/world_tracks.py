@@ -1,7 +1,7 @@
 """Camera-frame tracks + ego motion (+ lanes) -> a raw Scenario in the world frame.
 
 Input contract (``tracks``, one row per track per frame): ``frame`` (int), ``time`` (s),
-``track_id`` (int >= 1), ``category`` (car|truck|bus|motorcycle|bicycle), ``x1, y1, x2, y2``
+``track_id`` (int >= 1), ``category`` (car|truck|bus|motorcycle|bicycle|pedestrian), ``x1, y1, x2, y2``
 (px, full frame), ``score``, ``state`` ('detected'|'predicted').
 
 World frame (``deepcrashtest.scenario``): origin at the ego centre at the first frame, x forward,
@@ -178,16 +178,18 @@ def raw_scenario_from_tracks(
             aspect = ((g["x2"] - g["x1"]) / np.maximum(g["y2"] - g["y1"], 1.0)).to_numpy(float)
             fallback = ego_yaw + np.where(aspect > 2.2, math.pi / 2, 0.0)
             yaw, speed = _heading(t, x, y, fallback)
+            cat = str(g["category"].mode().iloc[0])  # the class most frames agree on
+            first = g[g["category"] == cat].iloc[0]
             if speed.max() > MAX_SPEED_MPS:
                 clipped += 1
                 speed = np.minimum(speed, MAX_SPEED_MPS)
             agents.append(
                 Vehicle(
                     id=int(tid),  # type: ignore[arg-type]
-                    category=str(g["category"].iloc[0]),  # type: ignore[arg-type]
-                    length=float(g["L"].iloc[0]),
-                    width=float(g["W"].iloc[0]),
-                    height=float(g["H"].iloc[0]),
+                    category=cat,  # type: ignore[arg-type]
+                    length=float(first["L"]),
+                    width=float(first["W"]),
+                    height=float(first["H"]),
                     confidence=float(np.clip(g["score"].mean(), 0.0, 1.0)),
                     first_frame=int(g["frame"].iloc[0]),
                     last_frame=int(g["frame"].iloc[-1]),

@@ -9,11 +9,14 @@ Backends (``make_detector(spec)``):
   Options after a colon: ``ssd-mobilenet:tiles=0`` (whole frame only),
   ``tiles=N`` (N tiles), ``score=0.4``, ``input=640x360``, ``band=0.55`` (tile row centre, fraction of
   the height), ``tile=0.4`` (tile side, fraction of the height), ``tile_every=K`` (tiles on every K-th
-  call only: distant cars change slowly, and this saves most of the tile cost), ``bicycle=1``.
+  call only: distant cars change slowly, and this saves most of the tile cost), ``bicycle=0`` (drop
+  bicycles), ``person=0`` (drop persons).
 * ``onnx:PATH``: any YOLO-format ONNX detector (Ultralytics export layout, boxes with or without
   mask coefficients) through onnxruntime; see :mod:`deepcrashtest.perception.yolo_onnx`.
 
-Categories are always one of :data:`CATEGORIES`; other classes are dropped.
+Categories are always one of :data:`CATEGORIES`; other classes are dropped. A detected person is a
+``pedestrian`` here; :func:`deepcrashtest.perception.roadusers.merge_riders` turns a person riding a
+two-wheeler into part of that two-wheeler (one road user) before tracking.
 """
 
 from __future__ import annotations
@@ -28,10 +31,10 @@ import numpy as np
 from deepcrashtest.errors import UserError
 from deepcrashtest.perception.boxes import nms
 
-CATEGORIES = ("car", "truck", "bus", "motorcycle", "bicycle")
+CATEGORIES = ("car", "truck", "bus", "motorcycle", "bicycle", "pedestrian")
 
-# TF Object Detection API 90-id COCO label map (ids of the vehicle classes only).
-_TF_COCO_VEHICLES = {2: "bicycle", 3: "car", 4: "motorcycle", 6: "bus", 8: "truck"}
+# TF Object Detection API 90-id COCO label map (ids of the road-user classes only).
+_TF_COCO_ROAD_USERS = {1: "pedestrian", 2: "bicycle", 3: "car", 4: "motorcycle", 6: "bus", 8: "truck"}
 
 
 @dataclass
@@ -95,10 +98,10 @@ def make_detector(spec: str) -> Detector:
                 kwargs["tile_frac"] = float(value)
             elif key == "tile_every":
                 kwargs["tile_every"] = int(value)
-            elif key == "bicycle":
-                kwargs["bicycles"] = value not in ("0", "false", "no")
+            elif key in ("bicycle", "person"):
+                kwargs[key + "s"] = value not in ("0", "false", "no")
             else:
-                known = "tiles, score, input, band, tile, tile_every, bicycle"
+                known = "tiles, score, input, band, tile, tile_every, bicycle, person"
                 raise UserError(f"unknown ssd-mobilenet option {key!r} ({known})")
         except ValueError:
             raise UserError(f"bad ssd-mobilenet option {item!r}") from None
@@ -159,7 +162,8 @@ class SsdMobileNetDetector:
         tiles: int = 4,
         score_threshold: float = 0.35,
         tile_input: int = 300,
-        bicycles: bool = False,
+        bicycles: bool = True,
+        persons: bool = True,
         band_centre: float = 0.55,
         tile_frac: float = 0.4,
         tile_every: int = 1,
@@ -179,7 +183,8 @@ class SsdMobileNetDetector:
         self.tile_frac = float(tile_frac)
         self.tile_every = max(1, int(tile_every))
         self._calls = 0
-        self.classes = {k: v for k, v in _TF_COCO_VEHICLES.items() if bicycles or v != "bicycle"}
+        dropped = ({"bicycle"} if not bicycles else set()) | ({"pedestrian"} if not persons else set())
+        self.classes = {k: v for k, v in _TF_COCO_ROAD_USERS.items() if v not in dropped}
         self.name = f"ssd-mobilenet(tiles={self.tiles}, tile_every={self.tile_every})"
 
     def whole_input(self, width: int, height: int) -> tuple[int, int]:

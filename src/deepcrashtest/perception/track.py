@@ -1,10 +1,11 @@
-"""Image-plane multi-object tracking of vehicles: detect (every N frames), associate, carry boxes.
+"""Image-plane multi-object tracking of road users: detect (every N frames), associate, carry boxes.
 
 Per frame:
 
 1. every live track's box is carried from the previous frame by LK optical flow inside the box
    (:mod:`deepcrashtest.perception.flow`), or by its constant velocity when the flow fails;
-2. on detection frames (every ``detect_every``-th), detections are assigned to tracks by the
+2. on detection frames (every ``detect_every``-th), riders are joined to their two-wheelers
+   (:func:`~deepcrashtest.perception.roadusers.merge_riders`) and detections are assigned to tracks by the
    Hungarian method on 1 - IoU (:mod:`deepcrashtest.perception.lifecycle`); a matched track takes
    the detected box; unmatched detections scoring >= ``new_track_score`` start new tracks;
 3. tracks that left the image are deleted; confirmed tracks are reported as ``detected`` (box
@@ -34,6 +35,7 @@ from deepcrashtest.perception.lifecycle import (
     TrackState,
     assign,
 )
+from deepcrashtest.perception.roadusers import merge_riders
 from deepcrashtest.video.source import Frame, VideoSource
 
 __all__ = [
@@ -53,7 +55,9 @@ __all__ = [
 ]
 
 TRACK_COLUMNS = ["frame", "time", "track_id", "category", "x1", "y1", "x2", "y2", "score", "state"]
-_GROUP = {"car": 0, "truck": 0, "bus": 0, "motorcycle": 1, "bicycle": 1}
+#: Classes a track may switch between: motor vehicles; vulnerable road users (a rider seen without
+#: the two-wheeler is detected as a pedestrian for a frame or two, the votes keep the track's class).
+_GROUP = {"car": 0, "van": 0, "truck": 0, "bus": 0, "motorcycle": 1, "bicycle": 1, "pedestrian": 1}
 
 
 @dataclass
@@ -136,7 +140,7 @@ class BoxTracker:
         for t in self.core.tracks:
             t.detected_now = False
         if self._n % self.detect_every == 0:
-            dets = self.detector(image)
+            dets = merge_riders(self.detector(image))
             self._associate(dets)
         for t in self.core.tracks:
             if _visible_fraction(t.box, w, h) < 0.3 or min(t.box[2] - t.box[0], t.box[3] - t.box[1]) < 3:

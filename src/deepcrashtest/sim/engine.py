@@ -66,7 +66,8 @@ class SimResult:
 
     ``states[t, i]`` = x, y, yaw, speed of ``vehicle_ids[i]`` at ``times[t]`` (NaN where absent;
     ``present`` says where it exists). ``collisions``: every contact in time order, with the
-    vehicles, impact point (m), relative speed (m/s) and delta-v per vehicle (m/s).
+    vehicles, impact point (m), relative speed (m/s) and delta-v per vehicle (m/s); the ego's and
+    every pair of agents' (a third-party crash). ``metrics["first_contact"]`` is the first of any pair.
     """
 
     metrics: dict[str, Any]
@@ -83,6 +84,15 @@ class SimResult:
         """The first collision involving the ego, or None."""
         ego = self.vehicle_ids[0]
         return next((c for c in self.collisions if ego in c["vehicles"]), None)
+
+    @property
+    def first_contact(self) -> dict[str, Any] | None:
+        """The first contact of any pair (ego-agent or agent-agent), or None."""
+        return self.collisions[0] if self.collisions else None
+
+    def contact_between(self, a: int, b: int) -> dict[str, Any] | None:
+        """The first contact between road users ``a`` and ``b`` (ids), or None."""
+        return next((c for c in self.collisions if set(c["vehicles"]) == {a, b}), None)
 
 
 @dataclass
@@ -215,6 +225,19 @@ def _metrics(world: World, out: LoopOutput) -> dict[str, Any]:
         "aeb_time": _num(out.aeb_time[0]),
         "warning_time": _num(out.warning_time[0]),
         "n_collisions": len(out.contacts),
+        "first_contact": _first_contact(world, out),
+    }
+
+
+def _first_contact(world: World, out: LoopOutput) -> dict[str, Any] | None:
+    """Time (s), pair (ids) and relative speed (m/s) of the first contact of any two road users."""
+    if not out.contacts:
+        return None
+    c = out.contacts[0]
+    return {
+        "time": round(c.time, 4),
+        "vehicles": [world.ids[c.a], world.ids[c.b]],
+        "relative_speed": _num(c.relative_speed),
     }
 
 

@@ -337,12 +337,11 @@ def run_loop(
 
     if physics_mode:
         _finish_contacts(out, live.phys if live is not None else None)
-        if out.contacts:
-            first = min(out.contacts, key=lambda c: c.time)
-            if first.a == 0 or first.b == 0:
-                other = first.b if first.a == 0 else first.a
-                out.delta_v_ego[0] = first.delta_v.get(0, np.nan)
-                out.delta_v_other[0] = first.delta_v.get(other, np.nan)
+        first = next((c for c in out.contacts if 0 in (c.a, c.b)), None)  # the ego's first, after any third-party one
+        if first is not None:
+            other = first.b if first.a == 0 else first.a
+            out.delta_v_ego[0] = first.delta_v.get(0, np.nan)
+            out.delta_v_other[0] = first.delta_v.get(other, np.nan)
     else:
         for row, (e_pose, e_vel, e_om, agent, a_pose, a_vel, a_om) in pre_contact.items():
             size_a = (float(world.length[agent + 1]), float(world.width[agent + 1]), float(world.mass[agent + 1]))

@@ -214,3 +214,14 @@ class PathSet:
         v_ref = np.stack([r.v_ref for r in refs])
         a_ref = np.gradient(v_ref, dt, axis=1) if v_ref.shape[1] > 1 else np.zeros_like(v_ref)
         return cls(np.stack(paths), np.stack(heads), np.stack(curvs), np.stack([r.s_ref for r in refs]), v_ref, a_ref)
+
+    def pose_at(self, k: int) -> np.ndarray:
+        """(Q, 4) x, y, heading, speed of every reference at grid step ``k`` (position at ``s_ref``)."""
+        P = self.path.shape[1]
+        u = np.clip(self.s_ref[:, k] / PATH_DS_M, 0.0, P - 1.0)
+        i = np.minimum(u.astype(np.intp), P - 2) if P > 1 else np.zeros(len(u), np.intp)
+        f = (u - i)[:, None] if P > 1 else np.zeros((len(u), 1))
+        q = np.arange(len(u))
+        j = np.minimum(i + 1, P - 1)
+        xy = self.path[q, i] * (1.0 - f) + self.path[q, j] * f
+        return np.column_stack([xy, self.heading[q, i], self.v_ref[:, k]])

@@ -16,8 +16,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: Vehicle mass by category, kg (typical kerb mass + driver).
-CATEGORY_MASS_KG = {"car": 1500.0, "van": 2200.0, "truck": 9000.0, "bus": 12000.0, "motorcycle": 250.0, "bicycle": 95.0}
+#: Road-user mass by category, kg (typical kerb mass + driver; two-wheelers with their rider; an adult).
+CATEGORY_MASS_KG = {
+    "car": 1500.0,
+    "van": 2200.0,
+    "truck": 9000.0,
+    "bus": 12000.0,
+    "motorcycle": 250.0,
+    "bicycle": 95.0,
+    "pedestrian": 75.0,
+}
+#: Categories that move without a vehicle's kinematics: a pedestrian steps sideways, turns on the spot
+#: and stops at once, so the simulator replays its reference path exactly (``PathSet.pose_at``)
+#: instead of steering a bicycle model along it.
+HOLONOMIC_CATEGORIES = frozenset({"pedestrian"})
 #: Wheelbase as a fraction of overall length (passenger cars: 2.7 m / 4.5 m).
 WHEELBASE_FRACTION = 0.6
 

@@ -18,7 +18,7 @@ import numpy as np
 from deepcrashtest.errors import UserError
 from deepcrashtest.scenario import Scenario
 from deepcrashtest.sim.reference import PathSet, Reference, reference_from_trajectory
-from deepcrashtest.sim.vehicle import CATEGORY_MASS_KG, WHEELBASE_FRACTION, VehicleLimits
+from deepcrashtest.sim.vehicle import CATEGORY_MASS_KG, HOLONOMIC_CATEGORIES, WHEELBASE_FRACTION, VehicleLimits
 
 if TYPE_CHECKING:
     from deepcrashtest.sim.agents import AgentTimeline
@@ -43,6 +43,7 @@ class World:
     width: np.ndarray  # (N,) m
     wheelbase: np.ndarray  # (N,) m
     mass: np.ndarray  # (N,) kg
+    holonomic: np.ndarray  # (N,) bool: replays its reference exactly (pedestrians)
     refs: list[Reference]
     agent_paths: PathSet | None
     duration: float = 0.0  # s, times[-1]
@@ -88,6 +89,7 @@ def build_world(scenario: Scenario, dt: float = 0.02, duration: float | None = N
         width=np.array([v.width for v in vehicles], float),
         wheelbase=WHEELBASE_FRACTION * length,
         mass=np.array([CATEGORY_MASS_KG[v.category] for v in vehicles], float),
+        holonomic=np.array([v.category in HOLONOMIC_CATEGORIES for v in vehicles], bool),
         refs=refs,
         agent_paths=PathSet.stack(refs[1:], dt) if len(refs) > 1 else None,
         duration=float(times[-1]),

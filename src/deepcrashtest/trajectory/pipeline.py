@@ -245,7 +245,8 @@ def _road_phase(run: _Run, ego: Dense, crash: CrashOutcome, ego_frame: EgoFrame,
         )
         raw_road = raw_road.model_copy(update={"lane_timeline": shifted})
     paths = [d.xy for d in [ego, *crash.agents]]
-    return build_road(road_frame, raw_road, paths, [d.lateral_m for d in crash.agents if not d.static], p, source)
+    offsets = [d.lateral_m for d in crash.agents if not d.static and d.vehicle.category != "pedestrian"]
+    return build_road(road_frame, raw_road, paths, offsets, p, source, run.warnings)
 
 
 def _assemble(

@@ -4,8 +4,10 @@ The view follows the ego (world x forward = right of the image, y left = up), ``
 pixels per metre. Drawn: road edges and lane lines from ``Scenario.road`` (the centre line is the
 ego's lane centre when ``road.source`` is ``ego_path``; the road spans ``lane_count`` lanes of
 ``lane_width`` with the ego in ``ego_lane``, 0 = rightmost), every present vehicle as its box with
-its id (ego blue, others grey, vehicles in a collision red), 3-second trails, a clock, the ego's
-speed and the first collision (marked at the impact point from then on).
+its id and class (ego blue, cars grey, two-wheelers with their rider yellow, pedestrians green
+discs; road users in a collision red), 3-second trails, a clock, the ego's speed, the ego's first
+collision and the first contact between two other road users (a third-party crash), each marked at
+its impact point from then on. A road that was inferred rather than seen says so.
 """
 
 from __future__ import annotations
@@ -32,6 +34,9 @@ LANE = (160, 160, 160)
 EGO = (235, 140, 30)
 AGENT = (190, 190, 190)
 HIT = (40, 40, 230)
+TWO_WHEELER = (60, 200, 230)
+PEDESTRIAN = (90, 200, 90)
+SHORT = {"pedestrian": "ped", "motorcycle": "moto", "bicycle": "bike"}
 TEXT = (255, 255, 255)
 
 
@@ -80,9 +85,11 @@ def render_frames(scenario: Scenario, result: Any, stride: int | None = None) ->
     dt = float(result.dt)
     stride = stride or max(1, int(round(1.0 / (FPS * dt))))
     sizes = {v.id: (v.length, v.width) for v in scenario.vehicles()}
+    cats = {v.id: v.category for v in scenario.vehicles()}
     edges, lanes, polygon = _road_lines(scenario)
     trail_n = int(round(TRAIL_S / dt))
     first = result.collision
+    third = next((c for c in result.collisions if scenario.ego.id not in c["vehicles"]), None)
     hit_ids = {i for c in result.collisions for i in c["vehicles"]}
     hit_times: dict[int, float] = {}
     for c in result.collisions:
@@ -109,14 +116,24 @@ def render_frames(scenario: Scenario, result: Any, stride: int | None = None) ->
             if not result.present[k, i]:
                 continue
             x, y, yaw, _ = result.states[k, i]
-            colour = HIT if vid in hit_ids and t >= hit_times[vid] else (EGO if i == 0 else AGENT)
-            pts = view.px(_box(x, y, yaw, *sizes[vid]))
-            cv2.fillPoly(img, [pts], colour, cv2.LINE_AA)
-            cv2.polylines(img, [pts], True, (20, 20, 20), 1, cv2.LINE_AA)
+            cat = cats[vid]
+            own = EGO if i == 0 else PEDESTRIAN if cat == "pedestrian" else TWO_WHEELER if cat in SHORT else AGENT
+            colour = HIT if vid in hit_ids and t >= hit_times[vid] else own
             p = view.px(np.array([[x, y]]))[0]
-            _text(img, str(vid), (int(p[0]) - 6, int(p[1]) - 14), 0.45, TEXT)
+            if cat == "pedestrian":
+                r = max(3, int(round(0.5 * max(sizes[vid]) * PX_PER_M)))
+                cv2.circle(img, (int(p[0]), int(p[1])), r, colour, -1, cv2.LINE_AA)
+                cv2.circle(img, (int(p[0]), int(p[1])), r, (20, 20, 20), 1, cv2.LINE_AA)
+            else:
+                pts = view.px(_box(x, y, yaw, *sizes[vid]))
+                cv2.fillPoly(img, [pts], colour, cv2.LINE_AA)
+                cv2.polylines(img, [pts], True, (20, 20, 20), 1, cv2.LINE_AA)
+            tag = f"{vid} {SHORT[cat]}" if cat in SHORT else str(vid)
+            _text(img, tag, (int(p[0]) - 6, int(p[1]) - 14), 0.45, TEXT)
         label = f"t = {t:6.2f} s   ego {ego[3] * 3.6:5.1f} km/h   controller: {result.controller}"
         _text(img, label, (12, 26), 0.6, TEXT)
+        if scenario.road.source == "road_users":
+            _text(img, "road inferred from road users' paths (no lanes seen)", (12, HEIGHT - 44), 0.5, LANE)
         aeb = result.metrics.get("aeb_time")
         if aeb is not None and t >= aeb:
             _text(img, f"AEB braking since {aeb:.2f} s", (12, 52), 0.6, (0, 200, 255))
@@ -129,6 +146,12 @@ def render_frames(scenario: Scenario, result: Any, stride: int | None = None) ->
             if dv is not None:
                 txt += f"  ego delta-v {dv:.1f} m/s"
             _text(img, txt, (12, HEIGHT - 18), 0.65, HIT, 2)
+        if third is not None and t >= third["time"]:
+            if third["point"] is not None:
+                p = view.px(np.array([third["point"]]))[0]
+                cv2.drawMarker(img, (int(p[0]), int(p[1])), HIT, cv2.MARKER_TILTED_CROSS, 22, 3)
+            a, b = third["vehicles"]
+            _text(img, f"CONTACT of {a} and {b} at {third['time']:.2f} s", (12, 78), 0.6, HIT, 2)
         yield img
 
 

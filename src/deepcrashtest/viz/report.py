@@ -108,16 +108,25 @@ def overview_section(sc: Scenario) -> Section:
         ("stage", sc.stage),
         ("agents", len(sc.agents)),
         ("duration (s)", sc.duration()),
+        ("road users", category_listing(sc)),
         ("trajectory classes", ", ".join(f"{k}: {n}" for k, n in classes.items()) or "-"),
         (
             "road",
             f"{sc.road.lane_count} lanes x {sc.road.lane_width:g} m, ego lane {sc.road.ego_lane}, "
-            f"from {sc.road.source}",
+            f"from {sc.road.source}"
+            + (" (no lanes seen: inferred from the road users' paths)" if sc.road.source == "road_users" else ""),
         ),
     ]
     if sc.collision is not None:
         c = sc.collision
-        rows.append(("collision in the video", f"t={c.time_s:.2f} s, vehicle {c.other_id} with {c.agent_id}"))
+        names = {v.id: ("ego" if v.id == sc.ego.id else f"{v.category} {v.id}") for v in sc.vehicles()}
+        kind = "" if c.involves_ego else " (third-party crash)"
+        rows.append(
+            (
+                "collision in the video",
+                f"t={c.time_s:.2f} s, {names[c.other_id]} with {names[c.agent_id]}{kind}, source {c.source}",
+            )
+        )
     rows += [
         ("made by", f"deepcrashtest {sc.provenance.package_version}: {sc.provenance.command or '-'}"),
         ("parameters", ", ".join(f"{k}={v}" for k, v in sc.provenance.parameters.items()) or "-"),
@@ -127,6 +136,16 @@ def overview_section(sc: Scenario) -> Section:
     if sc.provenance.history:
         body += "<h3>Edit history</h3><ol>" + "".join(f"<li>{esc(h)}</li>" for h in sc.provenance.history) + "</ol>"
     return Section("Scenario", body)
+
+
+def category_listing(sc: Scenario) -> str:
+    """Agents per road-user category, e.g. ``car: 3, motorcycle (with rider): 1, pedestrian: 2``."""
+    counts: dict[str, int] = {}
+    for a in sc.agents:
+        counts[a.category] = counts.get(a.category, 0) + 1
+    order = ("car", "van", "truck", "bus", "motorcycle", "bicycle", "pedestrian")
+    label = {"motorcycle": "motorcycle (with rider)", "bicycle": "bicycle (with rider)"}
+    return ", ".join(f"{label.get(k, k)}: {counts[k]}" for k in order if k in counts) or "-"
 
 
 def source_section(sc: Scenario) -> Section:
@@ -230,7 +249,8 @@ def birdseye_section(sc: Scenario, sim_states: Mapping[int, np.ndarray] | None =
         ax.plot(tr["x"], tr["y"], color=col, lw=2.2 if v.id == sc.ego.id else 1.2, zorder=3)
         ax.plot(tr["x"][0], tr["y"][0], "o", color=col, ms=3, zorder=4)
         if v.id != sc.ego.id:
-            ax.annotate(str(v.id), (tr["x"][0], tr["y"][0]), fontsize=6, color="#333", zorder=5)
+            tag = f"{v.id}" if v.category in ("car", "van", "truck", "bus") else f"{v.id} {v.category}"
+            ax.annotate(tag, (tr["x"][0], tr["y"][0]), fontsize=6, color="#333", zorder=5)
     if sim_states:
         for path in sim_states.values():
             p = np.asarray(path, float)

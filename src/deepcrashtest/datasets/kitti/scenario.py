@@ -30,6 +30,8 @@ from deepcrashtest.scenario import Camera, Provenance, Road, Scenario, Trajector
 #: KITTI label type -> Scenario vehicle category. Other types (Pedestrian, Cyclist, Tram, Misc,
 #: DontCare) are not vehicles of the scenario.
 KITTI_VEHICLE_TYPES = {"Car": "car", "Van": "van", "Truck": "truck"}
+#: With ``road_users=True`` also: a KITTI Cyclist is a bicycle with its rider (one road user).
+KITTI_ROAD_USER_TYPES = {**KITTI_VEHICLE_TYPES, "Pedestrian": "pedestrian", "Cyclist": "bicycle"}
 #: Camera position ahead of the KITTI car's centre (camera ~0.27 m ahead of the Velodyne, which
 #: sits roughly over the middle of the 4.8 m VW Passat), metres.
 KITTI_CAMERA_FORWARD_OFFSET_M = 0.3
@@ -63,8 +65,12 @@ def _speed(t: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.hypot(vx, vy)
 
 
-def scenario_from_kitti(root: str | Path, sequence: int) -> Scenario:
-    """Build a raw (``stage="raw"``) Scenario for one KITTI tracking sequence."""
+def scenario_from_kitti(root: str | Path, sequence: int, road_users: bool = False) -> Scenario:
+    """Build a raw (``stage="raw"``) Scenario for one KITTI tracking sequence.
+
+    ``road_users``: also the labelled pedestrians and cyclists (default: vehicles only).
+    """
+    types = KITTI_ROAD_USER_TYPES if road_users else KITTI_VEHICLE_TYPES
     seq = KittiSequence(Path(root), int(sequence)).check()
     labels = read_labels(seq.labels)
     calib = read_calib(seq.calib)
@@ -88,7 +94,7 @@ def scenario_from_kitti(root: str | Path, sequence: int) -> Scenario:
         ),
     )
     agents = []
-    veh = labels[labels["type"].isin(list(KITTI_VEHICLE_TYPES)) & (labels["frame"] < n_frames)]
+    veh = labels[labels["type"].isin(list(types)) & (labels["frame"] < n_frames)]
     for track_id, g in veh.groupby("track_id", sort=True):
         g = g.sort_values("frame")
         frames = g["frame"].to_numpy()
@@ -105,7 +111,7 @@ def scenario_from_kitti(root: str | Path, sequence: int) -> Scenario:
         agents.append(
             Vehicle(
                 id=int(track_id) + 1,  # type: ignore[arg-type]  # 0 is the ego
-                category=KITTI_VEHICLE_TYPES[str(g["type"].mode().iloc[0])],  # type: ignore[arg-type]
+                category=types[str(g["type"].mode().iloc[0])],  # type: ignore[arg-type]
                 length=float(g["l"].median()),
                 width=float(g["w"].median()),
                 height=float(g["h"].median()),
