@@ -14,7 +14,10 @@ Evidence, per candidate pair and frame (each scored 0..1):
   the camera);
 * two tracks: their boxes touch or overlap in the image with bottoms at a similar row (close in
   3D: a similar ground distance), and one of them changes motion suddenly (a spike of the box
-  centre's acceleration or of its size/aspect change).
+  centre's acceleration); discounted when a road user is at the ego's bumper in the clip.
+
+The contact frame of an ego crash is the first camera jolt while the road user is near, else the
+"knee" where its approaching box stops growing, else the first frame at which it is nearest.
 
 The crash is the best-scoring (pair, frame); the contact frame is the first frame of that pair's
 evidence peak. ``confidence`` is the combined score (0..1). None when nothing scores above
@@ -118,16 +121,50 @@ def _motion_change(g: pd.DataFrame, width: int) -> pd.Series:
 
 
 def ego_scores(g: pd.DataFrame, width: int, height: int, fps: float, jolt: dict[int, float]) -> pd.DataFrame:
-    """Per frame of one track: near, closing, jolt and the combined ego-crash score."""
+    """Per frame of one track: near (wide box reaching the image bottom), closing (box growth), jolt."""
     w = (g["x2"] - g["x1"]) / width
     bottom = g["y2"] / height
-    near = np.clip((w - 0.15) / 0.3, 0, 1) * np.clip((bottom - 0.6) / 0.3, 0, 1)
-    growth = _growth(g, fps)
-    closing = np.clip(growth / 1.5, 0, 1)  # TTC 0.67 s -> 1
+    size = np.log(np.sqrt(np.maximum((g["x2"] - g["x1"]) * (g["y2"] - g["y1"]), 1.0)))
+    near = (np.clip((w - 0.12) / 0.3, 0, 1) * np.clip((bottom - 0.55) / 0.3, 0, 1)).rolling(3, center=True, min_periods=1).max()
+    closing = np.clip(_growth(g, fps) / 1.5, 0, 1)  # d ln(size)/dt = 1.5/s (TTC 0.67 s) -> 1
     j = pd.Series([jolt.get(int(f), 0.0) for f in g.index], index=g.index)
-    j = j.rolling(3, center=True, min_periods=1).max()
-    score = near * (0.45 + 0.35 * np.maximum(closing, j) + 0.2 * j)
-    return pd.DataFrame({"near": near, "closing": closing, "jolt": j, "score": score})
+    return pd.DataFrame({"near": near, "closing": closing, "jolt": j, "log_size": size})
+
+
+def knee_frame(s: pd.DataFrame, fps: float) -> int | None:
+    """The first frame at which an approaching box stops growing (two frames in a row growing at less
+    than a third of its rate over the previous half second): the other road user is at the bumper."""
+    ls = s["log_size"].to_numpy(float)
+    g = np.diff(ls)
+    n_prev = max(2, int(round(0.5 * fps)))
+    for k in range(n_prev, len(g) - 1):
+        rate = float(np.median(g[k - n_prev : k]))
+        if rate > 0.02 and s["near"].iloc[k] >= 0.3 and g[k] < rate / 3 and g[k + 1] < rate / 3:
+            return int(s.index[k])
+    return None
+
+
+def ego_best(s: pd.DataFrame, fps: float) -> tuple[float, int, dict[str, float]]:
+    """The ego-crash score of one track and its contact frame: the first camera jolt while the track is
+    near, else the first frame at which the track is nearest (its box stops growing at contact)."""
+    peak = float(s["near"].max())
+    if peak <= 0:
+        return 0.0, int(s.index[0]), {}
+    near_enough = s["near"] >= 0.5 * peak
+    jolted = s.index[near_enough & (s["jolt"] >= 0.3)]
+    knee = knee_frame(s, fps)
+    if len(jolted):
+        frame = int(jolted[0])
+    elif knee is not None:
+        frame = knee
+    else:
+        frame = int(s.index[np.argmax(s["near"].to_numpy() >= 0.9 * peak)])
+    before = s[(s.index <= frame) & (s.index >= frame - fps)]
+    closing = float(before["closing"].max()) if len(before) else 0.0
+    jolt = float(s.loc[frame, "jolt"])
+    score = peak * (0.45 + 0.3 * closing + 0.25 * jolt) if not len(jolted) else peak * (0.6 + 0.4 * jolt)
+    ev = {"near": round(peak, 3), "closing": round(closing, 3), "jolt": round(jolt, 3), "score": round(score, 3)}
+    return score, frame, ev
 
 
 def pair_scores(a: pd.DataFrame, b: pd.DataFrame, width: int, height: int) -> pd.DataFrame:
@@ -143,7 +180,7 @@ def pair_scores(a: pd.DataFrame, b: pd.DataFrame, width: int, height: int) -> pd
     hb = np.maximum(np.maximum(a["y2"] - a["y1"], b["y2"] - b["y1"]), 10)
     depth = np.clip(1 - np.abs(a["y2"] - b["y2"]) / hb / 0.35, 0, 1)
     change = np.maximum(_motion_change(a, width), _motion_change(b, width)).reindex(common).fillna(0)
-    score = touch * depth * (0.4 + 0.6 * change)
+    score = touch * depth * (0.2 + 0.8 * change)
     return pd.DataFrame({"touch": touch, "depth": depth, "change": change, "score": score})
 
 
@@ -154,25 +191,30 @@ def detect_crash(
     fps: float,
     motion: tuple[np.ndarray, np.ndarray] | None = None,
     min_score: float = 0.35,
-    min_frame: int = 0,
+    allowed: set[int] | None = None,
+    frames: tuple[int, int] | None = None,
 ) -> CrashFinding | None:
     """The most likely crash (module docstring), or None. ``motion`` = (frames, shifts) of
-    :class:`GlobalMotion`; frames before ``min_frame`` are not considered."""
-    per = _per_track(tracks)
+    :class:`GlobalMotion`; only tracks in ``allowed`` (if given) and frames in ``frames`` (inclusive)."""
+    per = {k: g for k, g in _per_track(tracks).items() if allowed is None or k in allowed}
     jolt = jolt_score(*motion, fps) if motion is not None else {}
+    lo, hi = frames if frames is not None else (-(10**9), 10**9)
     cands: list[tuple[float, int, tuple[int, int], dict[str, float]]] = []
     for tid, g in per.items():
         s = ego_scores(g, width, height, fps, jolt)
-        s = s[s.index >= min_frame]
+        s = s[(s.index >= lo) & (s.index <= hi)]
         if len(s):
-            cands.append(_best(s, (EGO, tid)))
+            score, frame, ev = ego_best(s, fps)
+            cands.append((score, frame, (EGO, tid), ev))
+    ego_near = max((c[3].get("near", 0.0) for c in cands), default=0.0)
     ids = sorted(per)
     for i, ta in enumerate(ids):
         for tb in ids[i + 1 :]:
             s = pair_scores(per[ta], per[tb], width, height)
-            s = s[s.index >= min_frame]
-            if len(s):
-                cands.append(_best(s, (ta, tb)))
+            s = s[(s.index >= lo) & (s.index <= hi)]
+            if len(s):  # something at the ego's bumper makes an ego crash the likelier one
+                score, frame, pair, ev = _best(s, (ta, tb))
+                cands.append((score * (1 - 0.5 * ego_near), frame, pair, ev))
     if not cands:
         return None
     score, frame, pair, ev = max(cands, key=lambda c: c[0])

@@ -60,12 +60,15 @@ class ContactParams:
     """Weight of the correction's squared acceleration against its squared size (s^4)."""
     accel_limit_mps2: float = 4.0
     """Largest acceleration the correction may add on each axis (driver braking/steering)."""
-    penetration_m: float = 0.05
-    """How far the boxes overlap at the crash time (so a replay detects the contact)."""
+    penetration_s: float = 0.1
+    """How far the boxes overlap at the crash time, in seconds of their closing speed (so a replay,
+    which tracks the path with a small lag, still touches), clipped to ``penetration_m``."""
+    penetration_m: tuple[float, float] = (0.15, 0.4)
     touch_tol_s: float = 0.1
     """The pair must be apart until this long before the crash time."""
-    clearance_m: float = 0.1
-    """Bystanders are kept at least this far from everyone before the crash."""
+    clearance_m: float = 0.5
+    """Bystanders are kept at least this far from everyone before the crash (a replay tracks each
+    path within a few decimetres)."""
     large_m: float = 2.0
     """A correction larger than this is reported as a warning."""
 
@@ -81,6 +84,8 @@ class Movable:
     heading: float
     weight: float = 1.0
     """Cost of moving this vehicle (larger = trusted more, e.g. the ego)."""
+    rigid: bool = False
+    """Only a constant shift of the whole track (a parked car's depth error), never a motion."""
 
 
 @dataclass(frozen=True)
@@ -130,6 +135,11 @@ def _basis(t: np.ndarray, lo: float, hi: float, step: float, anchored: bool) -> 
     return b, b2
 
 
+def _rigid(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A constant shift: one basis function equal to 1, no acceleration."""
+    return np.ones((len(t), 1)), np.zeros((len(t), 1))
+
+
 def _solve(
     movers: list[Movable],
     fixed: list[Movable],
@@ -137,6 +147,7 @@ def _solve(
     eq: list[tuple[int, int, float, float]],
     ineq: list[tuple[int, int, np.ndarray, float]],
     cp: ContactParams,
+    rounds: int = 3,
 ) -> tuple[list[np.ndarray], bool, str]:
     """Least-squares coefficients for ``movers`` (index i < len(movers)) under the pair constraints.
 
@@ -161,7 +172,7 @@ def _solve(
         return float(total)
 
     fixed_tracks = [box_track(m) for m in fixed]
-    yaws = [box_track(m).yaw for m in movers]
+    yaws = [box_track(m).yaw for m in movers]  # held during one solve, then updated from its result
 
     def all_tracks(z: np.ndarray, exact: bool = False) -> list[BoxTrack]:
         ds = deltas(z)
@@ -185,15 +196,20 @@ def _solve(
         lim = cp.accel_limit_mps2
         cons.append({"type": "ineq", "fun": lambda z: lim - a_mat @ z, "jac": lambda z: -a_mat})
         cons.append({"type": "ineq", "fun": lambda z: lim + a_mat @ z, "jac": lambda z: a_mat})
-    res = minimize(cost, np.zeros(offs[-1]), method="SLSQP", constraints=cons, options={"maxiter": 200, "ftol": 1e-8})
-    z = np.asarray(res.x)
-    ok = bool(res.success)
-    if ok:  # SLSQP may stop on a point that misses the constraints by more than we accept
+    z = np.zeros(offs[-1])
+    for _ in range(rounds):
+        res = minimize(cost, z, method="SLSQP", constraints=cons, options={"maxiter": 200, "ftol": 1e-8})
+        z = np.asarray(res.x)
+        ds = deltas(z)
+        yaws[:] = [box_track(m, m.xy + ds[i]).yaw for i, m in enumerate(movers)]
+        ok = bool(res.success)
         trs = all_tracks(z, exact=True)
         for i, j, tc, target in eq:
             ok &= abs(float(separation(*_pick(trs, i, j), np.array([tc]))[0]) - target) < 0.02
         for i, j, ts, gmin in ineq:
             ok &= not len(ts) or float(separation(*_pick(trs, i, j), ts).min()) >= gmin - 0.02
+        if ok:
+            break
     return deltas(z), ok, str(res.message)
 
 
@@ -223,10 +239,11 @@ def make_contact(
     last: Correction | None = None
     for w in cp.windows_s:
         lo = max(t_crash - w, lo_common)
-        bases = [_basis(m.t, lo, t_crash, cp.knot_step_s, anchored=lo > m.t[0] + 1e-6) for m in movers]
+        bases = [_rigid(m.t) if m.rigid else _basis(m.t, lo, t_crash, cp.knot_step_s, lo > m.t[0] + 1e-6) for m in movers]
         t_free = a.t[(a.t >= lo_common) & (a.t <= t_crash - cp.touch_tol_s)]
         t_free = np.append(t_free, t_crash - cp.touch_tol_s) if t_crash - cp.touch_tol_s >= lo_common else t_free
-        ds, ok, msg = _solve(movers, fixed, bases, [(0, 1, t_crash, -cp.penetration_m)], [(0, 1, t_free, 0.0)], cp)
+        eq = [(0, 1, t_crash, -_penetration(a, b, t_crash, cp))]
+        ds, ok, msg = _solve(movers, fixed, bases, eq, [(0, 1, t_free, 0.0)], cp)
         full = _full(ds, movable)
         size = max((float(np.hypot(*d.T).max()) if len(d) else 0.0) for d in ds)
         rms = float(np.sqrt(np.mean(np.concatenate([np.sum(d**2, 1) for d in ds]))))
@@ -235,6 +252,13 @@ def make_contact(
             return last
     assert last is not None
     return last
+
+
+def _penetration(a: Movable, b: Movable, t: float, cp: ContactParams) -> float:
+    """Overlap (m) at the crash: ``penetration_s`` x the pair's relative speed there, clipped."""
+    va, vb = box_track(a).velocity(t), box_track(b).velocity(t)
+    lo, hi = cp.penetration_m
+    return float(np.clip(cp.penetration_s * np.hypot(*(va - vb)), lo, hi))
 
 
 def _full(ds: list[np.ndarray], movable: tuple[bool, ...]) -> list[np.ndarray]:

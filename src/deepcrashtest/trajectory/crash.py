@@ -45,7 +45,7 @@ def contact_params(p: Stage2Params) -> ContactParams:
 
 def _movable(d: Dense, is_ego: bool) -> Movable:
     weight = EGO_WEIGHT if is_ego else (STATIC_WEIGHT if d.static else 1.0)
-    return Movable(d.t, d.xy, d.vehicle.length, d.vehicle.width, d.heading, weight)
+    return Movable(d.t, d.xy, d.vehicle.length, d.vehicle.width, d.heading, weight, rigid=d.static and not is_ego)
 
 
 def resolve_crash(
@@ -117,10 +117,7 @@ def _enforce_pair(
     """Correct the pair's last seconds so they first touch at the collision time; returns the record."""
     byid = {d.id: d for d in [ego, *agents]}
     a, b = byid[collision.other_id], byid[collision.agent_id]
-    free = (not (a.static and b is not ego), not (b.static and a is not ego))
-    if not any(free):
-        free = (True, True)
-    corr = make_contact(_movable(a, a is ego), _movable(b, b is ego), collision.time_s, cp, movable=free)
+    corr = make_contact(_movable(a, a is ego), _movable(b, b is ego), collision.time_s, cp)
     for d, delta in zip((a, b), corr.deltas, strict=True):
         if len(delta):
             d.xy = d.xy + delta

@@ -121,7 +121,8 @@ def _ego_phase(run: _Run) -> tuple[EgoFrame, Dense]:
         t_end = min(tc, t_end)
     dt = 1.0 / run.fps
     grid = span(dt * np.arange(int(np.floor(t_end / dt + 1e-6)) + 1), 0.0, t_end)
-    sm = smooth_track(ego_t, e["x"], e["y"], run.fps, p)
+    ex, ey = _repair_start_jump(ego_t, e["x"], e["y"], run.warnings)
+    sm = smooth_track(ego_t, ex, ey, run.fps, p)
     xy, vel = sm.pos(grid), sm.vel(grid)
     heading0 = headings(grid, xy, float(e["yaw"][0]), vel)[0]
     frame = RoadFrame.from_path(xy, p.road_sigma_m, heading=heading0)
@@ -130,6 +131,31 @@ def _ego_phase(run: _Run) -> tuple[EgoFrame, Dense]:
     dense = Dense(raw.ego, grid, xy, np.ones(len(grid), bool), heading0)
     ego_frame = EgoFrame(grid, frame, s_ego, v_road, np.hypot(vel[:, 0], vel[:, 1]), dense.box_track(), run.fps)
     return ego_frame, dense
+
+
+def _repair_start_jump(
+    t: np.ndarray, x: np.ndarray, y: np.ndarray, warnings: list[str]
+) -> tuple[np.ndarray, np.ndarray]:
+    """An ego at rest for its first samples and then at speed at once (an ego-motion warm-up, not a
+    launch no car can make) is continued back from its first moving samples at their speed."""
+    step = np.hypot(np.diff(x), np.diff(y)) / np.maximum(np.diff(t), EPS_T)
+    moving = np.nonzero(step > 0.5)[0]
+    if not len(moving) or moving[0] == 0 or len(step) < moving[0] + 3:
+        return x, y
+    k = int(moving[0])  # first moving step: samples k -> k+1
+    v = float(np.median(step[k : k + 3]))
+    if v / max(float(t[k + 1] - t[k]), EPS_T) <= MAX_ACCEL_MPS2 or step[:k].max(initial=0.0) > 0.1:
+        return x, y
+    u = np.array([x[k + 1] - x[k], y[k + 1] - y[k]]) / max(float(np.hypot(x[k + 1] - x[k], y[k + 1] - y[k])), EPS_T)
+    back = v * (t[k + 1] - t[: k + 1])
+    x, y = x.copy(), y.copy()
+    x[: k + 1] = x[k + 1] - back * u[0]
+    y[: k + 1] = y[k + 1] - back * u[1]
+    warnings.append(
+        f"ego: at rest for its first {t[k]:.1f} s, then at {v:.1f} m/s at once (ego-motion warm-up); "
+        "those seconds are continued back at that speed"
+    )
+    return x, y
 
 
 def _step_back_phase(run: _Run, ego: Dense, agents: list[Dense]) -> float:
@@ -290,16 +316,28 @@ def _assemble(
     )
 
 
+def _reverses(d: Dense, vel: np.ndarray, tol_mps: float = 0.5) -> bool:
+    """True when a vehicle's fitted path runs backwards (against its overall travel) faster than
+    ``tol_mps`` anywhere: a spline overshoot where a track starts abruptly; pedestrians may turn."""
+    if d.static or d.vehicle.category == "pedestrian" or len(d.t) < 3:
+        return False
+    disp = d.xy[-1] - d.xy[0]
+    norm = float(np.hypot(*disp))
+    if norm < 1.0:
+        return False
+    return bool((vel @ (disp / norm)).min() < -tol_mps)
+
+
 def _final_vehicle(d: Dense, p: Stage2Params, cls: str | None) -> Vehicle:
     """Fit the final spline and sample it: positions, heading and speed from its derivative; a
     stronger fit where a junction of pieces is too abrupt; refused if still not physically possible."""
     label = "ego" if cls is None else f"agent {d.vehicle.id}"
-    for scale in (1.0, 4.0, 16.0, 64.0):
+    for scale in (1.0, 4.0, 16.0, 64.0, 256.0):
         tck = fit_xy_spline(d.t, d.xy[:, 0], d.xy[:, 1], p.final_sigma_m * scale)
         xy = eval_xy(tck, d.t)
         vel = eval_xy(tck, d.t, der=1)
         speed = np.zeros(len(d.t)) if d.static else np.hypot(vel[:, 0], vel[:, 1])
-        if speed.max(initial=0.0) > MAX_SPEED_MPS:
+        if speed.max(initial=0.0) > MAX_SPEED_MPS or _reverses(d, vel):
             continue
         yaw = headings(d.t, xy, d.heading, vel)
         traj = Trajectory.from_arrays(d.t, xy[:, 0], xy[:, 1], yaw, speed, observed=d.observed)
