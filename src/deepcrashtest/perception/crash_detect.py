@@ -60,8 +60,10 @@ class GlobalMotion:
 
     def update(self, frame_index: int, image: np.ndarray) -> None:
         h, w = image.shape[:2]
-        small = cv2.resize(image[: int(h * self.keep_rows)], (self.width, max(8, int(self.width * h * self.keep_rows / w))))
-        grey = np.float32(cv2.cvtColor(small, cv2.COLOR_BGR2GRAY) if small.ndim == 3 else small)
+        small = cv2.resize(
+            image[: int(h * self.keep_rows)], (self.width, max(8, int(self.width * h * self.keep_rows / w)))
+        )
+        grey = np.asarray(cv2.cvtColor(small, cv2.COLOR_BGR2GRAY) if small.ndim == 3 else small, np.float32)
         if self._prev is None or self._prev.shape != grey.shape:
             d = (0.0, 0.0)
         else:
@@ -96,15 +98,16 @@ def _per_track(tracks: pd.DataFrame) -> dict[int, pd.DataFrame]:
     for tid, g in tracks.sort_values("frame").groupby("track_id"):
         g = g.drop_duplicates("frame").set_index("frame")
         if len(g) >= 3:
-            out[int(tid)] = g
+            out[int(str(tid))] = g
     return out
 
 
 def _growth(g: pd.DataFrame, fps: float) -> pd.Series:
     """d ln(box size)/dt (1/s), smoothed over 3 frames: 1/TTC when the track approaches."""
-    size = np.sqrt(np.maximum((g["x2"] - g["x1"]) * (g["y2"] - g["y1"]), 1.0))
+    w = g["x2"].to_numpy(float) - g["x1"].to_numpy(float)
+    h = g["y2"].to_numpy(float) - g["y1"].to_numpy(float)
     dt = np.maximum(np.diff(g.index.to_numpy(float)) / fps, 1e-6)
-    r = np.r_[0.0, np.diff(np.log(size.to_numpy(float))) / dt]
+    r = np.r_[0.0, np.diff(np.log(np.sqrt(np.maximum(w * h, 1.0)))) / dt]
     return pd.Series(r, index=g.index).rolling(3, center=True, min_periods=1).mean()
 
 
@@ -122,12 +125,12 @@ def _motion_change(g: pd.DataFrame, width: int) -> pd.Series:
 
 def ego_scores(g: pd.DataFrame, width: int, height: int, fps: float, jolt: dict[int, float]) -> pd.DataFrame:
     """Per frame of one track: near (wide box reaching the image bottom), closing (box growth), jolt."""
-    w = (g["x2"] - g["x1"]) / width
-    bottom = g["y2"] / height
-    size = np.log(np.sqrt(np.maximum((g["x2"] - g["x1"]) * (g["y2"] - g["y1"]), 1.0)))
-    near = (np.clip((w - 0.12) / 0.3, 0, 1) * np.clip((bottom - 0.55) / 0.3, 0, 1)).rolling(3, center=True, min_periods=1).max()
-    closing = np.clip(_growth(g, fps) / 1.5, 0, 1)  # d ln(size)/dt = 1.5/s (TTC 0.67 s) -> 1
-    j = pd.Series([jolt.get(int(f), 0.0) for f in g.index], index=g.index)
+    x1, y1, x2, y2 = (g[c].to_numpy(float) for c in ("x1", "y1", "x2", "y2"))
+    size = np.log(np.sqrt(np.maximum((x2 - x1) * (y2 - y1), 1.0)))
+    raw_near = np.clip(((x2 - x1) / width - 0.12) / 0.3, 0, 1) * np.clip((y2 / height - 0.55) / 0.3, 0, 1)
+    near = pd.Series(raw_near, index=g.index).rolling(3, center=True, min_periods=1).max()
+    closing = np.clip(_growth(g, fps).to_numpy(), 0, 1.5) / 1.5  # d ln(size)/dt = 1.5/s (TTC 0.67 s) -> 1
+    j = pd.Series([jolt.get(int(f), 0.0) for f in g.index.to_numpy(int)], index=g.index)
     return pd.DataFrame({"near": near, "closing": closing, "jolt": j, "log_size": size})
 
 
@@ -149,19 +152,19 @@ def ego_best(s: pd.DataFrame, fps: float) -> tuple[float, int, dict[str, float]]
     near, else the first frame at which the track is nearest (its box stops growing at contact)."""
     peak = float(s["near"].max())
     if peak <= 0:
-        return 0.0, int(s.index[0]), {}
+        return 0.0, int(s.index.to_numpy()[0]), {}
     near_enough = s["near"] >= 0.5 * peak
-    jolted = s.index[near_enough & (s["jolt"] >= 0.3)]
+    jolted = s.index.to_numpy()[(near_enough & (s["jolt"] >= 0.3)).to_numpy()]
     knee = knee_frame(s, fps)
     if len(jolted):
         frame = int(jolted[0])
     elif knee is not None:
         frame = knee
     else:
-        frame = int(s.index[np.argmax(s["near"].to_numpy() >= 0.9 * peak)])
+        frame = int(s.index.to_numpy()[int(np.argmax(s["near"].to_numpy() >= 0.9 * peak))])
     before = s[(s.index <= frame) & (s.index >= frame - fps)]
     closing = float(before["closing"].max()) if len(before) else 0.0
-    jolt = float(s.loc[frame, "jolt"])
+    jolt = float(s["jolt"].to_numpy()[s.index.to_numpy() == frame][0])
     score = peak * (0.45 + 0.3 * closing + 0.25 * jolt) if not len(jolted) else peak * (0.6 + 0.4 * jolt)
     ev = {"near": round(peak, 3), "closing": round(closing, 3), "jolt": round(jolt, 3), "score": round(score, 3)}
     return score, frame, ev
@@ -179,7 +182,7 @@ def pair_scores(a: pd.DataFrame, b: pd.DataFrame, width: int, height: int) -> pd
     touch = np.clip(1 + np.minimum(ix, iy) / np.maximum(scale, 10) / 0.15, 0, 1) * (iy > 0)
     hb = np.maximum(np.maximum(a["y2"] - a["y1"], b["y2"] - b["y1"]), 10)
     depth = np.clip(1 - np.abs(a["y2"] - b["y2"]) / hb / 0.35, 0, 1)
-    change = np.maximum(_motion_change(a, width), _motion_change(b, width)).reindex(common).fillna(0)
+    change = pd.Series(np.maximum(_motion_change(a, width).to_numpy(), _motion_change(b, width).to_numpy()), common)
     score = touch * depth * (0.2 + 0.8 * change)
     return pd.DataFrame({"touch": touch, "depth": depth, "change": change, "score": score})
 
@@ -226,6 +229,8 @@ def detect_crash(
 def _best(s: pd.DataFrame, pair: tuple[int, int]) -> tuple[float, int, tuple[int, int], dict[str, float]]:
     """The pair's peak score and its contact frame: the first frame reaching 90% of the peak."""
     peak = float(s["score"].max())
-    frame = int(s.index[np.argmax(s["score"].to_numpy() >= 0.9 * peak)]) if peak > 0 else int(s.index[0])
-    ev = {k: round(float(v), 3) for k, v in s.loc[frame].items()}
+    idx = s.index.to_numpy()
+    k = int(np.argmax(s["score"].to_numpy() >= 0.9 * peak)) if peak > 0 else 0
+    frame = int(idx[k])
+    ev = {str(c): round(float(s[c].to_numpy()[k]), 3) for c in s.columns}
     return peak, frame, pair, ev

@@ -19,7 +19,7 @@ import pandas as pd
 
 from deepcrashtest.errors import UserError
 from deepcrashtest.perception.crash_detect import EGO, CrashFinding, detect_crash
-from deepcrashtest.scenario import Collision, Scenario
+from deepcrashtest.scenario import Collision, CollisionSource, Scenario
 
 _SPEC = re.compile(r"^\s*(\d+)\s*(?::\s*([A-Za-z0-9]+)\s*,\s*([A-Za-z0-9]+)\s*)?$")
 AUTO_PAIR_WINDOW_S = 0.3  # --crash FRAME without ids: the best pair within this of the frame
@@ -65,13 +65,19 @@ def crash_for_raw(
     fps = float(raw.source.fps)
     agents = {a.id for a in raw.agents}
     w, h = raw.source.width, raw.source.height
+    finding: CrashFinding | None
+    source: CollisionSource
     if spec is not None:
         finding, source = _user_crash(spec, raw, tracks, motion, agents), "user"
     else:
         finding = detect_crash(tracks, w, h, fps, motion, allowed=agents)
         source = "video-auto"
     if finding is None:
-        record: dict[str, Any] = {"found": False, "source": source, "method": "image evidence (perception.crash_detect)"}
+        record: dict[str, Any] = {
+            "found": False,
+            "source": source,
+            "method": "image evidence (perception.crash_detect)",
+        }
         return _with_record(raw, record, None), record
     t_video = finding.frame / fps
     t = float(raw.scenario_time(t_video))
@@ -105,7 +111,11 @@ def _user_crash(
     spec: CrashSpec, raw: Scenario, tracks: pd.DataFrame, motion: tuple[np.ndarray, np.ndarray] | None, agents: set[int]
 ) -> CrashFinding:
     fps = float(raw.source.fps)
-    last = raw.source.frame_count - 1 if raw.source.frame_count else int(round(raw.video_time(raw.ego.trajectory.t[-1]) * fps))
+    last = (
+        raw.source.frame_count - 1
+        if raw.source.frame_count
+        else int(round(raw.video_time(raw.ego.trajectory.t[-1]) * fps))
+    )
     if not 0 < spec.frame <= last:
         raise UserError(f"--crash {spec.text!r}: frame {spec.frame} is outside the video (1..{last})")
     if spec.pair is not None:

@@ -23,9 +23,11 @@ from deepcrashtest.fileio import atomic_path, check_writable, ensure_output_dir
 from deepcrashtest.geometry.camera import default_camera
 from deepcrashtest.geometry.extract_geometry import GeometryResult, extract_geometry
 from deepcrashtest.perception.annotate import Annotator
+from deepcrashtest.perception.crash_detect import GlobalMotion
 from deepcrashtest.perception.detect import make_detector
 from deepcrashtest.perception.lanes import LaneState, draw_lanes
 from deepcrashtest.perception.track import FrameTracks, frame_records, iter_tracks, records_table
+from deepcrashtest.pipeline.crash import CrashSpec, crash_for_raw, parse_crash
 from deepcrashtest.scenario import Camera, VideoSource
 from deepcrashtest.trajectory.pipeline import process_scenario
 from deepcrashtest.ui import track as progress
@@ -56,6 +58,7 @@ def run_extract(
     seed: int = 0,
     shots: bool = True,
     frame_range: tuple[int, int] | None = None,
+    crash: str | None = None,
 ) -> dict[str, Any]:
     """Extract a video in ONE decoding pass: detect + track, ego-motion, lanes, localisation.
 
@@ -69,7 +72,12 @@ def run_extract(
     ``report.html``. ``camera`` defaults to :func:`deepcrashtest.geometry.camera.default_camera`
     (horizon from the lanes' vanishing point or the flow's focus of expansion); a callable gets the
     video's width and height and returns the Camera. Returns a summary.
+
+    The crash (:mod:`deepcrashtest.pipeline.crash`): detected from image evidence in the same pass,
+    or ``crash`` = ``"FRAME[:ID,ID]"`` (the user's, ids as in tracks.csv, ``ego`` allowed); it is the
+    raw scenario's ``collision`` and stage 2 makes it happen.
     """
+    crash_spec = parse_crash(crash) if crash is not None else None
     if detect_every < 1:
         raise UserError(f"--detect-every must be >= 1 (got {detect_every})")
     if max_frames is not None and max_frames < 1:
@@ -99,7 +107,7 @@ def run_extract(
         if len(found) > 1:
             options = dict(detector=detector, detect_every=detect_every, fps=fps, annotate=annotate, geometry=geometry)
             options |= dict(camera=camera, dashboard_rows=dashboard_rows, lanes=lanes, report=report, seed=seed)
-            return _extract_shots(src_path, out, found, force, options)
+            return _extract_shots(src_path, out, found, force, options, crash_spec)
     det = make_detector(detector)
     t0 = time.perf_counter()
     records: list[tuple[object, ...]] = []
@@ -125,6 +133,7 @@ def run_extract(
                     writer.write(drawer.draw(ft))
         else:
             pending: dict[int, FrameTracks] = {}
+            motion = GlobalMotion()
 
             def pairs() -> Iterator[tuple[Any, pd.DataFrame]]:
                 for ft in tracked:
@@ -134,6 +143,7 @@ def run_extract(
                     yield ft.frame, records_table(rows)
 
             def on_frame(frame: Any, _trk: pd.DataFrame, lane_state: LaneState | None) -> None:
+                motion.update(int(frame.index), frame.image)
                 ft = pending.pop(int(frame.index))
                 if writer is not None:
                     img = drawer.draw(ft)
@@ -157,6 +167,9 @@ def run_extract(
     if meta.decoded_frames == 0:
         raise UserError(f"{src_path}: no frame could be decoded")
     df = records_table(records)
+    crash_info: dict[str, Any] | None = None
+    if geo is not None:  # before anything is written: a bad --crash id refuses the whole set
+        geo.scenario, crash_info = crash_for_raw(geo.scenario, df, motion.arrays(), crash_spec)
     with atomic_path(paths["tracks_csv"], force=force) as tmp:
         df.to_csv(tmp, index=False, float_format="%.3f")
 
@@ -184,6 +197,7 @@ def run_extract(
         "scenario_raw": None,
         "scenario": None,
         "report": None,
+        "crash_detection": crash_info,
         "warnings": warnings,
     }
     if geo is not None:
@@ -239,7 +253,9 @@ def _in_range(frames: Iterable[Frame], frame_range: tuple[int, int] | None) -> I
         yield frame
 
 
-def _extract_shots(video: Path, out: Path, shots: list[Shot], force: bool, options: dict[str, Any]) -> dict[str, Any]:
+def _extract_shots(
+    video: Path, out: Path, shots: list[Shot], force: bool, options: dict[str, Any], crash: CrashSpec | None = None
+) -> dict[str, Any]:
     """A compilation: one extraction per shot into ``out/shot_NN/``; shots shorter than
     ``MIN_EXTRACT_SHOT_S`` are skipped with a warning (too short for ego-motion and tracks)."""
     from deepcrashtest.video.shots import cut_times
@@ -254,7 +270,13 @@ def _extract_shots(video: Path, out: Path, shots: list[Shot], force: bool, optio
             warnings.append(f"{name}: {span} is shorter than {MIN_EXTRACT_SHOT_S} s; not extracted")
             continue
         res = run_extract(
-            video, out / name, force=force, shots=False, frame_range=(shot.first_frame, shot.last_frame), **options
+            video,
+            out / name,
+            force=force,
+            shots=False,
+            frame_range=(shot.first_frame, shot.last_frame),
+            crash=crash.text if crash is not None and shot.first_frame <= crash.frame <= shot.last_frame else None,
+            **options,
         )
         results.append({"shot": name, "first_frame": shot.first_frame, "last_frame": shot.last_frame, **res})
     return {

@@ -239,9 +239,12 @@ def make_contact(
     last: Correction | None = None
     for w in cp.windows_s:
         lo = max(t_crash - w, lo_common)
-        bases = [_rigid(m.t) if m.rigid else _basis(m.t, lo, t_crash, cp.knot_step_s, lo > m.t[0] + 1e-6) for m in movers]
-        t_free = a.t[(a.t >= lo_common) & (a.t <= t_crash - cp.touch_tol_s)]
-        t_free = np.append(t_free, t_crash - cp.touch_tol_s) if t_crash - cp.touch_tol_s >= lo_common else t_free
+        bases = [
+            _rigid(m.t) if m.rigid else _basis(m.t, lo, t_crash, cp.knot_step_s, lo > m.t[0] + 1e-6) for m in movers
+        ]
+        t_apart = t_crash - 0.8 * cp.touch_tol_s  # a margin for the final spline fit
+        t_free = a.t[(a.t >= lo_common) & (a.t <= t_apart)]
+        t_free = np.append(t_free, t_apart) if t_apart >= lo_common else t_free
         eq = [(0, 1, t_crash, -_penetration(a, b, t_crash, cp))]
         ds, ok, msg = _solve(movers, fixed, bases, eq, [(0, 1, t_free, 0.0)], cp)
         full = _full(ds, movable)

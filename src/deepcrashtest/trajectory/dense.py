@@ -52,7 +52,9 @@ class Dense:
 
     def box_track(self) -> BoxTrack:
         v = self.vehicle
-        return BoxTrack(self.t, self.xy[:, 0], self.xy[:, 1], headings(self.t, self.xy, self.heading), v.length, v.width)
+        return BoxTrack(
+            self.t, self.xy[:, 0], self.xy[:, 1], headings(self.t, self.xy, self.heading), v.length, v.width
+        )
 
     def keep(self, mask: np.ndarray) -> None:
         self.t, self.xy, self.observed = self.t[mask], self.xy[mask], self.observed[mask]
@@ -230,4 +232,3 @@ def _extend_before(d: Dense, obs: _Observed, ego: EgoFrame, p: Stage2Params) -> 
         oncoming = d.feats is not None and d.feats.oncoming
         speed = float(np.hypot(*v_first))
         d.prepend(t_pre, continue_before(frame, xy_first[0], speed, h_first, float(obs.t[0]), t_pre, oncoming))
-

@@ -317,9 +317,10 @@ def _assemble(
 
 
 def _reverses(d: Dense, vel: np.ndarray, tol_mps: float = 0.5) -> bool:
-    """True when a vehicle's fitted path runs backwards (against its overall travel) faster than
-    ``tol_mps`` anywhere: a spline overshoot where a track starts abruptly; pedestrians may turn."""
-    if d.static or d.vehicle.category == "pedestrian" or len(d.t) < 3:
+    """True when the ego's fitted path runs backwards (against its overall travel) faster than
+    ``tol_mps`` anywhere: a spline overshoot where its track starts abruptly (agents' monocular
+    tracks wobble; a replay follows their positions, not a backward heading)."""
+    if d.static or d.vehicle.id != 0 or len(d.t) < 3:
         return False
     disp = d.xy[-1] - d.xy[0]
     norm = float(np.hypot(*disp))
