@@ -41,7 +41,9 @@ def test_start_delays_follow_frame_of_appearance(processed):
     assert EGO_SPEED / 3.0 <= t_max < 10.5 / 3.0
     for cls, v in CLASS_CASES.items():
         a = sc.vehicle(v.id)
-        if cls in DELAYED:
+        if cls == "D0T2":  # invented behind the ego for at most max_invented_s before it is seen
+            assert a.start_delay_s == pytest.approx(v.first_frame / FPS - 2.0 + t_max, abs=1e-6)
+        elif cls in DELAYED:
             assert a.start_delay_s == pytest.approx(v.first_frame / FPS + t_max, abs=1e-9)
             assert a.trajectory.t[0] == pytest.approx(a.start_delay_s, abs=1e-9)
             assert a.trajectory.observed[0] is True

@@ -185,32 +185,47 @@ def _solve(
 
     cons: list[dict[str, Any]] = [{"type": "eq", "fun": gap(i, j, np.array([tc]), g)} for i, j, tc, g in eq]
     cons += [{"type": "ineq", "fun": gap(i, j, ts, g)} for i, j, ts, g in ineq if len(ts)]
-    rows = []
-    for i, (_b, b2) in enumerate(bases):  # |delta''| <= limit on each axis: linear in the coefficients
-        for axis in range(2):
-            m = np.zeros((b2.shape[0], offs[-1]))
-            m[:, offs[i] + axis * sizes[i] : offs[i] + (axis + 1) * sizes[i]] = b2
-            rows.append(m)
-    if rows:
-        a_mat = np.vstack(rows)
-        lim = cp.accel_limit_mps2
-        cons.append({"type": "ineq", "fun": lambda z: lim - a_mat @ z, "jac": lambda z: -a_mat})
-        cons.append({"type": "ineq", "fun": lambda z: lim + a_mat @ z, "jac": lambda z: a_mat})
+    cons += _accel_limits(bases, offs, cp.accel_limit_mps2)
     z = np.zeros(offs[-1])
     for _ in range(rounds):
         res = minimize(cost, z, method="SLSQP", constraints=cons, options={"maxiter": 200, "ftol": 1e-8})
         z = np.asarray(res.x)
         ds = deltas(z)
         yaws[:] = [box_track(m, m.xy + ds[i]).yaw for i, m in enumerate(movers)]
-        ok = bool(res.success)
-        trs = all_tracks(z, exact=True)
-        for i, j, tc, target in eq:
-            ok &= abs(float(separation(*_pick(trs, i, j), np.array([tc]))[0]) - target) < 0.02
-        for i, j, ts, gmin in ineq:
-            ok &= not len(ts) or float(separation(*_pick(trs, i, j), ts).min()) >= gmin - 0.02
+        ok = bool(res.success) and _satisfied(all_tracks(z, exact=True), eq, ineq)
         if ok:
             break
     return deltas(z), ok, str(res.message)
+
+
+def _accel_limits(bases: list[tuple[np.ndarray, np.ndarray]], offs: np.ndarray, lim: float) -> list[dict[str, Any]]:
+    """|delta''| <= ``lim`` (m/s^2) on each axis at every sample: linear in the coefficients."""
+    rows = []
+    for i, (_b, b2) in enumerate(bases):
+        k = b2.shape[1]
+        for axis in range(2):
+            m = np.zeros((b2.shape[0], int(offs[-1])))
+            m[:, offs[i] + axis * k : offs[i] + (axis + 1) * k] = b2
+            rows.append(m)
+    if not rows:
+        return []
+    a_mat = np.vstack(rows)
+    return [
+        {"type": "ineq", "fun": lambda z: lim - a_mat @ z, "jac": lambda z: -a_mat},
+        {"type": "ineq", "fun": lambda z: lim + a_mat @ z, "jac": lambda z: a_mat},
+    ]
+
+
+def _satisfied(
+    trs: list[BoxTrack], eq: list[tuple[int, int, float, float]], ineq: list[tuple[int, int, np.ndarray, float]]
+) -> bool:
+    """The constraints hold with the exact headings, within 2 cm (SLSQP may stop just short)."""
+    ok = True
+    for i, j, tc, target in eq:
+        ok &= abs(float(separation(*_pick(trs, i, j), np.array([tc]))[0]) - target) < 0.02
+    for i, j, ts, gmin in ineq:
+        ok &= not len(ts) or float(separation(*_pick(trs, i, j), ts).min()) >= gmin - 0.02
+    return bool(ok)
 
 
 def _pick(tracks: list[BoxTrack], i: int, j: int) -> tuple[BoxTrack, BoxTrack]:

@@ -212,15 +212,19 @@ def _extend_after(d: Dense, obs: _Observed, ego: EgoFrame, p: Stage2Params, warn
 
 
 def _extend_before(d: Dense, obs: _Observed, ego: EgoFrame, p: Stage2Params) -> None:
-    """D0T2 (an overtaker) approaches from behind before it appears; agents in view at the start
-    but first seen a few frames late are continued back to the start; the others start late."""
+    """D0T2 (an overtaker) approaches from behind for at most ``max_invented_s`` before it appears;
+    agents in view at the start but first seen a few frames late are continued back to the start;
+    the others start late."""
     grid, frame = ego.grid, ego.frame
     t_pre = grid[grid < obs.t[0] - EPS_T]
     if not t_pre.size:
         return
     v_first = obs.sm.vel(obs.t[0])[0]
     xy_first = obs.sm.pos(obs.t[0])
-    if d.cls == "D0T2" and d.feats is not None:
+    if d.cls == "D0T2" and d.feats is not None:  # nobody is invented long before they are seen
+        t_pre = t_pre[t_pre >= obs.t[0] - p.max_invented_s - EPS_T]
+        if not t_pre.size:
+            return
         w0 = max(d.feats.entry_rel_speed_mps, p.min_overtake_rel_speed_mps)
         r_pre, _gap = overtaker_relative_station(
             t_pre, float(obs.t[0]), float(d.rel_s[0]), w0, p.overtaker_gap_m, p.overtaker_rel_accel_mps2

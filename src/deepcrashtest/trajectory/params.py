@@ -52,10 +52,12 @@ class Stage2Params:
     overtaker_rel_accel_mps2: float = 1.0
     """D0T2: relative acceleration with which it closes in on the ego before it appears."""
     min_overtake_rel_speed_mps: float = 0.5
+    max_invented_s: float = 2.0
+    """D0T2: how long before it is first seen an overtaker is invented behind the ego, s (then it starts late)."""
     # --- step-back initialisation (trajectory.stepback)
     stepback_accel_mps2: float = 3.0
     """Acceleration a of every vehicle from rest to its first observed speed, m/s^2."""
-    stepback_max_s: float = 3.0
+    stepback_max_s: float = 4.0
     """Longest lead-in before the first frame, s: faster vehicles start moving rather than from rest."""
     max_agent_speed_mps: float = 60.0
     """An agent whose observed speed (90th percentile) exceeds this is localisation noise: dropped."""
