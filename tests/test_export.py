@@ -21,8 +21,9 @@ from lxml import etree
 from conftest import KITTI_TRACKING, need
 from deepcrashtest.errors import UserError
 from deepcrashtest.export import export_scenario
-from deepcrashtest.export.opendrive import lane_boundary_offsets, opendrive_lane_id, reference_line
+from deepcrashtest.export.opendrive import opendrive_lane_id, reference_line
 from deepcrashtest.export.openscenario import EGO_NAME, entity_name, entry_time, write_parameter_distribution
+from deepcrashtest.geometry.road import boundary_offsets
 from deepcrashtest.scenario import Road, Scenario
 from export_helpers import qc_available, read_xosc, run_qc
 
@@ -109,7 +110,7 @@ def test_reference_line_passes_through_waypoints_pyxodr(exported):
     centre = shapely.LineString(np.asarray(ego_lane.centre_line)[:, :2])
     lane_dev = max(centre.distance(shapely.Point(p)) for p in sc.road.centerline())
     assert lane_dev < POS_TOL_M
-    widths = np.diff(lane_boundary_offsets(sc.road))
+    widths = np.diff(boundary_offsets(sc.road))
     assert np.allclose(widths, sc.road.lane_width)
 
 

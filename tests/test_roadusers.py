@@ -106,6 +106,12 @@ def test_third_party_crash_is_reproduced_and_searched(kitti12, tmp_path):
     first = res.metrics["first_contact"]
     assert set(first["vehicles"]) == {PEDESTRIAN, CYCLIST} and abs(first["time"] - 3.0) < 0.1
     assert first["relative_speed"] > 1.0 and not res.metrics["collided"]  # the ego touches nobody
+    # a later ego crash (car 2 moved to meet the ego at 5 s; its path crosses the ego earlier) is still the
+    # ego's collision, with its own delta-v
+    both = simulate(meet(crash, 2, 0, 5.0).evolve(collision=crash.collision))
+    assert both.metrics["first_contact"]["vehicles"] == first["vehicles"]
+    assert both.metrics["collided"] and both.metrics["collision_vehicle"] == 2
+    assert 3.1 < both.metrics["collision_time"] <= 5.1 and both.metrics["delta_v_ego"] > 0.5
     cfg = SearchConfig(starts=2, noise_variants=2, method="random", boundary_directions=0, max_scenarios=1)
     summary = run_search(crash, tmp_path, SearchConfig(**{**cfg.__dict__, "video": False}))
     q = summary["crash"]

@@ -63,7 +63,7 @@ def test_streamed_timeline_equals_cached(head_on, monkeypatch):
     monkeypatch.setattr(agents_mod, "SEGMENT", 37)
     monkeypatch.setattr(agents_mod, "MAX_CACHED_ENTRIES", 0)  # keep one segment, re-record every run
     world = prepare(head_on, duration=12.0)
-    assert not world.agent_timeline(VehicleLimits()).keep_all
+    assert not agents_mod.agent_timeline(world, VehicleLimits()).keep_all
     _same(simulate_batch(world, off, controller="aeb"), ref)
     _same(simulate_batch(world, off, controller="aeb"), ref)
 
@@ -76,7 +76,7 @@ def test_recorded_agents_equal_live_agents_through_an_agent_crash(agents_crash):
     world = prepare(agents_crash, duration=12.0)
     batch = simulate_batch(world, np.zeros((1, 2)))
     assert not batch.collided[0]
-    tl = world.agent_timeline(VehicleLimits())
+    tl = agents_mod.agent_timeline(world, VehicleLimits())
     for k in range(len(world.times) - 1):
         seg = tl.segment(k)
         pres = seg.pres[k - seg.k0]

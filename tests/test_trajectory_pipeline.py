@@ -97,7 +97,8 @@ def test_curved_road_follows_the_ego(kitti, sequence):
     heading = frame.tangent(np.linspace(0, frame.length, 200))
     assert np.ptp(np.unwrap(heading)) > 0.15  # the road really curves (KITTI 0008/0010 bend)
     assert s.min() > 0 and s.max() < frame.length  # the road covers the whole drive incl. the step-back
-    assert sc.road.lane_width == 3.5 and sc.road.source == "ego_path"
+    # KITTI labels carry no lane lines: the lanes are inferred from the road users' paths, and said so
+    assert 3.0 <= sc.road.lane_width <= 3.75 and sc.road.source == "road_users"
 
 
 def test_deterministic(kitti_root):
@@ -186,7 +187,7 @@ def test_short_tracks_dropped_and_static_ego_ok():
     one = vehicle(1, track(lambda t: (30 + 0 * t, 3.5 + 0 * t), 10, 10))
     two = vehicle(2, track(lambda t: (50 + 0 * t, 3.5 + 0 * t), 10, 11))
     sc = process_scenario(raw_scenario([one, two]))
-    assert sc.agents == [] and len(sc.warnings) == 2
+    assert sc.agents == [] and sum("dropped" in w for w in sc.warnings) == 2
     # an ego that never moves: no step-back, a straight default road along its heading
     still = raw_scenario([], ego=track(lambda t: (0 * t, 0 * t), 0, 50, yaw=0.0))
     sc2 = process_scenario(still)

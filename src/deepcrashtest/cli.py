@@ -21,7 +21,7 @@ import typer
 from typer._click import exceptions as click_exc  # typer >= 0.29 vendors its own click
 
 from deepcrashtest import __version__
-from deepcrashtest.errors import NotImplementedYet, UserError
+from deepcrashtest.errors import UserError
 from deepcrashtest.ui import console_err, set_quiet
 
 app = typer.Typer(
@@ -41,6 +41,9 @@ _STATE: dict[str, bool] = {"debug": False}
 JsonOpt = typer.Option(False, "--json", help="Print one machine-readable JSON object on stdout.")
 ForceOpt = typer.Option(False, "--force", help="Overwrite existing outputs.")
 SeedOpt = typer.Option(0, "--seed", help="Seed for every random choice.")
+ConfigOpt = typer.Option(
+    None, "--config", help="YAML file of settings (sections stage2, search) merged over the defaults."
+)
 
 
 def _version(value: bool) -> None:
@@ -144,14 +147,11 @@ def scenario_from_kitti(
     """Build a Scenario from KITTI tracking ground truth (labels + poses + calib)."""
     from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti as build
     from deepcrashtest.fileio import ensure_output_dir
+    from deepcrashtest.pipeline.kitti import kitti_scenarios
 
     if sequence < 0:
         raise UserError(f"--sequence must be >= 0 (got {sequence})")
-    sc = build(data, sequence)
-    if not raw:
-        from deepcrashtest.trajectory.pipeline import process_scenario
-
-        sc = process_scenario(sc, seed=seed)
+    sc = build(data, sequence) if raw else kitti_scenarios(data, sequence, seed=seed)[1]
     out = ensure_output_dir(output)
     path = sc.save(out / "scenario.json", force=force)
     emit(
@@ -171,17 +171,20 @@ def scenario_from_kitti(
 def scenario_build(
     raw: Path = typer.Argument(..., help="Raw Scenario JSON (stage=raw: world-frame tracks)."),
     output: Path = typer.Option(..., "-o", "--output", help="Processed Scenario JSON to write."),
+    config: Path | None = ConfigOpt,
     force: bool = ForceOpt,
     seed: int = SeedOpt,
     as_json: bool = JsonOpt,
 ) -> None:
     """Stage 2: smooth, classify, extrapolate, step back -> a simulation-ready Scenario."""
+    from deepcrashtest.config import load_config
     from deepcrashtest.fileio import check_writable
     from deepcrashtest.trajectory.pipeline import process_scenario
 
+    cfg = load_config(config)
     sc_raw = _load(raw)
     check_writable(output, force)
-    sc = process_scenario(sc_raw, seed=seed)
+    sc = process_scenario(sc_raw, seed=seed, params=cfg.stage2)
     path = sc.save(output, force=force)
     c = sc.collision
     emit(
@@ -383,28 +386,38 @@ def _fmt(v: float | None) -> str:
 def search(
     scenario: Path = typer.Argument(..., help="Scenario JSON file."),
     output: Path = typer.Option(..., "-o", "--output", help="Output folder."),
-    starts: int = typer.Option(32, "--starts", help="Random ego start positions in the box."),
-    noise_variants: int = typer.Option(4, "--noise-variants", help="Noisy ego paths per start."),
-    box_lateral: float = typer.Option(4.0, "--box-lateral", help="Start box width, metres (+-half)."),
-    box_longitudinal: float = typer.Option(8.0, "--box-longitudinal", help="Start box length, metres (+-half)."),
-    noise_sigma: float = typer.Option(0.3, "--noise-sigma", help="Std of the control-point noise, metres."),
-    controller: str = typer.Option("replay", "--controller", help="Ego controller: replay | aeb | module:callable"),
-    method: str = typer.Option("both", "--method", help="random | cem | both"),
+    starts: int | None = typer.Option(None, "--starts", help="Random ego start positions in the box [32]."),
+    noise_variants: int | None = typer.Option(None, "--noise-variants", help="Noisy ego paths per start [4]."),
+    box_lateral: float | None = typer.Option(None, "--box-lateral", help="Start box width, metres (+-half) [4]."),
+    box_longitudinal: float | None = typer.Option(
+        None, "--box-longitudinal", help="Start box length, metres (+-half) [8]."
+    ),
+    noise_sigma: float | None = typer.Option(None, "--noise-sigma", help="Std of the control-point noise, m [0.3]."),
+    controller: str | None = typer.Option(
+        None, "--controller", help="Ego controller: replay | aeb | module:callable [replay]"
+    ),
+    method: str | None = typer.Option(None, "--method", help="random | cem | both [both]"),
     workers: int = typer.Option(1, "--workers", help="Processes (local) or Ray CPUs."),
     engine: str = typer.Option("local", "--engine", help="local | ray"),
-    boundary_directions: int = typer.Option(16, "--boundary-directions", help="Rays of the boundary scan (0: none)."),
-    max_scenarios: int = typer.Option(32, "--max-scenarios", help="Safe variants written as Scenario files."),
+    boundary_directions: int | None = typer.Option(
+        None, "--boundary-directions", help="Rays of the boundary scan (0: none) [16]."
+    ),
+    max_scenarios: int | None = typer.Option(None, "--max-scenarios", help="Safe variants written as files [32]."),
     duration: float | None = typer.Option(None, "--duration", help="Seconds simulated (default: whole scenario)."),
     no_video: bool = typer.Option(False, "--no-video", help="Skip the bird's-eye comparison video."),
+    config: Path | None = ConfigOpt,
     force: bool = ForceOpt,
     seed: int = SeedOpt,
     as_json: bool = JsonOpt,
 ) -> None:
-    """Search perturbed ego starts and trajectories for variants that avoid the crash."""
-    from deepcrashtest.search.run import SearchConfig, run_search
+    """Search perturbed ego starts and trajectories for variants that avoid the crash.
 
-    sc = _load(scenario)
-    cfg = SearchConfig(
+    Defaults in brackets come from ``SearchConfig``; a ``--config`` file's ``search:`` section overrides them.
+    """
+    from deepcrashtest.config import load_config
+    from deepcrashtest.search.run import run_search
+
+    cfg = load_config(config).with_search(
         starts=starts,
         noise_variants=noise_variants,
         box_lateral=box_lateral,
@@ -415,9 +428,10 @@ def search(
         seed=seed,
         boundary_directions=boundary_directions,
         max_scenarios=max_scenarios,
-        video=not no_video,
+        video=False if no_video else None,
         duration=duration,
     )
+    sc = _load(scenario)
     emit(run_search(sc, output, cfg, engine=engine, workers=workers, force=force), as_json, _search_human)
 
 
@@ -494,21 +508,16 @@ def evaluate_kitti(
         raise UserError(f"{data}: KITTI tracking folder not found")
     if tracks is not None and not tracks.is_dir():
         raise UserError(f"{tracks}: tracker results folder not found")
-    if output is not None:
-        from deepcrashtest.fileio import check_writable
+    from deepcrashtest.pipeline.kitti import check_results_writable, write_results
 
-        for name in ("results.json", "results.md"):
-            check_writable(output / name, force=force)
+    if output is not None:
+        check_results_writable(output, force)
     kwargs: dict[str, Any] = {"match": match, "detections": detections, "tracks": tracks}
     if online:
         kwargs["offline"] = None
     result = run_eval(data, parse_sequences(sequences), **kwargs)
     if output is not None:
-        from deepcrashtest.fileio import atomic_write_text, ensure_output_dir
-
-        ensure_output_dir(output)
-        atomic_write_text(output / "results.json", json.dumps(result, indent=1, default=_json_default) + "\n", force)
-        atomic_write_text(output / "results.md", results_markdown(result), force)
+        write_results(result, output, results_markdown(result), force)
     emit(result, as_json, _print_kitti_table)
 
 
@@ -611,11 +620,12 @@ def batch(
     engine: str = typer.Option("local", "--engine", help="local | ray"),
     workers: int = typer.Option(1, "--workers", help="Processes (local) or Ray CPUs for each search."),
     resume: bool = typer.Option(False, "--resume", help="Skip the inputs the manifest marks done."),
-    starts: int = typer.Option(32, "--starts", help="Random ego start positions per video."),
-    noise_variants: int = typer.Option(4, "--noise-variants", help="Noisy ego paths per start."),
-    method: str = typer.Option("both", "--method", help="random | cem | both"),
-    controller: str = typer.Option("replay", "--controller", help="Ego controller."),
+    starts: int | None = typer.Option(None, "--starts", help="Random ego start positions per video [32]."),
+    noise_variants: int | None = typer.Option(None, "--noise-variants", help="Noisy ego paths per start [4]."),
+    method: str | None = typer.Option(None, "--method", help="random | cem | both [both]"),
+    controller: str | None = typer.Option(None, "--controller", help="Ego controller [replay]."),
     duration: float | None = typer.Option(None, "--duration", help="Seconds simulated (default: whole scenario)."),
+    config: Path | None = ConfigOpt,
     force: bool = ForceOpt,
     seed: int = SeedOpt,
     as_json: bool = JsonOpt,
@@ -624,10 +634,10 @@ def batch(
 
     A failed input is recorded and the batch goes on; the exit code is 1 when any input failed.
     """
+    from deepcrashtest.config import load_config
     from deepcrashtest.pipeline.batch import run_batch
-    from deepcrashtest.search.run import SearchConfig
 
-    cfg = SearchConfig(
+    cfg = load_config(config).with_search(
         starts=starts,
         noise_variants=noise_variants,
         method=method,
@@ -730,7 +740,7 @@ def main(argv: list[str] | None = None) -> int:
     except click_exc.ClickException as exc:
         sys.stderr.write(f"deepcrashtest: error: {exc.format_message()}\n")
         return 2
-    except (UserError, NotImplementedYet) as exc:
+    except UserError as exc:
         if debug:
             traceback.print_exc()
         sys.stderr.write(f"deepcrashtest: error: {exc}\n")

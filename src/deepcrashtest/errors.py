@@ -9,7 +9,3 @@ class UserError(Exception):
 
 class ScenarioError(UserError, ValueError):
     """A Scenario file or object is invalid; the message names the field."""
-
-
-class NotImplementedYet(UserError):
-    """A command whose stage has not been built yet."""

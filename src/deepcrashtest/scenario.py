@@ -102,6 +102,10 @@ class Camera(_Model):
         """3x3 intrinsic matrix K."""
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
+    def horizon_v(self) -> float:
+        """Image row of the horizon, pixels (downward pitch puts the horizon above ``cy``)."""
+        return self.cy - self.fy * math.tan(self.pitch_rad)
+
 
 class SplineParams(_Model):
     """A 2D B-spline in time: x(t), y(t) = BSpline(knots, cx|cy, degree). The search perturbs cx, cy."""

@@ -4,7 +4,7 @@
   Scenario time ``k * dt``. Every trajectory is resampled (linear interpolation of x, y, yaw,
   speed) at the steps inside its span.
 * Lanelet network: one lanelet per lane of ``Scenario.road``, same layout as the OpenDRIVE export
-  (:func:`deepcrashtest.export.opendrive.lane_boundary_offsets` around the same reference line,
+  (:func:`deepcrashtest.geometry.road.boundary_offsets` around the same reference line,
   sampled every ``LANELET_STEP_M`` metres). Lanelet id ``1 + lane index`` (0 = rightmost); neighbours
   are linked as adjacent in the same direction.
 * Agents: dynamic obstacles (id ``OBSTACLE_ID_BASE + vehicle id``), rectangle shape of the
@@ -35,8 +35,9 @@ from typing import Any
 import numpy as np
 
 from deepcrashtest.errors import UserError
-from deepcrashtest.export.opendrive import lane_boundary_offsets, reference_line, sample_reference_line
+from deepcrashtest.export.opendrive import reference_line, sample_reference_line
 from deepcrashtest.fileio import atomic_path
+from deepcrashtest.geometry.road import boundary_offsets
 from deepcrashtest.scenario import Scenario, Vehicle, wrap_angle
 
 COMMONROAD_DT_S = 0.1
@@ -99,7 +100,7 @@ def _lanelet_network(sc: Scenario) -> Any:
 
     pts, hdg = sample_reference_line(reference_line(sc.road), LANELET_STEP_M)
     normal = np.column_stack([-np.sin(hdg), np.cos(hdg)])
-    offsets = lane_boundary_offsets(sc.road)
+    offsets = boundary_offsets(sc.road)
     n = sc.road.lane_count
     net = LaneletNetwork()
     for k in range(n):

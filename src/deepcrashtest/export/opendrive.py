@@ -34,6 +34,7 @@ from scipy.interpolate import CubicSpline
 
 from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import atomic_path
+from deepcrashtest.geometry.road import boundary_offsets
 from deepcrashtest.scenario import Road
 
 OPENDRIVE_REV_MAJOR = 1
@@ -138,19 +139,6 @@ def sample_reference_line(segments: list[Poly3Segment], step_m: float = 0.5) -> 
     return np.vstack(pts), np.concatenate(hdgs)
 
 
-def lane_boundary_offsets(road: Road) -> np.ndarray:
-    """Lateral offsets (metres, left of the reference line positive) of the lane borders.
-
-    ``lane_count + 1`` values from the rightmost border to the leftmost; lane k (0 = rightmost)
-    lies between entries k and k + 1.
-    """
-    n, w = road.lane_count, road.lane_width
-    k = np.arange(n + 1, dtype=float)
-    if road.source.startswith("ego_path"):
-        return (k - road.ego_lane - 0.5) * w
-    return (k - n / 2.0) * w
-
-
 def opendrive_lane_id(lane_index: int, lane_count: int) -> int:
     """OpenDRIVE lane id of Scenario lane ``lane_index`` (0 = rightmost): -lane_count .. -1."""
     return -(lane_count - lane_index)
@@ -165,7 +153,7 @@ def build_opendrive(road: Road, name: str = "deepcrashtest"):  # -> scenariogene
         geom = xodr.ParamPoly3(*seg.u, *seg.v, prange="normalized", length=seg.length)
         planview.add_fixed_geometry(geom, seg.x, seg.y, seg.hdg, s=seg.s)
 
-    offsets = lane_boundary_offsets(road)
+    offsets = boundary_offsets(road)
     lanes = xodr.Lanes()
     lanes.add_laneoffset(xodr.LaneOffset(0.0, float(offsets[-1]), 0.0, 0.0, 0.0))
     centre = xodr.Lane(a=0.0)

@@ -108,7 +108,9 @@ def extract_geometry(
         raise UserError("the video has fewer than 2 frames")
     cam, rows, horizon_source = estimate_camera([f.image for f, _ in buffer], camera, dashboard_rows)
     ego_est = EgoMotionEstimator(cam, mask_bottom_rows=rows, max_width=max_width, seed=seed)
-    lane_det: Any = lane_detector or (ClassicalLaneDetector(cam, mask_bottom_rows=rows, seed=seed) if lanes else None)
+    lane_det: LaneDetector | None = lane_detector or (
+        ClassicalLaneDetector(cam, mask_bottom_rows=rows, seed=seed) if lanes else None
+    )
     lane_states: dict[int, LaneState] = {}
     indices: list[int] = []
 
@@ -117,11 +119,7 @@ def extract_geometry(
         indices.append(int(frame.index))
         ego_est.update(frame.image, float(frame.time), boxes)
         if lane_det is not None:
-            lane_states[int(frame.index)] = (
-                lane_det.update(frame.image, float(frame.time), boxes)
-                if isinstance(lane_det, ClassicalLaneDetector)
-                else lane_det.update(frame.image, float(frame.time))
-            )
+            lane_states[int(frame.index)] = lane_det.update(frame.image, float(frame.time), boxes)
         if len(trk):
             all_tracks.append(trk)
         if on_frame is not None:
@@ -133,8 +131,9 @@ def extract_geometry(
         process(frame, trk)
     ego = ego_est.result()
     ego.frame = np.array(indices, dtype=int)  # the estimator counts 0..n-1: use the video's indices
-    lane_tl = lane_det.timeline() if isinstance(lane_det, ClassicalLaneDetector) else None
+    lane_tl = lane_det.timeline() if lane_det is not None else None
     tracks = pd.concat(all_tracks, ignore_index=True) if all_tracks else pd.DataFrame(columns=list(TRACK_COLUMNS))
     sc = raw_scenario_from_tracks(tracks, meta, cam, ego, lane_tl, localizer, name=name, seed=seed)
-    sc.provenance.parameters.update({"dashboard_rows": rows, "horizon_source": horizon_source})
+    params = {**sc.provenance.parameters, "dashboard_rows": rows, "horizon_source": horizon_source}
+    sc = sc.evolve(provenance=sc.provenance.model_copy(update={"parameters": params}))
     return GeometryResult(sc, cam, ego, lane_tl, lane_states, rows, horizon_source)

@@ -97,11 +97,6 @@ def class_dimensions(category: str) -> tuple[float, float, float]:
     return CLASS_DIMENSIONS.get(category, CLASS_DIMENSIONS["car"])
 
 
-def horizon_row(camera: Camera) -> float:
-    """Image row of the horizon (pixels) for the camera's pitch (downward pitch -> horizon above cy)."""
-    return camera.cy - camera.fy * math.tan(camera.pitch_rad)
-
-
 def centre_offset(apparent_width_m: np.ndarray, length: np.ndarray, width: np.ndarray) -> np.ndarray:
     """Half the vehicle's extent along the line of sight, from its apparent width (metres).
 
@@ -144,7 +139,7 @@ class GroundPlaneLocalizer:
         b = np.asarray(boxes, dtype=float).reshape(-1, 4)
         length, width, height = _dims(categories)
         _, img_h = image_size
-        vh = self.horizon_v if self.horizon_v is not None else horizon_row(camera)
+        vh = self.horizon_v if self.horizon_v is not None else camera.horizon_v()
         box_h = np.maximum(b[:, 3] - b[:, 1], 1.0)
         below = b[:, 3] - vh
         cut_bottom = b[:, 3] >= img_h - 2

@@ -230,7 +230,13 @@ class SsdMobileNetDetector:
         scores = allrows[:, 1].astype(np.float32)
         ok = (boxes[:, 2] - boxes[:, 0] >= 4) & (boxes[:, 3] - boxes[:, 1] >= 4)
         det = Detections(boxes[ok], scores[ok], cats[ok])
-        return det.subset(nms(det.boxes, det.scores, 0.5, contain_threshold=0.8))
+        # persons and vehicles do not suppress each other: a rider's box overlaps its two-wheeler's
+        # (perception.roadusers joins them); vehicles of different classes do (one car seen as car + truck)
+        keep = []
+        for group in (det.categories == "pedestrian", det.categories != "pedestrian"):
+            idx = np.flatnonzero(group)
+            keep.append(idx[nms(det.boxes[idx], det.scores[idx], 0.5, contain_threshold=0.8)])
+        return det.subset(np.concatenate(keep))
 
 
 def _to_pixels(rows: np.ndarray, x0: int, y0: int, w: int, h: int) -> np.ndarray:

@@ -85,9 +85,15 @@ class LaneTrack:
 
 
 class LaneDetector(Protocol):
-    """Anything that turns frames into :class:`LaneState` (a learned model can plug in here)."""
+    """Anything that turns frames into :class:`LaneState` (a learned model can plug in here).
 
-    def update(self, frame_bgr: np.ndarray, time: float) -> LaneState: ...
+    ``update`` gets each frame (BGR), its time (s) and the road users' boxes (N, 4) x1, y1, x2, y2 px to
+    ignore; ``timeline`` gives the per-frame lane figures at the end (None when nothing was measured).
+    """
+
+    def update(self, frame_bgr: np.ndarray, time: float, vehicle_boxes: np.ndarray | None = None) -> LaneState: ...
+
+    def timeline(self) -> LaneTimelineResult | None: ...
 
 
 @dataclass
@@ -121,7 +127,7 @@ class ClassicalLaneDetector:
     ) -> None:
         self.camera = camera
         self.mask_bottom_rows = int(mask_bottom_rows)
-        self.horizon_v = camera.cy - camera.fy * math.tan(camera.pitch_rad) if horizon_v is None else horizon_v
+        self.horizon_v = camera.horizon_v() if horizon_v is None else horizon_v
         self.work_width = work_width
         self.max_missed = max_missed
         self.gate_px = gate_px

@@ -13,15 +13,20 @@ head to the wheels, which is what the size prior of ``motorcycle``/``bicycle`` i
 
 Thresholds were chosen by looking at DAD clips 000478/000487 (scooters with riders, annotated frames).
 Each person joins at most one two-wheeler (the best overlap); a two-wheeler may carry two (a passenger).
+People inside cars (drivers seen through a windscreen) are not road users of their own
+(:func:`occupants`); :func:`road_users` applies both.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from deepcrashtest.perception.boxes import intersection_over_smaller, nms
 from deepcrashtest.perception.detect import Detections
 
 TWO_WHEELERS = ("motorcycle", "bicycle")
+MOTOR_VEHICLES = ("car", "van", "truck", "bus")
+OCCUPANT_INSIDE = 0.9
 RIDER_X_OVERLAP = 0.5
 RIDER_BOTTOM_BELOW = 0.25
 
@@ -46,6 +51,42 @@ def rider_pairs(det: Detections) -> list[tuple[int, int]]:
             j = int(np.argmax(np.where(ok[i], x_share[i], -1.0)))
             pairs.append((int(persons[i]), int(wheels[j])))
     return pairs
+
+
+def occupants(det: Detections) -> np.ndarray:
+    """Indices of person boxes that are people inside a car, van, truck or bus (seen through its windows).
+
+    A person box lying (``OCCUPANT_INSIDE``) within a motor vehicle's box whose bottom is above the
+    lower quarter of that box: a pedestrian in front of a vehicle stands on the road, nearer the camera,
+    so its feet are at or below the vehicle's bottom edge in the image.
+    """
+    cats = np.asarray(det.categories).astype(str)
+    persons = np.nonzero(cats == "pedestrian")[0]
+    cars = np.nonzero(np.isin(cats, MOTOR_VEHICLES))[0]
+    if not len(persons) or not len(cars):
+        return np.zeros(0, np.int64)
+    p, c = det.boxes[persons].astype(float), det.boxes[cars].astype(float)
+    inside = intersection_over_smaller(p, c) >= OCCUPANT_INSIDE
+    high = p[:, None, 3] < c[None, :, 3] - 0.25 * (c[None, :, 3] - c[None, :, 1])
+    return persons[(inside & high).any(axis=1)]
+
+
+def road_users(det: Detections) -> Detections:
+    """Detections as road users: occupants of vehicles dropped, riders joined to their two-wheelers.
+
+    A two-wheeler that grew by its rider may now cover a part-box of itself (the scooter without the
+    rider, detected too): two-wheelers go through NMS again (IoU 0.5, or 80 % inside a better box).
+    """
+    gone = occupants(det)
+    if len(gone):
+        det = det.subset(np.setdiff1d(np.arange(len(det)), gone))
+    n_before = len(det)
+    det = merge_riders(det)
+    if len(det) == n_before:
+        return det
+    wheels = np.flatnonzero(np.isin(det.categories, TWO_WHEELERS))
+    kept = wheels[nms(det.boxes[wheels], det.scores[wheels], 0.5, contain_threshold=0.8)]
+    return det.subset(np.sort(np.concatenate([np.setdiff1d(np.arange(len(det)), wheels), kept])))
 
 
 def merge_riders(det: Detections) -> Detections:

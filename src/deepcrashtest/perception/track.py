@@ -4,10 +4,10 @@ Per frame:
 
 1. every live track's box is carried from the previous frame by LK optical flow inside the box
    (:mod:`deepcrashtest.perception.flow`), or by its constant velocity when the flow fails;
-2. on detection frames (every ``detect_every``-th), riders are joined to their two-wheelers
-   (:func:`~deepcrashtest.perception.roadusers.merge_riders`) and detections are assigned to tracks by the
-   Hungarian method on 1 - IoU (:mod:`deepcrashtest.perception.lifecycle`); a matched track takes
-   the detected box; unmatched detections scoring >= ``new_track_score`` start new tracks;
+2. on detection frames (every ``detect_every``-th), riders are joined to their two-wheelers and
+   vehicle occupants dropped (:func:`~deepcrashtest.perception.roadusers.road_users`); detections are
+   assigned to tracks by the Hungarian method on 1 - IoU (:mod:`deepcrashtest.perception.lifecycle`);
+   a matched track takes the detected box; unmatched detections scoring >= ``new_track_score`` start new tracks;
 3. tracks that left the image are deleted; confirmed tracks are reported as ``detected`` (box
    from this frame's detection) or ``predicted`` (carried).
 
@@ -35,7 +35,7 @@ from deepcrashtest.perception.lifecycle import (
     TrackState,
     assign,
 )
-from deepcrashtest.perception.roadusers import merge_riders
+from deepcrashtest.perception.roadusers import road_users
 from deepcrashtest.video.source import Frame, VideoSource
 
 __all__ = [
@@ -140,7 +140,7 @@ class BoxTracker:
         for t in self.core.tracks:
             t.detected_now = False
         if self._n % self.detect_every == 0:
-            dets = merge_riders(self.detector(image))
+            dets = road_users(self.detector(image))
             self._associate(dets)
         for t in self.core.tracks:
             if _visible_fraction(t.box, w, h) < 0.3 or min(t.box[2] - t.box[0], t.box[3] - t.box[1]) < 3:

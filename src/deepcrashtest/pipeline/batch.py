@@ -17,7 +17,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from deepcrashtest.errors import NotImplementedYet, UserError
+from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import atomic_write_text, ensure_output_dir
 from deepcrashtest.scenario import Scenario
 from deepcrashtest.search.run import SearchConfig, run_search
@@ -74,21 +74,16 @@ def process_video(
 
 
 def _extract(video: Path, outdir: Path, seed: int, force: bool) -> Scenario:
-    try:
-        from deepcrashtest.pipeline.extract import extract_video  # type: ignore[attr-defined]
-    except ImportError:
-        raise NotImplementedYet("extract: the extraction stage is not available in this build") from None
+    from deepcrashtest.pipeline.extract import extract_video
+
     res = extract_video(video, outdir, seed=seed, force=force)
-    if isinstance(res, Scenario):
-        return res
-    if isinstance(res, dict) and res.get("shots"):
+    if res.get("shots"):
         made = [r["scenario"] for r in res["shots"] if r.get("scenario")]
         raise UserError(
             f"{video}: a compilation (cuts at {res['cuts_s']} s); one scenario per shot was written "
             f"({', '.join(made) or 'none usable'}): search each of them"
         )
-    path = res.get("scenario") if isinstance(res, dict) else res
-    return Scenario.load(Path(path if path is not None else outdir / "scenario.json"))
+    return Scenario.load(Path(res.get("scenario") or outdir / "scenario.json"))
 
 
 # --------------------------------------------------------------------------- manifest

@@ -32,11 +32,9 @@ def run_demo(output: str | Path, video: str | Path | None = None) -> dict[str, A
 
     # Step: a Scenario from KITTI ground truth (real trajectories), when the shared data is present.
     if KITTI_TRACKING.exists():
-        from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
-        from deepcrashtest.trajectory.pipeline import process_scenario
+        from deepcrashtest.pipeline.kitti import kitti_scenarios
 
-        raw = scenario_from_kitti(KITTI_TRACKING, 8)
-        sc = process_scenario(raw, seed=0)
+        raw, sc = kitti_scenarios(KITTI_TRACKING, 8, seed=0)
         path = sc.save(ensure_output_dir(out / "kitti_0008") / "scenario.json")
         summary["steps"].append({"step": "scenario from-kitti 8", "scenario": str(path), "agents": len(sc.agents)})
         _step_export(out, summary)
@@ -119,13 +117,9 @@ def _step_report(out: Path, summary: dict[str, Any]) -> None:
     scenario = out / "kitti_0008" / "scenario.json"
     if not scenario.exists():
         return
-    metrics = None
-    try:  # the simulation outcome too, when this build has the simulator
-        from deepcrashtest.sim import simulate  # type: ignore[attr-defined]
+    from deepcrashtest.sim import simulate
 
-        metrics = simulate(Scenario.load(scenario), controller="replay", seed=0).metrics
-    except ImportError:
-        pass
+    metrics = simulate(Scenario.load(scenario), controller="replay", seed=0).metrics
     res = build_report(scenario, out / "report.html", sim_metrics=metrics)
     summary["steps"].append({"step": "report", "report": res["report"], "sections": len(res["sections"])})
 
@@ -134,15 +128,12 @@ def _step_eval(out: Path, summary: dict) -> None:
     """World-frame tracking evaluation of KITTI sequence 8 (PointRCNN detections, 2 m matching)."""
     if not KITTI_TRACKING.exists():
         return
-    import json
-
     from deepcrashtest.eval.kitti import evaluate_kitti, results_markdown
-    from deepcrashtest.fileio import atomic_write_text
+    from deepcrashtest.pipeline.kitti import write_results
 
     result = evaluate_kitti(KITTI_TRACKING, [8])
-    folder = ensure_output_dir(out / "eval")
-    atomic_write_text(folder / "results.json", json.dumps(result, indent=1, allow_nan=True) + "\n")
-    atomic_write_text(folder / "results.md", results_markdown(result))
+    folder = out / "eval"
+    write_results(result, folder, results_markdown(result))
     row = result["sequences"]["0008"]
     summary["steps"].append(
         {"step": "evaluate kitti 8", "table": str(folder / "results.md"), "MOTA": row["MOTA"], "HOTA": row["HOTA"]}

@@ -65,10 +65,10 @@ def variant_scenario(
     )
     # a safe variant's ego touches nobody; a third-party crash (two agents, replayed) still happens in it
     crash = scenario.collision if scenario.collision is not None and not scenario.collision.involves_ego else None
-    data = scenario.model_copy(
-        update={"name": f"{scenario.name}_variant{variant:04d}", "ego": ego, "collision": crash, "provenance": prov}
-    ).model_dump(mode="json")
-    return Scenario.from_dict(data, origin=f"variant {variant}")
+    try:
+        return scenario.evolve(name=f"{scenario.name}_variant{variant:04d}", ego=ego, collision=crash, provenance=prov)
+    except ScenarioError as exc:
+        raise ScenarioError(f"variant {variant}: {str(exc).removeprefix('scenario: ')}") from None
 
 
 def write_variants(
@@ -155,17 +155,13 @@ def write_video(
 ) -> str | None:
     """Bird's-eye H.264 video: the original run (left) beside the best safe variant (right).
 
-    Both are simulated with ``deepcrashtest.sim.simulate`` and drawn by ``deepcrashtest.viz.birdseye``;
-    returns None when the renderer is not in this build.
+    Both are simulated with ``deepcrashtest.sim.simulate`` and drawn by ``deepcrashtest.viz.birdseye``.
     """
-    try:
-        from deepcrashtest.viz.birdseye import FPS, render_frames
-        from deepcrashtest.viz.h264 import h264_writer
-    except ImportError:
-        return None
     import cv2
 
     from deepcrashtest.sim import simulate
+    from deepcrashtest.viz.birdseye import FPS, render_frames
+    from deepcrashtest.viz.h264 import h264_writer
 
     runs = [simulate(sc, controller, seed=seed, duration=duration) for sc in (original, best)]
     stride = max(1, int(round(1.0 / (FPS * float(runs[0].dt)))))

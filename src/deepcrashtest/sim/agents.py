@@ -245,3 +245,12 @@ class AgentTimeline:
             self._segments.clear()
         self._segments[n_seg] = seg
         return seg
+
+
+def agent_timeline(world: World, limits: VehicleLimits) -> AgentTimeline:
+    """The agents' run (shared by every ego variant of a batch), recorded once per ``limits`` and cached
+    on the world."""
+    timeline = world.timelines.get(limits)
+    if timeline is None:
+        timeline = world.timelines[limits] = AgentTimeline(world, limits)
+    return timeline

@@ -21,6 +21,7 @@ import numpy as np
 
 from deepcrashtest.errors import UserError
 from deepcrashtest.scenario import Scenario
+from deepcrashtest.sim.agents import agent_timeline
 from deepcrashtest.sim.controllers import controller_name, resolve_controller
 from deepcrashtest.sim.loop import Contact, LoopOutput, run_loop
 from deepcrashtest.sim.reference import PathSet, build_references
@@ -302,7 +303,7 @@ def simulate_batch(
     chunks = list(range((B + chunk_size - 1) // chunk_size))
     try:
         if workers > 1 and len(chunks) > 1:
-            world.agent_timeline(VehicleLimits()).record_all()  # once, shared by the forked workers
+            agent_timeline(world, VehicleLimits()).record_all()  # once, shared by the forked workers
             ctx = multiprocessing.get_context("fork")
             with ProcessPoolExecutor(max_workers=min(workers, len(chunks)), mp_context=ctx) as pool:
                 outs = list(pool.map(_run_chunk, chunks))

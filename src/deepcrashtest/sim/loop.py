@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from deepcrashtest.sim.agents import AgentSet
+from deepcrashtest.sim.agents import AgentSet, agent_timeline
 from deepcrashtest.sim.boxes import contact_fraction, sat_gap, signed_distance, time_to_collision
 from deepcrashtest.sim.follow import Follower
 from deepcrashtest.sim.physics import PhysicsWorld, impact_delta_v, pair_key
@@ -101,7 +101,7 @@ def run_loop(
     orig = np.arange(B)  # variant index of each row (rows of finished variants are dropped)
 
     live = AgentSet(world, lim) if physics_mode else None
-    timeline = None if physics_mode else world.agent_timeline(lim)
+    timeline = None if physics_mode else agent_timeline(world, lim)
     if timeline is not None:
         timeline.rewind()
     ego_in_phys = False

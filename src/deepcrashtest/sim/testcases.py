@@ -24,12 +24,11 @@ def meet_ego(scenario: Scenario, agent_id: int, t_contact: float) -> Scenario:
 def meet(scenario: Scenario, agent_id: int, target_id: int, t_contact: float) -> Scenario:
     """A copy of ``scenario`` where agent ``agent_id`` is shifted to touch road user ``target_id`` (the ego,
     or another agent: a third-party crash) at ``t_contact`` (s), front to front along the target's heading."""
-    sc = scenario.model_copy(deep=True)
     try:
-        agent = next(a for a in sc.agents if a.id == agent_id)
-        target = sc.vehicle(target_id)
+        agent = next(a for a in scenario.agents if a.id == agent_id)
+        target = scenario.vehicle(target_id)
     except (StopIteration, KeyError):
-        raise UserError(f"scenario {sc.name} has no road users {agent_id} and {target_id}") from None
+        raise UserError(f"scenario {scenario.name} has no road users {agent_id} and {target_id}") from None
     tr = agent.trajectory
     for v in (agent, target):
         vt = v.trajectory
@@ -43,15 +42,26 @@ def meet(scenario: Scenario, agent_id: int, target_id: int, t_contact: float) ->
     gap = 0.5 * (target.length + agent.length)
     point = np.array([goal["x"], goal["y"]]) + gap * np.array([np.cos(goal["yaw"]), np.sin(goal["yaw"])])
     shift = point - np.array([ax, ay])
-    agent.trajectory = Trajectory.from_arrays(
-        a["t"], a["x"] + shift[0], a["y"] + shift[1], a["yaw"], a["speed"], observed=tr.observed
+    moved = agent.model_copy(
+        update={
+            "trajectory": Trajectory.from_arrays(
+                a["t"], a["x"] + shift[0], a["y"] + shift[1], a["yaw"], a["speed"], observed=tr.observed
+            )
+        }
     )
-    who = "ego" if target_id == sc.ego.id else f"agent{target_id}"
-    sc.name = f"{scenario.name}_agent{agent_id}_meets_{who}_at_{t_contact:g}s"
-    sc.collision = Collision(time_s=float(t_contact), agent_id=agent_id, other_id=target_id, source="user")
-    sc.provenance.history.append(
-        f"sim.testcases.meet: agent {agent_id} translated by ({shift[0]:.2f}, {shift[1]:.2f}) m "
-        f"to touch road user {target_id} at t={t_contact} s"
+    who = "ego" if target_id == scenario.ego.id else f"agent{target_id}"
+    return scenario.evolve(
+        name=f"{scenario.name}_agent{agent_id}_meets_{who}_at_{t_contact:g}s",
+        agents=[moved if a.id == agent_id else a for a in scenario.agents],
+        collision=Collision(time_s=float(t_contact), agent_id=agent_id, other_id=target_id, source="user"),
+        provenance=scenario.provenance.model_copy(
+            update={
+                "history": [
+                    *scenario.provenance.history,
+                    f"sim.testcases.meet: agent {agent_id} translated by ({shift[0]:.2f}, {shift[1]:.2f}) m "
+                    f"to touch road user {target_id} at t={t_contact} s",
+                ]
+            }
+        ),
+        warnings=[*scenario.warnings, f"agent {agent_id}'s real trajectory was moved to create a collision (test)"],
     )
-    sc.warnings.append(f"agent {agent_id}'s real trajectory was moved to create a collision (test case)")
-    return sc

@@ -11,7 +11,7 @@ has collided stays in the world, sliding under Box2D physics, to the end of the 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 
@@ -19,9 +19,6 @@ from deepcrashtest.errors import UserError
 from deepcrashtest.scenario import Scenario
 from deepcrashtest.sim.reference import PathSet, Reference, reference_from_trajectory
 from deepcrashtest.sim.vehicle import CATEGORY_MASS_KG, HOLONOMIC_CATEGORIES, WHEELBASE_FRACTION, VehicleLimits
-
-if TYPE_CHECKING:
-    from deepcrashtest.sim.agents import AgentTimeline
 
 MAX_DURATION_S = 600.0
 
@@ -32,7 +29,7 @@ class World:
 
     Build it once with :func:`build_world` (or ``sim.prepare``) and pass it to ``simulate_batch``
     as often as needed: it is not modified by a run, except for the agents' recorded run
-    (:meth:`agent_timeline`), which is computed on first use and reused.
+    (``sim.agents.agent_timeline``), which is computed on first use and cached in ``timelines``.
     """
 
     scenario: Scenario
@@ -47,15 +44,8 @@ class World:
     refs: list[Reference]
     agent_paths: PathSet | None
     duration: float = 0.0  # s, times[-1]
-    _timelines: dict[VehicleLimits, AgentTimeline] = field(default_factory=dict, repr=False, compare=False)
-
-    def agent_timeline(self, limits: VehicleLimits) -> AgentTimeline:
-        """The agents' run (shared by every ego variant of a batch), recorded once per ``limits``."""
-        from deepcrashtest.sim.agents import AgentTimeline
-
-        if limits not in self._timelines:
-            self._timelines[limits] = AgentTimeline(self, limits)
-        return self._timelines[limits]
+    timelines: dict[VehicleLimits, Any] = field(default_factory=dict, repr=False, compare=False)
+    """Cache of ``sim.agents.AgentTimeline`` per vehicle limits (filled by ``sim.agents.agent_timeline``)."""
 
     @property
     def n_agents(self) -> int:

@@ -55,7 +55,7 @@ from deepcrashtest.trajectory.collision import MOVING_MPS, first_contact, headin
 from deepcrashtest.trajectory.crash import CrashOutcome, resolve_crash
 from deepcrashtest.trajectory.dense import EPS_T, Dense, EgoFrame, agent_dense, span
 from deepcrashtest.trajectory.params import Stage2Params
-from deepcrashtest.trajectory.road import build_road, extend_head_on
+from deepcrashtest.trajectory.road import along_road, build_road, extend_head_on
 from deepcrashtest.trajectory.roadframe import RoadFrame
 from deepcrashtest.trajectory.smoothing import eval_xy, fit_xy_spline, smooth_track, spline_params
 from deepcrashtest.trajectory.stepback import plan_step_back, step_back_prefix
@@ -271,8 +271,15 @@ def _road_phase(run: _Run, ego: Dense, crash: CrashOutcome, ego_frame: EgoFrame,
         )
         raw_road = raw_road.model_copy(update={"lane_timeline": shifted})
     paths = [d.xy for d in [ego, *crash.agents]]
-    offsets = [d.lateral_m for d in crash.agents if not d.static and d.vehicle.category != "pedestrian"]
+    offsets = [d.lateral_m for d in crash.agents if _lane_evidence(d, road_frame)]
     return build_road(road_frame, raw_road, paths, offsets, p, source, run.warnings)
+
+
+def _lane_evidence(d: Dense, frame: RoadFrame) -> bool:
+    """A vehicle (not a pedestrian) moving along the road: its lateral offset says where a lane is."""
+    if d.static or d.vehicle.category == "pedestrian":
+        return False
+    return along_road(frame, d.xy[d.observed], d.heading)
 
 
 def _assemble(

@@ -10,8 +10,9 @@ continued straight beyond the paths.
 Lanes: from the lane stage when the raw road carries a ``lane_timeline`` (its width, count and the
 ego's lane are kept). Where no lane lines were seen (most urban clips) the lanes are inferred from
 the road users' paths and the road says so (``Road.source`` ``road_users`` and a warning): the
-moving vehicles' median lateral offsets from the ego's lane (pedestrians walk beside the road and
-are left out, as are offsets beyond ``MAX_ROAD_OFFSET_M``, another road or a localisation error)
+median lateral offsets from the ego's lane of the vehicles moving along the road (pedestrians walk
+beside it and crossing traffic crosses it, so neither counts, nor do offsets beyond
+``MAX_ROAD_OFFSET_M``: another road or a localisation error)
 are fitted with lanes of a plausible width (``LANE_WIDTH_RANGE_M``, the width that puts the paths
 nearest to lane centres) and as many lanes as their spread needs, at most ``MAX_INFERRED_LANES``.
 """
@@ -31,6 +32,8 @@ LANE_WIDTH_RANGE_M = (3.0, 3.75)
 MAX_ROAD_OFFSET_M = 12.0
 #: The most lanes inferred from paths (a wide urban road: three each way).
 MAX_INFERRED_LANES = 6
+#: A path within this angle (degrees) of the road's direction runs along it; crossing traffic does not count.
+ALONG_ROAD_DEG = 30.0
 
 
 def extend_head_on(frame: RoadFrame, s_collision: float, agent_xy: np.ndarray, sigma_m: float) -> RoadFrame:
@@ -56,6 +59,14 @@ def lane_layout(offsets_m: list[float], lane_width: float) -> tuple[int, int]:
     left = min(left, MAX_LANES - 1)
     right = min(right, MAX_LANES - 1 - left)
     return left + right + 1, right
+
+
+def along_road(frame: RoadFrame, xy: np.ndarray, heading: float, max_angle_deg: float = ALONG_ROAD_DEG) -> bool:
+    """True when a road user travelling ``heading`` (rad) through ``xy`` (metres) drives along the road (either
+    direction, within ``max_angle_deg``), not across it: only such paths say where lanes are."""
+    s, _ = frame.project(np.asarray(xy, float).reshape(-1, 2))
+    tangent = float(frame.tangent(float(np.median(s)))[0])
+    return bool(abs(np.cos(heading - tangent)) >= np.cos(np.radians(max_angle_deg)))
 
 
 def inferred_lanes(offsets_m: list[float], default_width: float) -> tuple[float, int, int]:
@@ -104,9 +115,10 @@ def build_road(
         width, count, ego_lane = inferred_lanes(moving_offsets_m, p.default_lane_width_m)
         source = "road_users" if source == "ego_path" else source
         if warnings is not None:
+            users = f"the spread of {len(moving_offsets_m)} road users' paths" if moving_offsets_m else "no other path"
             warnings.append(
                 f"no lane lines seen: the road ({count} lane(s) x {width:g} m, ego in lane {ego_lane}) is inferred "
-                f"from the ego's path and the spread of {len(moving_offsets_m)} moving road users' paths, not measured"
+                f"from the ego's path and {users}, not measured"
             )
     return Road(
         centerline_x=wp[:, 0].tolist(),

@@ -18,6 +18,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from deepcrashtest.geometry.road import boundary_polylines
 from deepcrashtest.scenario import Scenario
 from deepcrashtest.viz.h264 import h264_writer
 
@@ -40,22 +41,10 @@ SHORT = {"pedestrian": "ped", "motorcycle": "moto", "bicycle": "bike"}
 TEXT = (255, 255, 255)
 
 
-def _offset_polyline(xy: np.ndarray, d: float) -> np.ndarray:
-    """Offset a polyline by ``d`` metres to its left."""
-    t = np.gradient(xy, axis=0)
-    n = np.column_stack([-t[:, 1], t[:, 0]]) / np.maximum(np.hypot(t[:, 0], t[:, 1]), 1e-9)[:, None]
-    return xy + d * n
-
-
 def _road_lines(scenario: Scenario) -> tuple[list[np.ndarray], list[np.ndarray], np.ndarray]:
     """(edge polylines, lane-divider polylines, road polygon) in world metres."""
-    road = scenario.road
-    c = road.centerline()
-    w = road.lane_width
-    right = -(road.ego_lane + 0.5) * w
-    left = (road.lane_count - road.ego_lane - 0.5) * w
-    edges = [_offset_polyline(c, right), _offset_polyline(c, left)]
-    lanes = [_offset_polyline(c, right + i * w) for i in range(1, road.lane_count)]
+    lines = boundary_polylines(scenario.road)
+    edges, lanes = [lines[0], lines[-1]], lines[1:-1]
     polygon = np.vstack([edges[0], edges[1][::-1]])
     return edges, lanes, polygon
 

@@ -16,6 +16,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from deepcrashtest.fileio import atomic_path
+from deepcrashtest.geometry.road import boundary_polylines
 from deepcrashtest.scenario import Road, Scenario
 
 CLASS_COLOURS = {
@@ -31,21 +32,12 @@ CLASS_COLOURS = {
 EGO_COLOUR = "tab:blue"
 
 
-def _offset(c: np.ndarray, d: float) -> np.ndarray:
-    tang = np.gradient(c, axis=0)
-    tang /= np.maximum(np.hypot(tang[:, 0], tang[:, 1]), 1e-9)[:, None]
-    return c + d * np.column_stack([-tang[:, 1], tang[:, 0]])
-
-
 def _draw_road(ax, road: Road) -> None:  # type: ignore[no-untyped-def]
     c = road.centerline()
-    w = road.lane_width
-    right = -(road.ego_lane + 0.5) * w
-    left = (road.lane_count - road.ego_lane - 0.5) * w
-    lo, hi = _offset(c, right), _offset(c, left)
+    lines = boundary_polylines(road)
+    lo, hi = lines[0], lines[-1]
     ax.fill(np.r_[lo[:, 0], hi[::-1, 0]], np.r_[lo[:, 1], hi[::-1, 1]], color="0.92", zorder=0)
-    for k in range(1, road.lane_count):
-        q = _offset(c, right + k * w)
+    for q in lines[1:-1]:
         ax.plot(q[:, 0], q[:, 1], color="0.7", lw=0.6, ls=(0, (6, 6)), zorder=1)
     for q in (lo, hi):
         ax.plot(q[:, 0], q[:, 1], color="0.5", lw=0.8, zorder=1)

@@ -26,8 +26,8 @@ import numpy as np
 from deepcrashtest import __version__
 from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import atomic_write_text
+from deepcrashtest.geometry.road import lane_lines
 from deepcrashtest.scenario import TRAJECTORY_CLASSES, Scenario, Vehicle
-from deepcrashtest.viz.road import lane_lines
 
 EGO_COLOUR = "#d32f2f"
 CLASS_COLOURS = dict(

@@ -28,9 +28,9 @@ from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import atomic_write_text
+from deepcrashtest.geometry.road import lane_lines
 from deepcrashtest.scenario import Scenario, _reject_constant
 from deepcrashtest.viz.edit import apply_edit
-from deepcrashtest.viz.road import lane_lines
 from deepcrashtest.viz.video_frames import VideoFrames, jpeg_bytes
 
 VIDEO_NAME = "annotated.mp4"

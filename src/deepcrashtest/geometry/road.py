@@ -1,0 +1,48 @@
+"""Road geometry of a Scenario's road, defined once: lane boundaries, offset polylines, lane lines.
+
+Used by the exporters (OpenDRIVE, CommonRoad), the bird's-eye video, the report's plots and the viewer.
+Layout: on an ``ego_path*`` or ``road_users`` road the centre line is the ego's path, so it is the centre
+of lane ``ego_lane``; on any other road it is the centre of the carriageway. Lane 0 is the rightmost.
+World frame, metres.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from deepcrashtest.scenario import Road
+
+
+def offset_polyline(xy: np.ndarray, offset: float) -> np.ndarray:
+    """The polyline ``xy`` (N, 2) moved ``offset`` metres to its left (negative: right)."""
+    d = np.gradient(xy, axis=0)
+    n = np.hypot(d[:, 0], d[:, 1])
+    n[n == 0] = 1.0
+    left = np.column_stack([-d[:, 1], d[:, 0]]) / n[:, None]
+    return xy + offset * left
+
+
+def boundary_offsets(road: Road) -> np.ndarray:
+    """Lateral offsets (m, left positive) of the lane boundaries from the centre line, right to left.
+
+    ``lane_count + 1`` values; lane k (0 = rightmost) lies between entries k and k + 1.
+    """
+    j = np.arange(road.lane_count + 1, dtype=float)
+    if road.source.startswith("ego_path") or road.source == "road_users":
+        return (j - road.ego_lane - 0.5) * road.lane_width
+    return (j - road.lane_count / 2.0) * road.lane_width
+
+
+def lane_lines(road: Road) -> dict[str, list[list[list[float]]]]:
+    """``{"center": [[x, y], ...], "boundaries": [[[x, y], ...], ...]}``: outer boundaries first and last."""
+    xy = road.centerline()
+    return {
+        "center": xy.tolist(),
+        "boundaries": [b.tolist() for b in boundary_polylines(road)],
+    }
+
+
+def boundary_polylines(road: Road) -> list[np.ndarray]:
+    """Every lane boundary as an (N, 2) polyline, rightmost edge first, leftmost edge last (metres)."""
+    xy = road.centerline()
+    return [offset_polyline(xy, float(o)) for o in boundary_offsets(road)]
