@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from deepcrashtest.errors import UserError
+from deepcrashtest.trajectory.params import Stage2Params
 from deepcrashtest.trajectory.pipeline import process_scenario
 from deepcrashtest.trajectory.stepback import distance_from_rest, plan_step_back, step_back_prefix
 from trajectory_cases import CLASS_CASES, raw_scenario, track, vehicle
@@ -64,7 +65,7 @@ def test_processed_scenario_starts_at_rest_and_reproduces_the_first_frame():
     agents = [CLASS_CASES[c] for c in ("D0T1", "D1T1", "D1T2")]
     agents.append(vehicle(9, track(lambda t: (35 + 14 * t, 3.5 + 0 * t), 0, 100)))  # faster car ahead
     raw = raw_scenario(agents)
-    sc = process_scenario(raw)
+    sc = process_scenario(raw, params=Stage2Params(stepback_max_s=10.0))  # uncapped: all from rest
     t_max = sc.provenance.parameters["t_max_s"]
     assert t_max == pytest.approx(14.0 / 3.0, abs=0.02)
     for v in sc.vehicles():

@@ -172,7 +172,8 @@ def _separate_others(
 
 
 def _first_clash(ego: Dense, agents: list[Dense], pair: tuple[int, ...], t_end: float) -> tuple[Dense, float] | None:
-    """The earliest contact before ``t_end`` between two road users that are not both the crash pair;
+    """The earliest contact before ``t_end`` between two road users that are not both the crash pair
+    (nor both parked, nor overlapping from the moment both exist: the simulator ignores those too);
     returns the one to move (an agent outside the pair, the less confident one) and the time."""
     every = [ego, *agents]
     tracks = [d.box_track() for d in every]
@@ -180,11 +181,11 @@ def _first_clash(ego: Dense, agents: list[Dense], pair: tuple[int, ...], t_end: 
     for i in range(len(every)):
         for j in range(i + 1, len(every)):
             a, b = every[i], every[j]
-            if a.id in pair and b.id in pair:
+            if (a.id in pair and b.id in pair) or (a.static and b.static):
                 continue
             hit = first_contact(tracks[i], tracks[j])
-            if hit is None or hit.time_s >= t_end:
-                continue
+            if hit is None or hit.time_s >= t_end or hit.time_s <= max(a.t[0], b.t[0]) + EPS_T:
+                continue  # overlapping from their first common moment: label/depth noise, as the simulator ignores
             cands = [d for d in (a, b) if d is not ego and d.id not in pair]
             if not cands:
                 continue

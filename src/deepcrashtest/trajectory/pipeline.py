@@ -279,7 +279,7 @@ def _lane_evidence(d: Dense, frame: RoadFrame) -> bool:
     """A vehicle (not a pedestrian) moving along the road: its lateral offset says where a lane is."""
     if d.static or d.vehicle.category == "pedestrian":
         return False
-    return along_road(frame, d.xy[d.observed], d.heading)
+    return along_road(frame, d.xy[d.observed] if d.observed.any() else d.xy, d.heading)
 
 
 def _assemble(
