@@ -42,7 +42,8 @@ def test_start_delays_follow_frame_of_appearance(processed):
     for cls, v in CLASS_CASES.items():
         a = sc.vehicle(v.id)
         if cls == "D0T2":  # invented behind the ego for at most max_invented_s before it is seen
-            assert a.start_delay_s == pytest.approx(v.first_frame / FPS - 2.0 + t_max, abs=1e-6)
+            # (less where its invented path would meet an oncoming car's extrapolated one: trimmed)
+            assert v.first_frame / FPS - 2.0 + t_max - 1e-6 <= a.start_delay_s <= v.first_frame / FPS + t_max
         elif cls in DELAYED:
             assert a.start_delay_s == pytest.approx(v.first_frame / FPS + t_max, abs=1e-9)
             assert a.trajectory.t[0] == pytest.approx(a.start_delay_s, abs=1e-9)
@@ -110,8 +111,8 @@ def test_overtaker_before_it_appears_is_behind_and_never_collides(processed):
     assert np.all(rel[before] <= r0 + 1e-6)  # never further ahead than where it is first seen
     assert np.all(np.diff(rel[a["t"] >= t_max - 1e-6]) >= -1e-3)  # only closes in (after the step-back)
     # invented for at most 2 s before it is seen (it starts late), behind the ego, never past the safe gap
-    assert a["t"][0] == pytest.approx(t_first - 2.0, abs=1e-6)
-    assert -20.0 - 0.1 <= rel[0] < r0 - 1.0
+    assert t_first - 2.0 - 1e-6 <= a["t"][0] < t_first
+    assert -20.0 - 0.1 <= rel[0] < r0
     assert np.allclose(a["y"], 3.5, atol=0.05)  # in its own lane: boxes 3.5 m apart never touch
     assert not any(np.asarray(sc.vehicle(2).trajectory.observed)[before])
 

@@ -152,6 +152,13 @@ def _separate_others(
         if clash is None:
             break
         mover, hit_time = clash
+        if _trim_invented(mover, hit_time):
+            nudges.append({"agent": mover.id, "trimmed_at_s": round(hit_time, 3)})
+            warnings.append(
+                f"agent {mover.id}: its extrapolated path touched another road user at {hit_time:.2f} s; it is "
+                "in the scenario only from/until 1 s away from there"
+            )
+            continue
         others = [d for d in [ego, *agents] if d is not mover]
         corr = nudge_apart(_movable(mover, False), [_movable(o, o is ego) for o in others], t_end, cp)
         if corr.ok and corr.max_m <= MAX_NUDGE_M:
@@ -169,6 +176,26 @@ def _separate_others(
                 "moved apart plausibly; dropped"
             )
     return agents, nudges
+
+
+def _seen_at(d: Dense, t: float) -> bool:
+    seen = d.t[d.observed]
+    return bool(len(seen)) and seen[0] - EPS_T <= t <= seen[-1] + EPS_T
+
+
+def _trim_invented(d: Dense, t_hit: float, margin_s: float = 1.0) -> bool:
+    """A contact in the unobserved part of a track (extrapolated after it was seen, or invented before):
+    keep that part only up to ``margin_s`` from the contact. False when the contact is in the seen part."""
+    seen = d.t[d.observed]
+    if not len(seen) or d.static:
+        return False
+    if t_hit > seen[-1] + EPS_T:
+        d.keep(d.t <= max(float(seen[-1]), t_hit - margin_s) + EPS_T)
+        return True
+    if t_hit < seen[0] - EPS_T:
+        d.keep(d.t >= min(float(seen[0]), t_hit + margin_s) - EPS_T)
+        return True
+    return False
 
 
 def _first_clash(ego: Dense, agents: list[Dense], pair: tuple[int, ...], t_end: float) -> tuple[Dense, float] | None:
@@ -189,7 +216,8 @@ def _first_clash(ego: Dense, agents: list[Dense], pair: tuple[int, ...], t_end: 
             cands = [d for d in (a, b) if d is not ego and d.id not in pair]
             if not cands:
                 continue
-            mover = min(cands, key=lambda d: (d.vehicle.confidence or 0.0, len(d.t)))
+            invented = [d for d in cands if not _seen_at(d, hit.time_s)]  # move an invented path first
+            mover = min(invented or cands, key=lambda d: (d.vehicle.confidence or 0.0, len(d.t)))
             if best is None or hit.time_s < best[0]:
                 best = (hit.time_s, mover)
     return None if best is None else (best[1], best[0])

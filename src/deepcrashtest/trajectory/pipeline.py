@@ -261,7 +261,8 @@ def _road_phase(run: _Run, ego: Dense, crash: CrashOutcome, ego_frame: EgoFrame,
         hit = next((d for d in crash.agents if d.id == other), None)
         if hit is not None and hit.cls is not None and hit.cls.startswith("D1"):
             s_c = float(road_frame.project(np.array([[c.x or 0.0, c.y or 0.0]]))[0][0])
-            road_frame = extend_head_on(road_frame, s_c, hit.xy[hit.observed], p.road_sigma_m)
+            seen = hit.xy[hit.observed] if hit.observed.sum() >= 2 else hit.xy
+            road_frame = extend_head_on(road_frame, s_c, seen, p.road_sigma_m)
             source = "ego_path+oncoming"
     raw_road = raw.road
     if raw_road.lane_timeline is not None:
