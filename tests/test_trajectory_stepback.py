@@ -63,7 +63,9 @@ def test_prefix_reaches_the_first_observed_positions_together():
 
 def test_processed_scenario_starts_at_rest_and_reproduces_the_first_frame():
     agents = [CLASS_CASES[c] for c in ("D0T1", "D1T1", "D1T2")]
-    agents.append(vehicle(9, track(lambda t: (35 + 14 * t, 3.5 + 0 * t), 0, 100)))  # faster car ahead
+    # faster car ahead, in the right lane (in the left one it would drive through the oncoming D1T1,
+    # a contact stage 2 now removes)
+    agents.append(vehicle(9, track(lambda t: (35 + 14 * t, -3.5 + 0 * t), 0, 100)))
     raw = raw_scenario(agents)
     sc = process_scenario(raw, params=Stage2Params(stepback_max_s=10.0))  # uncapped: all from rest
     t_max = sc.provenance.parameters["t_max_s"]
