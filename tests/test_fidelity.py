@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -126,3 +127,82 @@ def test_projection_round_trips_through_the_extraction_localiser():
         p = GroundPlaneLocalizer().localize(pb.box[None], ["car"], cam, (1280, 720))
         assert p.z[0] + cam.forward_offset_m == pytest.approx(x, abs=0.3)
         assert -p.x[0] == pytest.approx(y, abs=0.2)
+
+
+@pytest.fixture(scope="module")
+def kitti8_crash(kitti8_raw):
+    """KITTI 0008 with real agent 11 moved to meet the ego at t = 10 s, replayed for 11 s."""
+    from deepcrashtest.sim import simulate
+    from deepcrashtest.sim.testcases import meet_ego
+
+    sc = meet_ego(kitti8_raw, 11, 10.0)
+    return sc, simulate(sc, duration=11.0)
+
+
+def test_crash_compared_with_a_label(kitti8_crash, kitti_root):
+    from deepcrashtest.datasets.crash_labels import CrashLabel, Participant
+    from deepcrashtest.eval.fidelity import evaluate_fidelity
+
+    sc, sim = kitti8_crash
+    tracks = _label_tracks(kitti_root, 8, 130)
+
+    def label(frame: int, track_id: int) -> CrashLabel:
+        row = tracks[(tracks["frame"] == frame) & (tracks["track_id"] == track_id)]
+        box = tuple(float(v) for v in row[["x1", "y1", "x2", "y2"]].to_numpy()[0])
+        return CrashLabel("kitti8", "-", 10.0, True, frame, (Participant(True), Participant(False, box, "car")))
+
+    result = evaluate_fidelity(sc, tracks, sim, label(100, 11))
+    good = result.crash
+    assert good["label"]["scenario_ids"] == [0, 11]
+    assert good["first_contact"]["participants"] == [0, 11]
+    assert good["same_pair"] and good["reproduced"] and abs(good["dt_s"]) < 0.05
+    assert good["relative_speed_mps"] > 5.0 and good["contacts_before_crash"] == 0
+    early = evaluate_fidelity(sc, tracks, sim, label(90, 11)).crash  # labelled 1 s earlier: not reproduced
+    assert early["same_pair"] and not early["reproduced"] and early["dt_s"] == pytest.approx(1.0, abs=0.05)
+    other = tracks[(tracks["frame"] == 100) & (tracks["track_id"] != 11)]["track_id"].iloc[0]
+    wrong = evaluate_fidelity(sc, tracks, sim, label(100, int(other))).crash  # another road user
+    assert wrong["same_pair"] is False and wrong["reproduced"] is False
+    none = evaluate_fidelity(sc, tracks, sim, None).crash
+    assert none["video_has_crash"] is True and none["first_contact"]["participants"] == [0, 11]
+    from deepcrashtest.eval.fidelity import fidelity_json
+    from deepcrashtest.viz.fidelity_section import fidelity_section
+
+    section = fidelity_section(json.loads(fidelity_json(result)))  # the report reads fidelity.json
+    assert "the replay reproduces the labelled crash" in section.body and "0-11 at video 10" in section.body
+
+
+def test_crash_label_files_load_and_bad_ones_are_refused(tmp_path):
+    from deepcrashtest.datasets.crash_labels import load_crash_labels
+    from deepcrashtest.errors import UserError
+
+    root = Path(__file__).resolve().parents[1] / "bench" / "labels"
+    dad = load_crash_labels(root / "dad_crashes.json")
+    ccd = load_crash_labels(root / "ccd_crashes.json")
+    assert len(ccd) == 13 and all(lab.crash and any(p.ego for p in lab.participants) for lab in ccd.values())
+    assert all(lab.first_accident_frame is not None for lab in ccd.values())
+    two_wheel = [
+        k for k, lab in dad.items() if lab.third_party and any(p.category == "motorcycle" for p in lab.participants)
+    ]
+    assert len(two_wheel) >= 3 and not dad["highway_project_video"].crash
+    bad = tmp_path / "bad.json"
+    for text in ('{"format": "x"}', '{"format": "deepcrashtest-crash-labels", "clips": {"a": {"video": "v", "fps": 20,'
+                 ' "crash": true, "contact_frame": 3, "participants": [{"who": "ego"}]}}}', "not json"):  # fmt: skip
+        bad.write_text(text)
+        with pytest.raises(UserError):
+            load_crash_labels(bad)
+
+
+def test_cli_refuses_bad_input_before_any_work(kitti8_raw, kitti_root, tmp_path):
+    from deepcrashtest.cli import main
+
+    sc_path = tmp_path / "scenario.json"
+    kitti8_raw.save(sc_path)
+    args = ["evaluate", "fidelity", str(sc_path), "--no-video-out", "-o", str(tmp_path / "out")]
+    assert main(args) == 2  # no tracks.csv beside the scenario
+    _label_tracks(kitti_root, 8, 20).to_csv(tmp_path / "tracks.csv", index=False)
+    labels = Path(__file__).resolve().parents[1] / "bench" / "labels" / "dad_crashes.json"
+    assert main([*args, "--labels", str(labels)]) == 2  # the labels do not know this clip
+    (tmp_path / "out").mkdir(exist_ok=True)
+    (tmp_path / "out" / "fidelity.json").write_text("{}")
+    assert main(args) == 2  # refuses to overwrite without --force
+    assert (tmp_path / "out" / "fidelity.json").read_text() == "{}"

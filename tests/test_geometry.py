@@ -180,10 +180,10 @@ def test_egomotion_kitti_seq06():
 
     ego, poses, times = run_odometry(need(SEQ06))
     r = egomotion_errors(ego, poses, times)
-    # measured: distance 2.0 %, median speed 3.4 %, final yaw error 0.87 deg over 60 m
-    assert r["distance_error_pct"] <= 3.0
-    assert r["speed_error_median_pct"] <= 5.0
-    assert r["yaw_error_final_deg"] <= 1.2
+    # measured (960 px, parameters tuned on this sequence): distance 0.3 %, median speed 0.8 %, final yaw 0.34 deg
+    assert r["distance_error_pct"] <= 2.0
+    assert r["speed_error_median_pct"] <= 3.0
+    assert r["yaw_error_final_deg"] <= 0.6
     assert r["valid_fraction"] == 1.0 and not r["warnings"]
 
 
@@ -193,9 +193,9 @@ def test_egomotion_kitti_seq00():
 
     ego, poses, times = run_odometry(need(SEQ00))
     r = egomotion_errors(ego, poses, times)
-    # measured: distance 5.3 %, median speed 6.9 %, yaw drift 0.38 deg/100 m through an 86-deg turn
-    assert r["distance_error_pct"] <= 7.0
-    assert r["speed_error_median_pct"] <= 9.0
+    # measured (parameters chosen on seq06): distance 2.9 %, median speed 2.2 %, yaw drift 0.35 deg/100 m
+    assert r["distance_error_pct"] <= 4.0
+    assert r["speed_error_median_pct"] <= 3.0
     assert r["yaw_drift_deg_per_100m"] <= 0.6
 
 

@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
 from scipy.interpolate import BSpline, make_lsq_spline
 
-from deepcrashtest.errors import ScenarioError
 from deepcrashtest.scenario import Scenario, wrap_angle
 from deepcrashtest.viz.edit import (
     MOVING_MPS,
@@ -120,10 +120,21 @@ def test_shift_translates_a_spline_of_a_straight_path(kitti8_raw):
 def test_processed_scenario_refuses_an_edit_no_car_could_drive(kitti8_raw):
     ego_only = Scenario.from_dict({**kitti8_raw.model_dump(mode="json"), "agents": [], "stage": "processed"})
     tr = ego_only.ego.trajectory
-    with pytest.raises(ScenarioError, match="acceleration"):
+    with pytest.raises(EditError, match="acceleration") as err:
         move_waypoint(ego_only, 0, 100, tr.x[100] + 3.0, tr.y[100], falloff_s=0)
-    ok = move_waypoint(ego_only, 0, 100, tr.x[100] + 3.0, tr.y[100], falloff_s=3.0)  # spread over 6 s: drivable
+    # the refusal says what would work, and it does
+    found = re.search(r"a drag falloff of ([0-9.]+) s or a move of at most ([0-9.]+) m", str(err.value))
+    assert found, str(err.value)
+    falloff, most = float(found[1]), float(found[2])
+    ok = move_waypoint(ego_only, 0, 100, tr.x[100] + 3.0, tr.y[100], falloff_s=falloff)
     assert ok.ego.trajectory.x[100] == pytest.approx(tr.x[100] + 3.0)
+    assert ok.ego.trajectory.max_abs_accel()[0] <= 15.0
+    move_waypoint(ego_only, 0, 100, tr.x[100] + most, tr.y[100], falloff_s=0)
+    with pytest.raises(EditError):
+        move_waypoint(ego_only, 0, 100, tr.x[100] + most + 0.05, tr.y[100], falloff_s=0)
+    # the default falloff takes a 3 m drag sideways (bench/viewer_drag.py: 100% of KITTI 0008's drags)
+    ok = move_waypoint(ego_only, 0, 100, tr.x[100], tr.y[100] + 3.0)
+    assert ok.ego.trajectory.y[100] == pytest.approx(tr.y[100] + 3.0)
 
 
 @pytest.mark.parametrize(
@@ -144,3 +155,18 @@ def test_processed_scenario_refuses_an_edit_no_car_could_drive(kitti8_raw):
 def test_bad_edits_are_refused_with_the_reason(kitti8_raw, edit, message):
     with pytest.raises(EditError, match=message):
         apply_edit(kitti8_raw, edit)
+
+
+def test_a_shift_no_car_could_drive_is_refused_with_the_shift_that_works(kitti8_raw):
+    from deepcrashtest.trajectory.pipeline import process_scenario
+
+    sc = process_scenario(kitti8_raw)
+    vid = 20  # an oncoming car on the curve: 20 m to its left its parallel path needs 21.5 m/s^2
+    sc = sc.evolve(agents=[a for a in sc.agents if a.id == vid])
+    with pytest.raises(EditError, match="at most") as err:
+        shift_trajectory(sc, vid, 0.0, 20.0)
+    found = re.search(r"at most ([-+0-9.]+) m along and ([-+0-9.]+) m across would work", str(err.value))
+    assert found, str(err.value)
+    ok = shift_trajectory(sc, vid, float(found[1]), float(found[2]))
+    assert ok.vehicle(vid).trajectory.max_abs_accel()[0] <= 15.0
+    assert 10.0 < float(found[2]) < 20.0

@@ -21,9 +21,13 @@ from deepcrashtest.viz.report import (
     contact_sheet_section,
     distance_to_ego,
     lane_offset_section,
+    motion_section,
+    overview_section,
     render_report,
     scenario_sections,
     search_section,
+    sheet_frames,
+    sheet_marks,
     simulation_section,
     write_report,
 )
@@ -73,7 +77,8 @@ def test_report_of_kitti_0008_is_one_self_contained_file(tmp_path, kitti8_raw):
     assert len(images) == 3 and all(im.shape[0] > 200 and im.shape[1] > 400 for im in images)
     assert "721.5" in text  # KITTI fx from calib
     assert "kitti_calib" in text
-    assert "no collision" in text
+    assert "no ego collision" in text and "<th>collision in the scenario</th><td>none</td>" in text
+    assert "<summary>Parameters (3)</summary>" in text and "<tr><th>poses</th><td>orbslam3</td></tr>" in text
     with pytest.raises(UserError, match="already exists"):
         write_report(path, *sections)
 
@@ -95,6 +100,43 @@ def test_contact_sheet_from_the_real_video():
     assert sheet.shape[1] >= 3 * 180 and sheet.shape[0] >= 2 * 100
     assert "1280 x 720 px, 25 fps, 8.00 s" in sec.body
     assert sheet.std() > 20  # real picture content, not a blank canvas
+    assert sheet_frames(200, 6) == [16, 50, 83, 116, 150, 183]
+
+
+def test_report_times_follow_the_one_time_mapping(kitti8_raw):
+    """Collision, contact sheet marks and closest approaches are in scenario AND video time, by Scenario's mapping."""
+    from deepcrashtest.scenario import Collision
+
+    src = kitti8_raw.source.model_copy(update={"time_offset_s": 5.65})
+    a, b = kitti8_raw.agents[0].id, kitti8_raw.agents[1].id  # a third-party crash: two agents
+    sc = kitti8_raw.evolve(source=src, collision=Collision(time_s=10.21, other_id=a, agent_id=b, source="user"))
+    over = overview_section(sc).body
+    assert f"agent {a} (car" in over and "given by the user" in over
+    assert "scenario t = 10.21 s = video t = 4.56 s (frame 45)" in over  # 10 fps: floor(4.56 * 10) = 45
+    assert "scenario t = video t + 5.65 s" in over and "covers scenario t 5.65-44.65 s" in over
+    late = sc.evolve(collision=Collision(time_s=50.0, other_id=0, agent_id=b))
+    assert "after the video&#x27;s end at 39.00 s" in overview_section(late).body
+    marks = sheet_marks(sc, 390, 12)
+    assert marks[0] == ("#1", pytest.approx(16 / 10 + 5.65)) and len(marks) == 12
+    assert marks[1] == ("#2", pytest.approx(45 / 10 + 5.65))  # the collision's frame 45 replaces frame 48
+    motion = motion_section(sc, marks)
+    assert "= video t = " in motion.body and len(_pngs(motion.body)) == 1
+
+
+def test_simulation_section_names_the_ego_collision_and_counts_the_others():
+    metrics = {"collided": False, "delta_v_ego": None, "n_collisions": 2}
+    collisions = [
+        {"time": 1.2, "vehicles": [1, 5], "relative_speed": 2.0, "delta_v": {"1": 0.7, "5": 0.7}},
+        {"time": 3.9, "vehicles": [5, 6], "relative_speed": 1.4, "delta_v": {"5": 0.0, "6": 0.0}},
+    ]
+    body = simulation_section({**metrics, "collisions": collisions}).body
+    assert "no ego collision; 2 collision(s) between other road users" in body
+    assert body.count("<li>") == 2 and "agent 1 and agent 5 at t = 1.20 s" in body
+    hit = {"collided": True, "collision_time": 2.5, "collision_vehicle": 16, "delta_v_ego": None, "n_collisions": 2}
+    ego_entry = {"time": 2.5, "vehicles": [0, 16], "relative_speed": 6.4, "delta_v": {"0": 6.39, "16": 5.0}}
+    body = simulation_section({**hit, "collisions": [ego_entry, collisions[0]]}).body
+    assert "ego collision with agent 16 at t = 2.50 s; 1 collision(s) between other road users" in body
+    assert "<th>delta v ego (m/s)</th><td>6.39</td>" in body  # from the ego's collision entry
 
 
 def test_search_section_counts_safe_variants():
@@ -145,7 +187,9 @@ def test_report_command_uses_the_files_beside_the_scenario(tmp_path, kitti8_raw)
     folder.mkdir()
     sc = kitti8_raw.save(folder / "scenario.json")
     shutil.copyfile(SAMPLE_VIDEO, folder / "annotated.mp4")
-    (folder / "simulation.json").write_text(json.dumps({"metrics": {"collided": True, "collision_time": 1.25}}))
+    ego_hit = {"time": 1.25, "vehicles": [0, 9], "point": [1.0, 2.0], "relative_speed": 6.4, "delta_v": {"0": 6.39}}
+    sim_json = {"metrics": {"collided": True, "collision_time": 1.25, "collision_vehicle": 9}, "collisions": [ego_hit]}
+    (folder / "simulation.json").write_text(json.dumps(sim_json))  # the shape of `deepcrashtest simulate --json`
     _search_table().to_csv(folder / "results.csv", index=False)
     out = tmp_path / "report.html"
     proc = _cli("report", str(sc), "-o", str(out), "--json")
@@ -154,7 +198,9 @@ def test_report_command_uses_the_files_beside_the_scenario(tmp_path, kitti8_raw)
     assert res["sections"][4] == "Annotated frames" and "Simulation outcome" in res["sections"]
     assert "Search: start positions" in res["sections"]
     assert res["bytes"] == out.stat().st_size
-    assert len(_pngs(out.read_text())) == 4  # contact sheet, bird's-eye, motion, search
+    text = out.read_text()
+    assert len(_pngs(text)) == 4  # contact sheet, bird's-eye, motion, search
+    assert "ego collision with agent 9 (car" in text and "<th>delta v ego (m/s)</th><td>6.39</td>" in text
     again = _cli("report", str(sc), "-o", str(out))
     assert again.returncode == 2 and "already exists" in again.stderr and len(again.stderr.splitlines()) == 1
     assert _cli("report", str(sc), "-o", str(out), "--force").returncode == 0

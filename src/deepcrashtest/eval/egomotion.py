@@ -47,7 +47,7 @@ def read_odometry_calib(folder: Path) -> np.ndarray:
     raise UserError(f"{files[0]}: no 3x4 projection matrix found")
 
 
-def _frame_times(folder: Path, n: int) -> np.ndarray:
+def frame_times(folder: Path, n: int) -> np.ndarray:
     times = folder / "times.txt"
     if times.exists():
         t = np.loadtxt(times, ndmin=1)[:n]
@@ -71,7 +71,7 @@ def run_odometry(folder: str | Path, max_frames: int | None = None) -> tuple[Ego
         fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2], height_m=KITTI_CAMERA_HEIGHT_M,
         intrinsics_source="kitti_calib", height_source="kitti_calib",
     )  # fmt: skip
-    times = _frame_times(root, n)
+    times = frame_times(root, n)
     est = EgoMotionEstimator(cam)
     for i in range(n):
         img = cv2.imread(str(images[i]), cv2.IMREAD_GRAYSCALE)

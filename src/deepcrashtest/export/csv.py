@@ -23,8 +23,10 @@ observed       -       1 where seen in the video, 0 where extrapolated, empty if
 active         -       1 from the vehicle's start delay on, 0 before it enters
 =============  ======  ===========================================================
 
-Times are the trajectories' own samples (no resampling), so a vehicle seen from frame 40 to
-120 of a 10 fps video has rows for t = 4.0 .. 12.0 s only.
+Times are the trajectories' own samples (no resampling), in scenario time: a vehicle seen from
+frame 40 to 120 of a 10 fps video has rows for t = 4.0 + o .. 12.0 + o s only, o being the
+Scenario's ``source.time_offset_s`` (the one time mapping: ``Scenario.frame_time``; video time =
+t - o), plus any extrapolated samples (``observed`` 0).
 """
 
 from __future__ import annotations

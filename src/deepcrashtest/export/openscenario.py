@@ -21,7 +21,8 @@ What the file holds:
   when it appears (``AddEntityAction``), so it is never a parked ghost on the road before then.
 * One ``ManeuverGroup`` per vehicle: a ``FollowTrajectoryAction`` on a timed polyline of every
   trajectory sample (``Timing`` absolute, scale 1, offset 0: vertex times are simulation
-  seconds), ``FollowingMode`` position. Start triggers are ``SimulationTime greaterOrEqual t``
+  seconds = scenario time; the video's time is t - ``source.time_offset_s``, ``Scenario.video_time``),
+  ``FollowingMode`` position. Start triggers are ``SimulationTime greaterOrEqual t``
   (t = 0, or the entry time of a late vehicle: ``greaterThan 0`` would start one step late).
 * With ``ego_free`` the ego gets its start pose and speed only, no trajectory: the user's system
   under test drives it.

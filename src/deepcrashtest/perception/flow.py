@@ -111,3 +111,84 @@ def _median_scale(pa: np.ndarray, pb: np.ndarray, max_pairs: int = 64) -> float:
     if keep.sum() < 3:
         return 1.0
     return float(np.clip(np.median(db[keep] / da[keep]), 0.9, 1.1))
+
+
+# --------------------------------------------------------------------------- sparse scene points
+def track_points(
+    prev: np.ndarray,
+    cur: np.ndarray,
+    p0: np.ndarray,
+    guess: np.ndarray | None = None,
+    win: int = 15,
+    levels: int = 3,
+    fb_max_px: float = 0.5,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Lucas-Kanade tracks of (N, 2) points from grey image ``prev`` to ``cur`` (pixels).
+
+    ``guess`` (N, 2): predicted positions in ``cur`` (e.g. from the last frame's motion); LK starts
+    there, which keeps large near-road displacements from converging short. A point is good when
+    both directions converge and the backward track returns within ``fb_max_px``.
+    Returns (positions in ``cur`` (N, 2) float32, good mask (N,)).
+    """
+    import cv2
+
+    n = len(p0)
+    if n == 0:
+        return np.zeros((0, 2), np.float32), np.zeros(0, bool)
+    a = np.ascontiguousarray(p0, np.float32).reshape(-1, 1, 2)
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.01)
+    flags = 0
+    b = a.copy()
+    if guess is not None:
+        b = np.ascontiguousarray(guess, np.float32).reshape(-1, 1, 2)
+        flags = cv2.OPTFLOW_USE_INITIAL_FLOW
+    lk = cv2.calcOpticalFlowPyrLK
+    p1, st1, _ = lk(prev, cur, a, b, winSize=(win, win), maxLevel=levels, criteria=crit, flags=flags)
+    back = p1.copy()  # p1 is near the truth: start the backward pass from p0, one pyramid level fewer
+    back[:] = a
+    p0r, st2, _ = lk(
+        cur, prev, p1, back, winSize=(win, win), maxLevel=levels, criteria=crit, flags=cv2.OPTFLOW_USE_INITIAL_FLOW
+    )
+    fb = np.linalg.norm((p0r - a).reshape(-1, 2), axis=1)
+    h, w = prev.shape[:2]
+    q = p1.reshape(-1, 2)
+    inside = (q[:, 0] >= 0) & (q[:, 1] >= 0) & (q[:, 0] <= w - 1) & (q[:, 1] <= h - 1)
+    good = (st1.ravel() == 1) & (st2.ravel() == 1) & (fb <= fb_max_px) & inside
+    return q.astype(np.float32), good
+
+
+def top_up_corners(
+    grey: np.ndarray,
+    mask: np.ndarray,
+    existing: np.ndarray,
+    target: int,
+    quality: float = 0.01,
+    min_distance: int = 8,
+    coarse: bool = False,
+) -> np.ndarray:
+    """New corners (M, 2) inside ``mask`` and at least ``min_distance`` px from ``existing`` points,
+    so that ``len(existing) + M`` reaches about ``target``. Corners are reused from frame to frame;
+    only the gaps are filled, inside the mask's bounding box (``quality`` is relative to the best
+    corner there). ``coarse``: look for them at half resolution (4x cheaper; LK then tracks the
+    patch around each point at full resolution, so nothing is lost but corner sharpness)."""
+    import cv2
+
+    need = int(target) - len(existing)
+    if need <= max(4, target // 10):
+        return np.zeros((0, 2), np.float32)
+    m = mask.copy()
+    for x, y in np.asarray(existing, np.float32).reshape(-1, 2):
+        cv2.circle(m, (int(x), int(y)), int(min_distance), 0, -1)
+    x0, y0, bw, bh = cv2.boundingRect(m)
+    if bw < 8 or bh < 8:
+        return np.zeros((0, 2), np.float32)
+    g, mm = grey[y0 : y0 + bh, x0 : x0 + bw], m[y0 : y0 + bh, x0 : x0 + bw]
+    f = 2.0 if coarse else 1.0
+    if coarse:
+        g = cv2.resize(g, (bw // 2, bh // 2), interpolation=cv2.INTER_AREA)
+        mm = cv2.resize(mm, (bw // 2, bh // 2), interpolation=cv2.INTER_NEAREST)
+    dist = max(1, int(round(min_distance / f)))
+    pts = cv2.goodFeaturesToTrack(g, maxCorners=need, qualityLevel=quality, minDistance=dist, mask=mm)
+    if pts is None:
+        return np.zeros((0, 2), np.float32)
+    return (pts.reshape(-1, 2) * f + np.array([x0, y0], np.float32)).astype(np.float32)

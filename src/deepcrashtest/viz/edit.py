@@ -14,8 +14,10 @@ Every edit keeps the rest of the vehicle consistent with its new positions, over
   gets the least-squares change of its control points that reproduces the displacement of the samples.
 * the edit is appended, as one readable line, to ``provenance.history``.
 
-The result is validated as a whole Scenario (:meth:`Scenario.from_dict`), so an edit that breaks
-the physical limits is refused with a :class:`~deepcrashtest.errors.ScenarioError` naming the field.
+The result is a new Scenario made by :meth:`Scenario.evolve` (the input is never changed), validated
+as a whole, so an edit that breaks the schema is refused with a :class:`~deepcrashtest.errors.ScenarioError`
+naming the field. A waypoint drag on a processed scenario that would need more than the physical
+acceleration limit is refused first, with the falloff (or the shorter move) that would work.
 
 Frames: world frame (x forward, y left, metres). "Vehicle frame" means each sample's own heading:
 ``d_lon`` along ``yaw``, ``d_lat`` to the left of it.
@@ -30,14 +32,16 @@ from typing import Any
 import numpy as np
 
 from deepcrashtest.errors import UserError
-from deepcrashtest.scenario import Scenario, Vehicle, wrap_angle
+from deepcrashtest.scenario import MAX_ACCEL_MPS2, Scenario, Vehicle, wrap_angle
 
 #: Below this speed (m/s) the direction of motion is noise: yaw is not changed there.
 MOVING_MPS = 0.5
 #: Largest displacement an edit accepts, metres (these are minor fixes, not new scenarios).
 MAX_DISPLACEMENT_M = 200.0
-#: Default half-width of the smooth falloff of a waypoint drag, seconds.
-DEFAULT_FALLOFF_S = 0.5
+#: Default half-width of the smooth falloff of a waypoint drag, seconds (see ``bench/viewer_drag.py``).
+DEFAULT_FALLOFF_S = 1.5
+#: Falloffs tried, shortest first, when a drag is refused, to say which one would work (seconds).
+FALLOFF_LADDER_S = (0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
 
 
 class EditError(UserError, ValueError):
@@ -47,7 +51,7 @@ class EditError(UserError, ValueError):
 def apply_edit(scenario: Scenario, edit: Mapping[str, Any]) -> Scenario:
     """Apply one edit given as a JSON object and return the new (validated) Scenario.
 
-    ``{"kind": "move_waypoint", "vehicle_id": 3, "index": 12, "x": 10.0, "y": -2.0, "falloff_s": 0.5}``
+    ``{"kind": "move_waypoint", "vehicle_id": 3, "index": 12, "x": 10.0, "y": -2.0, "falloff_s": 1.5}``
     or ``{"kind": "shift", "vehicle_id": 3, "d_lon": 1.0, "d_lat": -0.5}``.
     """
     if not isinstance(edit, Mapping):
@@ -88,6 +92,14 @@ def move_waypoint(
         raise EditError(f"edit.falloff_s must be >= 0 (got {falloff_s})")
     dx, dy = x - a["x"][index], y - a["y"][index]
     _limit(math.hypot(dx, dy))
+    if scenario.stage == "processed":
+        amax = drag_accel(veh, index, dx, dy, falloff_s)
+        if amax > MAX_ACCEL_MPS2:
+            raise EditError(
+                f"moving vehicle {vehicle_id}'s waypoint {math.hypot(dx, dy):.2f} m with a drag falloff of "
+                f"{falloff_s:g} s needs |acceleration| {amax:.1f} m/s^2, above the physical limit "
+                f"{MAX_ACCEL_MPS2:g} m/s^2; {drivable_alternatives(veh, index, dx, dy, falloff_s)} would work"
+            )
     w = falloff_weights(a["t"], index, falloff_s)
     note = (
         f"move_waypoint vehicle={vehicle_id} index={index} t={a['t'][index]:.3f}s to ({x:.3f}, {y:.3f}) m "
@@ -109,6 +121,17 @@ def shift_trajectory(scenario: Scenario, vehicle_id: int, d_lon: float, d_lat: f
     c, s = np.cos(a["yaw"]), np.sin(a["yaw"])
     x = a["x"] + d_lon * c - d_lat * s
     y = a["y"] + d_lon * s + d_lat * c
+    if scenario.stage == "processed":
+        amax = accel_after(veh, x, y)
+        if amax > MAX_ACCEL_MPS2:
+            dx, dy = x - a["x"], y - a["y"]
+            frac = largest_fraction(lambda f: accel_after(veh, a["x"] + f * dx, a["y"] + f * dy) <= MAX_ACCEL_MPS2)
+            raise EditError(
+                f"shifting vehicle {vehicle_id} by {d_lon:+.2f} m along and {d_lat:+.2f} m across its heading needs "
+                f"|acceleration| {amax:.1f} m/s^2 (a parallel path of a curve is longer or shorter), above the "
+                f"physical limit {MAX_ACCEL_MPS2:g} m/s^2; a shift of at most {_cm_down(frac * d_lon):+.2f} m along "
+                f"and {_cm_down(frac * d_lat):+.2f} m across would work"
+            )
     note = f"shift vehicle={vehicle_id} d_lon={d_lon:+.3f} m d_lat={d_lat:+.3f} m (vehicle frame)"
     return _replace(scenario, veh, x, y, note)
 
@@ -133,25 +156,85 @@ def motion(t: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.
     return np.hypot(vx, vy), np.arctan2(vy, vx)
 
 
-def _replace(scenario: Scenario, veh: Vehicle, x: np.ndarray, y: np.ndarray, note: str) -> Scenario:
-    """The scenario with ``veh``'s positions replaced; yaw, speed and spline follow; validated."""
+def _derived(veh: Vehicle, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Speed and yaw of ``veh`` after its positions become ``x, y`` (see the module docstring)."""
     a = veh.trajectory.arrays()
     v_old, h_old = motion(a["t"], a["x"], a["y"])
     v_new, h_new = motion(a["t"], x, y)
     speed = np.maximum(a["speed"] + (v_new - v_old), 0.0)
     moving = (v_old >= MOVING_MPS) & (v_new >= MOVING_MPS)
     yaw = a["yaw"] + np.where(moving, wrap_angle(h_new - h_old), 0.0)
-    data = scenario.model_dump(mode="json")
-    vdata = data["ego"] if veh.id == scenario.ego.id else next(v for v in data["agents"] if v["id"] == veh.id)
-    traj = vdata["trajectory"]
-    traj["x"], traj["y"] = x.tolist(), y.tolist()
-    traj["yaw"], traj["speed"] = yaw.tolist(), speed.tolist()
+    return speed, yaw
+
+
+def _replace(scenario: Scenario, veh: Vehicle, x: np.ndarray, y: np.ndarray, note: str) -> Scenario:
+    """The scenario with ``veh``'s positions replaced; yaw, speed and spline follow (``Scenario.evolve``)."""
+    speed, yaw = _derived(veh, x, y)
+    traj = veh.trajectory.model_copy(
+        update={"x": x.tolist(), "y": y.tolist(), "yaw": yaw.tolist(), "speed": speed.tolist()}
+    )
+    update: dict[str, Any] = {"trajectory": traj}
     if veh.spline is not None:
-        dcx, dcy = spline_control_shift(veh, x - a["x"], y - a["y"])
-        vdata["spline"]["cx"] = (np.asarray(veh.spline.cx) + dcx).tolist()
-        vdata["spline"]["cy"] = (np.asarray(veh.spline.cy) + dcy).tolist()
-    data["provenance"]["history"] = [*data["provenance"]["history"], note]
-    return Scenario.from_dict(data, origin="edited scenario")
+        dcx, dcy = spline_control_shift(veh, x - np.asarray(veh.trajectory.x), y - np.asarray(veh.trajectory.y))
+        update["spline"] = veh.spline.model_copy(
+            update={"cx": (np.asarray(veh.spline.cx) + dcx).tolist(), "cy": (np.asarray(veh.spline.cy) + dcy).tolist()}
+        )
+    new_veh = veh.model_copy(update=update)
+    history = [*scenario.provenance.history, note]
+    changes: dict[str, Any] = {"provenance": scenario.provenance.model_copy(update={"history": history})}
+    if veh.id == scenario.ego.id:
+        changes["ego"] = new_veh
+    else:
+        changes["agents"] = [new_veh if a.id == veh.id else a for a in scenario.agents]
+    return scenario.evolve(**changes)
+
+
+def accel_after(veh: Vehicle, x: np.ndarray, y: np.ndarray) -> float:
+    """Largest |acceleration| (m/s^2) of ``veh`` once its positions are ``x, y`` (speed as the edit derives it)."""
+    t = np.asarray(veh.trajectory.t, float)
+    if len(t) < 2:
+        return 0.0
+    speed, _ = _derived(veh, x, y)
+    return float(np.abs(np.diff(speed) / np.diff(t)).max())
+
+
+def drag_accel(veh: Vehicle, index: int, dx: float, dy: float, falloff_s: float) -> float:
+    """Largest |acceleration| (m/s^2) of ``veh`` after moving sample ``index`` by ``(dx, dy)`` with ``falloff_s``."""
+    a = veh.trajectory.arrays()
+    w = falloff_weights(a["t"], index, falloff_s)
+    return accel_after(veh, a["x"] + w * dx, a["y"] + w * dy)
+
+
+def largest_fraction(drivable: Any, steps: int = 12) -> float:
+    """The largest fraction f in [0, 1] of an edit with ``drivable(f)`` true (bisection; 0 when none)."""
+    lo, hi = 0.0, 1.0
+    for _ in range(steps):
+        mid = 0.5 * (lo + hi)
+        if drivable(mid):
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+def _cm_down(v: float) -> float:
+    """``v`` rounded towards zero to whole centimetres (a suggestion printed with 2 decimals must still work)."""
+    return math.copysign(math.floor(abs(v) * 100.0) / 100.0, v)
+
+
+def drivable_alternatives(veh: Vehicle, index: int, dx: float, dy: float, falloff_s: float) -> str:
+    """What would work instead of a drag that breaks :data:`MAX_ACCEL_MPS2`: a longer falloff, or a shorter move."""
+    d = math.hypot(dx, dy)
+    falloff = next(
+        (f for f in FALLOFF_LADDER_S if f > falloff_s and drag_accel(veh, index, dx, dy, f) <= MAX_ACCEL_MPS2), None
+    )
+    frac = largest_fraction(lambda f: drag_accel(veh, index, f * dx, f * dy, falloff_s) <= MAX_ACCEL_MPS2)
+    parts = []
+    if falloff is not None:
+        parts.append(f"a drag falloff of {falloff:g} s")
+    if frac * d >= 0.01:
+        parts.append(f"a move of at most {_cm_down(frac * d):.2f} m at {falloff_s:g} s")
+    return " or ".join(parts) if parts else "a smaller move with a longer falloff"
 
 
 def spline_control_shift(veh: Vehicle, dx: np.ndarray, dy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

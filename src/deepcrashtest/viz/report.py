@@ -15,7 +15,7 @@ import base64
 import html
 import io
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -26,14 +26,19 @@ import numpy as np
 from deepcrashtest import __version__
 from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import atomic_write_text
-from deepcrashtest.geometry.road import lane_lines
-from deepcrashtest.scenario import TRAJECTORY_CLASSES, Scenario, Vehicle
+from deepcrashtest.scenario import Collision, Scenario, Vehicle
+from deepcrashtest.viz.plots import birdseye_figure, observed_mask, plot_observed, time_axes
+from deepcrashtest.viz.style import CLASS_DESCRIPTIONS, EGO_COLOUR, OBSERVED_NOTE, vehicle_colour
 
-EGO_COLOUR = "#d32f2f"
-CLASS_COLOURS = dict(
-    zip(TRAJECTORY_CLASSES, ("#1e88e5", "#00acc1", "#3949ab", "#fbc02d", "#fb8c00", "#8e24aa", "#6d4c41"), strict=True)
-)
-UNCLASSIFIED_COLOUR = "#78909c"
+#: The distance plot's axis stops here (metres): farther road users do not matter for a crash.
+DISTANCE_PLOT_MAX_M = 100.0
+#: Where a collision entry came from, in words.
+COLLISION_SOURCES = {
+    "video-auto": "detected in the video",
+    "user": "given by the user",
+    "labels": "from the dataset's labels",
+    "simulated": "found by the simulator",
+}
 
 
 @dataclass
@@ -92,49 +97,88 @@ def _figure(width: float, height: float) -> Any:
     return Figure(figsize=(width, height), dpi=100, layout="constrained")
 
 
-def vehicle_colour(v: Vehicle, ego_id: int) -> str:
-    if v.id == ego_id:
-        return EGO_COLOUR
-    return CLASS_COLOURS.get(v.trajectory_class or "", UNCLASSIFIED_COLOUR)
+def who(sc: Scenario, vid: int) -> str:
+    """``the ego`` or ``agent 16 (car, D1T2)``."""
+    if vid == sc.ego.id:
+        return "the ego"
+    try:
+        v = sc.vehicle(vid)
+    except KeyError:
+        return f"road user {vid}"
+    return f"agent {vid} ({v.category}{', ' + v.trajectory_class if v.trajectory_class else ''})"
+
+
+def time_text(sc: Scenario, t: float) -> str:
+    """A scenario time with its video time and frame (the one mapping, :meth:`Scenario.video_frame`)."""
+    vt = float(sc.video_time(t))
+    f = sc.video_frame(t)
+    if f is not None:
+        return f"scenario t = {t:.2f} s = video t = {vt:.2f} s (frame {f})"
+    end = sc.source.frame_count / sc.source.fps
+    where = "before the video starts" if vt < 0 else f"after the video's end at {end:.2f} s"
+    return f"scenario t = {t:.2f} s = video t = {vt:.2f} s, {where}"
+
+
+def collision_text(sc: Scenario, c: Collision) -> str:
+    """One sentence: who collided with whom, when (scenario and video time), how fast, from where."""
+    speed = f", relative speed {c.relative_speed:.2f} m/s" if c.relative_speed is not None else ""
+    kind = "" if c.involves_ego else "third-party crash: "
+    return (
+        f"{kind}{who(sc, c.other_id)} and {who(sc, c.agent_id)} at {time_text(sc, c.time_s)}{speed} "
+        f"({COLLISION_SOURCES.get(c.source, c.source)})"
+    )
+
+
+def flat_items(data: Mapping[str, Any], prefix: str = "") -> list[tuple[str, Any]]:
+    """Nested mappings as ``(dotted.key, value)`` rows; lists of numbers joined."""
+    rows: list[tuple[str, Any]] = []
+    for k, v in data.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, Mapping):
+            rows += flat_items(v, key + ".")
+        elif isinstance(v, list | tuple):
+            rows.append((key, ", ".join(fmt(x, 4) for x in v)))
+        else:
+            rows.append((key, v))
+    return rows
 
 
 # --------------------------------------------------------------------------- sections
 def overview_section(sc: Scenario) -> Section:
-    """Name, stage, vehicles, duration, classes, collision and provenance."""
+    """Name, stage, road users, duration, classes, time mapping, collision and provenance."""
     classes = sc.class_counts()
+    n = sc.source.frame_count
     rows: list[tuple[str, Any]] = [
         ("name", sc.name),
         ("schema version", sc.schema_version),
         ("stage", sc.stage),
-        ("agents", len(sc.agents)),
         ("duration (s)", sc.duration()),
         ("road users", category_listing(sc)),
         ("trajectory classes", ", ".join(f"{k}: {n}" for k, n in classes.items()) or "-"),
         (
+            "time mapping",
+            f"scenario t = video t + {sc.source.time_offset_s:.2f} s; the video covers scenario t "
+            f"{sc.frame_time(0):.2f}-{sc.frame_time(n):.2f} s ({n} frames at {sc.source.fps:g} fps)",
+        ),
+        (
             "road",
-            f"{sc.road.lane_count} lanes x {sc.road.lane_width:g} m, ego lane {sc.road.ego_lane}, "
+            f"{sc.road.lane_count} lanes x {sc.road.lane_width:.2f} m, ego lane {sc.road.ego_lane}, "
             f"from {sc.road.source}"
             + (" (no lanes seen: inferred from the road users' paths)" if sc.road.source == "road_users" else ""),
         ),
-    ]
-    if sc.collision is not None:
-        c = sc.collision
-        names = {v.id: ("ego" if v.id == sc.ego.id else f"{v.category} {v.id}") for v in sc.vehicles()}
-        kind = "" if c.involves_ego else " (third-party crash)"
-        rows.append(
-            (
-                "collision in the video",
-                f"t={c.time_s:.2f} s, {names[c.other_id]} with {names[c.agent_id]}{kind}, source {c.source}",
-            )
-        )
-    rows += [
+        ("collision in the scenario", collision_text(sc, sc.collision) if sc.collision is not None else "none"),
         ("made by", f"deepcrashtest {sc.provenance.package_version}: {sc.provenance.command or '-'}"),
-        ("parameters", ", ".join(f"{k}={v}" for k, v in sc.provenance.parameters.items()) or "-"),
         ("seed", sc.provenance.seed),
     ]
     body = table(rows)
+    params = flat_items(sc.provenance.parameters)
+    if params:
+        body += f"<details><summary>Parameters ({len(params)})</summary>{table(params)}</details>"
     if sc.provenance.history:
         body += "<h3>Edit history</h3><ol>" + "".join(f"<li>{esc(h)}</li>" for h in sc.provenance.history) + "</ol>"
+    used = [k for k in CLASS_DESCRIPTIONS if k in classes]
+    if used:
+        body += "<p>Classes: " + "; ".join(f"<b>{k}</b> {esc(CLASS_DESCRIPTIONS[k])}" for k in used) + ".</p>"
     return Section("Scenario", body)
 
 
@@ -157,6 +201,7 @@ def source_section(sc: Scenario) -> Section:
         ("frame rate (fps)", s.fps),
         ("frames", s.frame_count),
         ("length (s)", s.frame_count / s.fps),
+        ("scenario time of frame 0 (s)", sc.frame_time(0)),
         ("size (px)", f"{s.width} x {s.height}"),
         ("SHA-256", s.sha256 or "-"),
     ]
@@ -184,8 +229,31 @@ def camera_section(sc: Scenario) -> Section:
     return Section("Camera and calibration", table(rows))
 
 
-def contact_sheet_section(video: str | Path, frames: int = 12, columns: int = 4, thumb_width: int = 320) -> Section:
-    """A grid of ``frames`` evenly spaced frames of ``video`` (the annotated extraction output)."""
+def sheet_frames(frame_count: int, frames: int, include: int | None = None) -> list[int]:
+    """``frames`` frame indices evenly spread over a video of ``frame_count`` frames (middle of each slice);
+    ``include`` (the collision's frame) takes the place of the nearest one."""
+    if frame_count <= 0:
+        return []
+    k = min(frames, frame_count)
+    out = sorted({int((i + 0.5) * frame_count / k) for i in range(k)})
+    if include is not None and 0 <= include < frame_count and include not in out:
+        out[int(np.argmin([abs(i - include) for i in out]))] = include
+    return sorted(out)
+
+
+def collision_frame(sc: Scenario | None) -> int | None:
+    """The video frame of the scenario's collision (None without one, or outside the video)."""
+    return None if sc is None or sc.collision is None else sc.video_frame(sc.collision.time_s)
+
+
+def contact_sheet_section(
+    video: str | Path, frames: int = 12, columns: int = 4, thumb_width: int = 320, sc: Scenario | None = None
+) -> Section:
+    """A grid of ``frames`` evenly spaced frames of ``video`` (the annotated extraction output).
+
+    Each is titled ``#k``, its frame number, video time and (with ``sc``) scenario time; the plots
+    mark the same ``#k`` at the same scenario time (:func:`sheet_marks`).
+    """
     import cv2
 
     from deepcrashtest.viz.video_frames import VideoFrames
@@ -194,77 +262,56 @@ def contact_sheet_section(video: str | Path, frames: int = 12, columns: int = 4,
         raise UserError(f"contact sheet needs frames >= 1 and columns >= 1 (got {frames}, {columns})")
     vf = VideoFrames(video)
     try:
-        times = (np.arange(frames) + 0.5) * vf.duration_s / frames
+        indices = sheet_frames(vf.frame_count, frames, collision_frame(sc))
         thumbs = []
-        for t in times:
-            rgb = vf.frame_at(float(t))
+        for i in indices:
+            rgb = vf.frame(i)
             h, w = rgb.shape[:2]
             thumbs.append(cv2.resize(rgb, (thumb_width, round(h * thumb_width / w)), interpolation=cv2.INTER_AREA))
         info = vf.info()
     finally:
         vf.close()
-    rows = math.ceil(frames / columns)
+    if not thumbs:
+        return Section("Annotated frames", f"<p>{esc(Path(video).name)}: no frames.</p>")
+    rows = math.ceil(len(thumbs) / columns)
     th, tw = thumbs[0].shape[:2]
-    fig = _figure(columns * tw / 100, rows * (th + 24) / 100)
+    fig = _figure(columns * tw / 100, rows * (th + 30) / 100)
     axes = fig.subplots(rows, columns, squeeze=False)
     for ax in axes.ravel():
         ax.axis("off")
-    for ax, t, im in zip(axes.ravel(), times, thumbs, strict=False):
+    for k, (ax, i, im) in enumerate(zip(axes.ravel(), indices, thumbs, strict=False)):
         ax.imshow(im)
-        ax.set_title(f"t = {t:.2f} s (frame {int(t * vf.fps)})", fontsize=8)
+        title = f"#{k + 1}  frame {i}, video {i / info['fps']:.2f} s" + (
+            "  COLLISION" if i == collision_frame(sc) else ""
+        )
+        if sc is not None:
+            title += f"\nscenario t = {sc.frame_time(i):.2f} s"
+        ax.set_title(title, fontsize=8)
     caption = (
         f"<p>{esc(Path(video).name)}: {info['width']} x {info['height']} px, {info['fps']:.3g} fps, "
-        f"{info['duration_s']:.2f} s, {frames} frames evenly spaced.</p>"
+        f"{info['duration_s']:.2f} s, {len(thumbs)} frames evenly spaced. "
+        + ("The plots below mark the same #k at the same scenario time." if sc is not None else "")
+        + "</p>"
     )
     return Section("Annotated frames", caption + img(figure_png(fig), "contact sheet of annotated frames"))
 
 
-def draw_road(ax: Any, sc: Scenario) -> None:
-    """Road surface and lane lines on a matplotlib Axes (world frame)."""
-    lines = lane_lines(sc.road)
-    b = [np.asarray(line) for line in lines["boundaries"]]
-    outline = np.vstack([b[0], b[-1][::-1]])
-    ax.fill(outline[:, 0], outline[:, 1], color="#d9d9d9", zorder=0)
-    for i, line in enumerate(b):
-        outer = i in (0, len(b) - 1)
-        ax.plot(line[:, 0], line[:, 1], color="#555", lw=1.0 if outer else 0.7, ls="-" if outer else "--", zorder=1)
+def sheet_marks(sc: Scenario, frame_count: int, frames: int = 12) -> list[tuple[str, float]]:
+    """``(#k, scenario time)`` of the contact sheet's frames, for the time plots."""
+    indices = sheet_frames(frame_count, frames, collision_frame(sc))
+    return [(f"#{k + 1}", sc.frame_time(i)) for k, i in enumerate(indices)]
 
 
 def birdseye_section(sc: Scenario, sim_states: Mapping[int, np.ndarray] | None = None) -> Section:
-    """Bird's-eye plot of every trajectory on the road, coloured by trajectory class.
+    """Bird's-eye plot of every trajectory on the road (:func:`deepcrashtest.viz.plots.birdseye_figure`).
 
     ``sim_states``: optional simulated paths per vehicle id ((T, 2+) arrays, x, y first), drawn dashed.
     """
-    from matplotlib.lines import Line2D
-
-    fig = _figure(10, 4.8)
-    ax = fig.add_subplot()
-    draw_road(ax, sc)
-    used: dict[str, str] = {}
-    for v in sc.vehicles():
-        tr = v.trajectory.arrays()
-        col = vehicle_colour(v, sc.ego.id)
-        label = "ego" if v.id == sc.ego.id else (v.trajectory_class or "unclassified")
-        used[label] = col
-        ax.plot(tr["x"], tr["y"], color=col, lw=2.2 if v.id == sc.ego.id else 1.2, zorder=3)
-        ax.plot(tr["x"][0], tr["y"][0], "o", color=col, ms=3, zorder=4)
-        if v.id != sc.ego.id:
-            tag = f"{v.id}" if v.category in ("car", "van", "truck", "bus") else f"{v.id} {v.category}"
-            ax.annotate(tag, (tr["x"][0], tr["y"][0]), fontsize=6, color="#333", zorder=5)
-    if sim_states:
-        for path in sim_states.values():
-            p = np.asarray(path, float)
-            ax.plot(p[:, 0], p[:, 1], color="k", lw=0.8, ls=":", zorder=4)
-        used["simulated"] = "k"
-    if sc.collision is not None and sc.collision.x is not None and sc.collision.y is not None:
-        ax.plot(sc.collision.x, sc.collision.y, "X", color="k", ms=10, zorder=6)
-    handles = [Line2D([], [], color=c, lw=2, ls=":" if k == "simulated" else "-") for k, c in used.items()]
-    ax.legend(handles, list(used), fontsize=7, loc="best", ncols=2)
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("x forward (m)")
-    ax.set_ylabel("y left (m)")
-    ax.grid(alpha=0.3)
-    body = "<p>Dots mark where each vehicle is first seen; numbers are vehicle ids.</p>"
+    fig = birdseye_figure(sc, title=sc.name, sim_paths=sim_states)
+    body = (
+        "<p>Dots mark where each road user is first seen; numbers are agent ids. "
+        f"{esc(OBSERVED_NOTE.replace('dashed/faded', 'dotted'))}.</p>"
+    )
     return Section("Bird's-eye view", body + img(figure_png(fig), "bird's-eye plot of the trajectories"))
 
 
@@ -277,25 +324,42 @@ def distance_to_ego(sc: Scenario, v: Vehicle) -> tuple[np.ndarray, np.ndarray]:
     return t, d
 
 
-def motion_section(sc: Scenario) -> Section:
-    """Speed of every vehicle, and each agent's distance from the ego, over time."""
-    fig = _figure(10, 5.5)
+def motion_section(sc: Scenario, marks: Sequence[tuple[str, float]] = ()) -> Section:
+    """Speed of every road user, and each agent's distance from the ego, over scenario time.
+
+    Solid where observed, dotted where extrapolated/led in; the video's span shaded, its time on the
+    top axis; ``marks`` (the contact sheet's ``#k``) at their scenario times.
+    """
+    n = len(sc.vehicles())
+    fig = _figure(11, 6.2)
     ax_v, ax_d = fig.subplots(2, 1, sharex=True)
+    dmax = 0.0
     for v in sc.vehicles():
         tr = v.trajectory.arrays()
         col = vehicle_colour(v, sc.ego.id)
         is_ego = v.id == sc.ego.id
-        ax_v.plot(tr["t"], tr["speed"] * 3.6, color=col, lw=2.0 if is_ego else 0.9, label="ego" if is_ego else None)
+        obs = observed_mask(v)
+        label = "ego" if is_ego else f"{v.id} {v.category} {v.trajectory_class or ''}".strip()
+        plot_observed(ax_v, tr["t"], tr["speed"] * 3.6, obs, col, 2.0 if is_ego else 0.9, label=label)
         if not is_ego:
             t, d = distance_to_ego(sc, v)
-            ax_d.plot(t, d, color=col, lw=0.9)
             if len(t):
+                keep = np.isin(tr["t"], t)
+                plot_observed(ax_d, t, d, obs[keep] if keep.sum() == len(t) else np.ones(len(t), bool), col, 0.9)
                 i = int(np.argmin(d))
-                ax_d.annotate(str(v.id), (t[i], d[i]), fontsize=6, color="#333")
+                if d[i] <= DISTANCE_PLOT_MAX_M:
+                    ax_d.annotate(str(v.id), (t[i], d[i]), fontsize=6, color="#333")
+                dmax = max(dmax, float(d.max()))
     ax_v.set_ylabel("speed (km/h)")
-    ax_v.legend(fontsize=7, loc="upper right")
-    ax_d.set_ylabel("distance to ego (m)")
-    ax_d.set_xlabel("time (s)")
+    ax_v.legend(
+        fontsize=6 if n > 12 else 7, loc="upper left", bbox_to_anchor=(1.01, 1.0), ncols=1 + n // 16, title="road user"
+    )
+    ax_d.set_ylabel("distance to ego, centre to centre (m)")
+    ax_d.set_xlabel("scenario time (s)")
+    ax_d.set_ylim(0, min(max(dmax, 1.0) * 1.05, DISTANCE_PLOT_MAX_M))
+    ax_v.set_ylim(bottom=0)
+    time_axes(ax_v, sc, marks)
+    time_axes(ax_d, sc, (), top_axis=False)
     for ax in (ax_v, ax_d):
         ax.grid(alpha=0.3)
     closest = []
@@ -305,8 +369,14 @@ def motion_section(sc: Scenario) -> Section:
             i = int(np.argmin(d))
             closest.append((float(d[i]), v.id, float(t[i])))
     closest.sort()
-    rows = [(f"vehicle {vid}", f"{d:.2f} m at t={t:.2f} s") for d, vid, t in closest[:5]]
-    body = img(figure_png(fig), "speed and distance over time")
+    rows = [(f"agent {vid}", f"{d:.2f} m at {time_text(sc, t)}") for d, vid, t in closest[:5]]
+    note = (
+        "<p>Solid: observed in the video; dotted: extrapolated, lead-in or step-back. Shaded: the video's span "
+        "(video time on the top axis). Red dashed line: the collision. "
+        + (f"Distances beyond {DISTANCE_PLOT_MAX_M:g} m are off the plot." if dmax > DISTANCE_PLOT_MAX_M else "")
+        + "</p>"
+    )
+    body = note + img(figure_png(fig), "speed and distance over time")
     if rows:
         body += "<h3>Closest approaches (centre to centre)</h3>" + table(rows)
     return Section("Speed and distance over time", body)
@@ -322,8 +392,9 @@ def lane_offset_section(sc: Scenario) -> Section | None:
     ax.plot(lt.t, lt.lateral_offset, color=EGO_COLOUR, lw=1.5, label="offset from lane centre")
     for edge in (-sc.road.lane_width / 2, sc.road.lane_width / 2):
         ax.axhline(edge, color="#555", ls="--", lw=0.8)
-    ax.set_xlabel("time (s)")
+    ax.set_xlabel("scenario time (s)")
     ax.set_ylabel("left of lane centre (m)")
+    time_axes(ax, sc)
     ax2 = ax.twinx()
     ax2.step(lt.t, lt.lane_index, where="post", color="#1e88e5", lw=1.0, label="lane index")
     ax2.set_ylabel("lane (0 = rightmost)")
@@ -334,26 +405,73 @@ def lane_offset_section(sc: Scenario) -> Section | None:
     return Section("Lane offset", body + img(figure_png(fig), "lane offset over time"))
 
 
-def simulation_section(metrics: Mapping[str, Any] | Any, title: str = "Simulation outcome") -> Section:
-    """A table of simulation metrics (a dict, or anything with a ``.metrics`` dict such as a SimResult)."""
+SIM_UNITS = {
+    "collision_time": "s",
+    "delta_v_ego": "m/s",
+    "delta_v_other": "m/s",
+    "relative_speed": "m/s",
+    "min_distance": "m",
+    "min_ttc": "s",
+    "aeb_time": "s",
+    "warning_time": "s",
+    "robustness": "m",
+}
+
+
+def simulation_section(
+    metrics: Mapping[str, Any] | Any, title: str = "Simulation outcome", sc: Scenario | None = None
+) -> Section:
+    """The simulation's outcome: a verdict that names the ego's collision and counts the others, the
+    metrics with units, and every collision (a dict of metrics, optionally with ``collisions``, or a
+    SimResult)."""
     m = getattr(metrics, "metrics", metrics)
     if not isinstance(m, Mapping):
         raise UserError(f"simulation metrics must be a JSON object, got {type(m).__name__}")
+    collisions = list(
+        getattr(metrics, "collisions", None)
+        or (metrics.get("collisions") if isinstance(metrics, Mapping) else None)
+        or []
+    )
+    m = dict(m)
+    ego = sc.ego.id if sc is not None else 0
+    ego_hit = next((c for c in collisions if ego in c.get("vehicles", [])), None)
+    if m.get("delta_v_ego") is None and ego_hit is not None:  # the metrics leave it out unless first overall
+        m["delta_v_ego"] = (ego_hit.get("delta_v") or {}).get(str(ego))
+    n_all = m.get("n_collisions", len(collisions))
+    n_all = len(collisions) if n_all is None else int(n_all)
+    name = (lambda i: who(sc, int(i))) if sc is not None else (lambda i: "the ego" if int(i) == ego else f"agent {i}")
+    at = (lambda t: time_text(sc, float(t))) if sc is not None else (lambda t: f"t = {float(t):.2f} s")
+    if m.get("collided"):
+        other = m.get("collision_vehicle")
+        verdict = "ego collision" + (f" with {name(other)}" if other is not None else "")
+        if m.get("collision_time") is not None:
+            verdict += f" at {at(m['collision_time'])}"
+        others = n_all - 1
+    else:
+        verdict = "no ego collision"
+        others = n_all
+    if others > 0:
+        verdict += f"; {others} collision(s) between other road users"
     first = ("collided", "collision_time", "collision_vehicle", "delta_v_ego", "relative_speed", "min_distance")
-    keys = [k for k in first if k in m] + sorted(k for k in m if k not in first)
-    units = {
-        "collision_time": "s",
-        "delta_v_ego": "m/s",
-        "relative_speed": "m/s",
-        "min_distance": "m",
-        "min_ttc": "s",
-        "aeb_time": "s",
-        "warning_time": "s",
-        "robustness": "m",
-    }
-    rows = [(f"{k.replace('_', ' ')}" + (f" ({units[k]})" if k in units else ""), m[k]) for k in keys]
-    verdict = "collision" if m.get("collided") else "no collision"
-    return Section(title, f'<p class="verdict">{esc(verdict)}</p>' + table(rows))
+    keys = [k for k in first if k in m] + sorted(k for k in m if k not in first and k != "collisions")
+    labels = {"collided": "ego collided", "n_collisions": "collisions in all"}
+    rows = [(labels.get(k, k.replace("_", " ")) + (f" ({SIM_UNITS[k]})" if k in SIM_UNITS else ""), m[k]) for k in keys]
+    body = f'<p class="verdict">{esc(verdict)}</p>' + table(rows)
+    if collisions:
+        items = []
+        for c in collisions:
+            pair = " and ".join(name(i) for i in c.get("vehicles", []))
+            dv = ", ".join(
+                f"{'ego' if int(k) == ego else 'agent ' + str(k)} {fmt(v)}"
+                for k, v in (c.get("delta_v") or {}).items()
+                if v is not None
+            )
+            items.append(
+                f"<li>{esc(pair)} at {esc(at(c.get('time', float('nan'))))}, relative speed "
+                f"{esc(fmt(c.get('relative_speed')))} m/s" + (f", delta-v {esc(dv)} m/s" if dv else "") + "</li>"
+            )
+        body += "<h3>Every collision in the simulation</h3><ol>" + "".join(items) + "</ol>"
+    return Section(title, body)
 
 
 def _search_columns(df: Any) -> Any:
@@ -429,21 +547,37 @@ def scenario_sections(
     video: str | Path | None = None,
     sim_metrics: Mapping[str, Any] | Any | None = None,
     search: Any | None = None,
+    fidelity: Any | None = None,
 ) -> list[Section]:
-    """Every section a scenario (+ optional annotated video, simulation metrics, search table) gives."""
+    """Every section a scenario (+ optional annotated video, sim metrics, search table, fidelity result) gives."""
+    from deepcrashtest.viz.fidelity_section import fidelity_section
+
+    sheet = contact_sheet_section(video, sc=sc) if video is not None else None
+    marks = sheet_marks(sc, _frame_count(video)) if video is not None else []
     parts: list[Section | None] = [
         overview_section(sc),
         warnings_section(sc),
         source_section(sc),
         camera_section(sc),
-        contact_sheet_section(video) if video is not None else None,
+        sheet,
         birdseye_section(sc),
-        motion_section(sc),
+        motion_section(sc, marks),
         lane_offset_section(sc),
-        simulation_section(sim_metrics) if sim_metrics is not None else None,
+        simulation_section(sim_metrics, sc=sc) if sim_metrics is not None else None,
         search_section(search) if search is not None else None,
+        fidelity_section(fidelity) if fidelity is not None else None,
     ]
     return [p for p in parts if p is not None]
+
+
+def _frame_count(video: str | Path) -> int:
+    from deepcrashtest.viz.video_frames import VideoFrames
+
+    vf = VideoFrames(video)
+    try:
+        return vf.frame_count
+    finally:
+        vf.close()
 
 
 # --------------------------------------------------------------------------- the file
@@ -481,10 +615,12 @@ def write_report(
 BESIDE_VIDEO = ("annotated.mp4",)
 BESIDE_SIM = ("simulation.json",)
 BESIDE_SEARCH = ("results.csv", "search/results.csv")
+BESIDE_FIDELITY = ("fidelity.json", "fidelity/fidelity.json")
 
 
 def load_sim_metrics(path: str | Path) -> dict[str, Any]:
-    """Metrics from a JSON file: a metrics object, or ``deepcrashtest simulate --json`` output (``metrics`` key)."""
+    """Metrics from a JSON file: a metrics object, or ``deepcrashtest simulate --json`` output (``metrics`` key;
+    its ``collisions`` list is kept under ``collisions``)."""
     import json
 
     from deepcrashtest.fileio import require_file
@@ -497,6 +633,9 @@ def load_sim_metrics(path: str | Path) -> dict[str, Any]:
     m = data.get("metrics", data) if isinstance(data, dict) else data
     if not isinstance(m, dict):
         raise UserError(f"{p}: expected a JSON object of simulation metrics")
+    collisions = data.get("collisions") if isinstance(data, dict) else None
+    if isinstance(collisions, list) and "collisions" not in m:  # every pair, for the outcome's list
+        m = {**m, "collisions": [c for c in collisions if isinstance(c, dict)]}
     return m
 
 
@@ -533,11 +672,15 @@ def build_report(
         require_file(video_p, "video")
     if search_p is not None:
         require_file(search_p, "search table")
+    fidelity_p = _beside(folder, BESIDE_FIDELITY)
+    from deepcrashtest.viz.fidelity_section import load_fidelity
+
     sections = scenario_sections(
         sc,
         video=video_p,
         sim_metrics=load_sim_metrics(sim_p) if sim_p is not None else sim_metrics,
         search=search_p,
+        fidelity=load_fidelity(fidelity_p) if fidelity_p is not None else None,
     )
     path = write_report(output, *sections, title=f"DeepCrashTest report: {sc.name}", force=force)
     return {

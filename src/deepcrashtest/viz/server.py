@@ -7,7 +7,15 @@ errors are ``{"error": "..."}`` with a 4xx status. Edits themselves are computed
 (:mod:`deepcrashtest.viz.edit`); the page keeps the undo/redo stack of whole scenarios.
 
 Endpoints: ``GET /`` (the page), ``GET /static/<file>``, ``GET /api/scenario``,
-``GET /api/frame?t=SECONDS`` (JPEG), ``POST /api/edit``, ``POST /api/simulate``, ``POST /api/save``.
+``GET /api/frame?t=SECONDS`` or ``?frame=N`` (JPEG), ``POST /api/edit``, ``POST /api/simulate``,
+``POST /api/save``.
+
+Time: the page's slider is scenario time. The one mapping to the video is the Scenario's own
+(``source.time_offset_s``; :meth:`Scenario.video_frame`): video time = scenario time - offset,
+frame = floor(video time x fps), none before frame 0 or from ``frame_count`` on. ``/api/scenario``
+sends the three numbers (``time``) and the page maps with the same formula (``viewer.js``
+``videoFrame``); ``/api/frame?t=`` maps here and answers 404 with ``state`` "before"/"after" outside
+the video, never a frozen frame.
 """
 
 from __future__ import annotations
@@ -30,7 +38,9 @@ from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import atomic_write_text
 from deepcrashtest.geometry.road import lane_lines
 from deepcrashtest.scenario import Scenario, _reject_constant
-from deepcrashtest.viz.edit import apply_edit
+from deepcrashtest.viz import style
+from deepcrashtest.viz.edit import DEFAULT_FALLOFF_S, apply_edit
+from deepcrashtest.viz.projection import projected_frames, scenario_poses, sim_poses
 from deepcrashtest.viz.video_frames import VideoFrames, jpeg_bytes
 
 VIDEO_NAME = "annotated.mp4"
@@ -80,9 +90,35 @@ def safe_target(root: Path, name: Any) -> Path:
     return target
 
 
-def video_offset_s(scenario: Scenario) -> float:
-    """Video time (s) of scenario time 0 (the Scenario's one time mapping, ``source.time_offset_s``)."""
-    return float(scenario.video_time(0.0))
+def time_mapping(scenario: Scenario, video: VideoFrames | None) -> dict[str, Any]:
+    """What the page needs to map scenario time to video frames exactly as :meth:`Scenario.video_frame` does.
+
+    ``frame_count`` is the smaller of the scenario's and the annotated video's (a frame the file lacks
+    is "after the video"); ``video_start_s``/``video_end_s`` are the scenario times of the first frame
+    and of the end of the last one.
+    """
+    src = scenario.source
+    count = src.frame_count
+    if video is not None and video.frame_count > 0:
+        count = min(count, video.frame_count) if count > 0 else video.frame_count
+    return {
+        "offset_s": src.time_offset_s,
+        "fps": src.fps,
+        "frame_count": count,
+        "video_start_s": scenario.frame_time(0),
+        "video_end_s": scenario.frame_time(count),
+        "formula": "frame = floor((t - offset_s) * fps + 1e-6), none if < 0 or >= frame_count",
+    }
+
+
+def mapped_frame(scenario: Scenario, t: float, frame_count: int) -> tuple[int | None, str]:
+    """Video frame at scenario time ``t`` (:meth:`Scenario.video_frame`) and "before"/"inside"/"after"."""
+    f = scenario.video_frame(t)
+    if f is None:
+        return None, "before" if scenario.video_time(t) < 0 else "after"
+    if frame_count > 0 and f >= frame_count:
+        return None, "after"
+    return f, "inside"
 
 
 def finite_or_none(value: Any) -> Any:
@@ -221,19 +257,33 @@ def create_app(scenario_path: str | Path, allowed_hosts: list[str] | None = None
                 "road": lane_lines(scenario.road),
                 "video": None if video is None else video.info(),
                 "video_note": video_note,
-                "video_offset_s": video_offset_s(scenario),
+                "time": time_mapping(scenario, video),
+                "style": style.page_style(),
                 "simulator": _simulator() is not None,
+                "default_falloff_s": DEFAULT_FALLOFF_S,
             }
         )
 
     @app.get("/api/frame")
-    def frame(t: float) -> Response:
+    def frame(t: float | None = None, frame: int | None = None) -> Response:
         if video is None:
             raise ApiError(404, video_note)
-        if not math.isfinite(t):
-            raise ApiError(422, f"t must be a finite number of seconds (got {t})")
-        data = jpeg_bytes(video.frame_at(t + video_offset_s(scenario)))
-        return Response(data, media_type="image/jpeg", headers={"Cache-Control": "no-store"})
+        count = int(time_mapping(scenario, video)["frame_count"])
+        if frame is None:
+            if t is None or not math.isfinite(t):
+                raise ApiError(422, f"give t, a finite number of seconds of scenario time, or frame (got t={t})")
+            index, state = mapped_frame(scenario, t, count)
+        else:
+            index, state = (frame, "inside") if 0 <= frame < count else (None, "before" if frame < 0 else "after")
+        if index is None:
+            where = f"t={t:.3f} s" if frame is None else f"frame {frame}"
+            span = f"{scenario.frame_time(0):.3f}-{scenario.frame_time(count):.3f} s"
+            return JSONResponse(
+                {"error": f"{where} is {state} the video (scenario time {span})", "state": state}, status_code=404
+            )
+        data = jpeg_bytes(video.frame(index))
+        headers = {"Cache-Control": "no-store", "X-Video-Frame": str(index)}
+        return Response(data, media_type="image/jpeg", headers=headers)
 
     @app.post("/api/edit")
     async def edit(request: Request) -> JSONResponse:
@@ -258,6 +308,23 @@ def create_app(scenario_path: str | Path, allowed_hosts: list[str] | None = None
             raise ApiError(422, str(exc)) from None
         return JSONResponse(sim_payload(res))
 
+    @app.post("/api/project")
+    async def project(request: Request) -> JSONResponse:
+        body = await json_body(request)
+        sc = body_scenario(body)
+        count = int(time_mapping(sc, video)["frame_count"])
+        sim = body.get("sim")
+        if sim is None:
+            poses, source = scenario_poses(sc), "scenario trajectories"
+        else:
+            try:
+                poses = sim_poses(sim["times"], sim["vehicle_ids"], sim["states"])
+            except (KeyError, TypeError, ValueError) as exc:
+                raise ApiError(422, f"sim must have times, vehicle_ids and states ({exc})") from None
+            source = "simulation"
+        out = await run_in_threadpool(projected_frames, sc, poses, count, source)
+        return JSONResponse(out)
+
     @app.post("/api/save")
     async def save(request: Request) -> JSONResponse:
         body = await json_body(request)
@@ -268,7 +335,8 @@ def create_app(scenario_path: str | Path, allowed_hosts: list[str] | None = None
             raise ApiError(400, "overwrite must be true or false")
         if target.exists() and not overwrite:
             raise ApiError(409, f"{target.name} already exists (confirm to overwrite)")
-        sc.provenance.history.append(f"saved by deepcrashtest view as {target.name} (opened {original.name})")
+        note = f"saved by deepcrashtest view as {target.name} (opened {original.name})"
+        sc = sc.evolve(provenance=sc.provenance.model_copy(update={"history": [*sc.provenance.history, note]}))
         try:
             atomic_write_text(target, sc.to_json(), force=overwrite)
         except UserError as exc:

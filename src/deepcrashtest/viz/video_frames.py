@@ -43,6 +43,8 @@ class VideoFrames:
         else:
             self.duration_s = (self._stream.frames or 0) / self.fps
         self.frame_count = int(self._stream.frames or round(self.duration_s * self.fps))
+        start = self._stream.start_time
+        self.start_s = float(start * tb) if start is not None and tb is not None else 0.0
         self.width = int(self._stream.codec_context.width)
         self.height = int(self._stream.codec_context.height)
         self._lock = threading.Lock()
@@ -59,9 +61,13 @@ class VideoFrames:
             "height": self.height,
         }
 
+    def frame(self, index: int) -> np.ndarray:
+        """The RGB frame number ``index`` (0-based; the video's own timestamps, clamped to the video)."""
+        return self.frame_at(self.start_s + index / self.fps)
+
     def frame_at(self, t: float) -> np.ndarray:
         """The RGB frame (H, W, 3) uint8 shown at time ``t`` seconds (clamped to the video)."""
-        t = min(max(float(t), 0.0), max(self.duration_s - 0.5 / self.fps, 0.0))
+        t = min(max(float(t), self.start_s), self.start_s + max(self.duration_s - 0.5 / self.fps, 0.0))
         with self._lock:
             if self._last is not None and abs(self._last[0] - t) <= 0.5 / self.fps:
                 return self._last[1]
