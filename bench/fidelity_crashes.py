@@ -101,7 +101,7 @@ COLUMNS = (
     ("clip", "clip"), ("label", "labelled crash"), ("label_ids", "label ids"), ("first_contact", "sim 1st contact"),
     ("same_pair", "same pair"), ("abs_dt_s", "|dt| s"), ("reproduced", "reproduced"),
     ("contacts_before_crash", "contacts before"), ("iou_processed", "IoU proc"), ("iou_simulated", "IoU sim"),
-    ("tracks_in_scenario", "tracks in sc."),
+    ("tracks_in_scenario", "tracks in sc."), ("scenario_collision_same_pair", "sc. collision pair"),
 )  # fmt: skip
 
 

@@ -106,6 +106,7 @@ def test_exact_replay_reprojects_like_the_scenario(kitti8_raw, kitti_root):
     # real labels placed with ORB-SLAM poses: the scenario's flat road (the ground under these cars lies
     # ~2.1 m below the camera, not 1.65 m) shifts boxes down by ~9 px, which caps the IoU near 0.55
     assert proc["mean_iou"] >= 0.45 and proc["share_iou_ge_0_5"] >= 0.5
+    assert abs(proc["median_du_px"]) < 3.0 and proc["median_dv_px"] < -5.0  # right bearing, ground too high
     assert sim["pairs"] == proc["pairs"] and sim["coverage"] == 1.0
     assert abs(sim["mean_iou"] - proc["mean_iou"]) < 0.02
     assert abs(sim["median_centre_px"] - proc["median_centre_px"]) < 2.0
@@ -206,3 +207,33 @@ def test_cli_refuses_bad_input_before_any_work(kitti8_raw, kitti_root, tmp_path)
     (tmp_path / "out" / "fidelity.json").write_text("{}")
     assert main(args) == 2  # refuses to overwrite without --force
     assert (tmp_path / "out" / "fidelity.json").read_text() == "{}"
+
+
+def test_overlay_video_draws_the_replay_over_the_frames(kitti_root, tmp_path):
+    """fidelity.mp4 on KITTI 0001's three real frames: H.264, one frame per input, boxes drawn over the image."""
+    import av
+    import cv2
+
+    from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
+    from deepcrashtest.eval.fidelity import evaluate_fidelity
+    from deepcrashtest.viz.fidelity_video import write_fidelity_video
+
+    folder = need(kitti_root / "image_02" / "0001")
+    sc = scenario_from_kitti(kitti_root, 1)
+    tracks = _label_tracks(kitti_root, 1, 25)
+    sim = exact_replay(sc)
+    res = evaluate_fidelity(sc, tracks, sim)
+    out = write_fidelity_video(sc, res, sim, folder, tracks, tmp_path / "fidelity.mp4")
+    assert out["frames"] == 3
+    with av.open(str(tmp_path / "fidelity.mp4")) as c:
+        assert c.streams.video[0].codec_context.name == "h264"
+        frames = [f.to_ndarray(format="bgr24")[:375, :1242] for f in c.decode(video=0)]
+    original = cv2.imread(str(folder / "000010.png"))
+    changed = np.abs(frames[0].astype(int) - original.astype(int)).max(axis=2) > 60
+    # the projected boxes of the cars in view are drawn: changed pixels inside their tracked boxes
+    rows = res.pairs[(res.pairs["frame"] == 10) & (res.pairs["simulated_iou"] > 0.3)]
+    assert len(rows) >= 3
+    for r in rows.itertuples():
+        x1, y1, x2, y2 = (int(v) for v in (r.x1, r.y1, r.x2, r.y2))
+        assert changed[max(y1 - 5, 0) : y2 + 5, max(x1 - 5, 0) : x2 + 5].any()
+    assert changed.mean() < 0.2  # the video is still the video

@@ -253,8 +253,15 @@ def test_world_tracks_match_kitti_ground_truth(kitti_root):
     to_world, _, _ = kitti_world_transform(poses, 0.3)
     errs = []
     for a in sc.agents:
-        lab = labels[labels["track_id"] == a.id - 1].drop_duplicates("frame")
-        truth = np.array([to_world(int(r.frame), np.array([[r.x, r.y, r.z + 0.0]]))[0] for r in lab.itertuples()])
+        lab = labels[labels["track_id"] == a.id - 1].drop_duplicates("frame").set_index("frame")
+        frames = np.round(sc.video_time(np.asarray(a.trajectory.t)) * 10.0).astype(int)  # frames with a state
+        lab = lab.loc[frames]
+        truth = np.array(
+            [
+                to_world(int(f), np.array([[r.x, r.y, r.z + 0.0]]))[0]
+                for f, r in zip(frames, lab.itertuples(), strict=True)
+            ]
+        )
         dist = np.hypot(lab["x"], lab["z"]).to_numpy()
         est = np.column_stack([a.trajectory.x, a.trajectory.y])
         keep = dist < 40

@@ -7,33 +7,30 @@ import pytest
 
 from deepcrashtest.datasets.kitti.track_smoothing import OfflineConfig, offline_tracks
 from deepcrashtest.datasets.kitti.world_tracker import (
-    TrackLifecycle,
-    TrackState,
     WorldDetections,
     WorldTracker,
     WorldTrackerConfig,
 )
 from deepcrashtest.eval.boxes import iou_2d, iou_3d, project_box
+from deepcrashtest.perception.lifecycle import TrackBase, TrackCore, TrackState
 
 
-def test_lifecycle():
-    life = TrackLifecycle(min_hits=3, max_age=2)
-    assert life.state is TrackState.TENTATIVE
+def test_lifecycle_is_the_shared_core_with_ids_at_birth():
+    core: TrackCore[TrackBase] = TrackCore(min_hits=3, max_misses=2, ids_at_birth=True)
+    life = core.spawn(TrackBase())
+    assert life.state is TrackState.TENTATIVE and life.track_id == 1  # reported during the warm-up
     for _ in range(2):
-        life.predict()
-        life.hit()
-    assert life.is_confirmed
+        core.hit(life)
+    assert life.confirmed and life.track_id == 1
     for _ in range(2):
-        life.predict()
-        life.miss()
-    assert life.is_confirmed  # 2 misses allowed
-    life.predict()
-    life.miss()
-    assert life.is_deleted
-    tentative = TrackLifecycle(min_hits=3, max_age=5)
-    tentative.predict()
-    tentative.miss()
-    assert tentative.is_deleted  # a tentative track dies on its first miss
+        core.miss(life)
+    assert life.confirmed  # 2 misses allowed
+    core.miss(life)
+    assert life.state is TrackState.DELETED
+    tentative = core.spawn(TrackBase())
+    assert tentative.track_id == 2
+    core.miss(tentative)
+    assert tentative.state is TrackState.DELETED  # a tentative track dies on its first miss
 
 
 def _dets(points, score=5.0):

@@ -496,6 +496,17 @@ def evaluate_kitti(
         None, "--tracks", help="Score these KITTI-format tracker results (NNNN.txt) instead of our tracker."
     ),
     online: bool = typer.Option(False, "--online", help="Score the online tracker output, without the offline pass."),
+    mono: bool = typer.Option(
+        False,
+        "--mono",
+        help="Score the monocular video path (2D boxes, ego poses, camera) instead of the LiDAR tracker.",
+    ),
+    boxes: str = typer.Option(
+        "pointrcnn", "--boxes", help="With --mono: pointrcnn (its 2D columns only) | labels-noisy (seeded noise)."
+    ),
+    camera: str = typer.Option(
+        "kitti", "--camera", help="With --mono: kitti (calibration file) | unknown (self-calibration)."
+    ),
     output: Path | None = typer.Option(None, "-o", "--output", help="Also write results.json and results.md here."),
     force: bool = ForceOpt,
     as_json: bool = JsonOpt,
@@ -512,10 +523,17 @@ def evaluate_kitti(
 
     if output is not None:
         check_results_writable(output, force)
-    kwargs: dict[str, Any] = {"match": match, "detections": detections, "tracks": tracks}
-    if online:
-        kwargs["offline"] = None
-    result = run_eval(data, parse_sequences(sequences), **kwargs)
+    if mono and tracks is not None:
+        raise UserError("--mono scores the monocular path: it cannot be combined with --tracks")
+    if mono:
+        from deepcrashtest.eval.kitti_mono import evaluate_mono
+
+        result = evaluate_mono(data, parse_sequences(sequences), boxes=boxes, camera=camera, match=match)
+    else:
+        kwargs: dict[str, Any] = {"match": match, "detections": detections, "tracks": tracks}
+        if online:
+            kwargs["offline"] = None
+        result = run_eval(data, parse_sequences(sequences), **kwargs)
     if output is not None:
         write_results(result, output, results_markdown(result), force)
     emit(result, as_json, _print_kitti_table)
@@ -536,8 +554,23 @@ def _print_kitti_table(result: dict[str, Any]) -> None:
         table.add_row(f"paper {name}", *(_cell(row[c]) for c in TABLE_COLUMNS), "-", "-", style="dim")
     console = Console(width=200)
     console.print(table)
+    errors = {n: r["position_error"] for n, r in result["sequences"].items() if "position_error" in r}
+    if errors:
+        err = Table(title="ground-position error of matched cars, median / p90 m (median % of range)")
+        bins = list(next(iter(errors.values())))
+        for c in ["seq", *bins]:
+            err.add_column(c, justify="right")
+        for name, row in errors.items():
+            err.add_row(name, *(_err_cell(row[b]) for b in bins))
+        console.print(err)
     for note in result.get("notes", []):
         console.print(f"note: {note}", style="dim")
+
+
+def _err_cell(cell: dict[str, Any]) -> str:
+    if not cell["n"]:
+        return "-"
+    return f"{cell['median_m']:.2f} / {cell['p90_m']:.2f} ({cell['median_pct']:.1f} %)"
 
 
 def _cell(v: Any) -> str:
@@ -590,7 +623,9 @@ def _print_fidelity(r: dict[str, Any]) -> None:
         s = rep[src]
         typer.echo(
             f"  {src:9s}: mean IoU {_fmt(s['mean_iou'])}, IoU>=0.5 {_fmt(s['share_iou_ge_0_5'])}, "
-            f"median centre error {_fmt(s['median_centre_px'])} px, coverage {_fmt(s['coverage'])}"
+            f"median centre error {_fmt(s['median_centre_px'])} px (right {_fmt(s['median_du_px'])}, down "
+            f"{_fmt(s['median_dv_px'])}), size ratio w {_fmt(s['median_width_ratio'])} h "
+            f"{_fmt(s['median_height_ratio'])}, coverage {_fmt(s['coverage'])}"
         )
     first = crash["first_contact"]
     typer.echo(

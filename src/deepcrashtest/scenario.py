@@ -94,9 +94,20 @@ class Camera(_Model):
     forward_offset_m: FiniteFloat = Field(
         default=0.5, description="Camera position ahead of the ego vehicle's centre, metres"
     )
-    intrinsics_source: Literal["user", "chessboard", "fov", "default", "kitti_calib"] = "default"
-    pitch_source: Literal["user", "vanishing_point", "flow_foe", "default", "kitti_calib"] = "default"
-    height_source: Literal["user", "default", "kitti_calib"] = "default"
+    intrinsics_source: Literal["user", "chessboard", "fov", "default", "kitti_calib", "self_calibration"] = "default"
+    pitch_source: Literal["user", "vanishing_point", "flow_foe", "default", "kitti_calib", "self_calibration"] = (
+        "default"
+    )
+    height_source: Literal["user", "default", "kitti_calib", "self_calibration"] = "default"
+    focal_sigma_px: NonNegFloat | None = Field(
+        default=None, description="1-sigma uncertainty of fx/fy, pixels (None: not estimated)"
+    )
+    horizon_sigma_px: NonNegFloat | None = Field(
+        default=None, description="1-sigma uncertainty of the horizon row (the pitch), pixels (None: not estimated)"
+    )
+    height_sigma_m: NonNegFloat | None = Field(
+        default=None, description="1-sigma uncertainty of height_m, metres (None: not estimated)"
+    )
 
     def matrix(self) -> np.ndarray:
         """3x3 intrinsic matrix K."""

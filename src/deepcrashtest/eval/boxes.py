@@ -116,3 +116,30 @@ def project_box(
     if x2 - x1 < 1 or y2 - y1 < 1:
         return np.full(4, np.nan)
     return np.array([x1, y1, x2, y2])
+
+
+def project_boxes(
+    P: np.ndarray, bottom: np.ndarray, lwh: np.ndarray, ry: np.ndarray, image_size: tuple[int, int]
+) -> np.ndarray:
+    """:func:`project_box` for (n,) boxes at once: bottom centres (n, 3), sizes (n, 3) l w h, yaws (n,)
+    -> (n, 4) pixels (NaN rows: behind the camera or outside the image)."""
+    bottom = np.asarray(bottom, dtype=float).reshape(-1, 3)
+    n = len(bottom)
+    if n == 0:
+        return np.zeros((0, 4))
+    c, s = np.cos(ry), np.sin(ry)
+    x = np.array([1, 1, -1, -1, 1, 1, -1, -1])[None, :] * lwh[:, 0:1] / 2
+    z = np.array([1, -1, -1, 1, 1, -1, -1, 1])[None, :] * lwh[:, 1:2] / 2
+    y = np.array([0, 0, 0, 0, -1, -1, -1, -1])[None, :] * lwh[:, 2:3]
+    corners = np.stack([c[:, None] * x + s[:, None] * z, y, -s[:, None] * x + c[:, None] * z], axis=-1)
+    corners += bottom[:, None, :]
+    uvw = np.concatenate([corners, np.ones((n, 8, 1))], axis=-1) @ P.T
+    behind: np.ndarray = np.asarray((corners[:, :, 2] < 0.1).any(axis=1))
+    uv = uvw[:, :, :2] / np.where(behind[:, None, None], 1.0, uvw[:, :, 2:3])
+    width, height = image_size
+    lo = np.clip(uv.min(axis=1), 0, [width - 1, height - 1])
+    hi = np.clip(uv.max(axis=1), 0, [width - 1, height - 1])
+    out = np.hstack([lo, hi])
+    bad = behind | (hi[:, 0] - lo[:, 0] < 1) | (hi[:, 1] - lo[:, 1] < 1)
+    out[bad] = np.nan
+    return out

@@ -28,7 +28,7 @@ import pandas as pd
 
 from deepcrashtest.datasets.crash_labels import CrashLabel
 from deepcrashtest.errors import UserError
-from deepcrashtest.geometry.project import project_box
+from deepcrashtest.geometry.project import project_box, scenario_poses
 from deepcrashtest.perception.boxes import iou_matrix
 from deepcrashtest.scenario import Scenario
 
@@ -82,21 +82,6 @@ def read_tracks(path: str | Path) -> pd.DataFrame:
 
 
 # --------------------------------------------------------------------------- poses
-class _Poses:
-    """(x, y, yaw) of scenario vehicles at scenario time ``t`` (linear interpolation), None outside
-    a vehicle's trajectory span. Arrays are built once per vehicle."""
-
-    def __init__(self, scenario: Scenario) -> None:
-        self._arrays = {v.id: v.trajectory.arrays() for v in scenario.vehicles()}
-
-    def __call__(self, vehicle_id: int, t: float) -> tuple[float, float, float] | None:
-        a = self._arrays[vehicle_id]
-        ts = a["t"]
-        if t < ts[0] - 1e-6 or t > ts[-1] + 1e-6:
-            return None
-        return float(np.interp(t, ts, a["x"])), float(np.interp(t, ts, a["y"])), float(np.interp(t, ts, a["yaw"]))
-
-
 def _pose_sim(sim: Any, index: int, t: float) -> tuple[float, float, float] | None:
     """(x, y, yaw) of vehicle column ``index`` of a SimResult at scenario time ``t``, None when absent."""
     k = int(round(t / sim.dt))
@@ -123,7 +108,7 @@ def reprojection_pairs(scenario: Scenario, tracks: pd.DataFrame, sim: Any | None
     sim_col = {vid: i for i, vid in enumerate(sim.vehicle_ids)} if sim is not None else {}
     rows: list[dict[str, Any]] = []
     ego = scenario.ego
-    pose_at = _Poses(scenario)
+    pose_at = scenario_poses(scenario)
     for r in tracks.itertuples(index=False):
         agent = agents.get(int(r.track_id))  # type: ignore[arg-type]
         if agent is None:
@@ -175,7 +160,26 @@ def _stats(df: pd.DataFrame, src: str) -> dict[str, Any]:
         "mean_iou": round(float(iou[ok].mean()), 4) if n else None,
         "share_iou_ge_0_5": round(float((iou[ok] >= IOU_MATCH).mean()), 4) if n else None,
         "median_centre_px": round(float(np.median(err)), 2) if len(err) else None,
+        **_offsets(df, src),
     }
+
+
+def _offsets(df: pd.DataFrame, src: str) -> dict[str, float | None]:
+    """Where the error comes from (medians over pairs with a projected box): the projected centre's offset
+    right (``du``) and down (``dv``) of the tracked one, pixels, and projected / tracked width and height.
+    A large ``dv`` points at the camera's pitch or height, width ratios >> 1 at headings."""
+    keys = ("median_du_px", "median_dv_px", "median_width_ratio", "median_height_ratio")
+    has = [b is not None for b in df[f"{src}_box"]] if len(df) else []
+    if not any(has):
+        return dict.fromkeys(keys)
+    sel = df[has]
+    b = np.stack(list(sel[f"{src}_box"]))
+    t = sel[["x1", "y1", "x2", "y2"]].to_numpy(float)
+    du = 0.5 * (b[:, 0] + b[:, 2] - t[:, 0] - t[:, 2])
+    dv = 0.5 * (b[:, 1] + b[:, 3] - t[:, 1] - t[:, 3])
+    wr = (b[:, 2] - b[:, 0]) / np.maximum(t[:, 2] - t[:, 0], 1.0)
+    hr = (b[:, 3] - b[:, 1]) / np.maximum(t[:, 3] - t[:, 1], 1.0)
+    return {k: round(float(np.median(v)), 3) for k, v in zip(keys, (du, dv, wr, hr), strict=True)}
 
 
 def summarise_reprojection(pairs: pd.DataFrame) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
@@ -219,6 +223,9 @@ def resolve_participants(
         elif best[1] not in agent_ids:
             ids.append(None)
             notes.append(f"labelled {p.describe()} is track {best[1]}, which is not an agent of the scenario")
+        elif best[1] in ids:
+            ids.append(None)
+            notes.append(f"labelled {p.describe()} is track {best[1]}, the same track as the other participant")
         else:
             ids.append(best[1])
     return ids, notes

@@ -112,12 +112,17 @@ def _objects(table: pd.DataFrame) -> FrameObjects:
 
 
 def hypotheses_from_results(path: Path, world: KittiWorld) -> list[FrameObjects]:
-    """A tracker's results in KITTI tracking format: rows of type Car; world boxes where the row has a
-    valid 3D box (positive size, in front of the camera), NaN otherwise (usable with ``iou2d`` only)."""
+    """A tracker's results in KITTI tracking format (see :func:`hypotheses_from_table`)."""
     res = read_labels(path)
-    res = res[res["type"].astype(str).str.lower() == "car"]
     if len(res) and (res["frame"].max() >= world.n_frames or res["frame"].min() < 0):
         raise UserError(f"{path}: frame numbers outside 0..{world.n_frames - 1}")
+    return hypotheses_from_table(res, world)
+
+
+def hypotheses_from_table(res: pd.DataFrame, world: KittiWorld) -> list[FrameObjects]:
+    """KITTI result rows -> per-frame hypotheses: rows of type Car; world boxes where the row has a
+    valid 3D box (positive size, in front of the camera), NaN otherwise (usable with ``iou2d`` only)."""
+    res = res[res["type"].astype(str).str.lower() == "car"]
     res = world_table(world, res)
     invalid = (res[["h", "w", "l"]].to_numpy(dtype=float) <= 0).any(axis=1) | (res["z"].to_numpy(dtype=float) <= 0)
     res.loc[invalid, WORLD_BOX_COLUMNS] = np.nan

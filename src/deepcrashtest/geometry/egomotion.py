@@ -88,6 +88,23 @@ class EgoMotion:
         """Metres travelled along the integrated path."""
         return float(np.sum(np.hypot(np.diff(self.x), np.diff(self.y)))) if len(self.x) > 1 else 0.0
 
+    @classmethod
+    def from_poses(cls, poses: np.ndarray, fps: float, frames: np.ndarray | None = None) -> EgoMotion:
+        """The ego track of known camera poses: (N, 4, 4) ``T_cam0_camk`` (camera k in the first
+        camera's frame, x right, y down, z forward, metres; e.g. KITTI/ORB-SLAM3 poses), frame k at
+        ``k / fps`` seconds (or ``frames[k] / fps``). Positions are the camera's, in the world frame."""
+        from deepcrashtest.geometry.frames import camera_forward_yaw, camera_points_to_world
+
+        poses = np.asarray(poses, dtype=float)
+        frame = np.arange(len(poses)) if frames is None else np.asarray(frames, dtype=int)
+        t = frame / float(fps)
+        xy = np.array([camera_points_to_world(T, np.zeros((1, 3)))[0, :2] for T in poses]).reshape(-1, 2)
+        yaw = np.unwrap([camera_forward_yaw(T) for T in poses]) if len(poses) else np.zeros(0)
+        grad = len(poses) > 1
+        speed = np.hypot(np.gradient(xy[:, 0], t), np.gradient(xy[:, 1], t)) if grad else np.zeros(len(t))
+        rate = np.gradient(yaw, t) if grad else np.zeros(len(t))
+        return cls(frame, t, xy[:, 0], xy[:, 1], yaw, speed, rate, np.ones(len(t), bool))
+
 
 def _down_vector(pitch_rad: float, roll_rad: float = 0.0) -> np.ndarray:
     """World 'down' expressed in the camera frame (x right, y down, z forward) for a pitched camera."""

@@ -9,11 +9,15 @@ The first ``calib_seconds`` of frames are buffered to estimate what the stream n
 starts: the dashboard/bonnet rows (still rows under optical flow, unless given), and the horizon
 (vanishing point of the lane lines, else the focus of expansion of the flow, else the camera's
 own pitch). Then every buffered and later frame goes through the ego-motion estimator and the
-lane detector once; frames are never decoded twice.
+lane detector once; frames are never decoded twice. When no calibration was given (the camera's
+intrinsics are the unknown-dashcam default), the whole video's tracks then calibrate the camera
+(:func:`~deepcrashtest.geometry.selfcalib.self_calibrate`: horizon, camera height, focal length,
+each with its uncertainty and source) and the ego path is rescaled to the measured camera height.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -30,6 +34,7 @@ from deepcrashtest.geometry.camera import (
 )
 from deepcrashtest.geometry.egomotion import EgoMotion, EgoMotionEstimator
 from deepcrashtest.geometry.localize import Localizer
+from deepcrashtest.geometry.selfcalib import SelfCalibration, self_calibrate
 from deepcrashtest.geometry.world_tracks import TRACK_COLUMNS, raw_scenario_from_tracks
 from deepcrashtest.perception.lanes import ClassicalLaneDetector, LaneDetector, LaneState, LaneTimelineResult
 from deepcrashtest.scenario import Camera, Scenario, VideoSource
@@ -52,6 +57,7 @@ class GeometryResult:
     lane_states: dict[int, LaneState]
     dashboard_rows: int
     horizon_source: str
+    calibration: SelfCalibration | None = None
 
 
 def estimate_camera(
@@ -133,7 +139,17 @@ def extract_geometry(
     ego.frame = np.array(indices, dtype=int)  # the estimator counts 0..n-1: use the video's indices
     lane_tl = lane_det.timeline() if lane_det is not None else None
     tracks = pd.concat(all_tracks, ignore_index=True) if all_tracks else pd.DataFrame(columns=list(TRACK_COLUMNS))
+    calibration = None
+    if cam.intrinsics_source == "default" and len(tracks):  # no calibration given: the video calibrates it
+        size = (int(buffer[0][0].image.shape[1]), int(buffer[0][0].image.shape[0]))
+        calibration = self_calibrate(tracks, cam, size, ego, ego_scaled_by_height=True)
+        cam = calibration.camera
+        s = calibration.ego_scale
+        ego = dataclasses.replace(ego, x=ego.x * s, y=ego.y * s, speed=ego.speed * s)
+        horizon_source = cam.pitch_source
     sc = raw_scenario_from_tracks(tracks, meta, cam, ego, lane_tl, localizer, name=name, seed=seed)
     params = {**sc.provenance.parameters, "dashboard_rows": rows, "horizon_source": horizon_source}
+    if calibration is not None:
+        params["self_calibration"] = calibration.summary()
     sc = sc.evolve(provenance=sc.provenance.model_copy(update={"parameters": params}))
-    return GeometryResult(sc, cam, ego, lane_tl, lane_states, rows, horizon_source)
+    return GeometryResult(sc, cam, ego, lane_tl, lane_states, rows, horizon_source, calibration)

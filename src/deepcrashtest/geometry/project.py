@@ -18,11 +18,12 @@ extruded up by ``height``. Boxes partly behind the camera are clipped at the nea
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from deepcrashtest.scenario import Camera
+from deepcrashtest.scenario import Camera, Scenario
 
 NEAR_M = 0.1
 """Near clipping plane, metres in front of the camera."""
@@ -177,3 +178,25 @@ def project_box_edges(
         p[behind] = p[behind] + f[:, None] * (q[behind] - p[behind])
     uv = project_camera_points(np.vstack([a, b]), camera)
     return np.stack([uv[: len(a)], uv[len(a) :]], axis=1)
+
+
+Pose = tuple[float, float, float]
+#: Pose (x, y, yaw) of a road user at scenario time t, or None where it is absent.
+PoseFn = Callable[[int, float], Pose | None]
+
+
+def scenario_poses(scenario: Scenario) -> PoseFn:
+    """Poses from the scenario's own trajectories (absent outside each one's span and before its start delay)."""
+    arrays = {v.id: (v.trajectory.arrays(), v.start_delay_s) for v in scenario.vehicles()}
+
+    def pose(vid: int, t: float) -> Pose | None:
+        a, delay = arrays[vid]
+        if t < a["t"][0] - 1e-9 or t > a["t"][-1] + 1e-9 or t < delay - 1e-9:
+            return None
+        return (
+            float(np.interp(t, a["t"], a["x"])),
+            float(np.interp(t, a["t"], a["y"])),
+            float(np.interp(t, a["t"], a["yaw"])),
+        )
+
+    return pose

@@ -5,15 +5,19 @@ Input contract (``tracks``, one row per track per frame): ``frame`` (int), ``tim
 (px, full frame), ``score``, ``state`` ('detected'|'predicted').
 
 World frame (``deepcrashtest.scenario``): origin at the ego centre at the first frame, x forward,
-y left, metres. The camera sits ``camera.forward_offset_m`` ahead of the ego centre. Each box is
-placed by a :class:`~deepcrashtest.geometry.localize.Localizer` in the camera frame of its frame,
-then moved into the world frame with that frame's ego pose. Positions are smoothed per track
-(Savitzky-Golay over ~1 s), speeds are their time derivative, headings follow the smoothed
-motion (and the ego's heading, turned by 90 deg for side-on boxes, for nearly static vehicles).
+y left, metres. The camera sits ``camera.forward_offset_m`` ahead of the ego centre.
+
+By default the tracks go through the monocular 3D tracker of :mod:`deepcrashtest.geometry.mono3d`
+(depth cues fused per frame with one size per track, a constant-velocity Kalman filter and smoother
+in the ground plane). With an explicit ``localizer`` (e.g. a depth map's), each box is placed by it
+in the camera frame of its frame, moved into the world frame with that frame's ego pose, and
+smoothed per track (Savitzky-Golay over ~1 s); speeds are then the time derivative, headings follow
+the smoothed motion (and the ego's heading, turned by 90 deg for side-on boxes, when nearly static).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from typing import Any
@@ -24,7 +28,8 @@ from scipy.signal import savgol_filter
 
 from deepcrashtest.errors import UserError
 from deepcrashtest.geometry.egomotion import EgoMotion
-from deepcrashtest.geometry.localize import GroundPlaneLocalizer, Localizer
+from deepcrashtest.geometry.localize import Localizer
+from deepcrashtest.geometry.mono3d import MonoConfig, localize_tracks
 from deepcrashtest.perception.lanes import LaneTimelineResult
 from deepcrashtest.scenario import (
     MAX_SPEED_MPS,
@@ -115,8 +120,15 @@ def raw_scenario_from_tracks(
     localizer: Localizer | None = None,
     name: str = "scenario",
     seed: int = 0,
+    mono: MonoConfig | None = None,
+    horizon_v: float | None = None,
+    min_detected: int = 1,
 ) -> Scenario:
-    """Build the raw (``stage="raw"``) Scenario: ego from ego-motion, agents from localised tracks."""
+    """Build the raw (``stage="raw"``) Scenario: ego from ego-motion, agents from localised tracks.
+
+    ``localizer`` None: the monocular 3D tracker (``mono`` its settings, ``horizon_v`` the horizon
+    row, else the camera's pitch gives it); tracks detected in fewer than ``min_detected`` frames
+    are left out."""
     missing = [c for c in TRACK_COLUMNS if c not in tracks.columns and c not in ("score", "state")]
     if missing:
         raise UserError(f"tracks table misses columns {missing} (expected {list(TRACK_COLUMNS)})")
@@ -124,7 +136,6 @@ def raw_scenario_from_tracks(
         raise UserError("ego motion has fewer than 2 frames: the video is too short")
     source = _video_source(meta).model_copy(update={"time_offset_s": -float(ego.t[0])})
     warnings = list(ego.warnings) + (list(lanes.warnings) if lanes is not None else [])
-    loc = localizer or GroundPlaneLocalizer()
 
     # ego: camera path -> ego centre (camera forward_offset ahead of the centre)
     cam_xy = corrected_ego_path(ego, lanes, warnings)
@@ -132,7 +143,6 @@ def raw_scenario_from_tracks(
     ego_xy = cam_xy - camera.forward_offset_m * heading
     origin = ego_xy[0].copy()
     ego_xy = ego_xy - origin
-    frame_to_i = {int(f): i for i, f in enumerate(ego.frame)}
     t0 = float(ego.t[0])
     ego_vehicle = Vehicle(
         id=0, category="car", length=EGO_SIZE[0], width=EGO_SIZE[1], height=EGO_SIZE[2],
@@ -141,72 +151,134 @@ def raw_scenario_from_tracks(
             ego.t - t0, ego_xy[:, 0], ego_xy[:, 1], ego.yaw, np.clip(ego.speed, 0, MAX_SPEED_MPS), ego.valid
         ),
     )  # fmt: skip
-
-    agents: list[Vehicle] = []
-    if len(tracks):
-        df = tracks.copy()
-        df = df[df["frame"].isin(frame_to_i.keys())].sort_values(["track_id", "frame"])
-        if "state" not in df.columns:
-            df["state"] = "detected"
-        if "score" not in df.columns:
-            df["score"] = 1.0
-        px = np.full(len(df), np.nan)
-        py = np.full(len(df), np.nan)
-        dims = np.zeros((len(df), 3))
-        size = (source.width, source.height)
-        for _, grp in df.groupby("frame", sort=False):
-            rows = df.index.get_indexer(grp.index)
-            p = loc.localize(grp[["x1", "y1", "x2", "y2"]].to_numpy(float), list(grp["category"]), camera, size)
-            i = frame_to_i[int(grp["frame"].iloc[0])]
-            c, s = math.cos(ego.yaw[i]), math.sin(ego.yaw[i])
-            fwd, left = p.z, -p.x
-            px[rows] = cam_xy[i, 0] + c * fwd - s * left - origin[0]
-            py[rows] = cam_xy[i, 1] + s * fwd + c * left - origin[1]
-            dims[rows] = np.column_stack([p.length, p.width, p.height])
-            px[rows[~p.valid]] = np.nan
-        df["wx"], df["wy"] = px, py
-        df["L"], df["W"], df["H"] = dims[:, 0], dims[:, 1], dims[:, 2]
-        clipped = 0
-        for tid, g in df.groupby("track_id"):
-            g = g[np.isfinite(g["wx"])].drop_duplicates("frame")
-            if len(g) < 2:
-                continue
-            t = g["time"].to_numpy(float) - t0
-            x = _smooth(t, g["wx"].to_numpy(float))
-            y = _smooth(t, g["wy"].to_numpy(float))
-            ego_yaw = np.interp(t, ego.t - t0, ego.yaw)
-            aspect = ((g["x2"] - g["x1"]) / np.maximum(g["y2"] - g["y1"], 1.0)).to_numpy(float)
-            fallback = ego_yaw + np.where(aspect > 2.2, math.pi / 2, 0.0)
-            yaw, speed = _heading(t, x, y, fallback)
-            cat = str(g["category"].mode().iloc[0])  # the class most frames agree on
-            first = g[g["category"] == cat].iloc[0]
-            if speed.max() > MAX_SPEED_MPS:
-                clipped += 1
-                speed = np.minimum(speed, MAX_SPEED_MPS)
-            agents.append(
-                Vehicle(
-                    id=int(tid),  # type: ignore[arg-type]
-                    category=cat,  # type: ignore[arg-type]
-                    length=float(first["L"]),
-                    width=float(first["W"]),
-                    height=float(first["H"]),
-                    confidence=float(np.clip(g["score"].mean(), 0.0, 1.0)),
-                    first_frame=int(g["frame"].iloc[0]),
-                    last_frame=int(g["frame"].iloc[-1]),
-                    start_delay_s=max(0.0, float(t[0])),
-                    trajectory=Trajectory.from_arrays(t, x, y, yaw, speed, (g["state"] == "detected").to_numpy()),
-                )  # fmt: skip
-            )
-        if clipped:
-            warnings.append(
-                f"{clipped} agent track(s) had speeds above {MAX_SPEED_MPS} m/s (clipped): localisation noise"
-            )
-
+    size = (source.width, source.height)
+    if localizer is None:
+        path = dataclasses.replace(ego, x=cam_xy[:, 0], y=cam_xy[:, 1])
+        states = localize_tracks(tracks, camera, path, size, source.fps, mono, horizon_v)
+        agents = _mono_agents(states, t0, origin, min_detected, warnings)
+        method = "mono3d"
+    else:
+        agents = _localized_agents(tracks, camera, ego, cam_xy, origin, localizer, size, t0, warnings)
+        method = type(localizer).__name__
     return Scenario(
         name=name, stage="raw", source=source, camera=camera, ego=ego_vehicle, agents=agents,
         road=_road(ego_xy, lanes), warnings=warnings,
-        provenance=Provenance(command="extract", parameters={"localizer": type(loc).__name__}, seed=seed),
+        provenance=Provenance(command="extract", parameters={"localizer": method}, seed=seed),
     )  # fmt: skip
+
+
+def _mono_agents(
+    states: pd.DataFrame, t0: float, origin: np.ndarray, min_detected: int, warnings: list[str]
+) -> list[Vehicle]:
+    """Agents from :func:`~deepcrashtest.geometry.mono3d.localize_tracks` states (world = path - origin)."""
+    agents: list[Vehicle] = []
+    clipped = 0
+    for tid, g in states.groupby("track_id", sort=True):
+        det = g["detected"].to_numpy(bool)
+        if det.sum() < max(min_detected, 1) or len(g) < 2:
+            continue
+        speed = g["speed"].to_numpy(float)
+        if speed.max() > MAX_SPEED_MPS:
+            clipped += 1
+            speed = np.minimum(speed, MAX_SPEED_MPS)
+        t = g["time"].to_numpy(float) - t0
+        agents.append(
+            Vehicle(
+                id=int(tid),  # type: ignore[arg-type]
+                category=str(g["category"].iloc[0]),  # type: ignore[arg-type]
+                length=float(g["length"].iloc[0]),
+                width=float(g["width"].iloc[0]),
+                height=float(g["height"].iloc[0]),
+                confidence=float(np.clip(g["score"].to_numpy(float)[det].mean(), 0.0, 1.0)),
+                first_frame=int(g["frame"].iloc[0]),
+                last_frame=int(g["frame"].iloc[-1]),
+                start_delay_s=max(0.0, float(t[0])),
+                trajectory=Trajectory.from_arrays(
+                    t,
+                    g["x"].to_numpy(float) - origin[0],
+                    g["y"].to_numpy(float) - origin[1],
+                    g["yaw"].to_numpy(float),
+                    speed,
+                    det,
+                ),
+            )  # fmt: skip
+        )
+    if clipped:
+        warnings.append(f"{clipped} agent track(s) had speeds above {MAX_SPEED_MPS} m/s (clipped): localisation noise")
+    return agents
+
+
+def _localized_agents(
+    tracks: pd.DataFrame,
+    camera: Camera,
+    ego: EgoMotion,
+    cam_xy: np.ndarray,
+    origin: np.ndarray,
+    loc: Localizer,
+    size: tuple[int, int],
+    t0: float,
+    warnings: list[str],
+) -> list[Vehicle]:
+    """Agents placed frame by frame by ``loc`` and smoothed per track (Savitzky-Golay)."""
+    frame_to_i = {int(f): i for i, f in enumerate(ego.frame)}
+    agents: list[Vehicle] = []
+    if not len(tracks):
+        return agents
+    df = tracks.copy()
+    df = df[df["frame"].isin(frame_to_i.keys())].sort_values(["track_id", "frame"])
+    if "state" not in df.columns:
+        df["state"] = "detected"
+    if "score" not in df.columns:
+        df["score"] = 1.0
+    px = np.full(len(df), np.nan)
+    py = np.full(len(df), np.nan)
+    dims = np.zeros((len(df), 3))
+    for _, grp in df.groupby("frame", sort=False):
+        rows = df.index.get_indexer(grp.index)
+        p = loc.localize(grp[["x1", "y1", "x2", "y2"]].to_numpy(float), list(grp["category"]), camera, size)
+        i = frame_to_i[int(grp["frame"].iloc[0])]
+        c, s = math.cos(ego.yaw[i]), math.sin(ego.yaw[i])
+        fwd, left = p.z, -p.x
+        px[rows] = cam_xy[i, 0] + c * fwd - s * left - origin[0]
+        py[rows] = cam_xy[i, 1] + s * fwd + c * left - origin[1]
+        dims[rows] = np.column_stack([p.length, p.width, p.height])
+        px[rows[~p.valid]] = np.nan
+    df["wx"], df["wy"] = px, py
+    df["L"], df["W"], df["H"] = dims[:, 0], dims[:, 1], dims[:, 2]
+    clipped = 0
+    for tid, g in df.groupby("track_id"):
+        g = g[np.isfinite(g["wx"])].drop_duplicates("frame")
+        if len(g) < 2:
+            continue
+        t = g["time"].to_numpy(float) - t0
+        x = _smooth(t, g["wx"].to_numpy(float))
+        y = _smooth(t, g["wy"].to_numpy(float))
+        ego_yaw = np.interp(t, ego.t - t0, ego.yaw)
+        aspect = ((g["x2"] - g["x1"]) / np.maximum(g["y2"] - g["y1"], 1.0)).to_numpy(float)
+        fallback = ego_yaw + np.where(aspect > 2.2, math.pi / 2, 0.0)
+        yaw, speed = _heading(t, x, y, fallback)
+        cat = str(g["category"].mode().iloc[0])  # the class most frames agree on
+        first = g[g["category"] == cat].iloc[0]
+        if speed.max() > MAX_SPEED_MPS:
+            clipped += 1
+            speed = np.minimum(speed, MAX_SPEED_MPS)
+        agents.append(
+            Vehicle(
+                id=int(tid),  # type: ignore[arg-type]
+                category=cat,  # type: ignore[arg-type]
+                length=float(first["L"]),
+                width=float(first["W"]),
+                height=float(first["H"]),
+                confidence=float(np.clip(g["score"].mean(), 0.0, 1.0)),
+                first_frame=int(g["frame"].iloc[0]),
+                last_frame=int(g["frame"].iloc[-1]),
+                start_delay_s=max(0.0, float(t[0])),
+                trajectory=Trajectory.from_arrays(t, x, y, yaw, speed, (g["state"] == "detected").to_numpy()),
+            )  # fmt: skip
+        )
+    if clipped:
+        warnings.append(f"{clipped} agent track(s) had speeds above {MAX_SPEED_MPS} m/s (clipped): localisation noise")
+    return agents
 
 
 def _road(ego_xy: np.ndarray, lanes: LaneTimelineResult | None) -> Road:

@@ -14,7 +14,11 @@ Lifecycle: a new track is TENTATIVE; after ``min_hits`` detections (counting the
 CONFIRMED. A TENTATIVE track that misses one detection round is DELETED; a CONFIRMED one is
 DELETED after more than ``max_misses`` consecutive missed rounds. Ids are given at confirmation
 (1, 2, 3 ... in that order, never reused), so short-lived false detections use up no ids;
-a TENTATIVE track has id 0.
+a TENTATIVE track has id 0 (``ids_at_birth=True``: every track gets its id when spawned, for owners
+that report tentative tracks too).
+
+This one lifecycle serves the image tracker (:mod:`deepcrashtest.perception.track`, and so the
+monocular 3D path), and the LiDAR world tracker (``deepcrashtest.datasets.kitti.world_tracker``).
 """
 
 from __future__ import annotations
@@ -98,6 +102,7 @@ class TrackCore(Generic[T]):
     max_misses: int = 5
     tracks: list[T] = field(default_factory=list)
     next_id: int = 1
+    ids_at_birth: bool = False
 
     def step(self, cost: np.ndarray, max_cost: float) -> StepResult[T]:
         """Assign detections to the current tracks and advance every track's lifecycle by one round."""
@@ -118,15 +123,21 @@ class TrackCore(Generic[T]):
         track.track_id = 0
         track.hits, track.misses, track.rounds = 1, 0, 1
         track.state = TrackState.TENTATIVE
+        if self.ids_at_birth:
+            track.track_id = self._new_id()
         if self.min_hits <= 1:
             self._confirm(track)
         self.tracks.append(track)
         return track
 
+    def _new_id(self) -> int:
+        self.next_id += 1
+        return self.next_id - 1
+
     def _confirm(self, track: T) -> None:
         track.state = TrackState.CONFIRMED
-        track.track_id = self.next_id
-        self.next_id += 1
+        if not track.track_id:
+            track.track_id = self._new_id()
 
     def hit(self, track: T) -> None:
         track.hits += 1

@@ -9,7 +9,13 @@ Per frame:
    assigned to tracks by the Hungarian method on 1 - IoU (:mod:`deepcrashtest.perception.lifecycle`);
    a matched track takes the detected box; unmatched detections scoring >= ``new_track_score`` start new tracks;
 3. tracks that left the image are deleted; confirmed tracks are reported as ``detected`` (box
-   from this frame's detection) or ``predicted`` (carried).
+   from this frame's detection) or ``predicted`` (carried). When a track is confirmed, its boxes of
+   the frames while it was tentative are reported too (``FrameTracks.backfill``), so an object is
+   not lost for the ``min_hits - 1`` frames the lifecycle needs to trust it.
+
+Pixels are optional: :meth:`BoxTracker.update_boxes` takes a frame's detections (a detector's, or
+boxes read from a file) and, when no image comes with them, carries boxes by their constant image
+velocity instead of optical flow; :func:`track_boxes` runs a whole sequence of boxes that way.
 
 ``iter_tracks`` yields one :class:`FrameTracks` per frame, so later stages can share one decoding
 pass; ``track_video`` collects everything into the ``tracks.csv`` DataFrame.
@@ -19,7 +25,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
@@ -50,10 +56,12 @@ __all__ = [
     "TrackedBox",
     "assign",
     "iter_tracks",
+    "track_boxes",
     "track_video",
     "tracks_dataframe",
 ]
 
+_NO_IMAGE = np.zeros((0, 0, 3), np.uint8)
 TRACK_COLUMNS = ["frame", "time", "track_id", "category", "x1", "y1", "x2", "y2", "score", "state"]
 #: Classes a track may switch between: motor vehicles; vulnerable road users (a rider seen without
 #: the two-wheeler is detected as a pedestrian for a frame or two, the votes keep the track's class).
@@ -71,6 +79,7 @@ class ImageTrack(TrackBase):
     last_detected: int = 0  # running frame number of the last matched detection
     detected_box: np.ndarray = field(default_factory=lambda: np.zeros(4))
     detected_now: bool = False
+    tentative_rows: list[tuple[int, float, TrackedBox]] = field(default_factory=list)
 
     @property
     def category(self) -> str:
@@ -90,11 +99,14 @@ class TrackedBox:
 
 @dataclass
 class FrameTracks:
-    """The tracker's output for one frame; ``detections`` is None on frames without detection."""
+    """The tracker's output for one frame; ``detections`` is None on frames without detection.
+
+    ``backfill``: (frame index, time s, box) of earlier frames of the tracks confirmed in this one."""
 
     frame: Frame
     tracks: list[TrackedBox]
     detections: Detections | None
+    backfill: list[tuple[int, float, TrackedBox]] = field(default_factory=list)
 
 
 class BoxTracker:
@@ -102,12 +114,14 @@ class BoxTracker:
 
     ``max_age_s``: a confirmed track survives this long without a matched detection (carried by
     flow); ``min_hits``: detection rounds needed to confirm a track; ``min_iou``: the least IoU
-    between a carried box and a detection for them to be matched.
+    between a carried box and a detection for them to be matched; ``min_score``: weaker detections
+    are ignored; ``new_track_score``: the least score of a detection that starts a track (weaker ones
+    only extend tracks). ``detector`` may be None when detections are passed to :meth:`update_boxes`.
     """
 
     def __init__(
         self,
-        detector: Detector,
+        detector: Detector | None,
         fps: float,
         detect_every: int = 1,
         min_hits: int = 2,
@@ -115,6 +129,7 @@ class BoxTracker:
         min_iou: float = 0.2,
         new_track_score: float = 0.5,
         flow: BoxFlow | None = None,
+        min_score: float = 0.0,
     ) -> None:
         if detect_every < 1:
             raise ValueError(f"detect_every must be >= 1 (got {detect_every})")
@@ -123,6 +138,7 @@ class BoxTracker:
         self.detect_every = int(detect_every)
         self.min_iou = float(min_iou)
         self.new_track_score = float(new_track_score)
+        self.min_score = float(min_score)
         max_misses = max(1, math.ceil(max_age_s * fps / detect_every))
         self.core: TrackCore[ImageTrack] = TrackCore(min_hits=min_hits, max_misses=max_misses)
         self.flow = flow or BoxFlow()
@@ -130,41 +146,71 @@ class BoxTracker:
         self._n = 0  # frames seen
 
     def update(self, frame: Frame) -> FrameTracks:
-        """Advance every track to ``frame`` and return the confirmed tracks in it."""
+        """Advance every track to ``frame`` (detecting on detection frames) and return the confirmed tracks."""
         image = frame.image
-        h, w = image.shape[:2]
-        grey = self.flow.prepare(image)
-        self._carry(grey)
-        self._prev = grey
         dets: Detections | None = None
+        if self._n % self.detect_every == 0:
+            if self.detector is None:
+                raise ValueError("BoxTracker without a detector: pass detections to update_boxes")
+            dets = self.detector(image)
+        h, w = image.shape[:2]
+        return self.update_boxes(dets, frame.index, frame.time, (w, h), image)
+
+    def update_boxes(
+        self,
+        dets: Detections | None,
+        index: int,
+        time: float,
+        size: tuple[int, int],
+        image: np.ndarray | None = None,
+    ) -> FrameTracks:
+        """Advance every track by one frame given its detections (None: no detection round).
+
+        ``size``: (width, height) of the frame, pixels; ``image``: the frame (BGR) for optical flow,
+        or None to carry boxes by their constant image velocity."""
+        w, h = size
+        self._carry(self.flow.prepare(image) if image is not None else None)
         for t in self.core.tracks:
             t.detected_now = False
-        if self._n % self.detect_every == 0:
-            dets = road_users(self.detector(image))
-            self._associate(dets)
+        was_confirmed = {id(t) for t in self.core.confirmed}
+        if dets is not None:
+            dets = road_users(dets)
+            self._associate(dets.subset(np.nonzero(dets.scores >= self.min_score)[0]))
         for t in self.core.tracks:
             if _visible_fraction(t.box, w, h) < 0.3 or min(t.box[2] - t.box[0], t.box[3] - t.box[1]) < 3:
                 self.core.delete(t)
         self.core.prune()
         self._n += 1
-        out = [
-            TrackedBox(
+        out, backfill = [], []
+        for t in self.core.tracks:
+            row = TrackedBox(
                 track_id=t.track_id,
                 category=t.category,
                 box=_clip_box(t.box, w, h),
                 score=round(t.score, 4),
                 state="detected" if t.detected_now else "predicted",
             )
-            for t in self.core.confirmed
-        ]
-        return FrameTracks(frame, sorted(out, key=lambda b: b.track_id), dets)
+            if not t.confirmed:
+                t.tentative_rows.append((int(index), float(time), row))
+                continue
+            out.append(row)
+            if id(t) not in was_confirmed:  # confirmed in this frame: report its tentative frames
+                backfill += [(f, s, replace(b, track_id=t.track_id)) for f, s, b in t.tentative_rows]
+                t.tentative_rows = []
+        frame = Frame(int(index), float(time), image if image is not None else _NO_IMAGE)
+        return FrameTracks(frame, sorted(out, key=lambda b: b.track_id), dets, backfill)
 
-    def _carry(self, grey: GreyFrame) -> None:
+    def _carry(self, grey: GreyFrame | None) -> None:
+        """Move every track's box into the new frame: optical flow, else constant image velocity."""
         tracks = self.core.tracks
-        if self._prev is None or not tracks:
+        prev, self._prev = self._prev, grey
+        if not tracks:
             return
         boxes = np.stack([t.box for t in tracks])
-        moved, ok = self.flow.propagate(self._prev, grey, boxes)
+        if prev is not None and grey is not None:
+            moved, ok = self.flow.propagate(prev, grey, boxes)
+        else:
+            moved, ok = boxes, np.zeros(len(tracks), bool)
         for t, b, good in zip(tracks, moved, ok, strict=True):
             t.box = b if good else t.box + t.velocity
 
@@ -173,7 +219,7 @@ class BoxTracker:
         cost = np.ones((len(tracks), len(dets)))
         if len(tracks) and len(dets):
             cost = 1.0 - iou_matrix(np.stack([t.box for t in tracks]), dets.boxes)
-            tg = np.array([_GROUP[t.category] for t in tracks])
+            tg = np.array([_GROUP.get(t.category, 0) for t in tracks])
             dg = np.array([_GROUP.get(str(c), 0) for c in dets.categories])
             cost[tg[:, None] != dg[None, :]] = np.inf
         result = self.core.step(cost, max_cost=1.0 - self.min_iou)
@@ -250,7 +296,28 @@ def iter_tracks(
 
 
 def frame_records(ft: FrameTracks) -> list[tuple[object, ...]]:
-    return [(ft.frame.index, ft.frame.time, b.track_id, b.category, *b.box, b.score, b.state) for b in ft.tracks]
+    """Rows of :data:`TRACK_COLUMNS`: this frame's tracks, then the backfilled rows of earlier frames."""
+    rows: list[tuple[object, ...]] = [
+        (ft.frame.index, ft.frame.time, b.track_id, b.category, *b.box, b.score, b.state) for b in ft.tracks
+    ]
+    return rows + [(f, s, b.track_id, b.category, *b.box, b.score, b.state) for f, s, b in ft.backfill]
+
+
+def track_boxes(
+    detections: Iterable[Detections],
+    fps: float,
+    size: tuple[int, int],
+    **tracker_options: float,
+) -> pd.DataFrame:
+    """Track a sequence of per-frame detections without pixels (frame k at time k / fps).
+
+    ``size``: (width, height) of the frames, pixels. Returns the ``tracks.csv`` table sorted by
+    frame and track (rows of frames before a track's confirmation included)."""
+    tracker = BoxTracker(None, fps=fps, **tracker_options)  # type: ignore[arg-type]
+    records: list[tuple[object, ...]] = []
+    for k, dets in enumerate(detections):
+        records.extend(frame_records(tracker.update_boxes(dets, k, k / fps, size)))
+    return records_table(records).sort_values(["frame", "track_id"], ignore_index=True)
 
 
 def records_table(records: list[tuple[object, ...]]) -> pd.DataFrame:
@@ -283,4 +350,4 @@ def track_video(
         if on_frame is not None:
             on_frame(ft)
         records.extend(frame_records(ft))
-    return records_table(records)
+    return records_table(records).sort_values(["frame", "track_id"], ignore_index=True)

@@ -166,7 +166,7 @@ def run_extract(
     elapsed = time.perf_counter() - t0
     if meta.decoded_frames == 0:
         raise UserError(f"{src_path}: no frame could be decoded")
-    df = records_table(records)
+    df = records_table(records).sort_values(["frame", "track_id"], ignore_index=True)
     crash_info: dict[str, Any] | None = None
     if geo is not None:  # before anything is written: a bad --crash id refuses the whole set
         geo.scenario, crash_info = crash_for_raw(geo.scenario, df, motion.arrays(), crash_spec)

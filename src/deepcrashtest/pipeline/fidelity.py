@@ -93,11 +93,24 @@ def run_fidelity(
         from deepcrashtest.viz.fidelity_video import write_fidelity_video
 
         write_fidelity_video(scenario, result, sim, video_path, table, targets["video"], label, force=force)
-    cols = [c for c in result.pairs.columns if not c.endswith("_box")]
     with atomic_path(targets["pairs"], force=force) as tmp:
-        result.pairs[cols].to_csv(tmp, index=False, float_format="%.4f")
+        pairs_table(result).to_csv(tmp, index=False, float_format="%.4f")
     atomic_write_text(targets["json"], fidelity_json(summary), force)
     return result, summary
 
 
-__all__ = ["OUTPUT_NAMES", "default_inputs", "fidelity_json", "pick_label", "run_fidelity"]
+def pairs_table(result: FidelityResult) -> Any:
+    """The per-pair table with each projected box as four columns ``{src}_x1 .. {src}_y2`` (empty when none)."""
+    import numpy as np
+
+    df = result.pairs.copy()
+    for col in [c for c in df.columns if c.endswith("_box")]:
+        src = col.removesuffix("_box")
+        boxes = np.array([b if b is not None else [np.nan] * 4 for b in df[col]], dtype=float).reshape(-1, 4)
+        for j, name in enumerate(("x1", "y1", "x2", "y2")):
+            df[f"{src}_{name}"] = boxes[:, j]
+        df = df.drop(columns=col)
+    return df
+
+
+__all__ = ["OUTPUT_NAMES", "default_inputs", "fidelity_json", "pairs_table", "pick_label", "run_fidelity"]

@@ -51,6 +51,13 @@ def fidelity_section(result: Any) -> Section:
                 f"{fmt(s['coverage'])}",
             )
         )
+        rows.append(
+            (
+                f"{src}: median offset right / down (px), width / height ratio",
+                f"{fmt(s.get('median_du_px'))} / {fmt(s.get('median_dv_px'))}, "
+                f"{fmt(s.get('median_width_ratio'))} / {fmt(s.get('median_height_ratio'))}",
+            )
+        )
     first = crash.get("first_contact")
     rows.append(
         (

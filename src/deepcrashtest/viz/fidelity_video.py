@@ -141,6 +141,11 @@ class FidelityPainter:
                 cv2.drawMarker(img, (int(uv[0]), int(uv[1])), RED, cv2.MARKER_TILTED_CROSS, 28, 3, cv2.LINE_AA)
 
 
+def _folder_fps(video: str | Path, scenario: Scenario) -> float | None:
+    """An image folder has no frame rate of its own: the scenario's (frame numbers are the file numbers)."""
+    return scenario.source.fps if Path(video).is_dir() else None
+
+
 def write_fidelity_video(
     scenario: Scenario,
     result: FidelityResult,
@@ -156,7 +161,7 @@ def write_fidelity_video(
     painter = FidelityPainter(scenario, result, sim, label)
     by_frame = _by_frame(tracks)
     empty = tracks.iloc[:0]
-    with open_video(video) as src:
+    with open_video(video, _folder_fps(video, scenario)) as src:
         meta = src.meta
         with VideoWriter(output, meta.fps, meta.width, meta.height, force=force) as writer:
             for frame in src:
@@ -178,7 +183,7 @@ def render_frames(
     want = set(frames)
     by_frame = _by_frame(tracks)
     paths = []
-    with open_video(video) as src:
+    with open_video(video, _folder_fps(video, painter.sc)) as src:
         for frame in src:
             if frame.index in want:
                 p = out / f"fidelity_{frame.index:04d}.png"

@@ -7,33 +7,15 @@ Frames are the video's, mapped to scenario time by the one mapping (:meth:`Scena
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
+from deepcrashtest.geometry.project import Pose, PoseFn, scenario_poses
 from deepcrashtest.scenario import Scenario
 
-Pose = tuple[float, float, float]
-#: Pose (x, y, yaw) of a road user at scenario time t, or None where it is absent.
-PoseFn = Callable[[int, float], Pose | None]
-
-
-def scenario_poses(scenario: Scenario) -> PoseFn:
-    """Poses from the scenario's own trajectories (absent outside each one's span and before its start delay)."""
-    arrays = {v.id: (v.trajectory.arrays(), v.start_delay_s) for v in scenario.vehicles()}
-
-    def pose(vid: int, t: float) -> Pose | None:
-        a, delay = arrays[vid]
-        if t < a["t"][0] - 1e-9 or t > a["t"][-1] + 1e-9 or t < delay - 1e-9:
-            return None
-        return (
-            float(np.interp(t, a["t"], a["x"])),
-            float(np.interp(t, a["t"], a["y"])),
-            float(np.interp(t, a["t"], a["yaw"])),
-        )
-
-    return pose
+__all__ = ["Pose", "PoseFn", "projected_frames", "scenario_poses", "sim_poses"]
 
 
 def sim_poses(times: Sequence[float], vehicle_ids: Sequence[int], states: Any) -> PoseFn:

@@ -14,9 +14,10 @@ velocity model holds for every car whatever the ego does. Per frame:
 3. matched tracks are corrected; unmatched confident detections start tentative tracks; unmatched
    tracks age and are deleted after ``max_age`` frames without a detection.
 
-Track lifecycle (:class:`TrackLifecycle`, generic: no geometry in it): *tentative* until
-``min_hits`` consecutive detections, then *confirmed*; *deleted* after ``max_age`` misses
-(a tentative track on its first miss). Output: confirmed tracks that were detected in this
+Track lifecycle: the one of every tracker here, :class:`~deepcrashtest.perception.lifecycle.TrackCore`
+(*tentative* until ``min_hits`` detections, then *confirmed*; *deleted* after more than ``max_age``
+misses in a row, a tentative track on its first miss; ids given at birth, since tentative tracks
+are reported during the warm-up). Output: confirmed tracks that were detected in this
 frame or missed at most ``max_coast_output`` frames, plus, during the first ``min_hits`` frames of
 a sequence, tentative ones (so objects present at the start are not lost to the warm-up).
 """
@@ -24,60 +25,11 @@ a sequence, tentative ones (so objects present at the start are not lost to the 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import Enum
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-
-class TrackState(Enum):
-    TENTATIVE = "tentative"
-    CONFIRMED = "confirmed"
-    DELETED = "deleted"
-
-
-@dataclass
-class TrackLifecycle:
-    """Hit/miss bookkeeping of one track, independent of what is tracked and how."""
-
-    min_hits: int
-    max_age: int
-    state: TrackState = TrackState.TENTATIVE
-    hits: int = 1
-    hit_streak: int = 1
-    age: int = 1
-    time_since_update: int = 0
-
-    def __post_init__(self) -> None:
-        if self.hit_streak >= self.min_hits:
-            self.state = TrackState.CONFIRMED
-
-    def predict(self) -> None:
-        """A new frame began."""
-        self.age += 1
-        self.time_since_update += 1
-
-    def hit(self) -> None:
-        """The track was matched to a detection in this frame."""
-        self.hits += 1
-        self.hit_streak = self.hit_streak + 1 if self.time_since_update <= 1 else 1
-        self.time_since_update = 0
-        if self.state is TrackState.TENTATIVE and self.hit_streak >= self.min_hits:
-            self.state = TrackState.CONFIRMED
-
-    def miss(self) -> None:
-        """The track was not matched in this frame."""
-        self.hit_streak = 0
-        if self.state is TrackState.TENTATIVE or self.time_since_update > self.max_age:
-            self.state = TrackState.DELETED
-
-    @property
-    def is_confirmed(self) -> bool:
-        return self.state is TrackState.CONFIRMED
-
-    @property
-    def is_deleted(self) -> bool:
-        return self.state is TrackState.DELETED
+from deepcrashtest.perception.lifecycle import TrackBase, TrackCore
 
 
 @dataclass(frozen=True)
@@ -135,15 +87,13 @@ class TrackHistory:
 
 
 @dataclass
-class _Track:
-    track_id: int
-    x: np.ndarray  # state (x, y, vx, vy)
-    P: np.ndarray
-    z: float
-    size: np.ndarray
-    yaw: float
-    score: float
-    life: TrackLifecycle
+class _Track(TrackBase):
+    x: np.ndarray = field(default_factory=lambda: np.zeros(4))  # state (x, y, vx, vy)
+    P: np.ndarray = field(default_factory=lambda: np.eye(4))
+    z: float = 0.0
+    size: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    yaw: float = 0.0
+    score: float = 0.0
     detection: int = -1
     frames: list[int] = field(default_factory=list)
     detections: list[int] = field(default_factory=list)
@@ -158,9 +108,9 @@ class _Track:
         """Remember this frame's estimate (for the offline pass)."""
         self.frames.append(frame)
         self.boxes.append(self.box())
-        self.detected.append(self.life.time_since_update == 0)
-        self.detections.append(self.detection if self.life.time_since_update == 0 else -1)
-        self.scores.append(self.score if self.life.time_since_update == 0 else np.nan)
+        self.detected.append(self.misses == 0)
+        self.detections.append(self.detection if self.misses == 0 else -1)
+        self.scores.append(self.score if self.misses == 0 else np.nan)
 
 
 class WorldTracker:
@@ -175,10 +125,13 @@ class WorldTracker:
         self._Q = g @ g.T * c.accel_std**2
         self._H = np.hstack([np.eye(2), np.zeros((2, 2))])
         self._R = np.eye(2) * c.meas_std_m**2
-        self._tracks: list[_Track] = []
+        self._core: TrackCore[_Track] = TrackCore(min_hits=c.min_hits, max_misses=c.max_age, ids_at_birth=True)
         self._finished: list[_Track] = []
-        self._next_id = 1
         self._frame = 0
+
+    @property
+    def _tracks(self) -> list[_Track]:
+        return self._core.tracks
 
     def step(self, dets: WorldDetections) -> list[TrackOutput]:
         """Advance one frame with this frame's detections; return the tracks to report."""
@@ -189,7 +142,6 @@ class WorldTracker:
         for t in self._tracks:
             t.x = self._F @ t.x
             t.P = self._F @ t.P @ self._F.T + self._Q
-            t.life.predict()
         strong = np.nonzero(score >= c.birth_score)[0]
         weak = np.nonzero(score < c.birth_score)[0]
         pairs, lone_tracks, lone_strong = self._associate(list(range(len(self._tracks))), xy, strong)
@@ -200,16 +152,15 @@ class WorldTracker:
             t.z, t.size, t.score = float(z[di]), size[di].astype(float), float(score[di])
             t.yaw = _align_yaw(float(yaw[di]), t.yaw)
             t.detection = int(index[di])
-            t.life.hit()
-        for ti in lone_tracks:
-            self._tracks[ti].life.miss()
+            self._core.hit(t)
+        for t in [self._tracks[ti] for ti in lone_tracks]:
+            self._core.miss(t)
         for di in lone_strong:
-            self._tracks.append(self._new_track(xy[di], float(z[di]), size[di], float(yaw[di]), float(score[di])))
-            self._tracks[-1].detection = int(index[di])
+            t = self._core.spawn(self._new_track(xy[di], float(z[di]), size[di], float(yaw[di]), float(score[di])))
+            t.detection = int(index[di])
         for t in self._tracks:
             t.record(self._frame)
-        self._finished += [t for t in self._tracks if t.life.is_deleted]
-        self._tracks = [t for t in self._tracks if not t.life.is_deleted]
+        self._finished += self._core.prune()
         out = [self._output(t) for t in self._tracks if self._reported(t)]
         self._frame += 1
         return out
@@ -240,26 +191,17 @@ class WorldTracker:
     def _new_track(self, xy: np.ndarray, z: float, size: np.ndarray, yaw: float, score: float) -> _Track:
         c = self.config
         P = np.diag([c.meas_std_m**2, c.meas_std_m**2, c.init_speed_std**2, c.init_speed_std**2])
-        t = _Track(
-            track_id=self._next_id,
-            x=np.array([xy[0], xy[1], 0.0, 0.0]),
-            P=P,
-            z=z,
-            size=np.asarray(size, dtype=float),
-            yaw=yaw,
-            score=score,
-            life=TrackLifecycle(min_hits=c.min_hits, max_age=c.max_age),
+        return _Track(
+            x=np.array([xy[0], xy[1], 0.0, 0.0]), P=P, z=z, size=np.asarray(size, dtype=float), yaw=yaw, score=score
         )
-        self._next_id += 1
-        return t
 
     def _reported(self, t: _Track) -> bool:
-        if t.life.time_since_update > self.config.max_coast_output:
+        if t.misses > self.config.max_coast_output:
             return False
-        return t.life.is_confirmed or self._frame < self.config.min_hits
+        return t.confirmed or self._frame < self.config.min_hits
 
     def _output(self, t: _Track) -> TrackOutput:
-        return TrackOutput(t.track_id, t.box(), t.x[2:].copy(), t.score, t.life.time_since_update == 0)
+        return TrackOutput(t.track_id, t.box(), t.x[2:].copy(), t.score, t.misses == 0)
 
     def histories(self) -> list[TrackHistory]:
         """Every track seen so far (deleted or alive) with its estimates in the frames it was detected."""

@@ -1,0 +1,84 @@
+"""Tune the monocular path on KITTI tracking: coordinate descent on combined world-frame MOTA
+(2 m bird's-eye matching, KITTI rules) over the TUNING sequences only, the 18 training sequences
+other than 3, 8 and 10, which stay held out (as for the LiDAR tracker's tuning).
+
+    PYTHONPATH=src nice -n 10 python bench/tune_mono.py [--rounds 1] [--sequences 0,1,2]
+
+Inputs: PointRCNN's image-plane boxes (x1 y1 x2 y2 score only), ORB-SLAM3 poses, the KITTI camera.
+Prints every configuration tried with its tuning-set MOTA, the best one, and then its MOTA on the
+held-out sequences 3, 8, 10. Slow on a loaded 2-core machine (one configuration runs the whole
+path on ~8,000 frames); the image tracks are cached per tracker setting.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import asdict, replace
+from pathlib import Path
+
+from deepcrashtest.eval.kitti_mono import DEFAULT_MONO, MonoTracking, prepare_mono, quick_mota
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kitti_tracking"
+HELD_OUT = [3, 8, 10]
+TUNING = [s for s in range(21) if s not in HELD_OUT]
+GRID: dict[tuple[str, str], list] = {
+    ("mono", "class_switch_cost"): [3.0],
+    ("mono", "class_sample_inflation"): [1.5, 10.0],
+    ("mono", "horizon_shrink"): [1.0],
+    ("tracker", "min_detected"): [8, 16],
+    ("tracker", "min_score"): [0.3, 0.7],
+    ("tracker", "new_track_score"): [0.8, 0.97],
+    ("tracker", "min_hits"): [2, 5],
+    ("tracker", "max_age_s"): [1.0],
+    ("tracker", "min_iou"): [0.1],
+    ("mono", "accel_std"): [1.5, 5.0],
+    ("mono", "road_height_rel"): [0.3, 0.8],
+}
+#: Round 0 of an earlier run of this script (before the class choice) had already moved the noise
+#: model from hand-set values to road_height_rel 0.5, height_sigma_px 0.4, width_sigma_rel 0.2,
+#: accel_std 3.0, min_detected 12 (tuning MOTA 39.3 -> 49.1); the defaults start from there; the
+#: per-frame horizon's shrinkage (0.3 against 2.0: 51.5 against 51.2) was compared by hand, also on
+#: the 18 tuning sequences.
+
+
+def _with(cfg: MonoTracking, part: str, name: str, value: object) -> MonoTracking:
+    if part == "mono":
+        return replace(cfg, mono=replace(cfg.mono, **{name: value}))
+    return replace(cfg, **{name: value})
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--rounds", type=int, default=1)
+    ap.add_argument("--sequences", default=",".join(map(str, TUNING)))
+    args = ap.parse_args()
+    seqs = [int(s) for s in args.sequences.split(",")]
+    if set(seqs) & set(HELD_OUT):
+        raise SystemExit("tuning sequences must not include the held-out 3, 8, 10")
+    t0 = time.time()
+    tuning = [prepare_mono(DATA, s) for s in seqs]
+    print(f"prepared {len(tuning)} tuning sequences in {time.time() - t0:.1f} s", flush=True)
+    best = DEFAULT_MONO
+    cache: dict = {}
+    best_mota, _ = quick_mota(tuning, best, cache=cache)
+    print(f"start: tuning MOTA {best_mota:.2f}  {asdict(best)}", flush=True)
+    for r in range(args.rounds):
+        for (part, name), values in GRID.items():
+            for v in values:
+                trial = _with(best, part, name, v)
+                t1 = time.time()
+                m, _ = quick_mota(tuning, trial, cache=cache)
+                print(f"round {r} {part}.{name}={v}: {m:.2f} ({time.time() - t1:.0f} s)", flush=True)
+                if m > best_mota + 0.05:
+                    best, best_mota = trial, m
+                    print(f"  -> new best {best_mota:.2f}", flush=True)
+    print(f"best tuning MOTA {best_mota:.2f}: {asdict(best)}", flush=True)
+    held = [prepare_mono(DATA, s) for s in HELD_OUT]
+    m, res = quick_mota(held, best)
+    per = {k: round(100 * float(v["MOTA"]), 2) for k, v in res.items()}
+    print(f"held-out MOTA combined {m:.2f}; per sequence {per}", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,375 @@
+"""KITTI tracking through the monocular video path: 2D boxes in, world-frame tracks out, scored.
+
+What runs is the code ``extract`` runs on a video, minus the pixels: the image tracker
+(:func:`~deepcrashtest.perception.track.track_boxes`, the :class:`BoxTracker` of ``extract`` without
+optical flow), self-calibration when the camera is unknown
+(:func:`~deepcrashtest.geometry.selfcalib.self_calibrate`), and
+:func:`~deepcrashtest.geometry.world_tracks.raw_scenario_from_tracks` (the monocular 3D tracker of
+:mod:`deepcrashtest.geometry.mono3d`). The raw Scenario's agents become KITTI result rows
+(:mod:`deepcrashtest.datasets.kitti.results`), scored with the KITTI rules in the world frame
+(:mod:`deepcrashtest.eval.kitti_rules`, :mod:`deepcrashtest.eval.clear_mot`).
+
+Inputs per sequence:
+
+* boxes: ``pointrcnn`` - the image-plane columns ``x1 y1 x2 y2 score`` of the PointRCNN detections
+  (their 3D columns are never read; score -> ``1 / (1 + exp(-score))``); or ``labels-noisy`` - the
+  Car/Van/Truck label boxes through :class:`LabelNoise` (seeded): each box is missed with
+  probability ``miss_rate`` (doubled per occlusion level), its corners jittered by
+  ``jitter_rel`` x its height (1 sigma, pixels), and ``false_per_frame`` false boxes per frame on
+  average (Poisson), each the box of a car at a random place on the road, scored lower.
+* ego: the sequence's ORB-SLAM3 poses (:meth:`EgoMotion.from_poses`);
+* camera: ``kitti`` - intrinsics from ``P2`` and the KITTI camera height (1.65 m), level; or
+  ``unknown`` - the unknown-dashcam default (90 deg field of view, 1.3 m), then self-calibrated.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from scipy.optimize import linear_sum_assignment
+
+from deepcrashtest.datasets.kitti.files import (
+    KITTI_CAMERA_HEIGHT_M,
+    KITTI_FPS,
+    KittiSequence,
+    read_ab3dmot_detections,
+    read_calib,
+    read_labels,
+    read_poses,
+)
+from deepcrashtest.datasets.kitti.results import scenario_result_table
+from deepcrashtest.datasets.kitti.scenario import KITTI_CAMERA_FORWARD_OFFSET_M
+from deepcrashtest.errors import UserError
+from deepcrashtest.eval.clear_mot import EvalSequence, clear_only, evaluate_sequences
+from deepcrashtest.eval.kitti import PAPER_TABLE, ground_truth_frames, hypotheses_from_table, match_rule
+from deepcrashtest.eval.kitti_rules import GroundTruthFrame, MatchRule, apply_kitti_rules
+from deepcrashtest.eval.kitti_world import KittiWorld
+from deepcrashtest.geometry.camera import default_camera
+from deepcrashtest.geometry.egomotion import EgoMotion
+from deepcrashtest.geometry.mono3d import MonoConfig
+from deepcrashtest.geometry.selfcalib import SelfCalibration, self_calibrate
+from deepcrashtest.geometry.world_tracks import raw_scenario_from_tracks
+from deepcrashtest.perception.detect import Detections
+from deepcrashtest.perception.track import track_boxes
+from deepcrashtest.scenario import Camera, Scenario, VideoSource
+from deepcrashtest.ui import track as progress
+
+BOX_SOURCES = ("pointrcnn", "labels-noisy")
+CAMERAS = ("kitti", "unknown")
+#: Distance bins (m, camera to the labelled car's centre) of the position-error table.
+ERROR_BINS = ((0.0, 20.0), (20.0, 40.0), (40.0, 60.0))
+
+
+@dataclass(frozen=True)
+class LabelNoise:
+    """Noise model of the ``labels-noisy`` boxes (see the module docstring)."""
+
+    jitter_rel: float = 0.05
+    miss_rate: float = 0.1
+    false_per_frame: float = 0.3
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class MonoTracking:
+    """Image tracker lifecycle (``BoxTracker``) and track filter of the monocular path.
+
+    Chosen on the 18 KITTI training sequences other than 3, 8 and 10 (``bench/tune_mono.py``)."""
+
+    min_score: float = 0.7
+    new_track_score: float = 0.97
+    min_hits: int = 5
+    max_age_s: float = 1.0
+    min_iou: float = 0.2
+    min_detected: int = 8
+    report_predicted: bool = False
+    mono: MonoConfig = field(default_factory=MonoConfig)
+
+
+DEFAULT_MONO = MonoTracking()
+
+
+@dataclass
+class MonoSequence:
+    """One sequence's inputs to the monocular path (no tracker setting in it)."""
+
+    name: str
+    world: KittiWorld
+    P2: np.ndarray
+    size: tuple[int, int]
+    ground_truth: list[GroundTruthFrame]
+    gt_range: list[np.ndarray]
+    detections: list[Detections]
+    camera: Camera
+    calibration: SelfCalibration | None
+
+
+def _image_size(*tables: pd.DataFrame) -> tuple[int, int]:
+    """(width, height) px of a sequence's frames from its boxes (KITTI frames differ by a few px)."""
+    w = max(float(t["x2"].max()) for t in tables if len(t))
+    h = max(float(t["y2"].max()) for t in tables if len(t))
+    return int(math.ceil(w)) + 1, int(math.ceil(h)) + 1
+
+
+def pointrcnn_boxes(table: pd.DataFrame, n_frames: int) -> list[Detections]:
+    """Per-frame 2D detections from AB3DMOT rows: image columns and the score only (sigmoid)."""
+    return _per_frame(
+        table["frame"].to_numpy(int), table[["x1", "y1", "x2", "y2"]].to_numpy(float),
+        1.0 / (1.0 + np.exp(-table["score"].to_numpy(float))), np.full(len(table), "car"), n_frames,
+    )  # fmt: skip
+
+
+def noisy_label_boxes(
+    labels: pd.DataFrame, n_frames: int, size: tuple[int, int], noise: LabelNoise, camera: Camera
+) -> list[Detections]:
+    """Label boxes of Car/Van/Truck through the seeded noise model of :class:`LabelNoise`."""
+    rng = np.random.default_rng(noise.seed)
+    kinds = {"Car": "car", "Van": "van", "Truck": "truck"}
+    lab = labels[labels["type"].isin(list(kinds))]
+    occl = lab["occluded"].to_numpy(float).clip(0, 3)
+    keep = rng.random(len(lab)) >= noise.miss_rate * 2.0**occl
+    lab = lab[keep]
+    b = lab[["x1", "y1", "x2", "y2"]].to_numpy(float)
+    b += rng.normal(0.0, 1.0, b.shape) * noise.jitter_rel * (b[:, 3:4] - b[:, 1:2])
+    frames = lab["frame"].to_numpy(int)
+    cats = lab["type"].map(kinds).to_numpy(dtype=str)
+    scores = rng.uniform(0.6, 1.0, len(lab))
+    n_false = rng.poisson(noise.false_per_frame, n_frames)
+    ff = np.repeat(np.arange(n_frames), n_false)
+    fb = _random_car_boxes(len(ff), size, camera, rng)
+    scores_f = rng.uniform(0.3, 0.9, len(ff))
+    w, h = size
+    all_b = np.clip(np.vstack([b, fb]), 0, [w - 1, h - 1, w - 1, h - 1])
+    ok = (all_b[:, 2] - all_b[:, 0] > 2) & (all_b[:, 3] - all_b[:, 1] > 2)
+    return _per_frame(
+        np.r_[frames, ff][ok], all_b[ok], np.r_[scores, scores_f][ok],
+        np.r_[cats, np.full(len(ff), "car")][ok], n_frames,
+    )  # fmt: skip
+
+
+def _random_car_boxes(n: int, size: tuple[int, int], camera: Camera, rng: np.random.Generator) -> np.ndarray:
+    """Boxes of a car-sized object on the road 5-60 m ahead, anywhere across the image."""
+    z = rng.uniform(5.0, 60.0, n)
+    v_b = camera.cy + camera.fy * camera.height_m / z
+    h = camera.fy * 1.5 / z * rng.uniform(0.6, 1.5, n)
+    w = camera.fx * 1.8 / z * rng.uniform(0.6, 2.0, n)
+    u = rng.uniform(0.0, size[0], n)
+    return np.column_stack([u - w / 2, v_b - h, u + w / 2, v_b])
+
+
+def _per_frame(
+    frames: np.ndarray, boxes: np.ndarray, scores: np.ndarray, cats: np.ndarray, n_frames: int
+) -> list[Detections]:
+    order = np.argsort(frames, kind="stable")
+    bounds = np.searchsorted(frames[order], np.arange(n_frames + 1))
+    out = []
+    for f in range(n_frames):
+        idx = order[bounds[f] : bounds[f + 1]]
+        out.append(Detections(boxes[idx].astype(np.float32), scores[idx].astype(np.float32), cats[idx].astype(str)))
+    return out
+
+
+def kitti_camera(P2: np.ndarray) -> Camera:
+    """The KITTI colour camera: intrinsics from ``P2``, 1.65 m above the road, level."""
+    return Camera(
+        fx=float(P2[0, 0]), fy=float(P2[1, 1]), cx=float(P2[0, 2]), cy=float(P2[1, 2]),
+        height_m=KITTI_CAMERA_HEIGHT_M, forward_offset_m=KITTI_CAMERA_FORWARD_OFFSET_M,
+        intrinsics_source="kitti_calib", pitch_source="kitti_calib", height_source="kitti_calib",
+    )  # fmt: skip
+
+
+def prepare_mono(
+    root: str | Path, sequence: int, boxes: str = "pointrcnn", camera: str = "kitti", noise: LabelNoise | None = None
+) -> MonoSequence:
+    """Read one sequence's boxes, poses, ground truth; choose (or self-calibrate) the camera."""
+    if boxes not in BOX_SOURCES:
+        raise UserError(f"--boxes must be one of {', '.join(BOX_SOURCES)} (got {boxes!r})")
+    if camera not in CAMERAS:
+        raise UserError(f"--camera must be one of {', '.join(CAMERAS)} (got {camera!r})")
+    root = Path(root)
+    seq = KittiSequence(root, sequence).check()
+    world = KittiWorld(read_poses(seq.poses))
+    P2 = read_calib(seq.calib).P2
+    labels = read_labels(seq.labels)
+    dets_table = read_ab3dmot_detections(seq.detections_pointrcnn) if boxes == "pointrcnn" else labels.iloc[:0]
+    size = _image_size(labels, dets_table)
+    cam_true = kitti_camera(P2)
+    if boxes == "pointrcnn":
+        dets = pointrcnn_boxes(dets_table, world.n_frames)
+    else:
+        dets = noisy_label_boxes(labels, world.n_frames, size, noise or LabelNoise(seed=sequence), cam_true)
+    gt = ground_truth_frames(root, sequence, world)
+    gt_range = [_ground_range(g, world, f) for f, g in enumerate(gt)]
+    return MonoSequence(seq.name, world, P2, size, gt, gt_range, dets, cam_true, None)
+
+
+def _ground_range(g: GroundTruthFrame, world: KittiWorld, frame: int) -> np.ndarray:
+    """Camera-to-centre ground distance (m) of a frame's ground-truth objects."""
+    cam = world.world_to_camera(frame, g.objects.world[:, :3])
+    return np.hypot(cam[:, 0], cam[:, 2])
+
+
+def ego_of(world: KittiWorld) -> EgoMotion:
+    return EgoMotion.from_poses(world.poses, KITTI_FPS)
+
+
+def image_tracks(prep: MonoSequence, config: MonoTracking) -> pd.DataFrame:
+    """The image tracker (``extract``'s :class:`BoxTracker`, no pixels) on a sequence's boxes."""
+    return track_boxes(
+        prep.detections, KITTI_FPS, prep.size, min_score=config.min_score, new_track_score=config.new_track_score,
+        min_hits=config.min_hits, max_age_s=config.max_age_s, min_iou=config.min_iou,
+    )  # fmt: skip
+
+
+def mono_scenario(
+    prep: MonoSequence, config: MonoTracking, camera: str = "kitti", tracks: pd.DataFrame | None = None
+) -> tuple[Scenario, Camera]:
+    """The raw Scenario of the monocular path on a prepared sequence (and the camera it used);
+    ``tracks``: the image tracks when already computed (:func:`image_tracks`)."""
+    if tracks is None:
+        tracks = image_tracks(prep, config)
+    ego = ego_of(prep.world)
+    if camera == "kitti":
+        cam = prep.camera
+    else:
+        start = default_camera(*prep.size).model_copy(update={"forward_offset_m": KITTI_CAMERA_FORWARD_OFFSET_M})
+        prep.calibration = self_calibrate(tracks, start, prep.size, ego)
+        cam = prep.calibration.camera
+    meta = VideoSource(
+        kind="image_folder", path=prep.name, fps=KITTI_FPS, frame_count=prep.world.n_frames,
+        width=prep.size[0], height=prep.size[1],
+    )  # fmt: skip
+    sc = raw_scenario_from_tracks(
+        tracks, meta, cam, ego, name=prep.name, mono=config.mono, min_detected=config.min_detected
+    )
+    return sc, cam
+
+
+def score_sequence(
+    prep: MonoSequence, scenario: Scenario, rule: MatchRule, observed_only: bool = True
+) -> tuple[EvalSequence, dict[str, Any]]:
+    """KITTI rules applied to the scenario's tracks, and the position-error-by-distance table
+    (``observed_only``: only the frames where a track was detected, else its predicted ones too)."""
+    table = scenario_result_table(scenario, prep.world, prep.P2, observed_only, image_size=prep.size)
+    hyps = hypotheses_from_table(table, prep.world)
+    frames = [apply_kitti_rules(g, h, rule) for g, h in zip(prep.ground_truth, hyps, strict=True)]
+    errors = _position_errors(prep, hyps)
+    return EvalSequence(prep.name, frames), errors
+
+
+def _position_errors(prep: MonoSequence, hyps: list) -> dict[str, Any]:
+    """Ground-position error of evaluated cars matched to a track (Hungarian on distance, gate
+    max(2 m, 25 % of the range)), by the car's range: median and 90th percentile (m), and the
+    median as a percentage of the range; the median signed range error (percent, > 0: too far)."""
+    err: list[np.ndarray] = []
+    rng: list[np.ndarray] = []
+    bias: list[np.ndarray] = []
+    for f, (g, h, r) in enumerate(zip(prep.ground_truth, hyps, prep.gt_range, strict=True)):
+        ev = g.evaluated
+        if not ev.any() or len(h) == 0:
+            continue
+        gw, hw, gr = g.objects.world[ev, :2], h.world[:, :2], r[ev]
+        d = np.hypot(gw[:, None, 0] - hw[None, :, 0], gw[:, None, 1] - hw[None, :, 1])
+        gate = np.maximum(2.0, 0.25 * gr)[:, None]
+        d = np.where(np.isfinite(d) & (d < gate), d, 1e6)
+        rows, cols = linear_sum_assignment(d)
+        ok = d[rows, cols] < 1e6
+        err.append(d[rows[ok], cols[ok]])
+        rng.append(gr[rows[ok]])
+        hc = prep.world.world_to_camera(f, h.world[cols[ok], :3])
+        bias.append(np.hypot(hc[:, 0], hc[:, 2]) - gr[rows[ok]])
+    e = np.concatenate(err) if err else np.zeros(0)
+    rr = np.concatenate(rng) if rng else np.zeros(0)
+    bb = np.concatenate(bias) if bias else np.zeros(0)
+    out: dict[str, Any] = {}
+    for lo, hi in ERROR_BINS:
+        m = (rr >= lo) & (rr < hi)
+        key = f"{lo:g}-{hi:g} m"
+        if not m.any():
+            out[key] = {"n": 0, "median_m": None, "p90_m": None, "median_pct": None, "range_bias_pct": None}
+            continue
+        out[key] = {
+            "n": int(m.sum()),
+            "median_m": round(float(np.median(e[m])), 3),
+            "p90_m": round(float(np.percentile(e[m], 90)), 3),
+            "median_pct": round(float(np.median(e[m] / np.maximum(rr[m], 1e-6))) * 100, 2),
+            "range_bias_pct": round(float(np.median(bb[m] / np.maximum(rr[m], 1e-6))) * 100, 2),
+        }
+    return out
+
+
+def evaluate_mono(
+    root: str | Path,
+    sequences: Iterable[int],
+    *,
+    boxes: str = "pointrcnn",
+    camera: str = "kitti",
+    match: str = "distance",
+    config: MonoTracking | None = None,
+    noise: LabelNoise | None = None,
+) -> dict[str, Any]:
+    """Evaluate the monocular path on KITTI tracking sequences (see the module docstring)."""
+    rule = match_rule(match)
+    cfg = config or DEFAULT_MONO
+    seqs = list(sequences)
+    evaluated, errors, cameras = [], {}, {}
+    for s in progress(seqs, "evaluating sequences (monocular)", total=len(seqs)):
+        prep = prepare_mono(root, s, boxes, camera, noise)
+        sc, cam = mono_scenario(prep, cfg, camera)
+        ev, err = score_sequence(prep, sc, rule, not cfg.report_predicted)
+        evaluated.append(ev)
+        errors[prep.name] = err
+        cameras[prep.name] = _camera_summary(cam, prep)
+    rows = evaluate_sequences(evaluated, rule)
+    for name, row in rows.items():
+        if name in errors:
+            row["position_error"] = errors[name]
+            row["camera"] = cameras[name]
+    return {
+        "match": match,
+        "match_rule": rule.describe(),
+        "hypotheses": f"monocular path on {boxes} 2D boxes, camera {camera}",
+        "tracker": asdict(cfg),
+        "noise": asdict(noise or LabelNoise()) if boxes == "labels-noisy" else None,
+        "sequences": rows,
+        "paper": {f"{s:04d}": PAPER_TABLE[s] for s in seqs if s in PAPER_TABLE},
+        "notes": [],
+    }
+
+
+def _camera_summary(cam: Camera, prep: MonoSequence) -> dict[str, Any]:
+    true = prep.camera
+    out: dict[str, Any] = {
+        "fy": round(cam.fy, 1), "fy_true": round(true.fy, 1), "height_m": round(cam.height_m, 3),
+        "horizon_v": round(cam.cy - cam.fy * math.tan(cam.pitch_rad), 1),
+        "sources": [cam.intrinsics_source, cam.pitch_source, cam.height_source],
+    }  # fmt: skip
+    if prep.calibration is not None:
+        out["self_calibration"] = prep.calibration.summary()
+    return out
+
+
+def quick_mota(
+    preps: list[MonoSequence], config: MonoTracking, camera: str = "kitti", cache: dict | None = None
+) -> tuple[float, dict]:
+    """Combined MOTA (percent) of ``config`` over prepared sequences, CLEAR only (for tuning);
+    ``cache`` (a dict) keeps image tracks per sequence and tracker setting between calls."""
+    rule = match_rule("distance")
+    key = (config.min_score, config.new_track_score, config.min_hits, config.max_age_s, config.min_iou)
+    evs = []
+    for p in preps:
+        tracks = None
+        if cache is not None:
+            tracks = cache.get((p.name, key))
+            if tracks is None:
+                tracks = cache[(p.name, key)] = image_tracks(p, config)
+        sc = mono_scenario(p, config, camera, tracks)[0]
+        evs.append(score_sequence(p, sc, rule, not config.report_predicted)[0])
+    res = clear_only(evs, rule)
+    return 100 * float(res["combined"]["MOTA"]), res
