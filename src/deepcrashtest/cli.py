@@ -235,6 +235,12 @@ def extract(
     shots: bool = typer.Option(
         True, "--shots/--no-shots", help="Find shot cuts first: a compilation gives one scenario per shot."
     ),
+    crash: str | None = typer.Option(
+        None,
+        "--crash",
+        help="The crash, overriding its detection: FRAME[:ID,ID] (0-based frame; track ids as in tracks.csv "
+        "and the annotated video, 'ego' allowed; FRAME alone = the likeliest pair there), e.g. 95:ego,7.",
+    ),
     force: bool = ForceOpt,
     seed: int = SeedOpt,
     as_json: bool = JsonOpt,
@@ -273,6 +279,7 @@ def extract(
         report=report,
         seed=seed,
         shots=shots,
+        crash=crash,
     )
     emit(result, as_json, _extract_summary)
 
@@ -302,6 +309,14 @@ def _extract_summary(r: dict[str, Any]) -> None:
             typer.echo(f"wrote {r[key]}")
     if r.get("classes"):
         typer.echo("classes: " + ", ".join(f"{k} {v}" for k, v in r["classes"].items()))
+    det = r.get("crash_detection")
+    if det is not None:
+        typer.echo(
+            f"crash ({det['source']}): frame {det['frame']}, {' and '.join(str(v) for v in det['pair'])}, "
+            f"confidence {det['confidence']}"
+            if det.get("found")
+            else "crash: none found in the video (stage 2 keeps every road user apart; give one with --crash)"
+        )
     if r.get("collision"):
         c = r["collision"]
         pair = " with ".join("ego" if v == 0 else f"road user {v}" for v in (c.get("other_id", 0), c["agent_id"]))

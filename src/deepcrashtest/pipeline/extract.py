@@ -20,7 +20,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import closing
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -31,10 +31,12 @@ from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import atomic_path, check_writable, ensure_output_dir
 from deepcrashtest.geometry.camera import default_camera
 from deepcrashtest.perception.annotate import Annotator
+from deepcrashtest.perception.crash_detect import GlobalMotion
 from deepcrashtest.perception.detect import DEFAULT_DETECTOR, make_detector
 from deepcrashtest.perception.detections import Detector
 from deepcrashtest.perception.lanes import LaneState, draw_lanes
 from deepcrashtest.perception.track import FrameTracks, frame_records, iter_tracks, records_table
+from deepcrashtest.pipeline.crash import CrashSpec, crash_for_raw, parse_crash
 from deepcrashtest.pipeline.geometry_pass import GeometryResult, extract_geometry
 from deepcrashtest.pipeline.threads import Worker, prefetch
 from deepcrashtest.scenario import Camera, VideoSource
@@ -67,6 +69,7 @@ def run_extract(
     seed: int = 0,
     shots: bool = True,
     frame_range: tuple[int, int] | None = None,
+    crash: str | None = None,
 ) -> dict[str, Any]:
     """Extract a video in ONE decoding pass: detect + track, ego-motion, lanes, localisation.
 
@@ -80,7 +83,12 @@ def run_extract(
     ``report.html``. ``camera`` defaults to :func:`deepcrashtest.geometry.camera.default_camera`
     (horizon from the lanes' vanishing point or the flow's focus of expansion); a callable gets the
     video's width and height and returns the Camera. Returns a summary.
+
+    The crash (:mod:`deepcrashtest.pipeline.crash`): detected from image evidence in the same pass,
+    or ``crash`` = ``"FRAME[:ID,ID]"`` (the user's, ids as in tracks.csv, ``ego`` allowed); it is the
+    raw scenario's ``collision`` and stage 2 makes it happen.
     """
+    crash_spec = parse_crash(crash) if crash is not None else None
     _check_options(detect_every, max_frames)
     src_path, out = Path(video), Path(output)
     paths = _output_paths(src_path, out, annotate, geometry, report, force)
@@ -91,7 +99,7 @@ def run_extract(
         if len(found) > 1:
             options = dict(detector=detector, detect_every=detect_every, fps=fps, annotate=annotate, geometry=geometry)
             options |= dict(camera=camera, dashboard_rows=dashboard_rows, lanes=lanes, report=report, seed=seed)
-            return _extract_shots(src_path, out, found, force, options)
+            return _extract_shots(src_path, out, found, force, options, crash_spec)
     det = make_detector(detector)
     if geometry:
         _warm_imports(WARM_IMPORTS + (("deepcrashtest.viz.report", "matplotlib.figure") if report else ()))
@@ -103,9 +111,13 @@ def run_extract(
     if meta.decoded_frames == 0:
         raise UserError(f"{src_path}: no frame could be decoded")
     df = records_table(records).sort_values(["frame", "track_id"], ignore_index=True)
+    crash_info: dict[str, Any] | None = None
+    if geo is not None:  # before anything is written: a bad --crash id refuses the whole set
+        geo.scenario, crash_info = crash_for_raw(geo.scenario, df, plan.motion.arrays(), crash_spec)
     with atomic_path(paths["tracks_csv"], force=force) as tmp:
         df.to_csv(tmp, index=False, float_format="%.3f")
     result = _summary(plan, meta, df, elapsed)
+    result["crash_detection"] = crash_info
     if geo is not None:
         result.update(_finish_scenario(geo, paths, force, seed, report, result["warnings"]))
     return result
@@ -187,6 +199,8 @@ class _Pass:
     force: bool
     frame_range: tuple[int, int] | None
     seed: int
+    motion: GlobalMotion = field(default_factory=GlobalMotion)
+    """The camera's global image motion per frame (the ego's jolt, for crash detection)."""
 
     def run(
         self,
@@ -257,6 +271,7 @@ class _Pass:
                 yield ft.frame, records_table(rows)
 
         def on_frame(frame: Any, _trk: pd.DataFrame, lane_state: LaneState | None) -> None:
+            self.motion.update(int(frame.index), frame.image)
             draw(pending.pop(int(frame.index)), lane_state)
 
         return extract_geometry(
@@ -352,7 +367,9 @@ def _in_range(frames: Iterable[Frame], frame_range: tuple[int, int] | None) -> I
         yield frame
 
 
-def _extract_shots(video: Path, out: Path, shots: list[Shot], force: bool, options: dict[str, Any]) -> dict[str, Any]:
+def _extract_shots(
+    video: Path, out: Path, shots: list[Shot], force: bool, options: dict[str, Any], crash: CrashSpec | None = None
+) -> dict[str, Any]:
     """A compilation: one extraction per shot into ``out/shot_NN/``; shots shorter than
     ``MIN_EXTRACT_SHOT_S`` are skipped with a warning (too short for ego-motion and tracks)."""
     from deepcrashtest.video.shots import cut_times
@@ -367,7 +384,13 @@ def _extract_shots(video: Path, out: Path, shots: list[Shot], force: bool, optio
             warnings.append(f"{name}: {span} is shorter than {MIN_EXTRACT_SHOT_S} s; not extracted")
             continue
         res = run_extract(
-            video, out / name, force=force, shots=False, frame_range=(shot.first_frame, shot.last_frame), **options
+            video,
+            out / name,
+            force=force,
+            shots=False,
+            frame_range=(shot.first_frame, shot.last_frame),
+            crash=crash.text if crash is not None and shot.first_frame <= crash.frame <= shot.last_frame else None,
+            **options,
         )
         results.append({"shot": name, "first_frame": shot.first_frame, "last_frame": shot.last_frame, **res})
     return {
