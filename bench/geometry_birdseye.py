@@ -25,7 +25,7 @@ import numpy as np
 import pandas as pd
 
 from deepcrashtest.geometry.camera import calibrate_chessboard, default_camera, scale_camera
-from deepcrashtest.geometry.extract_geometry import extract_geometry
+from deepcrashtest.pipeline.geometry_pass import extract_geometry
 
 
 @dataclass

@@ -23,10 +23,10 @@ from deepcrashtest.geometry.camera import (
     undistort,
 )
 from deepcrashtest.geometry.egomotion import EgoMotion, EgoMotionEstimator
-from deepcrashtest.geometry.extract_geometry import extract_geometry
 from deepcrashtest.geometry.frames import camera_forward_yaw, camera_points_to_world
 from deepcrashtest.geometry.localize import DepthMapLocalizer, GroundPlaneLocalizer
 from deepcrashtest.geometry.world_tracks import FRAME_RATE_NOTE, raw_scenario_from_tracks
+from deepcrashtest.pipeline.geometry_pass import extract_geometry
 from deepcrashtest.scenario import Camera, Scenario
 
 ODO = DATA / "kitti_odometry"

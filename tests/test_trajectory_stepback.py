@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from deepcrashtest.errors import UserError
+from deepcrashtest.trajectory.params import Stage2Params
 from deepcrashtest.trajectory.pipeline import process_scenario
 from deepcrashtest.trajectory.stepback import distance_from_rest, plan_step_back, step_back_prefix
 from trajectory_cases import CLASS_CASES, raw_scenario, track, vehicle
@@ -62,9 +63,11 @@ def test_prefix_reaches_the_first_observed_positions_together():
 
 def test_processed_scenario_starts_at_rest_and_reproduces_the_first_frame():
     agents = [CLASS_CASES[c] for c in ("D0T1", "D1T1", "D1T2")]
-    agents.append(vehicle(9, track(lambda t: (35 + 14 * t, 3.5 + 0 * t), 0, 100)))  # faster car ahead
+    # faster car ahead, in the right lane (in the left one it would drive through the oncoming D1T1,
+    # a contact stage 2 now removes)
+    agents.append(vehicle(9, track(lambda t: (35 + 14 * t, -3.5 + 0 * t), 0, 100)))
     raw = raw_scenario(agents)
-    sc = process_scenario(raw)
+    sc = process_scenario(raw, params=Stage2Params(stepback_max_s=10.0))  # uncapped: all from rest
     t_max = sc.provenance.parameters["t_max_s"]
     assert t_max == pytest.approx(14.0 / 3.0, abs=0.02)
     for v in sc.vehicles():

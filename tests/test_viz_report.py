@@ -36,8 +36,9 @@ SAMPLE_VIDEO = Path(__file__).resolve().parents[1] / "examples" / "highway_sampl
 
 
 def _pngs(html_text: str) -> list[np.ndarray]:
+    """The embedded pictures (PNG plots; the contact sheet is a JPEG)."""
     out = []
-    for b64 in re.findall(r'src="data:image/png;base64,([A-Za-z0-9+/=]+)"', html_text):
+    for b64 in re.findall(r'src="data:image/(?:png|jpeg);base64,([A-Za-z0-9+/=]+)"', html_text):
         img = cv2.imdecode(np.frombuffer(base64.b64decode(b64), np.uint8), cv2.IMREAD_COLOR)
         assert img is not None
         out.append(img)

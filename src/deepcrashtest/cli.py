@@ -22,6 +22,7 @@ from typer._click import exceptions as click_exc  # typer >= 0.29 vendors its ow
 
 from deepcrashtest import __version__
 from deepcrashtest.errors import UserError
+from deepcrashtest.perception.detect import DEFAULT_DETECTOR, DETECTOR_HELP
 from deepcrashtest.ui import console_err, set_quiet
 
 app = typer.Typer(
@@ -60,6 +61,12 @@ def _root(
 ) -> None:
     _STATE["debug"] = debug
     set_quiet(quiet)
+
+
+def _quiet_if_json(as_json: bool) -> None:
+    """No progress bar when the output is one JSON object (the bar also hides when stderr is no terminal)."""
+    if as_json:
+        set_quiet(True)
 
 
 def emit(result: dict[str, Any], as_json: bool, human: Callable[[dict[str, Any]], None] | None = None) -> None:
@@ -210,9 +217,7 @@ def extract(
     video: Path = typer.Argument(..., help="Video file (mp4/mov/avi/mkv) or image folder."),
     output: Path = typer.Option(..., "-o", "--output", help="Output folder."),
     fps: float | None = typer.Option(None, "--fps", help="Frame rate (required for image folders)."),
-    detector: str = typer.Option(
-        "ssd-mobilenet", "--detector", help="ssd-mobilenet[:tiles=N,score=S,input=WxH] | onnx:PATH (YOLO ONNX)."
-    ),
+    detector: str = typer.Option(DEFAULT_DETECTOR, "--detector", help=DETECTOR_HELP),
     detect_every: int = typer.Option(5, "--detect-every", help="Run the detector every N frames; track between."),
     max_frames: int | None = typer.Option(None, "--max-frames", help="Stop after this many frames."),
     camera: Path | None = typer.Option(None, "--camera", help="Camera YAML: fx, fy, cx, cy [, height_m, ...]."),
@@ -230,11 +235,18 @@ def extract(
     shots: bool = typer.Option(
         True, "--shots/--no-shots", help="Find shot cuts first: a compilation gives one scenario per shot."
     ),
+    crash: str | None = typer.Option(
+        None,
+        "--crash",
+        help="The crash, overriding its detection: FRAME[:ID,ID] (0-based frame; track ids as in tracks.csv "
+        "and the annotated video, 'ego' allowed; FRAME alone = the likeliest pair there), e.g. 95:ego,7.",
+    ),
     force: bool = ForceOpt,
     seed: int = SeedOpt,
     as_json: bool = JsonOpt,
 ) -> None:
     """Stage 1 + 2: detect, track, ego-motion, lanes, 3D positions -> tracks.csv, annotated.mp4, scenario.json."""
+    _quiet_if_json(as_json)
     from functools import partial
 
     from deepcrashtest.fileio import require_file
@@ -267,6 +279,7 @@ def extract(
         report=report,
         seed=seed,
         shots=shots,
+        crash=crash,
     )
     emit(result, as_json, _extract_summary)
 
@@ -296,6 +309,14 @@ def _extract_summary(r: dict[str, Any]) -> None:
             typer.echo(f"wrote {r[key]}")
     if r.get("classes"):
         typer.echo("classes: " + ", ".join(f"{k} {v}" for k, v in r["classes"].items()))
+    det = r.get("crash_detection")
+    if det is not None:
+        typer.echo(
+            f"crash ({det['source']}): frame {det['frame']}, {' and '.join(str(v) for v in det['pair'])}, "
+            f"confidence {det['confidence']}"
+            if det.get("found")
+            else "crash: none found in the video (stage 2 keeps every road user apart; give one with --crash)"
+        )
     if r.get("collision"):
         c = r["collision"]
         pair = " with ".join("ego" if v == 0 else f"road user {v}" for v in (c.get("other_id", 0), c["agent_id"]))
@@ -399,6 +420,7 @@ def search(
 
     Defaults in brackets come from ``SearchConfig``; a ``--config`` file's ``search:`` section overrides them.
     """
+    _quiet_if_json(as_json)
     from deepcrashtest.config import load_config
     from deepcrashtest.search.run import run_search
 
@@ -511,6 +533,7 @@ def evaluate_kitti(
     as_json: bool = JsonOpt,
 ) -> None:
     """CLEAR-MOT of the tracker on KITTI tracking, in world coordinates."""
+    _quiet_if_json(as_json)
     from deepcrashtest.eval.kitti import evaluate_kitti as run_eval
     from deepcrashtest.eval.kitti import parse_sequences, results_markdown
 
@@ -589,6 +612,7 @@ def evaluate_egomotion(
     as_json: bool = JsonOpt,
 ) -> None:
     """Monocular ego-motion speed error and yaw drift against ground-truth poses."""
+    _quiet_if_json(as_json)
     from deepcrashtest.eval.egomotion import evaluate_egomotion as run
 
     if not data.is_dir():
@@ -676,6 +700,7 @@ def batch(
 
     A failed input is recorded and the batch goes on; the exit code is 1 when any input failed.
     """
+    _quiet_if_json(as_json)
     from deepcrashtest.config import load_config
     from deepcrashtest.pipeline.batch import run_batch
 

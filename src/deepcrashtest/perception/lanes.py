@@ -32,7 +32,6 @@ import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial.distance import directed_hausdorff
-from sklearn.cluster import DBSCAN
 
 from deepcrashtest.scenario import Camera
 
@@ -191,6 +190,8 @@ class ClassicalLaneDetector:
             keep = rng.choice(len(us), 5000, replace=False)
             us, vs = us[keep], vs[keep]
         pts = np.column_stack([us, (vs + r0) * 0.35]).astype(float)
+        from sklearn.cluster import DBSCAN  # imported on first use: ~1 s of CPU (pipeline/extract warms it)
+
         labels = DBSCAN(eps=4.0, min_samples=6).fit_predict(pts)
         top, bottom = self.roi_rows(h)
         lines: list[LaneLine] = []

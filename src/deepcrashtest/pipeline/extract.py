@@ -3,48 +3,51 @@
 A fast scan for shot cuts comes first (a compilation gives one extraction per shot, never one scenario
 across a cut: :mod:`deepcrashtest.video.shots`).
 
-Stage 1a (this module today): detect + track vehicles, draw them. Later stages hook into the same
-pass through ``on_frame`` callbacks and add their outputs after tracking (see the marked place).
+Phases of :func:`run_extract`: check the options and outputs, (shot scan,) the one decoding pass
+(:class:`_Pass`), tracks.csv, the summary, then stage 2 and the report (:func:`_finish_scenario`).
+The pass is pipelined, one thread per stage with bounded queues between: decode | detect + track |
+ego-motion (+ lanes in a second thread, :mod:`.geometry_pass`) | draw + H.264 encode. Decoding,
+onnxruntime, OpenCV and the encoder release the GIL, so two cores stay busy; results are the same as
+a sequential run (each stage sees the frames in order).
 """
 
 from __future__ import annotations
 
 import contextlib
+import gc
+import importlib
+import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
+from contextlib import closing
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from deepcrashtest.errors import UserError, check_seed
-from deepcrashtest.fileio import atomic_path, output_set, restage_paths
+from deepcrashtest.errors import UserError
+from deepcrashtest.fileio import atomic_path, check_writable, ensure_output_dir
 from deepcrashtest.geometry.camera import default_camera
-from deepcrashtest.geometry.extract_geometry import GeometryResult, extract_geometry
 from deepcrashtest.perception.annotate import Annotator
-from deepcrashtest.perception.detect import make_detector
+from deepcrashtest.perception.crash_detect import GlobalMotion
+from deepcrashtest.perception.detect import DEFAULT_DETECTOR, make_detector
+from deepcrashtest.perception.detections import Detector
 from deepcrashtest.perception.lanes import LaneState, draw_lanes
 from deepcrashtest.perception.track import FrameTracks, frame_records, iter_tracks, records_table
+from deepcrashtest.pipeline.crash import CrashSpec, crash_for_raw, parse_crash
+from deepcrashtest.pipeline.geometry_pass import GeometryResult, extract_geometry
+from deepcrashtest.pipeline.threads import Worker, prefetch
 from deepcrashtest.scenario import Camera, VideoSource
-from deepcrashtest.trajectory.pipeline import process_scenario
 from deepcrashtest.ui import track as progress
 from deepcrashtest.video.shots import Shot
 from deepcrashtest.video.source import Frame, VideoMeta, open_video
 from deepcrashtest.video.writer import VideoWriter
 
-DEFAULT_DETECTOR = "ssd-mobilenet"
-#: Every file ``extract`` may write into its output folder (one set per run: see fileio.output_set).
-OUTPUT_FILES = {
-    "tracks_csv": "tracks.csv",
-    "annotated_mp4": "annotated.mp4",
-    "scenario_raw": "scenario_raw.json",
-    "scenario": "scenario.json",
-    "report": "report.html",
-}
-#: ... and a compilation's shot folders (``shot_NN``): a new run replaces every one of an older run.
-OUTPUT_NAMES = [*OUTPUT_FILES.values(), *(f"shot_{i:02d}" for i in range(1, 100))]
 DEFAULT_DETECT_EVERY = 5
+#: Modules of the later phases imported in the background at the start (:func:`_warm_imports`).
+WARM_IMPORTS = ("sklearn.cluster", "deepcrashtest.geometry.world_tracks", "deepcrashtest.trajectory.pipeline")
 #: Shots of a compilation shorter than this (seconds) are not extracted.
 MIN_EXTRACT_SHOT_S = 1.0
 
@@ -66,6 +69,7 @@ def run_extract(
     seed: int = 0,
     shots: bool = True,
     frame_range: tuple[int, int] | None = None,
+    crash: str | None = None,
 ) -> dict[str, Any]:
     """Extract a video in ONE decoding pass: detect + track, ego-motion, lanes, localisation.
 
@@ -79,127 +83,225 @@ def run_extract(
     ``report.html``. ``camera`` defaults to :func:`deepcrashtest.geometry.camera.default_camera`
     (horizon from the lanes' vanishing point or the flow's focus of expansion); a callable gets the
     video's width and height and returns the Camera. Returns a summary.
+
+    The crash (:mod:`deepcrashtest.pipeline.crash`): detected from image evidence in the same pass,
+    or ``crash`` = ``"FRAME[:ID,ID]"`` (the user's, ids as in tracks.csv, ``ego`` allowed); it is the
+    raw scenario's ``collision`` and stage 2 makes it happen.
     """
-    check_seed(seed)
-    if detect_every < 1:
-        raise UserError(f"--detect-every must be >= 1 (got {detect_every})")
-    if max_frames is not None and max_frames < 1:
-        raise UserError(f"--max-frames must be >= 1 (got {max_frames})")
-    src_path = Path(video)
-    if not src_path.exists():
-        raise UserError(f"{src_path}: no such video file or image folder")
-    out = Path(output)
-    with output_set(out, OUTPUT_NAMES, force) as stage:  # the whole set of one run, or nothing
-        found = _shots(src_path, fps, max_frames) if shots and frame_range is None else []
+    crash_spec = parse_crash(crash) if crash is not None else None
+    _check_options(detect_every, max_frames)
+    src_path, out = Path(video), Path(output)
+    paths = _output_paths(src_path, out, annotate, geometry, report, force)
+    if shots and frame_range is None:
+        from deepcrashtest.video.shots import detect_shots
+
+        found = detect_shots(src_path, fps, max_frames)
         if len(found) > 1:
             options = dict(detector=detector, detect_every=detect_every, fps=fps, annotate=annotate, geometry=geometry)
             options |= dict(camera=camera, dashboard_rows=dashboard_rows, lanes=lanes, report=report, seed=seed)
-            result = restage_paths(_extract_shots(src_path, stage, found, False, options), stage, out)
-        else:
-            result = _extract(src_path, out, stage, detector, detect_every, max_frames, fps, annotate, geometry,
-                              camera, dashboard_rows, lanes, report, seed, frame_range)  # fmt: skip
-    return result
-
-
-def _shots(src_path: Path, fps: float | None, max_frames: int | None) -> list[Shot]:
-    from deepcrashtest.video.shots import detect_shots
-
-    return detect_shots(src_path, fps, max_frames)
-
-
-def _extract(
-    src_path: Path,
-    out: Path,
-    stage: Path,
-    detector: str,
-    detect_every: int,
-    max_frames: int | None,
-    fps: float | None,
-    annotate: bool,
-    geometry: bool,
-    camera: Camera | Callable[[int, int], Camera] | None,
-    dashboard_rows: int | None,
-    lanes: bool,
-    report: bool,
-    seed: int,
-    frame_range: tuple[int, int] | None,
-) -> dict[str, Any]:
-    """:func:`run_extract` of one shot writing into the staging folder ``stage``; result paths name ``out``."""
-    paths = {key: stage / name for key, name in OUTPUT_FILES.items()}
-    final = {key: out / name for key, name in OUTPUT_FILES.items()}
-    force = False  # the staging folder starts empty
+            return _extract_shots(src_path, out, found, force, options, crash_spec)
     det = make_detector(detector)
+    if geometry:
+        _warm_imports(WARM_IMPORTS + (("deepcrashtest.viz.report", "matplotlib.figure") if report else ()))
     t0 = time.perf_counter()
-    records: list[tuple[object, ...]] = []
-    geo: GeometryResult | None = None
-    with open_video(src_path, fps) as source, contextlib.ExitStack() as stack:
-        meta = source.meta
-        total = min(meta.frame_count, max_frames) if max_frames else meta.frame_count
-        if frame_range is not None:
-            total = min(total or frame_range[1] + 1, frame_range[1] + 1) - frame_range[0]
-        frames = progress(_in_range(source, frame_range), "extract", total=total or None)
-        writer = (
-            stack.enter_context(VideoWriter(paths["annotated_mp4"], meta.fps, meta.width, meta.height, force=force))
-            if annotate
-            else None
-        )
-        drawer = Annotator(meta.fps)
-        tracked = iter_tracks(frames, det, detect_every, max_frames, fps=meta.fps)
-        if not geometry:
-            for ft in tracked:
-                records.extend(frame_records(ft))
-                if writer is not None:
-                    writer.write(drawer.draw(ft))
-        else:
-            pending: dict[int, FrameTracks] = {}
-
-            def pairs() -> Iterator[tuple[Any, pd.DataFrame]]:
-                for ft in tracked:
-                    rows = frame_records(ft)
-                    records.extend(rows)
-                    pending[ft.frame.index] = ft
-                    yield ft.frame, records_table(rows)
-
-            def on_frame(frame: Any, _trk: pd.DataFrame, lane_state: LaneState | None) -> None:
-                ft = pending.pop(int(frame.index))
-                if writer is not None:
-                    img = drawer.draw(ft)
-                    writer.write(draw_lanes(img, lane_state) if lane_state is not None else img)
-
-            if callable(camera):
-                cam = camera(meta.width, meta.height)
-            else:
-                cam = camera or default_camera(meta.width, meta.height)
-            geo = extract_geometry(
-                pairs(),
-                _video_source(meta),
-                cam,
-                dashboard_rows=dashboard_rows,
-                lanes=lanes,
-                name=src_path.stem,
-                seed=seed,
-                on_frame=on_frame,
-            )
+    plan = _Pass(src_path, out, paths, det, detect_every, max_frames, fps, force, frame_range, seed)
+    with _few_gc_passes():
+        records, geo, meta = plan.run(camera, dashboard_rows, geometry, lanes)
     elapsed = time.perf_counter() - t0
     if meta.decoded_frames == 0:
         raise UserError(f"{src_path}: no frame could be decoded")
     df = records_table(records).sort_values(["frame", "track_id"], ignore_index=True)
+    crash_info: dict[str, Any] | None = None
+    if geo is not None:  # before anything is written: a bad --crash id refuses the whole set
+        geo.scenario, crash_info = crash_for_raw(geo.scenario, df, plan.motion.arrays(), crash_spec)
     with atomic_path(paths["tracks_csv"], force=force) as tmp:
         df.to_csv(tmp, index=False, float_format="%.3f")
+    result = _summary(plan, meta, df, elapsed)
+    result["crash_detection"] = crash_info
+    if geo is not None:
+        result.update(_finish_scenario(geo, paths, force, seed, report, result["warnings"]))
+    return result
 
-    n_frames = min(meta.decoded_frames, max_frames) if max_frames else meta.decoded_frames
-    if frame_range is not None:
-        n_frames = min(meta.decoded_frames - frame_range[0], frame_range[1] - frame_range[0] + 1)
-        n_frames = min(n_frames, max_frames) if max_frames else n_frames
+
+def _warm_imports(modules: tuple[str, ...]) -> None:
+    """Import what the later phases need in a background thread while the frames flow.
+
+    The frame loop spends most of its time in OpenCV / onnxruntime / PyAV with the GIL released, so the
+    ~2.5 s of CPU these imports cost (scikit-learn, SciPy's signal, matplotlib) overlap it. Python's
+    import lock makes a phase that gets there first wait for the module instead of importing it twice.
+    """
+
+    def load() -> None:
+        for name in modules:
+            with contextlib.suppress(ImportError):
+                importlib.import_module(name)
+
+    threading.Thread(target=load, name="imports", daemon=True).start()
+
+
+@contextlib.contextmanager
+def _few_gc_passes() -> Iterator[None]:
+    """Fewer cyclic-GC passes during the frame loop, none over the imported modules' objects.
+
+    Profiled: the collector took ~9 % of the main thread's time, walking the long-lived objects of the
+    imports on every full pass; the loop makes few reference cycles.
+    """
+    gc.freeze()
+    threshold = gc.get_threshold()
+    gc.set_threshold(max(threshold[0], 10_000), threshold[1], threshold[2])
+    try:
+        yield
+    finally:
+        gc.set_threshold(*threshold)
+        gc.unfreeze()
+
+
+def _check_options(detect_every: int, max_frames: int | None) -> None:
+    if detect_every < 1:
+        raise UserError(f"--detect-every must be >= 1 (got {detect_every})")
+    if max_frames is not None and max_frames < 1:
+        raise UserError(f"--max-frames must be >= 1 (got {max_frames})")
+
+
+def _output_paths(
+    src_path: Path, out: Path, annotate: bool, geometry: bool, report: bool, force: bool
+) -> dict[str, Path]:
+    """The files this run writes, by key; refuses before any work, so nothing already written is lost."""
+    if not src_path.exists():
+        raise UserError(f"{src_path}: no such video file or image folder")
+    if out.exists() and not out.is_dir():
+        raise UserError(f"{out}: exists and is not a directory")
+    paths: dict[str, Path | None] = {
+        "tracks_csv": out / "tracks.csv",
+        "annotated_mp4": out / "annotated.mp4" if annotate else None,
+        "scenario_raw": out / "scenario_raw.json" if geometry else None,
+        "scenario": out / "scenario.json" if geometry else None,
+        "report": out / "report.html" if geometry and report else None,
+    }
+    wanted = {key: path for key, path in paths.items() if path is not None}
+    for path in wanted.values():
+        check_writable(path, force)
+    return wanted
+
+
+@dataclass
+class _Pass:
+    """The one decoding pass, pipelined: decode | detect + track | geometry (ego-motion, lanes) | draw +
+    encode, each in its own thread with bounded queues between (:mod:`deepcrashtest.pipeline.threads`)."""
+
+    src_path: Path
+    out: Path
+    paths: dict[str, Path]
+    det: Detector
+    detect_every: int
+    max_frames: int | None
+    fps: float | None
+    force: bool
+    frame_range: tuple[int, int] | None
+    seed: int
+    motion: GlobalMotion = field(default_factory=GlobalMotion)
+    """The camera's global image motion per frame (the ego's jolt, for crash detection)."""
+
+    def run(
+        self,
+        camera: Camera | Callable[[int, int], Camera] | None,
+        dashboard_rows: int | None,
+        geometry: bool,
+        lanes: bool,
+    ) -> tuple[list[tuple[object, ...]], GeometryResult | None, VideoMeta]:
+        """Decode, track, (geometry,) draw; returns the track records, the geometry result and the metadata."""
+        records: list[tuple[object, ...]] = []
+        with open_video(self.src_path, self.fps) as source, contextlib.ExitStack() as stack:
+            meta = source.meta
+            ensure_output_dir(self.out)
+            frames = stack.enter_context(closing(prefetch(_in_range(source, self.frame_range), 8, "decode")))
+            tracked = iter_tracks(frames, self.det, self.detect_every, self.max_frames, fps=meta.fps)
+            tracked = stack.enter_context(closing(prefetch(tracked, 8, "track")))
+            tracked = progress(tracked, "extract", total=self._total(meta))
+            draw = self._drawing(meta, stack)
+            if not geometry:
+                for ft in tracked:
+                    records.extend(frame_records(ft))
+                    draw(ft, None)
+                return records, None, meta
+            cam = camera(meta.width, meta.height) if callable(camera) else camera
+            cam = cam or default_camera(meta.width, meta.height)
+            return records, self._geometry(tracked, records, meta, cam, dashboard_rows, lanes, draw), meta
+
+    def _total(self, meta: VideoMeta) -> int | None:
+        total = min(meta.frame_count, self.max_frames) if self.max_frames else meta.frame_count
+        if self.frame_range is not None:
+            total = min(total or self.frame_range[1] + 1, self.frame_range[1] + 1) - self.frame_range[0]
+        return total or None
+
+    def _drawing(self, meta: VideoMeta, stack: contextlib.ExitStack) -> Callable[[FrameTracks, LaneState | None], None]:
+        """``draw(frame_tracks, lane_state)``: annotate and encode in a background thread (or nothing)."""
+        path = self.paths.get("annotated_mp4")
+        if path is None:
+            return lambda _ft, _lanes: None
+        writer = stack.enter_context(VideoWriter(path, meta.fps, meta.width, meta.height, force=self.force))
+        drawer = Annotator(meta.fps)
+
+        def encode(item: tuple[FrameTracks, LaneState | None]) -> None:
+            img = drawer.draw(item[0])
+            writer.write(draw_lanes(img, item[1]) if item[1] is not None else img)
+
+        worker: Worker[tuple[FrameTracks, LaneState | None]] = Worker(encode, 8, "encode")
+        stack.callback(worker.close)  # drains before the writer closes (LIFO)
+        return lambda ft, lanes: worker.submit((ft, lanes))
+
+    def _geometry(
+        self,
+        tracked: Iterable[FrameTracks],
+        records: list[tuple[object, ...]],
+        meta: VideoMeta,
+        cam: Camera,
+        dashboard_rows: int | None,
+        lanes: bool,
+        draw: Callable[[FrameTracks, LaneState | None], None],
+    ) -> GeometryResult:
+        """Ego-motion, lanes and localisation over the tracked frames (:mod:`.geometry_pass`)."""
+        pending: dict[int, FrameTracks] = {}
+
+        def pairs() -> Iterator[tuple[Any, pd.DataFrame]]:
+            for ft in tracked:
+                rows = frame_records(ft)
+                records.extend(rows)
+                pending[ft.frame.index] = ft
+                yield ft.frame, records_table(rows)
+
+        def on_frame(frame: Any, _trk: pd.DataFrame, lane_state: LaneState | None) -> None:
+            self.motion.update(int(frame.index), frame.image)
+            draw(pending.pop(int(frame.index)), lane_state)
+
+        return extract_geometry(
+            pairs(),
+            _video_source(meta),
+            cam,
+            dashboard_rows=dashboard_rows,
+            lanes=lanes,
+            name=self.src_path.stem,
+            seed=self.seed,
+            on_frame=on_frame,
+        )
+
+
+def _summary(plan: _Pass, meta: VideoMeta, df: pd.DataFrame, elapsed: float) -> dict[str, Any]:
+    """The run's summary (what ``--json`` prints) before stage 2."""
+    n_frames = min(meta.decoded_frames, plan.max_frames) if plan.max_frames else meta.decoded_frames
+    if plan.frame_range is not None:
+        first, last = plan.frame_range
+        n_frames = min(meta.decoded_frames - first, last - first + 1)
+        n_frames = min(n_frames, plan.max_frames) if plan.max_frames else n_frames
     lengths = df.groupby("track_id").size() if len(df) else None
-    warnings = list(meta.warnings)
-    result: dict[str, Any] = {
-        "video": str(src_path),
-        "output": str(out),
-        "tracks_csv": str(final["tracks_csv"]),
-        "annotated_mp4": str(final["annotated_mp4"]) if annotate else None,
-        "detector": getattr(det, "name", detector),
-        "detect_every": detect_every,
+    video = plan.paths.get("annotated_mp4")
+    return {
+        "video": str(plan.src_path),
+        "output": str(plan.out),
+        "tracks_csv": str(plan.paths["tracks_csv"]),
+        "annotated_mp4": str(video) if video is not None else None,
+        "detector": plan.det.name,
+        "detect_every": plan.detect_every,
         "fps_video": round(meta.fps, 3),
         "width": meta.width,
         "height": meta.height,
@@ -211,16 +313,8 @@ def _extract(
         "scenario_raw": None,
         "scenario": None,
         "report": None,
-        "warnings": warnings,
+        "warnings": list(meta.warnings),
     }
-    if len(df) == 0:
-        warnings.append("no vehicles found in the video")
-    if geo is not None:
-        result.update(_finish_scenario(geo, paths, force, seed, report, warnings))
-        for key in ("scenario_raw", "scenario", "report"):
-            if result.get(key):
-                result[key] = str(final[key])
-    return result
 
 
 def _finish_scenario(
@@ -244,13 +338,13 @@ def _finish_scenario(
         "dashboard_rows": geo.dashboard_rows,
     }
     warnings.extend(raw.warnings)
+    from deepcrashtest.trajectory.pipeline import process_scenario
+
     try:
         processed = process_scenario(raw, seed=seed)
-    except UserError as exc:  # e.g. no usable track: the run fails as a whole and writes nothing
-        raise UserError(
-            f"stage 2 could not process the extracted tracks: {exc} (nothing written; --no-geometry writes the "
-            "tracks and the annotated video alone)"
-        ) from None
+    except UserError as exc:  # e.g. no usable track: keep the raw scenario, say why
+        warnings.append(f"stage 2 could not process the extracted tracks: {exc}")
+        return info
     processed.save(paths["scenario"], force=force)
     info["scenario"] = str(paths["scenario"])
     info["collision"] = processed.collision.model_dump() if processed.collision is not None else None
@@ -273,7 +367,9 @@ def _in_range(frames: Iterable[Frame], frame_range: tuple[int, int] | None) -> I
         yield frame
 
 
-def _extract_shots(video: Path, out: Path, shots: list[Shot], force: bool, options: dict[str, Any]) -> dict[str, Any]:
+def _extract_shots(
+    video: Path, out: Path, shots: list[Shot], force: bool, options: dict[str, Any], crash: CrashSpec | None = None
+) -> dict[str, Any]:
     """A compilation: one extraction per shot into ``out/shot_NN/``; shots shorter than
     ``MIN_EXTRACT_SHOT_S`` are skipped with a warning (too short for ego-motion and tracks)."""
     from deepcrashtest.video.shots import cut_times
@@ -287,13 +383,15 @@ def _extract_shots(video: Path, out: Path, shots: list[Shot], force: bool, optio
         if shot.end_s - shot.start_s < MIN_EXTRACT_SHOT_S:
             warnings.append(f"{name}: {span} is shorter than {MIN_EXTRACT_SHOT_S} s; not extracted")
             continue
-        try:
-            res = run_extract(
-                video, out / name, force=force, shots=False, frame_range=(shot.first_frame, shot.last_frame), **options
-            )
-        except UserError as exc:  # one shot without a usable scenario: its folder is absent, the others go on
-            warnings.append(f"{name}: {span}: {exc}")
-            continue
+        res = run_extract(
+            video,
+            out / name,
+            force=force,
+            shots=False,
+            frame_range=(shot.first_frame, shot.last_frame),
+            crash=crash.text if crash is not None and shot.first_frame <= crash.frame <= shot.last_frame else None,
+            **options,
+        )
         results.append({"shot": name, "first_frame": shot.first_frame, "last_frame": shot.last_frame, **res})
     return {
         "video": str(video),

@@ -8,7 +8,7 @@ engine or the number of workers.
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
@@ -75,6 +75,7 @@ class Evaluator:
     duration: float | None = None  # seconds simulated (None: the whole scenario)
     chunk: int = CHUNK
     simulations: int = 0
+    on_progress: Callable[[int], None] | None = field(default=None, repr=False)  # simulations just run
     _json: str = field(default="", repr=False)
     _pool: Any = field(default=None, repr=False)
 
@@ -124,6 +125,8 @@ class Evaluator:
         out["collided"] = out["collided"].astype(bool)
         out["change"] = self.space.change(th)
         self.simulations += len(th)
+        if self.on_progress is not None:
+            self.on_progress(len(th))
         return out
 
 

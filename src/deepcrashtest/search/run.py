@@ -17,6 +17,7 @@ from deepcrashtest.search import outputs
 from deepcrashtest.search.evaluate import Evaluator
 from deepcrashtest.search.methods import CemConfig, Log, boundary_scan, cem_search, first_safe, is_safe, random_search
 from deepcrashtest.search.space import SearchSpace
+from deepcrashtest.ui import progress_bar
 
 METHODS = ("random", "cem", "both")
 OUTPUT_FILES = ("results.csv", "summary.json", "starts.png", "safe_variants", "best_vs_original.mp4")
@@ -57,6 +58,13 @@ class SearchConfig:
             raise UserError(f"--duration must be a positive number of seconds (got {self.duration})")
 
 
+def _expected_simulations(cfg: SearchConfig) -> int:
+    """About how many variants the search simulates (the progress bar's total)."""
+    random = cfg.starts * cfg.noise_variants if cfg.method in ("random", "both") else 0
+    cem = (cfg.cem_budget or cfg.starts * cfg.noise_variants) if cfg.method in ("cem", "both") else 0
+    return 1 + random + cem
+
+
 def run_search(
     scenario: Scenario,
     output: str | Path,
@@ -86,7 +94,10 @@ def _search(scenario: Scenario, out_dir: Path, cfg: SearchConfig, engine: str, w
     log = Log()
     cem_best: np.ndarray | None = None
     boundary = None
-    with Evaluator(scenario, space, cfg.controller, cfg.seed, engine, workers, cfg.duration) as ev:
+    with (
+        progress_bar("search", _expected_simulations(cfg)) as advance,
+        Evaluator(scenario, space, cfg.controller, cfg.seed, engine, workers, cfg.duration, on_progress=advance) as ev,
+    ):
         original = ev(np.zeros((1, space.dim)))
         log.add("original", 0, np.zeros((1, space.dim)), original)
         if cfg.method in ("random", "both"):

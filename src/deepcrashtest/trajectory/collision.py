@@ -13,6 +13,25 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
+MOVING_MPS = 0.3  # below this speed the heading is taken from the neighbouring samples
+
+
+def headings(t: np.ndarray, xy: np.ndarray, fallback: float, vel: np.ndarray | None = None) -> np.ndarray:
+    """Unwrapped heading (radians) of the motion; where slower than 0.3 m/s, the nearest moving sample's
+    heading (``fallback`` if it never moves)."""
+    if vel is None:
+        vel = np.column_stack([np.gradient(xy[:, 0], t), np.gradient(xy[:, 1], t)]) if len(t) > 1 else np.zeros((1, 2))
+    moving = np.hypot(vel[:, 0], vel[:, 1]) > MOVING_MPS
+    if not moving.any():
+        return np.full(len(t), fallback)
+    yaw = np.unwrap(np.arctan2(vel[moving, 1], vel[moving, 0]))
+    idx = np.nonzero(moving)[0]
+    nearest = idx[np.clip(np.searchsorted(idx, np.arange(len(t))), 0, len(idx) - 1)]
+    prev = idx[np.clip(np.searchsorted(idx, np.arange(len(t))) - 1, 0, len(idx) - 1)]
+    pick = np.where(np.abs(prev - np.arange(len(t))) < np.abs(nearest - np.arange(len(t))), prev, nearest)
+    out = yaw[np.searchsorted(idx, pick)]
+    return np.unwrap(out)
+
 
 @dataclass(frozen=True)
 class Contact:

@@ -52,9 +52,22 @@ class Stage2Params:
     overtaker_rel_accel_mps2: float = 1.0
     """D0T2: relative acceleration with which it closes in on the ego before it appears."""
     min_overtake_rel_speed_mps: float = 0.5
+    max_invented_s: float = 2.0
+    """D0T2: how long before it is first seen an overtaker is invented behind the ego, s (then it starts late)."""
     # --- step-back initialisation (trajectory.stepback)
     stepback_accel_mps2: float = 3.0
     """Acceleration a of every vehicle from rest to its first observed speed, m/s^2."""
+    stepback_max_s: float = 4.0
+    """Longest lead-in before the first frame, s: faster vehicles start moving rather than from rest."""
+    max_agent_speed_mps: float = 60.0
+    """An agent whose observed speed (90th percentile) exceeds this is localisation noise: dropped."""
+    # --- the crash (trajectory.contact)
+    crash_window_s: float = 2.0
+    """How many seconds before the crash the pair's correction may start (tried x1, x1.5, x2.25)."""
+    crash_accel_limit_mps2: float = 4.0
+    """Largest acceleration the crash correction may add on each axis (driver braking/steering)."""
+    crash_large_correction_m: float = 2.0
+    """A crash correction larger than this is warned about."""
     # --- road (trajectory.road)
     road_sigma_m: float = 0.3
     """Heavy smoothing of the ego path into the road centre line (RMS deviation), metres."""

@@ -10,11 +10,15 @@ Steps (times in seconds, world frame in metres):
 3. Extrapolate (``trajectory.extrapolate``): D0T2 before it appears; agents that leave the view
    along the road to the end; agents first seen a few frames late back to the start.
    D0T3/D1T3/D1T4 start late: ``start_delay_s == trajectory.t[0]``.
-4. Step-back (``trajectory.stepback``): vehicles present at the start are led from rest to their
-   first observed state, reached at ``t_max``; the video part is shifted by ``t_max``
-   (``provenance.parameters["t_max_s"]``).
-5. Collision: the raw scenario's (time shifted) or the first ego-agent box overlap after t_max;
-   every trajectory ends there (the simulator's physics takes over).
+4. Step-back (``trajectory.stepback``): vehicles present at the start are led from rest (or, past
+   ``stepback_max_s``, from a lower speed) to their first observed state, reached at ``t_max``;
+   the video part is shifted by ``t_max`` (``provenance.parameters["t_max_s"]``).
+5. Crash (``trajectory.crash``): the raw scenario's collision (time shifted): the pair's last
+   seconds are corrected so they first touch then (``provenance.parameters["crash"]``); every
+   other contact before it is removed (bystanders nudged or dropped). Without one, the first
+   ego-agent box overlap after t_max, unless the extraction saw no crash in the video
+   (``parameters["crash_detection"]["found"] is False``): then no contact at all. Every
+   trajectory ends at the collision (the simulator's physics takes over).
 6. Each vehicle's final path is fitted with one spline (``Vehicle.spline``, x(t), y(t)); the
    samples (t, x, y, yaw, speed) are that spline and its derivative at the sample times, with
    ``observed`` false on extrapolated and stepped-back samples.
@@ -22,14 +26,16 @@ Steps (times in seconds, world frame in metres):
 
 Time: the raw ego's first sample is video time 0; scenario time = video time + t_max.
 Input rules: the raw scenario must be ``stage="raw"`` with a finite positive fps and finite
-samples; the ego needs >= 2 samples; agent tracks shorter than ``min_track_samples`` or starting
-after the end (or the collision) are dropped with a warning in ``Scenario.warnings``.
+samples; the ego needs >= 2 samples; agent tracks shorter than ``min_track_samples``, faster than
+``max_agent_speed_mps``, starting after the end (or the collision), or whose final trajectory is
+not physically possible are dropped with a warning in ``Scenario.warnings``.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from pydantic import ValidationError
@@ -47,87 +53,32 @@ from deepcrashtest.scenario import (
     Vehicle,
     format_validation_error,
 )
-from deepcrashtest.trajectory.classify import (
-    ClassFeatures,
-    circular_mean,
-    is_oncoming,
-    is_static,
-    trajectory_class,
-)
-from deepcrashtest.trajectory.collision import BoxTrack, Contact, first_contact
-from deepcrashtest.trajectory.extrapolate import continue_after, continue_before, overtaker_relative_station
+from deepcrashtest.trajectory.collision import MOVING_MPS, first_contact, headings
+from deepcrashtest.trajectory.crash import CrashOutcome, resolve_crash
+from deepcrashtest.trajectory.dense import EPS_T, Dense, EgoFrame, agent_dense, span
 from deepcrashtest.trajectory.params import Stage2Params
 from deepcrashtest.trajectory.road import along_road, build_road, extend_head_on
 from deepcrashtest.trajectory.roadframe import RoadFrame
 from deepcrashtest.trajectory.smoothing import eval_xy, fit_xy_spline, smooth_track, spline_params
 from deepcrashtest.trajectory.stepback import plan_step_back, step_back_prefix
 
-_EPS_T = 1e-3  # seconds: samples closer than this are merged
-_MOVING_MPS = 0.3  # below this speed the heading is taken from the neighbouring samples
+__all__ = ["headings", "process_scenario"]
 
 
 @dataclass
-class _Dense:
-    """One vehicle's positions on the common time grid (video time, later scenario time)."""
+class _Run:
+    """One stage-2 run's shared inputs: the raw scenario, parameters, its first time and the warnings."""
 
-    vehicle: Vehicle
-    t: np.ndarray
-    xy: np.ndarray
-    observed: np.ndarray
-    heading: float  # fallback heading (radians): box yaw of static agents, travel direction otherwise
-    cls: str | None = None
-    static: bool = False
-    lateral_m: float = 0.0
-    feats: ClassFeatures | None = None
-    rel_t: np.ndarray = field(default_factory=lambda: np.zeros(0))  # video time, s
-    rel_s: np.ndarray = field(default_factory=lambda: np.zeros(0))  # station minus the ego's, m
+    raw: Scenario
+    p: Stage2Params
+    fps: float
+    t0: float
+    warnings: list[str]
 
-    def reclassify(self, t_end_video: float, overtake_entry_gap_m: float) -> None:
-        """An agent the ego hits has not been passed: "passed" only counts up to the collision."""
-        if self.feats is None:
-            return
-        passed = bool((self.rel_s[self.rel_t <= t_end_video + _EPS_T] < 0).any())
-        self.feats = replace(self.feats, passed=passed)
-        self.cls = trajectory_class(self.feats, overtake_entry_gap_m)
-
-    def box_track(self) -> BoxTrack:
-        return BoxTrack(self.t, self.xy[:, 0], self.xy[:, 1], headings(self.t, self.xy, self.heading), *self._size())
-
-    def _size(self) -> tuple[float, float]:
-        return self.vehicle.length, self.vehicle.width
-
-    def cut(self, t_end: float) -> None:
-        """Keep samples up to ``t_end`` (adding one exactly at ``t_end`` by interpolation)."""
-        keep = self.t < t_end - _EPS_T
-        if self.t[-1] >= t_end - _EPS_T:
-            end = np.array([[np.interp(t_end, self.t, self.xy[:, 0]), np.interp(t_end, self.t, self.xy[:, 1])]])
-            obs_end = bool(self.observed[min(int(np.searchsorted(self.t, t_end)), len(self.t) - 1)])
-            self.t = np.append(self.t[keep], t_end)
-            self.xy = np.vstack([self.xy[keep], end])
-            self.observed = np.append(self.observed[keep], obs_end)
-
-
-def headings(t: np.ndarray, xy: np.ndarray, fallback: float, vel: np.ndarray | None = None) -> np.ndarray:
-    """Unwrapped heading (radians) of the motion; where slower than 0.3 m/s, the nearest moving sample's
-    heading (``fallback`` if it never moves)."""
-    if vel is None:
-        vel = np.column_stack([np.gradient(xy[:, 0], t), np.gradient(xy[:, 1], t)]) if len(t) > 1 else np.zeros((1, 2))
-    moving = np.hypot(vel[:, 0], vel[:, 1]) > _MOVING_MPS
-    if not moving.any():
-        return np.full(len(t), fallback)
-    yaw = np.unwrap(np.arctan2(vel[moving, 1], vel[moving, 0]))
-    idx = np.nonzero(moving)[0]
-    nearest = idx[np.clip(np.searchsorted(idx, np.arange(len(t))), 0, len(idx) - 1)]
-    prev = idx[np.clip(np.searchsorted(idx, np.arange(len(t))) - 1, 0, len(idx) - 1)]
-    pick = np.where(np.abs(prev - np.arange(len(t))) < np.abs(nearest - np.arange(len(t))), prev, nearest)
-    out = yaw[np.searchsorted(idx, pick)]
-    return np.unwrap(out)
-
-
-def _span(grid: np.ndarray, a: float, b: float) -> np.ndarray:
-    """Times from ``a`` to ``b`` inclusive: both ends plus the grid points strictly between."""
-    inner = grid[(grid > a + _EPS_T) & (grid < b - _EPS_T)]
-    return np.unique(np.concatenate([[a], inner, [b]])) if b > a + _EPS_T else np.array([a])
+    @property
+    def no_crash_in_video(self) -> bool:
+        det = self.raw.provenance.parameters.get("crash_detection")
+        return isinstance(det, dict) and det.get("found") is False
 
 
 def _check_raw(raw: Scenario) -> None:
@@ -158,138 +109,223 @@ def process_scenario(raw: Scenario, seed: int = 0, params: Stage2Params | None =
 
 
 def _process_scenario(raw: Scenario, seed: int, params: Stage2Params | None) -> Scenario:
-    p = params or Stage2Params()
     _check_raw(raw)
-    fps = float(raw.source.fps)
-    dt = 1.0 / fps
-    warnings = list(raw.warnings)
-    t0 = float(raw.ego.trajectory.t[0])
+    run = _Run(raw, params or Stage2Params(), float(raw.source.fps), float(raw.ego.trajectory.t[0]), list(raw.warnings))
+    ego_frame, ego = _ego_phase(run)
+    agents = [d for a in raw.agents if (d := agent_dense(a, run.t0, ego_frame, run.p, run.warnings)) is not None]
+    t_max = _step_back_phase(run, ego, agents)
+    crash = _crash_phase(run, ego, agents, t_max)
+    vehicles = _final_phase(run, ego, crash)
+    collision = _collision_record(crash, vehicles)
+    road = _road_phase(run, ego, crash, ego_frame, t_max)
+    return _assemble(run, vehicles, road, collision, crash, t_max, seed)
 
-    # ---- ego, end time, road frame
+
+def _ego_phase(run: _Run) -> tuple[EgoFrame, Dense]:
+    """Smooth the ego on the frame grid (video time, up to the crash) and build the road frame from it."""
+    raw, p = run.raw, run.p
     e = raw.ego.trajectory.arrays()
-    ego_t = e["t"] - t0
+    ego_t = e["t"] - run.t0
     t_end = float(ego_t[-1])
     if raw.collision is not None:
-        tc = raw.collision.time_s - t0
-        if not 0 < tc <= t_end + _EPS_T:
+        tc = raw.collision.time_s - run.t0
+        if not 0 < tc <= t_end + EPS_T:
             raise UserError(f"collision.time_s {raw.collision.time_s} is outside the ego's trajectory")
         t_end = min(tc, t_end)
-    grid = _span(dt * np.arange(int(np.floor(t_end / dt + 1e-6)) + 1), 0.0, t_end)
-    ego_sm = smooth_track(ego_t, e["x"], e["y"], fps, p)
-    ego_xy = ego_sm.pos(grid)
-    ego_vel = ego_sm.vel(grid)
-    ego_heading0 = headings(grid, ego_xy, float(e["yaw"][0]), ego_vel)[0]
-    frame = RoadFrame.from_path(ego_xy, p.road_sigma_m, heading=ego_heading0)
-    s_ego = frame.project(ego_xy)[0]
-    v_ego_road = np.gradient(s_ego, grid) if len(grid) > 1 else np.zeros(1)
-    ego_speed = np.hypot(ego_vel[:, 0], ego_vel[:, 1])
+    dt = 1.0 / run.fps
+    grid = span(dt * np.arange(int(np.floor(t_end / dt + 1e-6)) + 1), 0.0, t_end)
+    ex, ey = _repair_start_jump(ego_t, e["x"], e["y"], run.warnings)
+    sm = smooth_track(ego_t, ex, ey, run.fps, p)
+    xy, vel = sm.pos(grid), sm.vel(grid)
+    heading0 = headings(grid, xy, float(e["yaw"][0]), vel)[0]
+    frame = RoadFrame.from_path(xy, p.road_sigma_m, heading=heading0)
+    s_ego = frame.project(xy)[0]
+    v_road = np.gradient(s_ego, grid) if len(grid) > 1 else np.zeros(1)
+    dense = Dense(raw.ego, grid, xy, np.ones(len(grid), bool), heading0)
+    ego_frame = EgoFrame(grid, frame, s_ego, v_road, np.hypot(vel[:, 0], vel[:, 1]), dense.box_track(), run.fps)
+    return ego_frame, dense
 
-    def ego_speed_at(tt: np.ndarray) -> np.ndarray:
-        return np.interp(tt, grid, ego_speed)
 
-    ego_dense = _Dense(raw.ego, grid, ego_xy, np.ones(len(grid), bool), ego_heading0)
-    ego_box = ego_dense.box_track()
+def _repair_start_jump(
+    t: np.ndarray, x: np.ndarray, y: np.ndarray, warnings: list[str]
+) -> tuple[np.ndarray, np.ndarray]:
+    """An ego at rest for its first samples and then at speed at once (an ego-motion warm-up, not a
+    launch no car can make) is continued back from its first moving samples at their speed."""
+    step = np.hypot(np.diff(x), np.diff(y)) / np.maximum(np.diff(t), EPS_T)
+    moving = np.nonzero(step > 0.5)[0]
+    if not len(moving) or moving[0] == 0 or len(step) < moving[0] + 3:
+        return x, y
+    k = int(moving[0])  # first moving step: samples k -> k+1
+    v = float(np.median(step[k : k + 3]))
+    if v / max(float(t[k + 1] - t[k]), EPS_T) <= MAX_ACCEL_MPS2 or step[:k].max(initial=0.0) > 0.1:
+        return x, y
+    u = np.array([x[k + 1] - x[k], y[k + 1] - y[k]]) / max(float(np.hypot(x[k + 1] - x[k], y[k + 1] - y[k])), EPS_T)
+    back = v * (t[k + 1] - t[: k + 1])
+    x, y = x.copy(), y.copy()
+    x[: k + 1] = x[k + 1] - back * u[0]
+    y[: k + 1] = y[k + 1] - back * u[1]
+    warnings.append(
+        f"ego: at rest for its first {t[k]:.1f} s, then at {v:.1f} m/s at once (ego-motion warm-up); "
+        "those seconds are continued back at that speed"
+    )
+    return x, y
 
-    # ---- agents: smooth, classify, extrapolate (video time)
-    dense: list[_Dense] = []
-    for agent in raw.agents:
-        d = _agent_dense(agent, t0, t_end, grid, fps, frame, s_ego, v_ego_road, ego_speed_at, ego_box, p, warnings)
-        if d is not None:
-            dense.append(d)
 
-    # ---- step-back
-    present = [ego_dense] + [d for d in dense if d.t[0] <= _EPS_T]
-    # guard: an implausible first speed (a jumping track) must not plan a step-back of hours; such a track
-    # fails the speed limit later and is dropped
-    v0 = np.minimum(np.array([_first_speed(d) for d in present]), MAX_SPEED_MPS)
-    plan = plan_step_back(v0, p.stepback_accel_mps2)
+def _step_back_phase(run: _Run, ego: Dense, agents: list[Dense]) -> float:
+    """Lead every vehicle present at the start in from rest (bounded lead-in); shift to scenario time."""
+    present = [ego] + [d for d in agents if d.t[0] <= EPS_T]
+    v0 = np.array([first_speed(d) for d in present])
+    plan = plan_step_back(v0, run.p.stepback_accel_mps2, run.p.stepback_max_s)
     t_max = plan.t_max
+    dt = 1.0 / run.fps
     n_pre = int(np.ceil(t_max / dt - 1e-9)) if t_max > 0 else 0
     t_pre = t_max - dt * np.arange(n_pre, 0, -1)
-    t_pre = np.concatenate([[0.0], t_pre[t_pre > _EPS_T]]) if t_max > 0 else np.zeros(0)
-    for d in [ego_dense, *dense]:
+    t_pre = np.concatenate([[0.0], t_pre[t_pre > EPS_T]]) if t_max > 0 else np.zeros(0)
+    for d in [ego, *agents]:
         d.t = d.t + t_max
-    for d, v in zip(present, v0, strict=True):
-        if t_pre.size:
-            heading = headings(d.t[:3], d.xy[:3], d.heading)[0] if v > _MOVING_MPS else d.heading
-            prefix = step_back_prefix(d.xy[0], heading, float(v), plan, t_pre)
-            d.t = np.concatenate([t_pre, d.t])
-            d.xy = np.vstack([prefix, d.xy])
-            d.observed = np.concatenate([np.zeros(len(t_pre), bool), d.observed])
+    if t_pre.size:
+        for d, v in zip(present, v0, strict=True):
+            heading = headings(d.t[:3], d.xy[:3], d.heading)[0] if v > MOVING_MPS else d.heading
+            d.prepend(t_pre, step_back_prefix(d.xy[0], heading, float(v), plan, t_pre))
+    return t_max
 
-    # ---- collision and the end of every trajectory
-    collision = _collision(raw, ego_dense, dense, t0, t_max)
-    if collision is not None:
-        for d in [ego_dense, *dense]:
-            d.cut(collision.time_s)
-            d.reclassify(collision.time_s - t_max, p.overtake_entry_gap_m)
-        late = [d for d in dense if d.t[0] >= collision.time_s - _EPS_T]
-        for d in late:
-            warnings.append(f"agent {d.vehicle.id}: appears after the collision; dropped")
-        dense = [d for d in dense if d not in late]
-    short = [d for d in dense if len(d.t) < 2]
+
+def first_speed(d: Dense, window_s: float = 0.5) -> float:
+    """Speed (m/s) at the first sample: the median over the first ``window_s`` of finite differences
+    (robust to one noisy sample at a track's start); 0 for static agents."""
+    if d.static or len(d.t) < 2:
+        return 0.0
+    step = np.hypot(*np.diff(d.xy, axis=0).T) / np.maximum(np.diff(d.t), EPS_T)
+    first = step[: max(2, int(np.searchsorted(d.t, d.t[0] + window_s)))]
+    return float(np.median(first))
+
+
+def _crash_phase(run: _Run, ego: Dense, agents: list[Dense], t_max: float) -> CrashOutcome:
+    """The video's crash in scenario time, made to happen; every other contact before it removed."""
+    known = run.raw.collision
+    if known is not None:
+        known = known.model_copy(update={"time_s": known.time_s - run.t0 + t_max})
+    out = resolve_crash(
+        known, ego, agents, run.p, run.warnings, t_from=t_max, no_crash=known is None and run.no_crash_in_video
+    )
+    if out.collision is not None:
+        for d in out.agents:
+            d.reclassify(out.collision.time_s - t_max, run.p.overtake_entry_gap_m)
+    short = [d for d in out.agents if len(d.t) < 2]
     for d in short:
-        warnings.append(f"agent {d.vehicle.id}: fewer than 2 samples after processing; dropped")
-    dense = [d for d in dense if d not in short]
+        run.warnings.append(f"agent {d.id}: fewer than 2 samples after processing; dropped")
+    out.agents = [d for d in out.agents if d not in short]
+    return out
 
-    # ---- final splines and samples
-    ego = _final_vehicle(ego_dense, p, None)
-    agents = []
-    for d in dense:  # one implausible agent track (a monocular depth jump) must not sink the scenario
+
+def _final_phase(run: _Run, ego: Dense, crash: CrashOutcome) -> list[Vehicle]:
+    """Final splines and samples; the ego first. An agent whose path cannot be made physically
+    possible (a monocular depth jump) is dropped with a warning instead of sinking the scenario."""
+    vehicles = [_final_vehicle(ego, run.p, None)]
+    for d in crash.agents:
         try:
-            agents.append(_final_vehicle(d, p, d.cls))
-        except (UserError, ValidationError) as exc:
-            bad = f"agent {d.vehicle.id}: {format_validation_error(exc)}" if isinstance(exc, ValidationError) else exc
-            warnings.append(f"{bad}; dropped")
+            vehicles.append(_final_vehicle(d, run.p, d.cls))
+        except (UserError, ValidationError) as exc:  # a guard: an invalid agent is dropped, never an internal error
+            bad = f"agent {d.id}: {format_validation_error(exc)}" if isinstance(exc, ValidationError) else exc
+            run.warnings.append(f"{bad}; dropped")
+    kept = {v.id for v in vehicles}
+    crash.agents = [d for d in crash.agents if d.id in kept]
+    if crash.collision is not None and not set(crash.collision.participants) <= kept:
+        run.warnings.append("a participant of the collision was dropped (implausible trajectory); no collision")
+        crash.collision = None
+    return vehicles
 
-    # ---- road: from the whole processed ego path (step-back included)
-    road_frame = RoadFrame.from_path(ego_dense.xy, p.road_sigma_m, heading=ego_heading0)
+
+def _collision_record(crash: CrashOutcome, vehicles: list[Vehicle]) -> Collision | None:
+    """The collision with its impact point and relative speed from the final trajectories; the pair's
+    first contact time is recorded (``crash.record["contact_time_s"]``)."""
+    c = crash.collision
+    if c is None:
+        return None
+    byid = {v.id: v for v in vehicles}
+    a, b = (byid[i] for i in c.participants)
+    hit = first_contact(_box(a), _box(b))
+    if hit is None:
+        crash.record["contact_time_s"] = None
+        return c
+    crash.record["contact_time_s"] = round(hit.time_s, 3)
+    update: dict[str, Any] = {"relative_speed": hit.relative_speed}
+    if c.x is None or c.y is None:
+        update.update(x=hit.x, y=hit.y)
+    return c.model_copy(update=update)
+
+
+def _box(v: Vehicle):  # type: ignore[no-untyped-def]
+    from deepcrashtest.trajectory.collision import BoxTrack
+
+    a = v.trajectory.arrays()
+    return BoxTrack(a["t"], a["x"], a["y"], np.unwrap(a["yaw"]), v.length, v.width)
+
+
+def _road_phase(run: _Run, ego: Dense, crash: CrashOutcome, ego_frame: EgoFrame, t_max: float) -> Road:
+    """The road from the whole processed ego path (step-back included), continued along an oncoming
+    vehicle's path in a head-on crash; the raw lane timeline shifted to scenario time."""
+    p, raw = run.p, run.raw
+    heading0 = ego.heading
+    road_frame = RoadFrame.from_path(ego.xy, p.road_sigma_m, heading=heading0)
     source = "ego_path"
-    if collision is not None:
-        ego_id = ego_dense.vehicle.id
-        other = next((v for v in collision.participants if v != ego_id), None) if collision.involves_ego else None
-        hit = next((d for d in dense if d.vehicle.id == other), None)
+    c = crash.collision
+    if c is not None and c.involves_ego:
+        other = c.agent_id if c.other_id == ego.id else c.other_id
+        hit = next((d for d in crash.agents if d.id == other), None)
         if hit is not None and hit.cls is not None and hit.cls.startswith("D1"):
-            s_c = float(road_frame.project(np.array([[collision.x or 0.0, collision.y or 0.0]]))[0][0])
-            road_frame = extend_head_on(road_frame, s_c, hit.xy[hit.observed], p.road_sigma_m)
+            s_c = float(road_frame.project(np.array([[c.x or 0.0, c.y or 0.0]]))[0][0])
+            seen = hit.xy[hit.observed] if hit.observed.sum() >= 2 else hit.xy
+            road_frame = extend_head_on(road_frame, s_c, seen, p.road_sigma_m)
             source = "ego_path+oncoming"
     raw_road = raw.road
     if raw_road.lane_timeline is not None:
         lt = raw_road.lane_timeline
-        raw_road = raw_road.model_copy(
-            update={
-                "lane_timeline": LaneTimeline(
-                    t=[x - t0 + t_max for x in lt.t], lane_index=lt.lane_index, lateral_offset=lt.lateral_offset
-                )
-            }
+        shifted = LaneTimeline(
+            t=[x - run.t0 + t_max for x in lt.t], lane_index=lt.lane_index, lateral_offset=lt.lateral_offset
         )
-    road: Road = build_road(
-        road_frame,
-        raw_road,
-        [d.xy for d in [ego_dense, *dense]],
-        [d.lateral_m for d in dense if _lane_evidence(d, road_frame)],
-        p,
-        source,
-        warnings,
-    )
+        raw_road = raw_road.model_copy(update={"lane_timeline": shifted})
+    paths = [d.xy for d in [ego, *crash.agents]]
+    offsets = [d.lateral_m for d in crash.agents if _lane_evidence(d, road_frame)]
+    return build_road(road_frame, raw_road, paths, offsets, p, source, run.warnings)
 
+
+def _lane_evidence(d: Dense, frame: RoadFrame) -> bool:
+    """A vehicle (not a pedestrian) moving along the road: its lateral offset says where a lane is."""
+    if d.static or d.vehicle.category == "pedestrian":
+        return False
+    return along_road(frame, d.xy[d.observed] if d.observed.any() else d.xy, d.heading)
+
+
+def _assemble(
+    run: _Run,
+    vehicles: list[Vehicle],
+    road: Road,
+    collision: Collision | None,
+    crash: CrashOutcome,
+    t_max: float,
+    seed: int,
+) -> Scenario:
+    raw, p = run.raw, run.p
     params_out = dict(raw.provenance.parameters)
     params_out.update(
         {
             "t_max_s": t_max,
             "stepback_accel_mps2": p.stepback_accel_mps2,
-            "video_time_offset_s": t_max - t0,
+            "video_time_offset_s": t_max - run.t0,
             "stage2": p.as_dict(),
         }
     )
+    if crash.record:
+        params_out["crash"] = crash.record
     return Scenario(
         schema_version=raw.schema_version,
         name=raw.name,
         stage="processed",
-        source=raw.source.model_copy(update={"time_offset_s": raw.source.time_offset_s + t_max - t0}),
+        source=raw.source.model_copy(update={"time_offset_s": raw.source.time_offset_s + t_max - run.t0}),
         camera=raw.camera,
-        ego=ego,
-        agents=agents,
+        ego=vehicles[0],
+        agents=vehicles[1:],
         road=road,
         collision=collision,
         provenance=Provenance(
@@ -298,160 +334,33 @@ def _process_scenario(raw: Scenario, seed: int, params: Stage2Params | None) -> 
             seed=seed,
             history=[*raw.provenance.history, "stage 2: deepcrashtest.trajectory.pipeline.process_scenario"],
         ),
-        warnings=warnings,
+        warnings=run.warnings,
     )
 
 
-def _lane_evidence(d: _Dense, frame: RoadFrame) -> bool:
-    """A vehicle (not a pedestrian) moving along the road: its lateral offset says where a lane is."""
-    if d.static or d.vehicle.category == "pedestrian":
+def _reverses(d: Dense, vel: np.ndarray, tol_mps: float = 0.5) -> bool:
+    """True when the ego's fitted path runs backwards (against its overall travel) faster than
+    ``tol_mps`` anywhere: a spline overshoot where its track starts abruptly (agents' monocular
+    tracks wobble; a replay follows their positions, not a backward heading)."""
+    if d.static or d.vehicle.id != 0 or len(d.t) < 3:
         return False
-    return along_road(frame, d.xy[d.observed], d.heading)
+    disp = d.xy[-1] - d.xy[0]
+    norm = float(np.hypot(*disp))
+    if norm < 1.0:
+        return False
+    return bool((vel @ (disp / norm)).min() < -tol_mps)
 
 
-def _first_speed(d: _Dense) -> float:
-    """Speed (m/s) at the first sample from a one-sided 3-point difference."""
-    if d.static or len(d.t) < 3:
-        return 0.0 if d.static or len(d.t) < 2 else float(np.hypot(*(d.xy[1] - d.xy[0])) / (d.t[1] - d.t[0]))
-    h0, h1 = d.t[1] - d.t[0], d.t[2] - d.t[0]
-    # derivative at t0 of the quadratic through the first 3 samples
-    w1 = h1 / (h0 * (h1 - h0))
-    w2 = -h0 / (h1 * (h1 - h0))
-    w0 = -(w1 + w2)
-    v = w0 * d.xy[0] + w1 * d.xy[1] + w2 * d.xy[2]
-    return float(np.hypot(*v))
-
-
-def _agent_dense(
-    agent: Vehicle,
-    t0: float,
-    t_end: float,
-    grid: np.ndarray,
-    fps: float,
-    frame: RoadFrame,
-    s_ego: np.ndarray,
-    v_ego_road: np.ndarray,
-    ego_speed_at,  # type: ignore[no-untyped-def]
-    ego_box: BoxTrack,
-    p: Stage2Params,
-    warnings: list[str],
-) -> _Dense | None:
-    a = agent.trajectory.arrays()
-    t = a["t"] - t0
-    if len(t) < p.min_track_samples:
-        warnings.append(f"agent {agent.id}: {len(t)}-sample track (< {p.min_track_samples}); dropped")
-        return None
-    keep = t <= t_end + _EPS_T
-    if keep.sum() < 2 or t[0] >= t_end - _EPS_T:
-        warnings.append(f"agent {agent.id}: first seen at or after the end of the scenario; dropped")
-        return None
-    t, x, y, box_yaw = t[keep], a["x"][keep], a["y"][keep], a["yaw"][keep]
-    sm = smooth_track(t, x, y, fps, p)
-    if sm.sigma_scale > 1:
-        warnings.append(f"agent {agent.id}: noisy track, smoothed {sm.sigma_scale:g}x more strongly")
-    obs_xy = sm.pos(t)
-    in_view = bool(t[0] <= p.first_seen_tolerance_s)
-    static = is_static(t, obs_xy, p.static_speed_mps, p.static_min_displacement_m)
-    s_obs, d_obs = frame.project(obs_xy)
-    lateral = float(np.median(d_obs))
-
-    if static:
-        pos = obs_xy.mean(axis=0)
-        heading = circular_mean(box_yaw)
-        oncoming = is_oncoming(heading, float(frame.tangent(float(np.median(s_obs)))[0]))
-        s_a = float(frame.project(pos[None, :])[0][0])
-        passed = bool((s_a - s_ego < 0).any())
-        feats = ClassFeatures(oncoming, in_view, True, s_a - float(np.interp(t[0], grid, s_ego)), 0.0, passed)
-        cls = trajectory_class(feats, p.overtake_entry_gap_m)
-        observed = (grid >= t[0] - _EPS_T) & (grid <= t[-1] + _EPS_T)
-        xy_static = np.tile(pos, (len(grid), 1))
-        return _Dense(agent, grid.copy(), xy_static, observed, heading, cls, True, lateral, feats, grid, s_a - s_ego)
-
-    disp = obs_xy[-1] - obs_xy[0]
-    heading = float(np.arctan2(disp[1], disp[0]))
-    oncoming = is_oncoming(heading, float(frame.tangent(float(np.median(s_obs)))[0]))
-    t_obs = _span(grid, float(t[0]), float(t[-1]))
-    xy_obs = sm.pos(t_obs)
-    v_first, v_last = sm.vel(t[0])[0], sm.vel(t[-1])[0]
-    t_post = grid[grid > t[-1] + _EPS_T]
-    xy_post = np.zeros((0, 2))
-    if t_post.size:
-        xy_post = continue_after(
-            frame, xy_obs[-1], float(np.hypot(*v_last)), float(np.arctan2(v_last[1], v_last[0])), float(t[-1]),
-            t_post, oncoming, ego_speed_at,
-            p.ongoing_speed_ratio, p.extrapolation_accel_mps2,
-        )  # fmt: skip
-    full_t = np.concatenate([t_obs, t_post])
-    full_xy = np.vstack([xy_obs, xy_post])
-    r = frame.project(full_xy)[0] - np.interp(full_t, grid, s_ego)
-    tangent0 = float(frame.tangent(s_obs[0])[0])
-    rel_speed = float(v_first @ [math.cos(tangent0), math.sin(tangent0)]) - float(np.interp(t[0], grid, v_ego_road))
-    feats = ClassFeatures(oncoming, in_view, False, float(r[0]), rel_speed, bool((r < 0).any()))
-    cls = trajectory_class(feats, p.overtake_entry_gap_m)
-    observed = np.concatenate([np.ones(len(t_obs), bool), np.zeros(len(t_post), bool)])
-    d = _Dense(agent, full_t, full_xy, observed, heading, cls, False, lateral, feats, full_t, r)
-
-    if t_post.size:  # an extrapolation must not run into the ego
-        hit = first_contact(ego_box, d.box_track(), t_from=float(t[-1]) + _EPS_T)
-        if hit is not None:
-            keep_t = d.t <= max(float(t[-1]), hit.time_s - 1.0)
-            d.t, d.xy, d.observed = d.t[keep_t], d.xy[keep_t], d.observed[keep_t]
-            warnings.append(
-                f"agent {agent.id}: its extrapolation after leaving the view would hit the ego at "
-                f"{hit.time_s:.2f} s (video time); it leaves the scenario 1 s earlier"
-            )
-
-    t_pre = grid[grid < t[0] - _EPS_T]
-    if t_pre.size and cls == "D0T2":
-        w0 = max(rel_speed, p.min_overtake_rel_speed_mps)
-        r_pre, _gap = overtaker_relative_station(t_pre, float(t[0]), float(r[0]), w0, p.overtaker_gap_m,
-                                                 p.overtaker_rel_accel_mps2)  # fmt: skip
-        d_first = float(frame.project(xy_obs[:1])[1][0])
-        xy_pre = frame.point(np.interp(t_pre, grid, s_ego) + r_pre, d_first)
-    elif t_pre.size and in_view:
-        h_first = float(np.arctan2(v_first[1], v_first[0]))
-        xy_pre = continue_before(frame, xy_obs[0], float(np.hypot(*v_first)), h_first, float(t[0]), t_pre, oncoming)
-    else:
-        xy_pre = np.zeros((0, 2))
-    if len(xy_pre):
-        d.t = np.concatenate([t_pre, d.t])
-        d.xy = np.vstack([xy_pre, d.xy])
-        d.observed = np.concatenate([np.zeros(len(t_pre), bool), d.observed])
-    return d
-
-
-def _collision(raw: Scenario, ego: _Dense, dense: list[_Dense], t0: float, t_max: float) -> Collision | None:
-    if raw.collision is not None:
-        c = raw.collision
-        for vid in c.participants:
-            if vid != raw.ego.id and all(d.vehicle.id != vid for d in dense):
-                raise UserError(f"collision participant {vid} was dropped in stage 2 (track too short)")
-        return c.model_copy(update={"time_s": c.time_s - t0 + t_max})
-    ego_box = ego.box_track()
-    best: tuple[Contact, int] | None = None
-    for d in dense:
-        hit = first_contact(ego_box, d.box_track(), t_from=t_max)
-        if hit is not None and (best is None or hit.time_s < best[0].time_s):
-            best = (hit, d.vehicle.id)
-    if best is None:
-        return None
-    hit, agent_id = best
-    return Collision(
-        time_s=hit.time_s, agent_id=agent_id, other_id=ego.vehicle.id, x=hit.x, y=hit.y,
-        relative_speed=hit.relative_speed,
-    )  # fmt: skip
-
-
-def _final_vehicle(d: _Dense, p: Stage2Params, cls: str | None) -> Vehicle:
-    """Fit the final spline and sample it: positions, heading and speed from its derivative."""
+def _final_vehicle(d: Dense, p: Stage2Params, cls: str | None) -> Vehicle:
+    """Fit the final spline and sample it: positions, heading and speed from its derivative; a
+    stronger fit where a junction of pieces is too abrupt; refused if still not physically possible."""
     label = "ego" if cls is None else f"agent {d.vehicle.id}"
-    for scale in (1.0, 4.0, 16.0):  # a stronger final fit where a junction of pieces is too abrupt
+    for scale in (1.0, 4.0, 16.0, 64.0, 256.0):
         tck = fit_xy_spline(d.t, d.xy[:, 0], d.xy[:, 1], p.final_sigma_m * scale)
         xy = eval_xy(tck, d.t)
         vel = eval_xy(tck, d.t, der=1)
         speed = np.zeros(len(d.t)) if d.static else np.hypot(vel[:, 0], vel[:, 1])
-        if speed.max(initial=0.0) > MAX_SPEED_MPS:  # too noisy for this fit: a stronger one, else dropped
-            amax, i = float("inf"), int(np.argmax(speed))
+        if speed.max(initial=0.0) > MAX_SPEED_MPS or _reverses(d, vel):
             continue
         yaw = headings(d.t, xy, d.heading, vel)
         traj = Trajectory.from_arrays(d.t, xy[:, 0], xy[:, 1], yaw, speed, observed=d.observed)
@@ -459,21 +368,11 @@ def _final_vehicle(d: _Dense, p: Stage2Params, cls: str | None) -> Vehicle:
         if amax <= MAX_ACCEL_MPS2:
             break
     else:
-        what = (
-            f"exceeds {MAX_SPEED_MPS:.0f} m/s"
-            if math.isinf(amax)
-            else f"accelerates at {amax:.1f} m/s^2 (limit {MAX_ACCEL_MPS2})"
-        )
         raise UserError(
-            f"{label}: processed trajectory {what} at t={d.t[i]:.2f} s; the track is too noisy for the "
-            "smoothing parameters"
+            f"{label}: the processed trajectory is not physically possible (speed up to "
+            f"{speed.max(initial=0.0):.0f} m/s, acceleration limit {MAX_ACCEL_MPS2} m/s^2); the track is too noisy"
         )
-    delay = float(d.t[0]) if d.t[0] > _EPS_T else 0.0
+    delay = float(d.t[0]) if d.t[0] > EPS_T else 0.0
     return d.vehicle.model_copy(
-        update={
-            "trajectory": traj,
-            "spline": spline_params(tck),
-            "trajectory_class": cls,
-            "start_delay_s": delay,
-        }
+        update={"trajectory": traj, "spline": spline_params(tck), "trajectory_class": cls, "start_delay_s": delay}
     )

@@ -7,6 +7,10 @@ position (along its initial heading), accelerates at a for t_i and then holds v_
 vehicle is at its first observed position with its first observed speed, so the relative
 positions and speeds the video starts with are reproduced exactly at t_max. The video follows,
 shifted by t_max.
+
+A lead-in longer than ``t_cap`` (what drivers do in the seconds before a crash, not a drag race) is
+cut to ``t_cap``: vehicles faster than ``a t_cap`` then start at ``v_i - a t_cap`` instead of rest,
+so nobody is launched from far away and parked or crawling vehicles stay where they were seen.
 """
 
 from __future__ import annotations
@@ -30,30 +34,37 @@ class StepBackPlan:
     t_max: float
 
 
-def plan_step_back(speeds: np.ndarray, accel: float) -> StepBackPlan:
-    """Solve the synchronisation equations for first observed speeds ``speeds`` (m/s)."""
+def plan_step_back(speeds: np.ndarray, accel: float, t_cap: float | None = None) -> StepBackPlan:
+    """Solve the synchronisation equations for first observed speeds ``speeds`` (m/s), t_max <= ``t_cap`` (s)."""
     v = np.asarray(speeds, dtype=float)
     if not np.isfinite(accel) or accel <= 0:
         raise UserError(f"step-back acceleration must be > 0 m/s^2 (got {accel})")
     if v.size and (not np.all(np.isfinite(v)) or v.min() < 0):
         raise UserError("step-back needs finite, non-negative first speeds")
-    t_i = v / accel
-    d_i = v**2 / (2 * accel)
-    t_max = float(t_i.max()) if v.size else 0.0
+    t_max = float(v.max() / accel) if v.size else 0.0
+    if t_cap is not None:
+        t_max = min(t_max, float(t_cap))
+    v_start = np.maximum(v - accel * t_max, 0.0)
+    t_i = (v - v_start) / accel
+    d_i = (v**2 - v_start**2) / (2 * accel)
     return StepBackPlan(accel, v, t_i, d_i, d_i + (t_max - t_i) * v, t_max)
 
 
-def distance_from_rest(t: np.ndarray, v: float, accel: float) -> np.ndarray:
-    """Distance (m) covered by time ``t`` (s) starting at rest: 0.5 a t^2 until v is reached, then v t."""
+def distance_from_rest(t: np.ndarray, v: float, accel: float, v_start: float = 0.0) -> np.ndarray:
+    """Distance (m) covered by time ``t`` (s) starting at ``v_start`` (default rest): accelerating at
+    ``accel`` until v is reached, then holding v."""
     t = np.asarray(t, dtype=float)
-    t_i = v / accel
-    return np.where(t <= t_i, 0.5 * accel * t**2, v**2 / (2 * accel) + v * (t - t_i))
+    t_i = (v - v_start) / accel
+    ramp = v_start * t + 0.5 * accel * t**2
+    return np.where(t <= t_i, ramp, (v**2 - v_start**2) / (2 * accel) + v * (t - t_i))
 
 
 def step_back_prefix(first_xy: np.ndarray, heading: float, v: float, plan: StepBackPlan, t: np.ndarray) -> np.ndarray:
     """Points (N, 2) at scenario times ``t`` in [0, t_max] of a vehicle whose first observed position
     ``first_xy`` (metres), heading (radians) and speed ``v`` (m/s) are reached at t_max."""
-    D = v**2 / (2 * plan.accel) + (plan.t_max - v / plan.accel) * v
-    back = D - distance_from_rest(t, v, plan.accel)
+    v_start = max(v - plan.accel * plan.t_max, 0.0)
+    t_i = (v - v_start) / plan.accel
+    D = (v**2 - v_start**2) / (2 * plan.accel) + (plan.t_max - t_i) * v
+    back = D - distance_from_rest(t, v, plan.accel, v_start)
     u = np.array([np.cos(heading), np.sin(heading)])
     return np.asarray(first_xy, float)[None, :] - back[:, None] * u[None, :]

@@ -1,4 +1,6 @@
-"""One decoding pass: camera estimation + ego-motion + lanes + localisation -> raw Scenario.
+"""The geometry part of extract's one decoding pass: camera estimation + ego-motion + lanes +
+localisation -> raw Scenario (orchestration: it chains perception's lane detector and the geometry
+libraries; the stages themselves stay libraries).
 
 :func:`extract_geometry` consumes ``(frame, tracks_at_that_frame)`` pairs, where ``frame`` has
 ``index`` (int), ``time`` (s) and ``image`` (BGR array, full resolution) - the ``Frame`` of
@@ -9,17 +11,21 @@ The first ``calib_seconds`` of frames are buffered to estimate what the stream n
 starts: the dashboard/bonnet rows (still rows under optical flow, unless given), and the horizon
 (vanishing point of the lane lines, else the focus of expansion of the flow, else the camera's
 own pitch). Then every buffered and later frame goes through the ego-motion estimator and the
-lane detector once; frames are never decoded twice. When no calibration was given (the camera's
-intrinsics are the unknown-dashcam default), the whole video's tracks then calibrate the camera
-(:func:`~deepcrashtest.geometry.selfcalib.self_calibrate`: horizon, camera height, focal length,
-each with its uncertainty and source) and the ego path is rescaled to the measured camera height.
+lane detector once; frames are never decoded twice. Lanes run in a second thread beside the
+ego-motion estimator (both spend their time in OpenCV / NumPy, which release the GIL). When no
+calibration was given (the camera's intrinsics are the unknown-dashcam default), the whole video's
+tracks then calibrate the camera (:func:`~deepcrashtest.geometry.selfcalib.self_calibrate`: horizon,
+camera height, focal length, each with its uncertainty and source) and the ego path is rescaled to
+the measured camera height.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
+from itertools import chain
 from typing import Any, Protocol
 
 import numpy as np
@@ -35,8 +41,8 @@ from deepcrashtest.geometry.camera import (
 from deepcrashtest.geometry.egomotion import EgoMotion, EgoMotionEstimator
 from deepcrashtest.geometry.localize import Localizer
 from deepcrashtest.geometry.selfcalib import SelfCalibration, self_calibrate
-from deepcrashtest.geometry.world_tracks import TRACK_COLUMNS, raw_scenario_from_tracks
 from deepcrashtest.perception.lanes import ClassicalLaneDetector, LaneDetector, LaneState, LaneTimelineResult
+from deepcrashtest.perception.track import TRACK_COLUMNS
 from deepcrashtest.scenario import Camera, Scenario, VideoSource
 
 
@@ -103,8 +109,64 @@ def extract_geometry(
     ``on_frame(frame, tracks, lane_state)`` is called once per frame, in order, after the frame went
     through ego-motion and lanes (annotation draws the lanes in the same pass).
     """
-    buffer: list[tuple[FrameLike, pd.DataFrame]] = []
+    buffer, rest = _calibration_frames(frames, calib_seconds)
+    cam, rows, horizon_source = estimate_camera([f.image for f, _ in buffer], camera, dashboard_rows)
+    size = (int(buffer[0][0].image.shape[1]), int(buffer[0][0].image.shape[0]))  # width, height (px)
+    ego_est = EgoMotionEstimator(cam, mask_bottom_rows=rows, max_width=max_width, seed=seed)
+    lane_det: LaneDetector | None = lane_detector or (
+        ClassicalLaneDetector(cam, mask_bottom_rows=rows, seed=seed) if lanes else None
+    )
+    lane_states: dict[int, LaneState] = {}
+    indices: list[int] = []
     all_tracks: list[pd.DataFrame] = []
+
+    with ThreadPoolExecutor(1, thread_name_prefix="lanes") as pool:
+        for frame, trk in chain(_drain(buffer), rest):
+            boxes = trk[["x1", "y1", "x2", "y2"]].to_numpy(float) if len(trk) else np.zeros((0, 4))
+            indices.append(int(frame.index))
+            lanes_job: Future[LaneState] | None = None
+            if lane_det is not None:
+                lanes_job = pool.submit(lane_det.update, frame.image, float(frame.time), boxes)
+            ego_est.update(frame.image, float(frame.time), boxes)
+            if lanes_job is not None:
+                lane_states[int(frame.index)] = lanes_job.result()
+            if len(trk):
+                all_tracks.append(trk)
+            if on_frame is not None:
+                on_frame(frame, trk, lane_states.get(int(frame.index)))
+    ego = ego_est.result()
+    ego.frame = np.array(indices, dtype=int)  # the estimator counts 0..n-1: use the video's indices
+    lane_tl = lane_det.timeline() if lane_det is not None else None
+    tracks = pd.concat(all_tracks, ignore_index=True) if all_tracks else pd.DataFrame(columns=list(TRACK_COLUMNS))
+    calibration = None
+    if cam.intrinsics_source == "default" and len(tracks):  # no calibration given: the video calibrates it
+        calibration = self_calibrate(tracks, cam, size, ego, ego_scaled_by_height=True)
+        cam = calibration.camera
+        s = calibration.ego_scale
+        ego = dataclasses.replace(ego, x=ego.x * s, y=ego.y * s, speed=ego.speed * s)
+        horizon_source = cam.pitch_source
+    from deepcrashtest.geometry.world_tracks import raw_scenario_from_tracks  # SciPy's signal: imported late
+
+    sc = raw_scenario_from_tracks(tracks, meta, cam, ego, lane_tl, localizer, name=name, seed=seed)
+    params = {**sc.provenance.parameters, "dashboard_rows": rows, "horizon_source": horizon_source}
+    if calibration is not None:
+        params["self_calibration"] = calibration.summary()
+    sc = sc.evolve(provenance=sc.provenance.model_copy(update={"parameters": params}))
+    return GeometryResult(sc, cam, ego, lane_tl, lane_states, rows, horizon_source, calibration)
+
+
+def _drain(buffer: list[tuple[FrameLike, pd.DataFrame]]) -> Iterator[tuple[FrameLike, pd.DataFrame]]:
+    """The buffered pairs in order, each let go as it is taken (2 s of full frames are ~150 MB)."""
+    buffer.reverse()
+    while buffer:
+        yield buffer.pop()
+
+
+def _calibration_frames(
+    frames: Iterable[tuple[FrameLike, pd.DataFrame]], calib_seconds: float
+) -> tuple[list[tuple[FrameLike, pd.DataFrame]], Iterable[tuple[FrameLike, pd.DataFrame]]]:
+    """The first ``calib_seconds`` of (frame, tracks) pairs (at least 3 frames) and the rest."""
+    buffer: list[tuple[FrameLike, pd.DataFrame]] = []
     it = iter(frames)
     for item in it:
         buffer.append(item)
@@ -112,44 +174,4 @@ def extract_geometry(
             break
     if len(buffer) < 2:
         raise UserError("the video has fewer than 2 frames")
-    cam, rows, horizon_source = estimate_camera([f.image for f, _ in buffer], camera, dashboard_rows)
-    ego_est = EgoMotionEstimator(cam, mask_bottom_rows=rows, max_width=max_width, seed=seed)
-    lane_det: LaneDetector | None = lane_detector or (
-        ClassicalLaneDetector(cam, mask_bottom_rows=rows, seed=seed) if lanes else None
-    )
-    lane_states: dict[int, LaneState] = {}
-    indices: list[int] = []
-
-    def process(frame: FrameLike, trk: pd.DataFrame) -> None:
-        boxes = trk[["x1", "y1", "x2", "y2"]].to_numpy(float) if len(trk) else np.zeros((0, 4))
-        indices.append(int(frame.index))
-        ego_est.update(frame.image, float(frame.time), boxes)
-        if lane_det is not None:
-            lane_states[int(frame.index)] = lane_det.update(frame.image, float(frame.time), boxes)
-        if len(trk):
-            all_tracks.append(trk)
-        if on_frame is not None:
-            on_frame(frame, trk, lane_states.get(int(frame.index)))
-
-    for frame, trk in buffer:
-        process(frame, trk)
-    for frame, trk in it:
-        process(frame, trk)
-    ego = ego_est.result()
-    ego.frame = np.array(indices, dtype=int)  # the estimator counts 0..n-1: use the video's indices
-    lane_tl = lane_det.timeline() if lane_det is not None else None
-    tracks = pd.concat(all_tracks, ignore_index=True) if all_tracks else pd.DataFrame(columns=list(TRACK_COLUMNS))
-    calibration = None
-    if cam.intrinsics_source == "default" and len(tracks):  # no calibration given: the video calibrates it
-        size = (int(buffer[0][0].image.shape[1]), int(buffer[0][0].image.shape[0]))
-        calibration = self_calibrate(tracks, cam, size, ego, ego_scaled_by_height=True)
-        cam = calibration.camera
-        s = calibration.ego_scale
-        ego = dataclasses.replace(ego, x=ego.x * s, y=ego.y * s, speed=ego.speed * s)
-        horizon_source = cam.pitch_source
-    sc = raw_scenario_from_tracks(tracks, meta, cam, ego, lane_tl, localizer, name=name, seed=seed)
-    params = {**sc.provenance.parameters, "dashboard_rows": rows, "horizon_source": horizon_source}
-    if calibration is not None:
-        params["self_calibration"] = calibration.summary()
-    sc = sc.evolve(provenance=sc.provenance.model_copy(update={"parameters": params}))
-    return GeometryResult(sc, cam, ego, lane_tl, lane_states, rows, horizon_source, calibration)
+    return buffer, it

@@ -1,0 +1,92 @@
+"""``deepcrashtest extract`` end to end as a whole process: wall fps, CPU seconds, peak memory.
+
+Each variant runs the CLI in a fresh process (imports, decode, detection, tracking, ego-motion, lanes,
+localisation, stage 2, annotated H.264 video, report). Variants alternate run by run, so a load
+spike on a shared machine hits them alike; the load average is printed with the figures. CPU seconds
+(user + sys of the process) depend much less on other load than wall time: on an idle 2-core machine
+a pipelined run's wall time approaches CPU / 2.
+
+Run: PYTHONPATH=src python bench/extract_e2e.py [VIDEO] [--baseline-src ../main/src] [--repeat 1]
+  ``--baseline-src DIR`` adds the code in DIR (e.g. an older checkout's src) with its own defaults.
+  ``--variant NAME=ARGS`` (repeatable) adds runs of this checkout with extra CLI arguments.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT = ROOT.parent / "shared" / "data" / "dashcam_udacity" / "highway_lane_challenge.mp4"
+
+
+def run_once(src: Path, video: str, extra: list[str], out: Path) -> dict[str, float]:
+    """One extract process; returns wall s, CPU s, peak RSS MB, frames, and the process's own fps."""
+    env = dict(os.environ, PYTHONPATH=str(src))
+    cmd = [sys.executable, "-m", "deepcrashtest.cli", "extract", video, "-o", str(out), "--force", "--json", *extra]
+    t = time.perf_counter()
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    _, status, usage = os.wait4(proc.pid, 0)
+    wall = time.perf_counter() - t
+    stdout, stderr = proc.stdout.read(), proc.stderr.read()  # type: ignore[union-attr]
+    if status != 0:
+        raise SystemExit(f"{' '.join(cmd)} failed:\n{stderr.decode()[-2000:]}")
+    result = json.loads(stdout)
+    return {
+        "wall": wall,
+        "cpu": usage.ru_utime + usage.ru_stime,
+        "rss_mb": usage.ru_maxrss / 1024,
+        "frames": result["frames"],
+        "inner_fps": result["fps_achieved"],
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("video", nargs="?", default=str(DEFAULT))
+    ap.add_argument("--baseline-src", type=Path, default=None)
+    ap.add_argument("--baseline-args", default="", help="extra CLI arguments of the baseline runs")
+    ap.add_argument("--variant", action="append", default=[], help="NAME=EXTRA CLI ARGS (this checkout)")
+    ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--common", default="", help="extra CLI arguments of every run (e.g. '--max-frames 100')")
+    args = ap.parse_args()
+    variants: list[tuple[str, Path, list[str]]] = []
+    if args.baseline_src is not None:
+        variants.append(("baseline", args.baseline_src, shlex.split(args.baseline_args)))
+    variants.append(("this checkout", ROOT / "src", []))
+    for v in args.variant:
+        name, _, extra = v.partition("=")
+        variants.append((name, ROOT / "src", shlex.split(extra)))
+    runs: dict[str, list[dict[str, float]]] = {name: [] for name, _, _ in variants}
+    loads = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for _ in range(args.repeat):
+            for name, src, extra in variants:
+                loads.append(os.getloadavg()[0])
+                runs[name].append(run_once(src, args.video, shlex.split(args.common) + extra, Path(tmp) / "out"))
+    print(f"{args.video}: {runs[variants[0][0]][0]['frames']} frames, {os.cpu_count()} cores")
+    print(f"load average during the runs: {min(loads):.1f}-{max(loads):.1f} (1 min)")
+    print("| variant | wall fps (process) | wall s | CPU s | CPU s / frame | fps inside | peak RSS MB |")
+    print("|---|---|---|---|---|---|---|")
+    for name, _, _ in variants:
+        r = min(runs[name], key=lambda x: x["wall"])
+        print(
+            f"| {name} | {r['frames'] / r['wall']:.2f} | {r['wall']:.1f} | {r['cpu']:.1f} | "
+            f"{r['cpu'] / r['frames'] * 1000:.0f} ms | {r['inner_fps']:.2f} | {r['rss_mb']:.0f} |"
+        )
+    if len(variants) > 1:
+        a, b = (min(runs[n], key=lambda x: x["wall"]) for n in (variants[0][0], variants[1][0]))
+        print(
+            f"{variants[1][0]} vs {variants[0][0]}: wall {a['wall'] / b['wall']:.2f}x, CPU {a['cpu'] / b['cpu']:.2f}x"
+        )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,136 @@
+"""The crash of a video into its raw Scenario: detected automatically, or given by the user.
+
+``extract --crash FRAME[:ID,ID]`` (frame = 0-based decoded frame, ids as in ``tracks.csv`` and the
+annotated video, ``ego`` allowed; ``--crash 95`` = the most likely pair at that frame) overrides
+the automatic detection (:func:`deepcrashtest.perception.crash_detect.detect_crash`). Either way
+the raw Scenario gets ``collision`` (scenario time, the two participants, ``source`` video-auto or
+user, confidence) and ``provenance.parameters["crash_detection"]`` (what was found, or
+``found: false``: stage 2 then keeps every road user apart).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from deepcrashtest.errors import UserError
+from deepcrashtest.perception.crash_detect import EGO, CrashFinding, detect_crash
+from deepcrashtest.scenario import Collision, CollisionSource, Scenario
+
+_SPEC = re.compile(r"^\s*(\d+)\s*(?::\s*([A-Za-z0-9]+)\s*,\s*([A-Za-z0-9]+)\s*)?$")
+AUTO_PAIR_WINDOW_S = 0.3  # --crash FRAME without ids: the best pair within this of the frame
+
+
+@dataclass(frozen=True)
+class CrashSpec:
+    """The user's ``--crash``: a frame and optionally the two participants (0 = ego)."""
+
+    frame: int
+    pair: tuple[int, int] | None
+    text: str
+
+
+def parse_crash(text: str) -> CrashSpec:
+    """Parse ``FRAME[:ID,ID]`` (``ego`` allowed as an id); bad syntax -> one-line UserError."""
+    m = _SPEC.match(text or "")
+    if m is None:
+        raise UserError(f"--crash {text!r}: expected FRAME or FRAME:ID,ID (e.g. 95:ego,7 or 95:3,7)")
+    frame = int(m.group(1))
+    if m.group(2) is None:
+        return CrashSpec(frame, None, text)
+    ids = []
+    for tok in (m.group(2), m.group(3)):
+        if tok.lower() == "ego":
+            ids.append(EGO)
+        elif tok.isdigit() and int(tok) > 0:
+            ids.append(int(tok))
+        else:
+            raise UserError(f"--crash {text!r}: {tok!r} is not a track id (a positive integer) or 'ego'")
+    if ids[0] == ids[1]:
+        raise UserError(f"--crash {text!r}: the two participants must differ")
+    return CrashSpec(frame, (ids[0], ids[1]), text)
+
+
+def crash_for_raw(
+    raw: Scenario,
+    tracks: pd.DataFrame,
+    motion: tuple[np.ndarray, np.ndarray] | None,
+    spec: CrashSpec | None = None,
+) -> tuple[Scenario, dict[str, Any]]:
+    """The raw scenario with its crash (see the module docstring) and the provenance record."""
+    fps = float(raw.source.fps)
+    agents = {a.id for a in raw.agents}
+    w, h = raw.source.width, raw.source.height
+    finding: CrashFinding | None
+    source: CollisionSource
+    if spec is not None:
+        finding, source = _user_crash(spec, raw, tracks, motion, agents), "user"
+    else:
+        finding = detect_crash(tracks, w, h, fps, motion, allowed=agents)
+        source = "video-auto"
+    if finding is None:
+        record: dict[str, Any] = {
+            "found": False,
+            "source": source,
+            "method": "image evidence (perception.crash_detect)",
+        }
+        return _with_record(raw, record, None), record
+    t_video = finding.frame / fps
+    t = float(raw.scenario_time(t_video))
+    t_ego = raw.ego.trajectory.t
+    t = float(np.clip(t, t_ego[0] + 1.0 / fps, t_ego[-1]))
+    a, b = finding.pair
+    record = {
+        "found": True,
+        "source": source,
+        "frame": finding.frame,
+        "video_time_s": round(t_video, 4),
+        "pair": ["ego" if i == EGO else i for i in finding.pair],
+        "confidence": round(finding.confidence, 3),
+        "evidence": finding.evidence,
+    }
+    if spec is not None:
+        record["user_spec"] = spec.text
+    conf = None if source == "user" else finding.confidence
+    collision = Collision(time_s=t, other_id=a, agent_id=b, source=source, confidence=conf)
+    return _with_record(raw, record, collision), record
+
+
+def _with_record(raw: Scenario, record: dict[str, Any], collision: Collision | None) -> Scenario:
+    params = dict(raw.provenance.parameters)
+    params["crash_detection"] = record
+    prov = raw.provenance.model_copy(update={"parameters": params})
+    return raw.evolve(collision=collision, provenance=prov)
+
+
+def _user_crash(
+    spec: CrashSpec, raw: Scenario, tracks: pd.DataFrame, motion: tuple[np.ndarray, np.ndarray] | None, agents: set[int]
+) -> CrashFinding:
+    fps = float(raw.source.fps)
+    last = (
+        raw.source.frame_count - 1
+        if raw.source.frame_count
+        else int(round(raw.video_time(raw.ego.trajectory.t[-1]) * fps))
+    )
+    if not 0 < spec.frame <= last:
+        raise UserError(f"--crash {spec.text!r}: frame {spec.frame} is outside the video (1..{last})")
+    if spec.pair is not None:
+        seen = set(int(v) for v in tracks["track_id"].unique()) if len(tracks) else set()
+        for vid in spec.pair:
+            if vid != EGO and vid not in seen:
+                raise UserError(f"--crash {spec.text!r}: there is no track {vid} in tracks.csv")
+            if vid != EGO and vid not in agents:
+                raise UserError(f"--crash {spec.text!r}: track {vid} is too short or could not be placed in 3D")
+        return CrashFinding(spec.frame, spec.frame / fps, spec.pair, 1.0, {})
+    win = int(np.ceil(AUTO_PAIR_WINDOW_S * fps))
+    found = detect_crash(
+        tracks, raw.source.width, raw.source.height, fps, motion, allowed=agents, min_score=0.0,
+        frames=(spec.frame - win, spec.frame + win),
+    )  # fmt: skip
+    if found is None:
+        raise UserError(f"--crash {spec.text!r}: no road user is near frame {spec.frame}; name the pair (FRAME:ID,ID)")
+    return CrashFinding(spec.frame, spec.frame / fps, found.pair, found.confidence, found.evidence)

@@ -1,0 +1,223 @@
+"""Stage 2's crash phase: the crash seen in the video happens in the scenario, and nothing before it.
+
+Scenario time (seconds), world frame (metres). Given the crash (time and pair, from the raw
+scenario's ``collision``), the pair's last seconds are corrected so that their boxes first touch
+at that time (``trajectory.contact.make_contact``); then every other pair that touches before the
+crash is separated by nudging the bystander (``nudge_apart``) or, if that fails, dropping it. With
+no crash known, either the first ego-agent overlap is the crash (legacy, ``find_first``) or, when
+the video is known to show no crash, every contact is removed the same way.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from deepcrashtest.errors import UserError
+from deepcrashtest.scenario import Collision
+from deepcrashtest.trajectory.collision import Contact, first_contact
+from deepcrashtest.trajectory.contact import ContactParams, Movable, make_contact, nudge_apart
+from deepcrashtest.trajectory.dense import EPS_T, Dense
+from deepcrashtest.trajectory.params import Stage2Params
+
+EGO_WEIGHT = 3.0  # the ego's path (visual odometry) is trusted more than a monocular agent track
+STATIC_WEIGHT = 10.0  # a parked car moves last
+MAX_NUDGE_M = 3.0  # a bystander that must move farther than this is dropped instead
+
+
+@dataclass
+class CrashOutcome:
+    """The collision (scenario time), the remaining agents, and what was changed (for provenance)."""
+
+    collision: Collision | None
+    agents: list[Dense]
+    record: dict[str, Any] = field(default_factory=dict)
+
+
+def contact_params(p: Stage2Params) -> ContactParams:
+    w = p.crash_window_s
+    return ContactParams(
+        windows_s=(w, 1.5 * w, 2.25 * w), accel_limit_mps2=p.crash_accel_limit_mps2, large_m=p.crash_large_correction_m
+    )
+
+
+def _movable(d: Dense, is_ego: bool) -> Movable:
+    weight = EGO_WEIGHT if is_ego else (STATIC_WEIGHT if d.static else 1.0)
+    return Movable(d.t, d.xy, d.vehicle.length, d.vehicle.width, d.heading, weight, rigid=d.static and not is_ego)
+
+
+def resolve_crash(
+    known: Collision | None,
+    ego: Dense,
+    agents: list[Dense],
+    p: Stage2Params,
+    warnings: list[str],
+    *,
+    t_from: float,
+    no_crash: bool,
+) -> CrashOutcome:
+    """The crash phase (module docstring). ``known`` is in scenario time; ``t_from`` (s) is where the
+    video starts in scenario time (legacy search starts there); ``no_crash``: the video shows none."""
+    cp = contact_params(p)
+    record: dict[str, Any] = {}
+    collision = known
+    legacy = False
+    if collision is None and not no_crash:
+        collision = find_first(ego, agents, t_from)
+        legacy = collision is not None  # already touching there: nothing to enforce
+        if legacy:
+            record["source"] = "first box overlap of the ego with an agent after the lead-in"
+    if collision is not None:
+        byid = {d.id: d for d in [ego, *agents]}
+        missing = [i for i in collision.participants if i not in byid]
+        if missing:
+            msg = f"collision participant(s) {missing} were dropped in stage 2 (track too short or implausible)"
+            if collision.source == "user":
+                raise UserError(msg)
+            warnings.append(f"{msg}; the scenario has no collision")
+            collision = None
+    if collision is not None:
+        for d in [ego, *agents]:
+            d.cut(collision.time_s)
+        late = [d for d in agents if d.t[0] >= collision.time_s - EPS_T]
+        for d in late:
+            warnings.append(f"agent {d.id}: appears after the collision; dropped")
+        agents = [d for d in agents if d not in late]
+        if not legacy:
+            record.update(_enforce_pair(collision, ego, agents, cp, warnings))
+    t_end = collision.time_s if collision is not None else max(float(d.t[-1]) for d in [ego, *agents])
+    pair = collision.participants if collision is not None else ()
+    agents, nudges = _separate_others(ego, agents, pair, t_end - cp.touch_tol_s, cp, warnings)
+    if nudges:
+        record["bystanders"] = nudges
+    return CrashOutcome(collision, agents, record)
+
+
+def find_first(ego: Dense, agents: list[Dense], t_from: float) -> Collision | None:
+    """The first ego-agent box overlap after ``t_from`` (s), as a collision (legacy, no crash known)."""
+    ego_box = ego.box_track()
+    best: tuple[Contact, int] | None = None
+    for d in agents:
+        hit = first_contact(ego_box, d.box_track(), t_from=t_from)
+        if hit is not None and (best is None or hit.time_s < best[0].time_s):
+            best = (hit, d.id)
+    if best is None:
+        return None
+    hit, agent_id = best
+    return Collision(
+        time_s=hit.time_s, agent_id=agent_id, other_id=ego.id, x=hit.x, y=hit.y, relative_speed=hit.relative_speed
+    )
+
+
+def _enforce_pair(
+    collision: Collision, ego: Dense, agents: list[Dense], cp: ContactParams, warnings: list[str]
+) -> dict[str, Any]:
+    """Correct the pair's last seconds so they first touch at the collision time; returns the record."""
+    byid = {d.id: d for d in [ego, *agents]}
+    a, b = byid[collision.other_id], byid[collision.agent_id]
+    corr = make_contact(_movable(a, a is ego), _movable(b, b is ego), collision.time_s, cp)
+    for d, delta in zip((a, b), corr.deltas, strict=True):
+        if len(delta):
+            d.xy = d.xy + delta
+            d.observed = d.observed & (np.hypot(*delta.T) < 0.5)  # moved samples are no longer "as observed"
+    rec = {
+        "pair": [a.id, b.id],
+        "max_m": round(corr.max_m, 3),
+        "rms_m": round(corr.rms_m, 3),
+        "window_s": round(corr.window_s, 2),
+        "satisfied": corr.ok,
+    }
+    if not corr.ok:
+        warnings.append(
+            f"the crash of {a.id} and {b.id} at {collision.time_s:.2f} s could not be made exact within the "
+            f"acceleration limits ({corr.message}); the closest correction is used"
+        )
+    elif corr.max_m > cp.large_m:
+        warnings.append(
+            f"the crash of {a.id} and {b.id}: their last {corr.window_s:.1f} s were moved by up to "
+            f"{corr.max_m:.1f} m to make them touch at {collision.time_s:.2f} s (monocular depth error?)"
+        )
+    return {"correction": rec}
+
+
+def _separate_others(
+    ego: Dense, agents: list[Dense], pair: tuple[int, ...], t_end: float, cp: ContactParams, warnings: list[str]
+) -> tuple[list[Dense], list[dict[str, Any]]]:
+    """Nudge (or drop) every bystander that touches anyone before ``t_end`` (s); the pair is left alone."""
+    nudges: list[dict[str, Any]] = []
+    for _ in range(2 * len(agents) + 1):
+        clash = _first_clash(ego, agents, pair, t_end)
+        if clash is None:
+            break
+        mover, hit_time = clash
+        if _trim_invented(mover, hit_time):
+            nudges.append({"agent": mover.id, "trimmed_at_s": round(hit_time, 3)})
+            warnings.append(
+                f"agent {mover.id}: its extrapolated path touched another road user at {hit_time:.2f} s; it is "
+                "in the scenario only from/until 1 s away from there"
+            )
+            continue
+        others = [d for d in [ego, *agents] if d is not mover]
+        corr = nudge_apart(_movable(mover, False), [_movable(o, o is ego) for o in others], t_end, cp)
+        if corr.ok and corr.max_m <= MAX_NUDGE_M:
+            mover.xy = mover.xy + corr.deltas[0]
+            nudges.append({"agent": mover.id, "max_m": round(corr.max_m, 3)})
+            warnings.append(
+                f"agent {mover.id}: touched another road user at {hit_time:.2f} s before the crash; moved by up to "
+                f"{corr.max_m:.1f} m to keep it apart"
+            )
+        else:
+            agents = [d for d in agents if d is not mover]
+            nudges.append({"agent": mover.id, "dropped": True})
+            warnings.append(
+                f"agent {mover.id}: touched another road user at {hit_time:.2f} s before the crash and cannot be "
+                "moved apart plausibly; dropped"
+            )
+    return agents, nudges
+
+
+def _seen_at(d: Dense, t: float) -> bool:
+    seen = d.t[d.observed]
+    return bool(len(seen)) and seen[0] - EPS_T <= t <= seen[-1] + EPS_T
+
+
+def _trim_invented(d: Dense, t_hit: float, margin_s: float = 1.0) -> bool:
+    """A contact in the unobserved part of a track (extrapolated after it was seen, or invented before):
+    keep that part only up to ``margin_s`` from the contact. False when the contact is in the seen part."""
+    seen = d.t[d.observed]
+    if not len(seen) or d.static:
+        return False
+    if t_hit > seen[-1] + EPS_T:
+        d.keep(d.t <= max(float(seen[-1]), t_hit - margin_s) + EPS_T)
+        return True
+    if t_hit < seen[0] - EPS_T:
+        d.keep(d.t >= min(float(seen[0]), t_hit + margin_s) - EPS_T)
+        return True
+    return False
+
+
+def _first_clash(ego: Dense, agents: list[Dense], pair: tuple[int, ...], t_end: float) -> tuple[Dense, float] | None:
+    """The earliest contact before ``t_end`` between two road users that are not both the crash pair
+    (nor both parked, nor overlapping from the moment both exist: the simulator ignores those too);
+    returns the one to move (an agent outside the pair, the less confident one) and the time."""
+    every = [ego, *agents]
+    tracks = [d.box_track() for d in every]
+    best: tuple[float, Dense] | None = None
+    for i in range(len(every)):
+        for j in range(i + 1, len(every)):
+            a, b = every[i], every[j]
+            if (a.id in pair and b.id in pair) or (a.static and b.static):
+                continue
+            hit = first_contact(tracks[i], tracks[j])
+            if hit is None or hit.time_s >= t_end or hit.time_s <= max(a.t[0], b.t[0]) + EPS_T:
+                continue  # overlapping from their first common moment: label/depth noise, as the simulator ignores
+            cands = [d for d in (a, b) if d is not ego and d.id not in pair]
+            if not cands:
+                continue
+            invented = [d for d in cands if not _seen_at(d, hit.time_s)]  # move an invented path first
+            mover = min(invented or cands, key=lambda d: (d.vehicle.confidence or 0.0, len(d.t)))
+            if best is None or hit.time_s < best[0]:
+                best = (hit.time_s, mover)
+    return None if best is None else (best[1], best[0])

@@ -1,0 +1,126 @@
+"""Crash detection in the video: synthetic tracks with known answers, the camera jolt on a real CCD clip,
+and the user's --crash override (parsing, bad values)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from deepcrashtest.errors import UserError
+from deepcrashtest.perception.crash_detect import GlobalMotion, detect_crash, jolt_score
+from deepcrashtest.pipeline.crash import crash_for_raw, parse_crash
+from deepcrashtest.scenario import Scenario
+from trajectory_cases import raw_scenario, track, vehicle
+
+W, H, FPS = 1280, 720, 10.0
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+def _rows(tid: int, frames: range, box) -> list[dict]:  # type: ignore[no-untyped-def]
+    out = []
+    for f in frames:
+        x1, y1, x2, y2 = box(f)
+        out.append(dict(frame=f, time=f / FPS, track_id=tid, category="car", x1=x1, y1=y1, x2=x2, y2=y2))
+    return out
+
+
+def _approach(f: int) -> tuple[float, float, float, float]:
+    """A car ahead growing in the image until frame 30 (contact: it stops growing), then pushed away."""
+    s = 120 * 1.12 ** min(f, 30) if f <= 30 else 120 * 1.12**30 * 0.99 ** (f - 30)
+    return 640 - s, 330 - 0.3 * s, 640 + s, 330 + 0.55 * s
+
+
+def _far(f: int) -> tuple[float, float, float, float]:
+    return 100 + f, 300, 180 + f, 350
+
+
+def test_ego_crash_found_at_the_knee_of_the_box_growth():
+    tracks = pd.DataFrame(_rows(4, range(0, 40), _approach) + _rows(9, range(0, 40), _far))
+    found = detect_crash(tracks, W, H, FPS)
+    assert found is not None and found.pair == (0, 4)
+    assert abs(found.frame - 30) <= 1 and 0.4 < found.confidence <= 1.0
+
+
+def test_jolt_sets_the_ego_contact_frame():
+    tracks = pd.DataFrame(_rows(4, range(0, 40), _approach))
+    frames = np.arange(40)
+    shifts = np.zeros((40, 2))
+    shifts[27, 1] = 9.0  # the camera jumps between frames 26 and 27
+    found = detect_crash(tracks, W, H, FPS, motion=(frames, shifts))
+    assert found is not None and abs(found.frame - 27) <= 1 and found.evidence["jolt"] > 0.9
+
+
+def test_third_party_contact_with_a_sudden_change_of_motion():
+    def scooter(f: int) -> tuple[float, float, float, float]:  # rides right, then is knocked away at 20
+        x = 300 + 12 * min(f, 20) + (40 * (f - 20) if f > 20 else 0)
+        y = 380 + (25 * (f - 20) if f > 20 else 0)
+        return x, y, x + 60, y + 120
+
+    def car(f: int) -> tuple[float, float, float, float]:
+        return 600, 400, 800, 500
+
+    tracks = pd.DataFrame(_rows(2, range(0, 30), scooter) + _rows(3, range(0, 30), car))
+    found = detect_crash(tracks, W, H, FPS)
+    assert found is not None and found.pair == (2, 3) and 17 <= found.frame <= 22
+
+
+def test_nothing_found_when_nobody_is_near():
+    assert detect_crash(pd.DataFrame(_rows(9, range(0, 40), _far)), W, H, FPS) is None
+
+
+def test_camera_jolt_on_a_real_crash_clip():
+    """ccd_000080: rear-end at speed; labelled contact frame 31 (bench/labels/ccd_crashes.json)."""
+    import av
+
+    video = DATA / "crash_ccd" / "ccd_000080.mp4"
+    if not video.exists():
+        pytest.skip("CCD clips not available")
+    gm = GlobalMotion()
+    with av.open(str(video)) as c:
+        for i, f in enumerate(c.decode(video=0)):
+            gm.update(i, f.to_ndarray(format="bgr24"))
+    frames, shifts = gm.arrays()
+    scores = jolt_score(frames, shifts, 10.0)
+    first = min(f for f, s in scores.items() if s >= 0.3)
+    assert abs(first - 31) <= 1
+
+
+def test_parse_crash():
+    assert parse_crash("95:ego,7").pair == (0, 7) and parse_crash("95").pair is None
+    assert parse_crash(" 95 : 3 , 7 ").pair == (3, 7) and parse_crash("95:3,7").frame == 95
+    for bad in ("", "x", "95:", "95:3", "95:3,3", "95:-1,2", "95:car,2", "-3"):
+        with pytest.raises(UserError, match="--crash"):
+            parse_crash(bad)
+
+
+def test_user_crash_into_the_raw_scenario():
+    raw = raw_scenario([vehicle(7, track(lambda t: (30 + 5 * t, 0 * t), 0, 100))])
+    tracks = pd.DataFrame(_rows(7, range(0, 101), _far))
+    sc, rec = crash_for_raw(raw, tracks, None, parse_crash("60:ego,7"))
+    assert isinstance(sc, Scenario) and sc.collision is not None
+    assert sc.collision.participants == (0, 7) and sc.collision.source == "user"
+    assert sc.collision.time_s == pytest.approx(sc.scenario_time(6.0))
+    assert rec["user_spec"] == "60:ego,7" and sc.provenance.parameters["crash_detection"]["found"]
+    with pytest.raises(UserError, match="no track 8"):
+        crash_for_raw(raw, tracks, None, parse_crash("60:ego,8"))
+    with pytest.raises(UserError, match="outside the video"):
+        crash_for_raw(raw, tracks, None, parse_crash("500:ego,7"))
+    none, rec2 = crash_for_raw(raw, tracks, None)
+    assert none.collision is None and rec2["found"] is False
+
+
+def test_cli_bad_crash_value_one_line_exit_2(tmp_path):
+    video = DATA / "crash_ccd" / "ccd_000080.mp4"
+    if not video.exists():
+        pytest.skip("CCD clips not available")
+    proc = subprocess.run(
+        [sys.executable, "-m", "deepcrashtest.cli", "extract", str(video), "-o", str(tmp_path / "o"), "--crash", "9x"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert proc.returncode == 2 and "--crash" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())

@@ -1,0 +1,118 @@
+"""Crash-consistent stage 2: hand-built tracks with known answers (the pair touches at the labelled time,
+nothing touches before it), bounded lead-in, implausible tracks dropped."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from deepcrashtest.scenario import Collision, Scenario
+from deepcrashtest.trajectory.collision import BoxTrack, first_contact
+from deepcrashtest.trajectory.contact import Movable, box_track, make_contact, separation
+from deepcrashtest.trajectory.pipeline import process_scenario
+from trajectory_cases import raw_scenario, track, vehicle
+
+
+def _box(v) -> BoxTrack:  # type: ignore[no-untyped-def]
+    a = v.trajectory.arrays()
+    return BoxTrack(a["t"], a["x"], a["y"], np.unwrap(a["yaw"]), v.length, v.width)
+
+
+def _contacts(sc: Scenario) -> list[tuple[int, int, float]]:
+    vs = list(sc.vehicles())
+    out = []
+    for i in range(len(vs)):
+        for j in range(i + 1, len(vs)):
+            hit = first_contact(_box(vs[i]), _box(vs[j]))
+            if hit is not None:
+                out.append((vs[i].id, vs[j].id, hit.time_s))
+    return out
+
+
+def test_separation_is_signed_box_distance():
+    t = np.array([0.0])
+    a = BoxTrack(t, np.zeros(1), np.zeros(1), np.zeros(1), 4.0, 2.0)
+    apart = BoxTrack(t, np.array([7.0]), np.zeros(1), np.zeros(1), 4.0, 2.0)
+    deep = BoxTrack(t, np.array([3.5]), np.zeros(1), np.zeros(1), 4.0, 2.0)
+    assert separation(a, apart, t)[0] == pytest.approx(3.0)  # 7 - 2 - 2
+    assert separation(a, deep, t)[0] == pytest.approx(-0.5)
+
+
+def test_make_contact_touches_at_the_crash_time_within_limits():
+    t = np.round(np.arange(0, 4.01, 0.1), 6)
+    ego = Movable(t, np.column_stack([10 * t, 0 * t]), 4.5, 1.8, 0.0, weight=3.0)
+    car = Movable(t, np.column_stack([40.5 + 2 * t, 0.4 + 0 * t]), 4.5, 1.8, 0.0)  # 4 m short of touching at 4 s
+    c = make_contact(ego, car, 4.0)
+    assert c.ok and 2.0 < c.max_m < 4.5
+    e2 = box_track(Movable(t, ego.xy + c.deltas[0], 4.5, 1.8, 0.0))
+    a2 = box_track(Movable(t, car.xy + c.deltas[1], 4.5, 1.8, 0.0))
+    hit = first_contact(e2, a2)
+    assert hit is not None and 3.9 <= hit.time_s <= 4.0
+    for d in c.deltas:  # smooth and drivable: nothing moves before the window, accelerations bounded
+        assert np.allclose(d[t < 4.0 - c.window_s - 1e-6], 0.0)
+        acc = np.diff(d, 2, axis=0) / 0.1**2
+        assert np.abs(acc).max() < 4.0 * 1.5
+
+
+def _rear_end_raw(**kw) -> Scenario:  # type: ignore[no-untyped-def]
+    """Ego at 10 m/s; a car ahead at 4 m/s whose monocular depth is 3 m too far: at 5 s the tracks are
+    3 m apart, but the video shows the rear-end then; a bystander overlaps the ego's lane at 2 s."""
+    lead = vehicle(1, track(lambda t: (37.5 + 4 * t, 0.2 + 0 * t), 0, 60))
+    cross = vehicle(2, track(lambda t: (25 + 0 * t, 12 - 6 * t), 0, 40))  # crosses the ego's path at x = 25
+    return raw_scenario([lead, cross], **kw)
+
+
+def test_labelled_crash_is_reproduced_and_nothing_touches_before():
+    crash = Collision(time_s=5.0, agent_id=1, other_id=0, source="user")
+    sc = process_scenario(_rear_end_raw(collision=crash))
+    t_max = sc.provenance.parameters["t_max_s"]
+    assert sc.collision is not None and sc.collision.participants == (0, 1)
+    assert sc.collision.time_s == pytest.approx(5.0 + t_max)
+    contacts = _contacts(sc)
+    pair = [c for c in contacts if set(c[:2]) == {0, 1}]
+    assert pair and 5.0 + t_max - 0.1 <= pair[0][2] <= 5.0 + t_max + 1e-6
+    assert all(set(c[:2]) == {0, 1} for c in contacts), contacts  # the bystander was moved or dropped
+    rec = sc.provenance.parameters["crash"]["correction"]
+    assert rec["pair"] == [0, 1] and rec["satisfied"] and 1.0 < rec["max_m"] < 5.0
+    assert any("agent 2" in w for w in sc.warnings)
+
+
+def test_third_party_crash_between_two_agents():
+    a = vehicle(3, track(lambda t: (40 + 0 * t, -10 + 3 * t), 0, 50))  # crossing from the right
+    b = vehicle(4, track(lambda t: (20 + 5 * t, -2.5 + 0 * t), 0, 50))  # same direction, right lane
+    # nominally they meet near t = 3.3 s (a at y = 0, b at x = 36.5): the video says 3.5 s
+    sc = process_scenario(raw_scenario([a, b], collision=Collision(time_s=3.5, agent_id=4, other_id=3)))
+    t_max = sc.provenance.parameters["t_max_s"]
+    contacts = _contacts(sc)
+    assert contacts and {contacts[0][0], contacts[0][1]} == {3, 4}
+    assert abs(contacts[0][2] - (3.5 + t_max)) <= 0.1
+    assert not sc.collision.involves_ego  # type: ignore[union-attr]
+
+
+def test_no_crash_in_the_video_means_no_contact():
+    raw = _rear_end_raw()
+    params = dict(raw.provenance.parameters, crash_detection={"found": False})
+    sc = process_scenario(raw.evolve(provenance=raw.provenance.model_copy(update={"parameters": params})))
+    assert sc.collision is None and _contacts(sc) == []
+
+
+def test_lead_in_is_bounded_and_parked_cars_stay():
+    fast = track(lambda t: (30 * t, 0 * t), 0, 50)
+    parked = vehicle(1, track(lambda t: (80 + 0 * t, 4 + 0 * t), 0, 50, yaw=0.0))
+    sc = process_scenario(raw_scenario([parked], ego=fast))
+    t_max = sc.provenance.parameters["t_max_s"]
+    assert t_max == pytest.approx(4.0)  # 30 m/s at 3 m/s^2 would take 10 s
+    e = sc.ego.trajectory.arrays()
+    assert e["speed"][0] == pytest.approx(18.0, abs=0.5)  # starts moving: 30 - 3 x 4
+    assert e["x"][0] == pytest.approx(-(18 * 4 + 0.5 * 3 * 16), abs=1.0)  # 96 m behind, not 150 m
+    p = sc.vehicle(1).trajectory.arrays()
+    assert np.ptp(p["x"]) < 0.05 and np.ptp(p["y"]) < 0.05
+    # every observed second survives: video frames 0..50 are all in the scenario
+    assert sc.video_frame(e["t"][-1]) == 50 and sc.video_frame(t_max) == 0
+
+
+def test_implausible_agent_is_dropped_not_fatal():
+    wild = vehicle(5, track(lambda t: (20 + 80 * t, 0 * t + 3.5), 0, 30))  # 80 m/s in a city: localisation noise
+    sc = process_scenario(raw_scenario([wild]))
+    assert sc.agents == [] and any("agent 5" in w and "dropped" in w for w in sc.warnings)
+    assert all(max(v.trajectory.speed) <= 90 for v in sc.vehicles())
