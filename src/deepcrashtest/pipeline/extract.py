@@ -313,7 +313,7 @@ def _summary(plan: _Pass, meta: VideoMeta, df: pd.DataFrame, elapsed: float) -> 
         "scenario_raw": None,
         "scenario": None,
         "report": None,
-        "warnings": list(meta.warnings),
+        "warnings": list(meta.warnings) + ([] if len(df) else ["no vehicles found in the video"]),
     }
 
 
