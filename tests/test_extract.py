@@ -92,3 +92,22 @@ def test_extract_crash_clip_end_to_end_writes_a_processed_scenario(tmp_path):
     assert (out / "report.html").stat().st_size > 10_000
     with av.open(str(out / "annotated.mp4")) as c:
         assert sum(1 for _ in c.decode(video=0)) == 60
+
+
+def test_extract_output_set_is_from_one_run_or_untouched(tmp_path):
+    """A run that fails after the decoding pass writes nothing and exits 2, the previous set stays as it was;
+    a forced run with fewer outputs removes the previous run's extra files (issue 18 items 2, 3, 12)."""
+    if not DAD.exists():
+        pytest.skip(f"real data not found: {DAD}")
+    out = tmp_path / "x"
+    first = run("extract", str(DAD), "-o", str(out), "--max-frames", "40", "--no-report", "--json")
+    assert first.returncode == 0, first.stderr
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert {"tracks.csv", "scenario_raw.json", "scenario.json"} <= set(before)
+    failed = run("extract", str(DAD), "-o", str(out), "--max-frames", "10", "--crash", "5:ego,999", "--force")
+    assert failed.returncode == 2 and len(failed.stderr.strip().splitlines()) == 1, failed.stderr
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # untouched, no temp files left
+    again = run("extract", str(DAD), "-o", str(out), "--max-frames", "10", "--no-geometry", "--force")
+    assert again.returncode == 0, again.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["annotated.mp4", "tracks.csv"]
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]

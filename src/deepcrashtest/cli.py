@@ -241,6 +241,7 @@ def extract(
         help="The crash, overriding its detection: FRAME[:ID,ID] (0-based frame; track ids as in tracks.csv "
         "and the annotated video, 'ego' allowed; FRAME alone = the likeliest pair there), e.g. 95:ego,7.",
     ),
+    config: Path | None = ConfigOpt,
     force: bool = ForceOpt,
     seed: int = SeedOpt,
     as_json: bool = JsonOpt,
@@ -249,6 +250,7 @@ def extract(
     _quiet_if_json(as_json)
     from functools import partial
 
+    from deepcrashtest.config import load_config
     from deepcrashtest.fileio import require_file
     from deepcrashtest.geometry.camera import camera_for_video
     from deepcrashtest.pipeline.extract import run_extract
@@ -280,6 +282,7 @@ def extract(
         seed=seed,
         shots=shots,
         crash=crash,
+        stage2=load_config(config).stage2,
     )
     emit(result, as_json, _extract_summary)
 

@@ -28,7 +28,7 @@ import numpy as np
 import pandas as pd
 
 from deepcrashtest.errors import UserError
-from deepcrashtest.fileio import atomic_path, check_writable, ensure_output_dir
+from deepcrashtest.fileio import atomic_path, check_writable, ensure_output_dir, output_set
 from deepcrashtest.geometry.camera import default_camera
 from deepcrashtest.perception.annotate import Annotator
 from deepcrashtest.perception.crash_detect import GlobalMotion
@@ -40,12 +40,15 @@ from deepcrashtest.pipeline.crash import CrashSpec, crash_for_raw, parse_crash
 from deepcrashtest.pipeline.geometry_pass import GeometryResult, extract_geometry
 from deepcrashtest.pipeline.threads import Worker, prefetch
 from deepcrashtest.scenario import Camera, VideoSource
+from deepcrashtest.trajectory.params import Stage2Params
 from deepcrashtest.ui import track as progress
 from deepcrashtest.video.shots import Shot
 from deepcrashtest.video.source import Frame, VideoMeta, open_video
 from deepcrashtest.video.writer import VideoWriter
 
 DEFAULT_DETECT_EVERY = 5
+#: Every file ``extract`` may write into its output folder (one set per run: see fileio.output_set).
+OUTPUT_NAMES = ("tracks.csv", "annotated.mp4", "scenario_raw.json", "scenario.json", "report.html")
 #: Modules of the later phases imported in the background at the start (:func:`_warm_imports`).
 WARM_IMPORTS = ("sklearn.cluster", "deepcrashtest.geometry.world_tracks", "deepcrashtest.trajectory.pipeline")
 #: Shots of a compilation shorter than this (seconds) are not extracted.
@@ -70,6 +73,7 @@ def run_extract(
     shots: bool = True,
     frame_range: tuple[int, int] | None = None,
     crash: str | None = None,
+    stage2: Stage2Params | None = None,
 ) -> dict[str, Any]:
     """Extract a video in ONE decoding pass: detect + track, ego-motion, lanes, localisation.
 
@@ -99,12 +103,40 @@ def run_extract(
         if len(found) > 1:
             options = dict(detector=detector, detect_every=detect_every, fps=fps, annotate=annotate, geometry=geometry)
             options |= dict(camera=camera, dashboard_rows=dashboard_rows, lanes=lanes, report=report, seed=seed)
+            options |= dict(stage2=stage2)
             return _extract_shots(src_path, out, found, force, options, crash_spec)
     det = make_detector(detector)
     if geometry:
         _warm_imports(WARM_IMPORTS + (("deepcrashtest.viz.report", "matplotlib.figure") if report else ()))
+    with output_set(out, OUTPUT_NAMES, force) as stage:  # the whole set of one run, or nothing
+        staged = {key: stage / path.name for key, path in paths.items()}
+        plan = _Pass(src_path, out, staged, det, detect_every, max_frames, fps, False, frame_range, seed)
+        result = _run_pass(plan, camera, dashboard_rows, geometry, lanes, report, crash_spec, stage2)
+    return _final_paths(result, stage, out)
+
+
+def _final_paths(value: Any, stage: Path, out: Path) -> Any:
+    """The summary with every path inside the staging folder named by its final place in ``out``."""
+    if isinstance(value, dict):
+        return {k: _final_paths(v, stage, out) for k, v in value.items()}
+    if isinstance(value, str) and value.startswith(str(stage)):
+        return str(out) + value[len(str(stage)) :]
+    return value
+
+
+def _run_pass(
+    plan: _Pass,
+    camera: Camera | Callable[[int, int], Camera] | None,
+    dashboard_rows: int | None,
+    geometry: bool,
+    lanes: bool,
+    report: bool,
+    crash_spec: CrashSpec | None,
+    stage2: Stage2Params | None = None,
+) -> dict[str, Any]:
+    """The decoding pass, the tracks table, the crash and stage 2, all written to ``plan.paths``."""
+    src_path, paths, force, seed = plan.src_path, plan.paths, plan.force, plan.seed
     t0 = time.perf_counter()
-    plan = _Pass(src_path, out, paths, det, detect_every, max_frames, fps, force, frame_range, seed)
     with _few_gc_passes():
         records, geo, meta = plan.run(camera, dashboard_rows, geometry, lanes)
     elapsed = time.perf_counter() - t0
@@ -119,7 +151,7 @@ def run_extract(
     result = _summary(plan, meta, df, elapsed)
     result["crash_detection"] = crash_info
     if geo is not None:
-        result.update(_finish_scenario(geo, paths, force, seed, report, result["warnings"]))
+        result.update(_finish_scenario(geo, paths, force, seed, report, result["warnings"], stage2))
     return result
 
 
@@ -213,7 +245,7 @@ class _Pass:
         records: list[tuple[object, ...]] = []
         with open_video(self.src_path, self.fps) as source, contextlib.ExitStack() as stack:
             meta = source.meta
-            ensure_output_dir(self.out)
+            ensure_output_dir(self.paths["tracks_csv"].parent)
             frames = stack.enter_context(closing(prefetch(_in_range(source, self.frame_range), 8, "decode")))
             tracked = iter_tracks(frames, self.det, self.detect_every, self.max_frames, fps=meta.fps)
             tracked = stack.enter_context(closing(prefetch(tracked, 8, "track")))
@@ -318,7 +350,13 @@ def _summary(plan: _Pass, meta: VideoMeta, df: pd.DataFrame, elapsed: float) -> 
 
 
 def _finish_scenario(
-    geo: GeometryResult, paths: dict[str, Path], force: bool, seed: int, report: bool, warnings: list[str]
+    geo: GeometryResult,
+    paths: dict[str, Path],
+    force: bool,
+    seed: int,
+    report: bool,
+    warnings: list[str],
+    stage2: Stage2Params | None = None,
 ) -> dict[str, Any]:
     """Save the raw scenario, run stage 2 on it, save the processed one and the report."""
     raw = geo.scenario
@@ -341,9 +379,12 @@ def _finish_scenario(
     from deepcrashtest.trajectory.pipeline import process_scenario
 
     try:
-        processed = process_scenario(raw, seed=seed)
-    except UserError as exc:  # e.g. no usable track: keep the raw scenario, say why
-        warnings.append(f"stage 2 could not process the extracted tracks: {exc}")
+        processed = process_scenario(raw, seed=seed, params=stage2)
+    except UserError as exc:  # e.g. no usable track: the run fails as a whole and writes nothing
+        raise UserError(
+            f"stage 2 could not process the extracted tracks: {exc} (nothing written; --no-geometry writes the "
+            "tracks and the annotated video alone)"
+        ) from None
         return info
     processed.save(paths["scenario"], force=force)
     info["scenario"] = str(paths["scenario"])
