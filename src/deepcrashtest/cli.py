@@ -732,6 +732,8 @@ def view(
     """Open a Scenario in the browser viewer: inspect, edit waypoints, simulate, save as a new file."""
     from deepcrashtest.viz.server import bind, serve
 
+    if not 0 < port < 65536:  # options first, then the input (as every command)
+        raise UserError(f"--port must be 1-65535 (got {port})")
     _load(scenario)
     sock = bind(host, port)  # an unresolvable host or a port in use fails here, before the banner
     if host not in ("127.0.0.1", "localhost", "::1"):
