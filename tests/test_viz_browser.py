@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from deepcrashtest.scenario import Scenario
-from deepcrashtest.viz.server import SIM_UNAVAILABLE, _simulator, create_app
+from deepcrashtest.viz.server import create_app
 
 pytestmark = pytest.mark.browser
 
@@ -202,8 +202,6 @@ def test_no_video_shows_a_placeholder(browser, case):
 
 
 def test_simulate_shows_the_outcome(browser, case, tmp_path):
-    if _simulator() is None:
-        pytest.skip(SIM_UNAVAILABLE)
     with Server(case) as url:
         page, errors = _open(browser, url)
         page.click("#simulate")
@@ -310,8 +308,6 @@ def _red_cross_pixels(page, x: float, y: float, r: int = 14) -> int:
 
 
 def test_collision_markers_jump_to_each_collision_and_the_cross_shows_only_then(browser, crash_case):
-    if _simulator() is None:
-        pytest.skip(SIM_UNAVAILABLE)
     sc = Scenario.load(crash_case)
     with Server(crash_case) as url:
         page, errors = _open(browser, url, 1280, 720)

@@ -13,7 +13,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from deepcrashtest.scenario import Scenario
-from deepcrashtest.viz.server import SIM_UNAVAILABLE, _simulator, create_app
+from deepcrashtest.viz.server import create_app
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE_VIDEO = ROOT / "examples" / "highway_sample.mp4"
@@ -171,17 +171,13 @@ def test_save_refuses_a_symlink_out_of_the_folder(client, folder, kitti8_raw, tm
     assert outside.read_text() == "keep me"
 
 
-def test_simulate_answers_503_without_the_simulator(client, kitti8_raw):
+def test_simulate_runs_the_simulator(client, kitti8_raw):
     r = _post(client, "/api/simulate", {"scenario": kitti8_raw.model_dump(mode="json")})
-    if _simulator() is None:
-        assert r.status_code == 503 and r.json() == {"error": SIM_UNAVAILABLE}
-        assert client.get("/api/scenario").json()["simulator"] is False
-    else:  # the simulator is merged: a real run
-        assert r.status_code == 200, r.text
-        out = r.json()
-        assert set(out["metrics"]) >= {"collided", "collision_time", "delta_v_ego", "min_distance"}
-        assert len(out["times"]) == len(out["states"]) == len(out["present"]) <= 801
-        assert out["vehicle_ids"][0] == 0
+    assert r.status_code == 200, r.text
+    out = r.json()
+    assert set(out["metrics"]) >= {"collided", "collision_time", "delta_v_ego", "min_distance"}
+    assert len(out["times"]) == len(out["states"]) == len(out["present"]) <= 801
+    assert out["vehicle_ids"][0] == 0
 
 
 def decoded_frames(path: Path) -> list[np.ndarray]:

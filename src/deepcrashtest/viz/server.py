@@ -50,7 +50,6 @@ LOOPBACK_HOSTS = ["127.0.0.1", "localhost", "::1", "[::1]"]
 MAX_BODY_BYTES = 64 * 1024 * 1024
 #: At most this many time samples of a simulation are sent to the page.
 MAX_SIM_SAMPLES = 800
-SIM_UNAVAILABLE = "simulator not available in this build"
 
 
 class ApiError(Exception):
@@ -157,15 +156,6 @@ def sim_payload(res: Any, max_samples: int = MAX_SIM_SAMPLES) -> dict[str, Any]:
     }
 
 
-def _simulator() -> Any | None:
-    """``deepcrashtest.sim.simulate`` when this build has it, else None."""
-    try:
-        from deepcrashtest.sim import simulate  # type: ignore[attr-defined]
-    except ImportError:
-        return None
-    return simulate
-
-
 async def json_body(request: Request) -> dict[str, Any]:
     """The request's JSON object (Content-Type application/json; no NaN/Infinity), or ApiError."""
     ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
@@ -260,7 +250,6 @@ def create_app(scenario_path: str | Path, allowed_hosts: list[str] | None = None
                 "video_note": video_note,
                 "time": time_mapping(scenario, video),
                 "style": style.page_style(),
-                "simulator": _simulator() is not None,
                 "default_falloff_s": DEFAULT_FALLOFF_S,
             }
         )
@@ -300,9 +289,8 @@ def create_app(scenario_path: str | Path, allowed_hosts: list[str] | None = None
     async def simulate(request: Request) -> JSONResponse:
         body = await json_body(request)
         sc = body_scenario(body)
-        sim = _simulator()
-        if sim is None:
-            raise ApiError(503, SIM_UNAVAILABLE)
+        from deepcrashtest.sim import simulate as sim
+
         try:
             res = await run_in_threadpool(sim, sc, controller="replay", seed=0)
         except UserError as exc:

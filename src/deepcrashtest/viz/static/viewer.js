@@ -15,7 +15,7 @@
   const READABLE_SPAN_M = 90; // the first view and "Ego": about this many metres across the canvas
   const CROSS_WINDOW_S = 0.1; // a collision's cross is drawn within this many seconds of its time
   const S = {
-    file: "", scenario: null, original: null, road: null, video: null, time: null, style: null, simulator: false,
+    file: "", scenario: null, original: null, road: null, video: null, time: null, style: null,
     undo: [], redo: [], t: 0, tmin: 0, tmax: 1, playing: false, speed: 1, selected: 0, wp: null,
     view: { scale: READABLE_PX_PER_M, ox: 40, oy: 280 }, sim: null, simStale: false, projection: null,
     drag: null, pan: null, frameShown: null, frameLoading: false, framePending: false, busy: 0, w: 900, h: 560,
@@ -565,8 +565,6 @@
     }
     $("undo").disabled = S.undo.length === 0;
     $("redo").disabled = S.redo.length === 0;
-    $("simulate").disabled = !S.simulator;
-    $("simulate").title = S.simulator ? "" : "simulator not available in this build";
     refreshReadout();
   }
 
@@ -1111,7 +1109,6 @@
     S.video = data.video;
     S.time = data.time;
     S.style = data.style;
-    S.simulator = data.simulator;
     S.selected = data.scenario.ego.id;
     S.original = new Map([data.scenario.ego, ...data.scenario.agents].map((v) => [v.id, v.trajectory]));
     $("falloff").value = String(data.default_falloff_s);
