@@ -24,7 +24,7 @@ from deepcrashtest.scenario import Scenario
 from deepcrashtest.sim.agents import agent_timeline
 from deepcrashtest.sim.controllers import controller_name, resolve_controller
 from deepcrashtest.sim.loop import Contact, LoopOutput, run_loop
-from deepcrashtest.sim.reference import PathSet, build_references
+from deepcrashtest.sim.reference import PathSet, build_pathset
 from deepcrashtest.sim.vehicle import VehicleLimits
 from deepcrashtest.sim.world import World, build_world
 
@@ -149,10 +149,9 @@ def _ego_variants(
     traj = world.scenario.ego.trajectory
     t = np.linspace(traj.t[0], traj.t[-1], ego_paths.shape[1])
     yaw = np.interp(t, traj.t, traj.yaw)
-    refs = build_references(t, ego_paths, yaw, world.times, world.dt)
-    init = np.stack([r.init for r in refs])
+    paths, init = build_pathset(t, ego_paths, yaw, world.times, world.dt)
     init[:, :2] += off
-    return PathSet.stack(refs, world.dt), np.arange(B, dtype=np.intp), off, init
+    return paths, np.arange(B, dtype=np.intp), off, init
 
 
 def _check_batch_inputs(ego_offsets: Any, ego_paths: Any) -> tuple[np.ndarray, np.ndarray | None]:
