@@ -111,13 +111,14 @@ class _Rows:
         self.world, self.ego, self.steer, self.ag, self.pres, self.ag_vel = world, ego, steer, ag, pres, ag_vel
         self.eh, self.ah = world.half[0], world.half[1:]
         self.pi, self.pj = np.nonzero(pres)  # the present pairs: evaluation index, agent
-        e = ego[self.pi]  # (N, R, 4)
         a = ag[self.pi, self.pj]  # (N, 4)
-        dx, dy = a[:, None, 0] - e[..., 0], a[:, None, 1] - e[..., 1]
+        dx = a[:, None, 0] - ego[:, :, 0][self.pi]
+        dy = a[:, None, 1] - ego[:, :, 1][self.pi]
         self.dist = np.sqrt(dx * dx + dy * dy)  # centre distances (N, R)
         self.r_a = np.hypot(self.ah[self.pj, 0], self.ah[self.pj, 1])[:, None]  # (N, 1) agents' circumradii
-        c, s = np.cos(e[..., 2]), np.sin(e[..., 2])
-        along, across = np.abs(dx * c + dy * s) - self.eh[0], np.abs(dy * c - dx * s) - self.eh[1]
+        c, s = np.cos(ego[:, :, 2])[self.pi], np.sin(ego[:, :, 2])[self.pi]
+        along = np.abs(dx * c + dy * s) - self.eh[0]
+        across = np.abs(dy * c - dx * s) - self.eh[1]
         # the separating-axis gap is the largest of four, two of them on the ego's axes, each at least this
         self.lower = np.maximum(along, across) - self.r_a - _EPS
 
