@@ -2,7 +2,9 @@
 
 Every engine cuts the variants into the same fixed-size chunks and simulates each chunk with
 ``deepcrashtest.sim.simulate_batch`` under the same seed, so the results do not depend on the
-engine or the number of workers.
+engine or the number of workers. With the replay controller (no sensor noise; every variant's
+outcome depends on its own parameters alone) the chunks are instead sized to keep every worker
+equally busy, at most ``chunk`` variants each.
 """
 
 from __future__ import annotations
@@ -119,8 +121,9 @@ class Evaluator:
         offsets = np.zeros((len(th), 2))
         paths = self.space.paths(th)
         n = self.chunk
-        if self.controller == "replay":  # no sensor noise: any cut gives the same results; one chunk per worker
-            n = max(1, -(-len(th) // self.workers))
+        if self.controller == "replay":  # no sensor noise: any cut gives the same results; balance the workers
+            per_worker = -(-len(th) // (self.workers * n))
+            n = max(1, -(-len(th) // (self.workers * per_worker)))
         chunks = [(offsets[i : i + n], paths[i : i + n]) for i in range(0, len(th), n)]
         parts = self._map(chunks)
         out = {k: np.concatenate([p[k] for p in parts]) for k in OUTCOME_FIELDS}
