@@ -4,12 +4,15 @@
 2. ``deepcrashtest search SCENARIO --method random --starts 500 --noise-variants 4 --no-video`` runs as a
    whole process (imports, set-up, 2,001 simulations, results.csv, summary.json, starts.png, variant files),
    ``--workers`` left at its default (the cores): variants/s = simulations / process wall time;
-3. ``simulate_batch`` simulates the same 2,000 variants (same paths) in-process with the same workers:
-   the simulator's own variants/s, and the ratio simulator / search (the goal: <= 2).
+3. ``simulate_batch`` simulates the same 2,000 variants (same paths) in-process with the same workers
+   (chunks of 512): the simulator's own variants/s, and the ratio simulator / search (the goal: <= 2);
+4. the first ``--stepwise`` variants (default 256) once more in one process, through the replay batch
+   mode (``sim.replay_batch``, the default) and through the per-step loop (``stepwise=True``, what
+   the search used before): the simulator's speed-up, and a check that both give the same outcomes.
 
 Prints one JSON line. The figures are wall times of a machine that may be shared: the ratio, measured in
 one run, is the robust figure; ``search_cpu_s`` is the CPU time the search process and its workers used.
-Usage: python bench/search_speed.py [--sequence 3] [--starts 500] [--noise-variants 4] [--workers N]
+Usage: python bench/search_speed.py [--sequence 3] [--starts 500] [--noise-variants 4] [--workers N] [--stepwise 256]
 """
 
 from __future__ import annotations
@@ -40,12 +43,35 @@ def _cli(*args: str) -> list[str]:
     return [sys.executable, "-c", "import sys; from deepcrashtest.cli import main; sys.exit(main())", *args]
 
 
+def _stepwise(world, paths: np.ndarray) -> dict:
+    """Replay batch mode against the per-step loop on the same variants, one process, alternating."""
+    zero = np.zeros((len(paths), 2))
+    times: dict[bool, float] = {False: 0.0, True: 0.0}
+    res = {}
+    for stepwise in (False, True, False, True):
+        t0 = time.process_time()
+        res[stepwise] = simulate_batch(world, zero, ego_paths=paths, stepwise=stepwise)
+        times[stepwise] += time.process_time() - t0
+    same = all(
+        np.allclose(getattr(res[False], k), getattr(res[True], k), rtol=0, atol=1e-9, equal_nan=True)
+        for k in res[False].__dataclass_fields__
+    )
+    return {
+        "stepwise_variants": len(paths),
+        "replay_batch_cpu_ms_per_variant": round(1000 * times[False] / (2 * len(paths)), 2),
+        "stepwise_loop_cpu_ms_per_variant": round(1000 * times[True] / (2 * len(paths)), 2),
+        "simulator_speedup": round(times[True] / times[False], 2),
+        "same_outcomes": bool(same),
+    }
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--sequence", type=int, default=3)
     ap.add_argument("--starts", type=int, default=500)
     ap.add_argument("--noise-variants", type=int, default=4)
     ap.add_argument("--workers", type=int, default=None, help="default: the cores (as the CLI)")
+    ap.add_argument("--stepwise", type=int, default=256, help="variants compared with the per-step loop (0: none)")
     args = ap.parse_args()
     if not KITTI.exists():
         print(json.dumps({"skipped": f"real data not found: {KITTI}"}))
@@ -78,9 +104,11 @@ def main() -> None:
         theta = space.reference_grid(np.random.default_rng([0, 1]), args.starts, args.noise_variants)
         world = prepare(sc)
         simulate_batch(world, np.zeros((2, 2)), ego_paths=space.paths(theta[:2]))  # warm-up: imports, agents
+        paths = space.paths(theta)
         t0 = time.perf_counter()
-        simulate_batch(world, np.zeros((len(theta), 2)), ego_paths=space.paths(theta), workers=workers)
+        simulate_batch(world, np.zeros((len(theta), 2)), ego_paths=paths, workers=workers, chunk_size=512)
         sim_s = time.perf_counter() - t0
+        steps = _stepwise(world, paths[: args.stepwise]) if args.stepwise else {}
     n = int(summary["simulations"])
     print(
         json.dumps(
@@ -95,6 +123,7 @@ def main() -> None:
                 "search_inner_variants_per_s": summary["variants_per_s"],
                 "simulate_batch_variants_per_s": round(len(theta) / sim_s, 1),
                 "ratio_simulator_to_search": round((len(theta) / sim_s) / (n / search_s), 2),
+                **steps,
                 "outputs": written,
                 "cpus": os.cpu_count(),
                 "note": "wall times on a possibly shared machine; the ratio is measured in one run",

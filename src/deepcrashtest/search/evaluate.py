@@ -10,7 +10,7 @@ equally busy, at most ``chunk`` variants each.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
@@ -104,13 +104,22 @@ class Evaluator:
 
     def _map(self, chunks: Sequence[tuple[np.ndarray, np.ndarray]]) -> list[dict[str, np.ndarray]]:
         args = [(self._json, o, p, self.controller, self.seed, self.duration) for o, p in chunks]
+        results: Iterable[dict[str, np.ndarray]]
         if self.engine == "ray":
-            return _ray_map(args, self.workers)
-        if self.workers == 1 or len(chunks) == 1:
-            return [simulate_chunk(*a) for a in args]
-        if self._pool is None:
-            self._pool = ProcessPoolExecutor(max_workers=self.workers)
-        return list(self._pool.map(simulate_chunk, *zip(*args, strict=True)))
+            results = _ray_map(args, self.workers)
+        elif self.workers == 1 or len(chunks) == 1:
+            results = (simulate_chunk(*a) for a in args)
+        else:
+            if self._pool is None:
+                self._pool = ProcessPoolExecutor(max_workers=self.workers)
+            results = self._pool.map(simulate_chunk, *zip(*args, strict=True))
+        parts = []
+        for (o, _), part in zip(chunks, results, strict=True):  # as each chunk finishes: the progress bar
+            parts.append(part)
+            self.simulations += len(o)
+            if self.on_progress is not None:
+                self.on_progress(len(o))
+        return parts
 
     # ------------------------------------------------------------------ evaluate
     def __call__(self, theta: np.ndarray) -> dict[str, np.ndarray]:
@@ -129,9 +138,6 @@ class Evaluator:
         out = {k: np.concatenate([p[k] for p in parts]) for k in OUTCOME_FIELDS}
         out["collided"] = out["collided"].astype(bool)
         out["change"] = self.space.change(th)
-        self.simulations += len(th)
-        if self.on_progress is not None:
-            self.on_progress(len(th))
         return out
 
 

@@ -137,9 +137,12 @@ def _interp_paths(
     """Grid span and cubic-interpolated positions and velocities (L, B, 2) of ``B`` paths sampled at ``t``."""
     B, n = xys.shape[:2]
     start, end, tq = _span(t, times, dt)
-    spline = make_interp_spline(t, xys.transpose(1, 0, 2).reshape(n, 2 * B), k=3)
-    pos = spline(tq).reshape(len(tq), B, 2)
-    vel = spline.derivative()(tq).reshape(len(tq), B, 2)
+    pos, vel = np.empty((len(tq), B, 2)), np.empty((len(tq), B, 2))
+    for lo in range(0, B, 256):  # blocks of columns stay in cache (SciPy solves each column alike)
+        blk = xys[lo : lo + 256]
+        spline = make_interp_spline(t, blk.transpose(1, 0, 2).reshape(n, 2 * len(blk)), k=3)
+        pos[:, lo : lo + len(blk)] = spline(tq).reshape(len(tq), len(blk), 2)
+        vel[:, lo : lo + len(blk)] = spline.derivative()(tq).reshape(len(tq), len(blk), 2)
     return start, end, pos, vel
 
 
