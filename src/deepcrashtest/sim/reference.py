@@ -207,14 +207,18 @@ def _resample_paths(
     lengths = n_base + n_ext
     out = np.empty((B, int(lengths.max()), 2))
     grid = np.arange(0.0, float(s_last.max()) + 1e-9, PATH_DS_M)
+    xy = np.ascontiguousarray(pos.transpose(1, 2, 0))  # (B, 2, L)
+    all_kept = keep.all(axis=1)
     for b in range(B):  # np.interp per polyline: their stations differ
-        k, n = keep[b], n_base[b]
-        s, pts = s_span[b][k], pos[:, b][k]
+        n, s, px, py = n_base[b], s_span[b], xy[b, 0], xy[b, 1]
+        if not all_kept[b]:
+            k = keep[b]
+            s, px, py = s[k], px[k], py[k]
         if len(s) > 1:
-            out[b, :n, 0] = np.interp(grid[:n], s, pts[:, 0])
-            out[b, :n, 1] = np.interp(grid[:n], s, pts[:, 1])
+            out[b, :n, 0] = np.interp(grid[:n], s, px)
+            out[b, :n, 1] = np.interp(grid[:n], s, py)
         else:
-            out[b, :n] = pts[:1]
+            out[b, :n] = (px[0], py[0])
     last = out[np.arange(B), n_base - 1]
     direction = np.column_stack([np.cos(end_heading), np.sin(end_heading)])
     m = np.arange(out.shape[1])[None, :] - n_base[:, None] + 1  # 1.. along each extension
