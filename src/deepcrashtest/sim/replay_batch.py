@@ -235,13 +235,13 @@ class _Rows:
         upper[r0] = self._distance(n0, r0, self._gap(n0, r0, gap_known))
         n, r = np.nonzero(valid & (self.lower <= upper[None, :]))
         g = self._gap(n, r, gap_known)
-        order = np.lexsort((g, r))
-        first = order[np.r_[True, r[order][1:] != r[order][:-1]]]  # each row's smallest gap
-        np.minimum.at(upper, r[first], self._distance(n[first], r[first], g[first]))
-        keep = g <= upper[r]
-        md = upper.copy()
-        np.minimum.at(md, r[keep], self._distance(n[keep], r[keep], g[keep]))
-        out.min_distance[rows] = md
+        order = np.lexsort((g, r))  # by row, smallest gap first
+        n, r, g = n[order], r[order], g[order]
+        rank = np.arange(len(r)) - np.searchsorted(r, r)  # position within the row
+        for lo, hi in ((0, 1), (1, 8), (8, 64), (64, len(r) + 1)):  # the bound tightens round by round
+            sel = (rank >= lo) & (rank < hi) & (g <= upper[r])
+            np.minimum.at(upper, r[sel], self._distance(n[sel], r[sel], g[sel]))
+        out.min_distance[rows] = upper
 
     def _min_ttc(self, out: LoopOutput, rows: slice, valid: np.ndarray, gap_known: np.ndarray) -> None:
         """Minimum time to collision at the loop's evaluation indices (0, TTC_EVERY, ...), apart pairs only."""
