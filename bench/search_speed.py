@@ -1,6 +1,6 @@
 """`deepcrashtest search` speed through the CLI against the simulator it drives, measured in one run.
 
-1. KITTI tracking 0003 (ground-truth labels -> stage 2, 9 agents, 19.6 s) is written as a Scenario;
+1. KITTI tracking 0003 (ground-truth labels -> stage 2, 9 agents, 14.3 s simulated) is written as a Scenario;
 2. ``deepcrashtest search SCENARIO --method random --starts 500 --noise-variants 4 --no-video`` runs as a
    whole process (imports, set-up, 2,001 simulations, results.csv, summary.json, starts.png, variant files),
    ``--workers`` left at its default (the cores): variants/s = simulations / process wall time;
