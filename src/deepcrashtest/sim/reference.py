@@ -208,7 +208,7 @@ def _resample_paths(
     out = np.empty((B, int(lengths.max()), 2))
     grid = np.arange(0.0, float(s_last.max()) + 1e-9, PATH_DS_M)
     xy = np.ascontiguousarray(pos.transpose(1, 2, 0))  # (B, 2, L)
-    all_kept: np.ndarray = keep.all(axis=1)
+    all_kept = np.all(keep, axis=1).tolist()
     for b in range(B):  # np.interp per polyline: their stations differ
         n, s, px, py = n_base[b], s_span[b], xy[b, 0], xy[b, 1]
         if not all_kept[b]:
