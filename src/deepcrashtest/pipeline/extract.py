@@ -50,7 +50,7 @@ DEFAULT_DETECT_EVERY = 5
 #: Every file ``extract`` may write into its output folder (one set per run: see fileio.output_set).
 OUTPUT_NAMES = ("tracks.csv", "annotated.mp4", "scenario_raw.json", "scenario.json", "report.html")
 #: Modules of the later phases imported in the background at the start (:func:`_warm_imports`).
-WARM_IMPORTS = ("sklearn.cluster", "deepcrashtest.geometry.world_tracks", "deepcrashtest.trajectory.pipeline")
+WARM_IMPORTS = ("deepcrashtest.geometry.world_tracks", "deepcrashtest.trajectory.pipeline")
 #: Shots of a compilation shorter than this (seconds) are not extracted.
 MIN_EXTRACT_SHOT_S = 1.0
 
