@@ -74,7 +74,8 @@ def main() -> None:
             per_det = calls["s"] / max(calls["n"], 1) * 1000
             what = "detect+track+annotate+encode" if write else "detect+track"
             print(
-                f"detect every {every:2d}: {what:29s} {args.frames / el:6.1f} fps, {cpu / args.frames * 1000:4.0f} ms CPU/frame "
+                f"detect every {every:2d}: {what:29s} {args.frames / el:6.1f} fps, "
+                f"{cpu / args.frames * 1000:4.0f} ms CPU/frame "
                 f"({per_det:.0f} ms/detector call, {calls['n']} calls, {df['track_id'].nunique()} tracks)"
             )
     print(f"peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
