@@ -93,6 +93,7 @@ class MonoConfig:
     frame_horizon: bool = True
     horizon_shrink: float = 1.0
     hull_height: bool = True
+    hull_in_class: bool = True
     prior_scale: float = 1.0
     size_scale_min_below_px: float = 0.0  # off: 60 px gave tuning MOTA 24.6 against 54.75
 
@@ -172,7 +173,7 @@ def _track_size(
     candidates = CANDIDATES.get(category, (category,)) if choose_class else (category,)
 
     def near_face(cls: str) -> np.ndarray:  # the samples as near-face heights of class ``cls``
-        if not cfg.hull_height:
+        if not (cfg.hull_height and cfg.hull_in_class):
             return h_samples
         ln, wd, ht = (v * scale for v in class_size(cls))
         return h_samples / hull_factor(ht, ln, wd, camera.height_m, cues.z_bottom[use], cues.bearing[use])
