@@ -14,6 +14,7 @@ the label class it covers (Van, Truck, Pedestrian...; distractor cars: occluded/
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from collections import Counter
 from pathlib import Path
 
@@ -117,16 +118,28 @@ def diagnose(seq: int, camera: str, config: MonoTracking = DEFAULT_MONO) -> tupl
     return out, fn, fp
 
 
+def _config(spec: str) -> MonoTracking:
+    kw = {k: eval(v) for k, v in (p.split("=") for p in spec.split(",") if p)}  # noqa: S307 (bench option)
+    return replace(DEFAULT_MONO, mono=replace(DEFAULT_MONO.mono, **kw))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--sequences", default=",".join(map(str, TUNING)))
     ap.add_argument("--camera", default="kitti")
+    ap.add_argument("--mono", default="", help="MonoConfig overrides, e.g. hull_height=False,prior_scale=1.02")
     args = ap.parse_args()
     FN, FP = Counter(), Counter()
+    n_err = 0
     for s in [int(x) for x in args.sequences.split(",")]:
-        out, fn, fp = diagnose(s, args.camera)
+        out, fn, fp = diagnose(s, args.camera, _config(args.mono))
         FN.update(fn)
         FP.update(fp)
+        e = np.array(ERR[n_err:]) if len(ERR) > n_err else np.zeros((0, 3))
+        n_err = len(ERR)
+        far = (e[:, 0] >= 20) & (e[:, 0] < 60) if len(e) else np.zeros(0, bool)
+        bias = float(np.median(e[far, 1] / e[far, 0]) * 100) if far.any() else float("nan")
+        print(f"{s:04d} range bias 20-60 m {bias:+.1f} %", end="  ")
         print(f"{s:04d} MOTA {100 * out['MOTA']:.1f} TP {out['CLR_TP']} FP {out['CLR_FP']} FN {out['CLR_FN']} "
               f"IDSW {out['IDSW']}  FN:{dict(fn.most_common(4))} FP:{dict(fp.most_common(4))}", flush=True)
     e = np.array(ERR)

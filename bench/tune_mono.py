@@ -23,17 +23,13 @@ DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kitti_t
 HELD_OUT = [3, 8, 10]
 TUNING = [s for s in range(21) if s not in HELD_OUT]
 GRID: dict[tuple[str, str], list] = {
-    ("mono", "class_switch_cost"): [3.0],
-    ("mono", "class_sample_inflation"): [1.5, 10.0],
-    ("mono", "horizon_shrink"): [1.0],
-    ("tracker", "min_detected"): [8, 16],
-    ("tracker", "min_score"): [0.3, 0.7],
-    ("tracker", "new_track_score"): [0.8, 0.97],
-    ("tracker", "min_hits"): [2, 5],
-    ("tracker", "max_age_s"): [1.0],
-    ("tracker", "min_iou"): [0.1],
-    ("mono", "accel_std"): [1.5, 5.0],
-    ("mono", "road_height_rel"): [0.3, 0.8],
+    ("mono", "prior_scale"): [0.98, 1.02],
+    ("mono", "class_switch_cost"): [0.5, 2.0],
+    ("mono", "size_sample_inflation"): [10.0, 30.0],
+    ("tracker", "min_score"): [0.6, 0.8],
+    ("tracker", "min_detected"): [5, 12],
+    ("tracker", "min_hits"): [3],
+    ("mono", "accel_std"): [3.0, 8.0],
 }
 #: Round 0 of an earlier run of this script (before the class choice) had already moved the noise
 #: model from hand-set values to road_height_rel 0.5, height_sigma_px 0.4, width_sigma_rel 0.2,

@@ -93,7 +93,7 @@ class MonoConfig:
     frame_horizon: bool = True
     horizon_shrink: float = 1.0
     hull_height: bool = True
-    hull_in_class: bool = True
+    hull_in_class: bool = False  # the class choice on the plain heights: tuning MOTA 55.83 against 54.75
     prior_scale: float = 1.0
     size_scale_min_below_px: float = 0.0  # off: 60 px gave tuning MOTA 24.6 against 54.75
 
