@@ -84,7 +84,7 @@ class MonoConfig:
     height_sigma_px: float = 0.4
     width_sigma_rel: float = 0.2
     bearing_sigma_px: float = 3.0
-    accel_std: float = 5.0
+    accel_std: float = 3.0
     init_speed_std: float = 15.0
     size_sample_inflation: float = 100.0
     class_sample_inflation: float = 1.5
