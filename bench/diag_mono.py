@@ -14,22 +14,21 @@ the label class it covers (Van, Truck, Pedestrian...; distractor cars: occluded/
 from __future__ import annotations
 
 import argparse
-from dataclasses import replace
 from collections import Counter
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from deepcrashtest.datasets.kitti.files import KittiSequence, read_labels
+from deepcrashtest.datasets.kitti.results import scenario_result_table
 from deepcrashtest.eval.boxes import iou_2d
 from deepcrashtest.eval.clear_mot import clear_only
-from deepcrashtest.eval.kitti import match_rule
-from deepcrashtest.datasets.kitti.results import scenario_result_table
-from deepcrashtest.eval.kitti import hypotheses_from_table
+from deepcrashtest.eval.kitti import hypotheses_from_table, match_rule
 from deepcrashtest.eval.kitti_mono import DEFAULT_MONO, MonoTracking, mono_scenario, prepare_mono, score_sequence
-from deepcrashtest.eval.kitti_world import world_table
 from deepcrashtest.eval.kitti_rules import apply_kitti_rules
+from deepcrashtest.eval.kitti_world import world_table
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kitti_tracking"
 TUNING = [s for s in range(21) if s not in (3, 8, 10)]
@@ -85,7 +84,11 @@ def diagnose(seq: int, camera: str, config: MonoTracking = DEFAULT_MONO) -> tupl
                     why = "localisation 2-6 m"
             if why is None:
                 dcov = iou_2d(gboxes[i : i + 1], det.boxes.astype(float))[0] if len(det.boxes) else np.zeros(0)
-                why = f"no track (box score {float(det.scores[dcov.argmax()]):.1f})" if (dcov >= 0.5).any() else "detector"
+                why = (
+                    f"no track (box score {float(det.scores[dcov.argmax()]):.1f})"
+                    if (dcov >= 0.5).any()
+                    else "detector"
+                )
             fn[(why, _bin(float(grange[i])))] += 1
         lab = lab_by.get(f)
         hk = h.world[keep]
@@ -140,15 +143,20 @@ def main() -> None:
         far = (e[:, 0] >= 20) & (e[:, 0] < 60) if len(e) else np.zeros(0, bool)
         bias = float(np.median(e[far, 1] / e[far, 0]) * 100) if far.any() else float("nan")
         print(f"{s:04d} range bias 20-60 m {bias:+.1f} %", end="  ")
-        print(f"{s:04d} MOTA {100 * out['MOTA']:.1f} TP {out['CLR_TP']} FP {out['CLR_FP']} FN {out['CLR_FN']} "
-              f"IDSW {out['IDSW']}  FN:{dict(fn.most_common(4))} FP:{dict(fp.most_common(4))}", flush=True)
+        print(
+            f"{s:04d} MOTA {100 * out['MOTA']:.1f} TP {out['CLR_TP']} FP {out['CLR_FP']} FN {out['CLR_FN']} "
+            f"IDSW {out['IDSW']}  FN:{dict(fn.most_common(4))} FP:{dict(fp.most_common(4))}",
+            flush=True,
+        )
     e = np.array(ERR)
     for lo, hi in ((0, 10), (10, 20), (20, 30), (30, 40), (40, 50), (50, 60), (60, 80)):
         m = (e[:, 0] >= lo) & (e[:, 0] < hi)
         if m.any():
             q = np.percentile(e[m, 1] / e[m, 0] * 100, [25, 50, 75])
-            print(f"range {lo}-{hi} m: n {m.sum()} range error % q25/50/75 {q.round(1)} lateral |m| median "
-                  f"{np.median(np.abs(e[m, 2])):.2f} within 2 m {np.mean(np.hypot(e[m, 1], e[m, 2]) < 2) * 100:.0f} %")
+            print(
+                f"range {lo}-{hi} m: n {m.sum()} range error % q25/50/75 {q.round(1)} lateral |m| median "
+                f"{np.median(np.abs(e[m, 2])):.2f} within 2 m {np.mean(np.hypot(e[m, 1], e[m, 2]) < 2) * 100:.0f} %"
+            )
     print("FN total by cause/range:")
     for k, v in sorted(FN.items()):
         print("  ", k, v)

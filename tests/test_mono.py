@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from deepcrashtest.datasets.kitti.files import KittiSequence, read_labels, read_poses
+from deepcrashtest.datasets.kitti.files import KittiSequence, read_calib, read_labels, read_poses
 from deepcrashtest.datasets.kitti.results import scenario_result_table, write_results
 from deepcrashtest.datasets.kitti.scenario import kitti_world_transform, scenario_from_kitti
 from deepcrashtest.eval.clear_mot import EvalSequence, clear_only
@@ -25,7 +25,6 @@ from deepcrashtest.eval.kitti_mono import (
 from deepcrashtest.eval.kitti_rules import MATCH_RULES, apply_kitti_rules
 from deepcrashtest.eval.kitti_world import KittiWorld
 from deepcrashtest.geometry.egomotion import EgoMotion
-from deepcrashtest.datasets.kitti.files import read_calib
 from deepcrashtest.geometry.mono3d import hull_factor
 from deepcrashtest.geometry.selfcalib import focal_from_motion, self_calibrate
 from deepcrashtest.scenario import Camera

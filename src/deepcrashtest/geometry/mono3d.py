@@ -16,8 +16,9 @@ Per track:
      unknown height under the vehicle relative to the camera's road (``road_height_rel`` of ``h``:
      real roads are not flat; on the KITTI labels the road under a car 10-20 m ahead lies
      1.37-1.86 m below the camera, 10th-90th percentile). Unused where the box is cut at the bottom.
-   * box height: ``Z = fy H / box_height`` with the track's height ``H``; unused where the box is
-     cut at the top or bottom.
+   * box height: ``Z = fy H / box_height`` with the track's height ``H``, times :func:`hull_factor`
+     (a vehicle lower than the camera shows its roof: the box's top edge is the roof's far edge);
+     unused where the box is cut at the top or bottom.
    * box width: ``Z = fx W_app / box_width``, ``W_app = L |sin a| + W |cos a|`` the vehicle's width
      seen at view angle ``a`` (its heading against the line of sight); unused where cut at a side.
 
@@ -92,9 +93,9 @@ class MonoConfig:
     gate_chi2: float = 25.0
     frame_horizon: bool = True
     horizon_shrink: float = 1.0
-    hull_height: bool = True
-    hull_in_class: bool = False  # the class choice on the plain heights: tuning MOTA 55.83 against 54.75
-    prior_scale: float = 1.0
+    hull_height: bool = True  # the height cue with hull_factor (tuning MOTA 55.83 against 54.75 without)
+    hull_in_class: bool = False  # the class choice on the plain heights (with: 54.75)
+    prior_scale: float = 1.0  # multiplies the class size priors (0.98: 52.70, 1.02: 51.43)
     size_scale_min_below_px: float = 0.0  # off: 60 px gave tuning MOTA 24.6 against 54.75
 
 
@@ -250,8 +251,8 @@ def hull_factor(
     depth ``z_near + D`` (``D = L |cos a| + W |sin a|`` its extent along the line of sight), so
     ``box_h = fy (hc / z_near - (hc - H) / (z_near + D))`` = ``fy H / z_near`` times
     ``1 + (hc - H) / H * D / (z_near + D)``. Taller vehicles show their near top edge (factor 1).
-    On the KITTI training boxes of cars the box height implies 1.54 m at the near corner against the
-    labels' 1.51 m (the roof's far edge)."""
+    On the KITTI 0001 labels (cars 5 m and more away) it narrows the gap between the box heights and
+    ``fy H / z_near`` (median |log| 0.018 against 0.023; ``tests/test_mono.py``)."""
     a = np.arctan(bearing)
     extent = length * np.abs(np.cos(a)) + width * np.abs(np.sin(a))
     z = np.maximum(np.nan_to_num(z_near, nan=1e6), 0.5)
