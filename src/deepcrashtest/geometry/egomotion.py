@@ -353,6 +353,7 @@ class EgoMotionEstimator:
         self._kf_frames = 0
         self._frame_motion: tuple[np.ndarray, np.ndarray, float, np.ndarray] | None = None
         self._overlay: np.ndarray | None = None  # votes per 16-px cell for still overlay points
+        self._dist = np.asarray(camera.distortion, dtype=float)
 
     # ------------------------------------------------------------------ helpers
     def _prepare(self, frame: np.ndarray) -> np.ndarray:
@@ -384,6 +385,15 @@ class EgoMotionEstimator:
             still = cv2.resize(cells.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST)
             mask[still > 0] = 0
         return mask
+
+    def _undistort(self, p: np.ndarray) -> np.ndarray:
+        """Work-px points without the lens distortion (the camera's, if it has one): the essential
+        matrix and the road homography hold for a pinhole only. Tracking stays on the raw frames."""
+        if not self._dist.size or not len(p):
+            return p
+        assert self._K is not None
+        pts = p.reshape(-1, 1, 2).astype(np.float64)
+        return cv2.undistortPoints(pts, self._K, self._dist, P=self._K).reshape(-1, 2).astype(np.float32)
 
     def _horizon_row(self) -> float:
         assert self._K is not None
@@ -562,7 +572,7 @@ class EgoMotionEstimator:
                 self._frame_motion = None
             elif parallax >= self.min_parallax_px or span >= self.max_keyframe_s:
                 keyframe = True
-                res = self._solve(q0, q1, h)
+                res = self._solve(self._undistort(q0), self._undistort(q1), h)
                 if res is None:
                     valid = False
                     self._invalid += 1
