@@ -4,7 +4,8 @@ For each labelled clip the geometry stage's own camera estimate (dashboard rows 
 2 s, as ``extract`` does) feeds :class:`~deepcrashtest.geometry.egomotion.EgoMotionEstimator` over the
 decoded frames; the smoothed speed is compared frame by frame with the overlay reading. Printed per clip:
 the overlay's mean, the estimate's mean and median over the labelled frames, the median error in % of the
-overlay on frames where it reads > 0, the frames the estimator calls stopped (< 0.3 m/s), and the camera
+overlay on frames where it reads > 0, the frames the estimator calls stopped (< 0.3 m/s), how many frames
+had a road-scale measurement (and their spread, before smoothing), and the camera
 ``fx * height`` that would make the means agree: the road plane's metric scale is proportional to the
 assumed focal length times the assumed camera height, and a clip without calibration runs on the
 unknown-dashcam default (90 deg horizontal field of view, 1.3 m). The highway clip (no overlay) runs with
@@ -37,6 +38,7 @@ class ClipRun:
     fx: float  # px
     height_m: float
     cpu_ms: float  # estimator CPU time per frame (decoding not counted)
+    raw: np.ndarray  # per frame: the keyframe pair's speed measurement (m/s) or NaN (none, or no road scale)
 
 
 def overlay_speeds(entry: dict[str, Any], n: int) -> np.ndarray:
@@ -73,11 +75,13 @@ def run_clip(video: Path, chessboard: bool, last_frame: int, tracks: Path | None
     boxes = pd.read_csv(tracks) if tracks is not None and tracks.exists() else None
     est = EgoMotionEstimator(cam, mask_bottom_rows=rows, **options)
     t0 = time.process_time()
+    raw = []
     for i, img in enumerate(images):
         b = boxes[boxes.frame == i][["x1", "y1", "x2", "y2"]].to_numpy(float) if boxes is not None else None
-        est.update(img, i / fps, b)
+        state = est.update(img, i / fps, b)
+        raw.append(np.nan if state.raw_speed is None else state.raw_speed)
     cpu_ms = (time.process_time() - t0) / len(images) * 1000
-    return ClipRun(est.result().speed, cam.fx, cam.height_m, cpu_ms)
+    return ClipRun(est.result().speed, cam.fx, cam.height_m, cpu_ms, np.asarray(raw))
 
 
 def report_labelled(name: str, entry: dict[str, Any], r: ClipRun) -> None:
@@ -93,6 +97,13 @@ def report_labelled(name: str, entry: dict[str, Any], r: ClipRun) -> None:
         f"{err:7.1f} {int(np.sum(s[lab] < 0.3)):3d}/{int(lab.sum()):<3d} {r.fx * r.height_m:7.0f} {fh:9.0f} "
         f"{r.cpu_ms:8.1f}"
     )
+    m = lab & np.isfinite(r.raw)
+    if m.any():
+        print(
+            f"{'':22} road-scale measurements on {int(m.sum())} of {int(lab.sum())} frames: median "
+            f"{np.median(r.raw[m]) * 3.6:.1f} km/h, 10-90 % {np.percentile(r.raw[m], 10) * 3.6:.1f}-"
+            f"{np.percentile(r.raw[m], 90) * 3.6:.1f} km/h (before the Kalman/RTS smoother)"
+        )
     zero = lab & (tr == 0)
     if zero.any():
         print(f"{'':22} overlay 0 km/h on {int(zero.sum())} frames: mean speed there {np.mean(s[zero]):.2f} m/s")
