@@ -250,7 +250,6 @@ class _Rows:
         gk = gap_known[sel]
         ok = valid[sel] & (np.isnan(gk) | (gk > 0))  # unknown gaps are positive (the circles do not touch)
         pi, pj = self.pi[sel], self.pj[sel]
-        e = self.ego[pi]  # (S, R, 4)
         at, inv = np.unique(pi, return_inverse=True)  # each evaluation index once (several agents share it)
         ev = velocity_xy(self.ego[at, :, 2], self.ego[at, :, 3], self.steer[at])[inv]
         w = self.ag_vel[pi, pj][:, None, :] - ev
@@ -264,7 +263,8 @@ class _Rows:
             ok[n, r] = False
             if not len(n):
                 continue
-            ee, evv, a, av, ah = e[n, r], ev[n, r], self.ag[pi[n], pj[n]], self.ag_vel[pi[n], pj[n]], self.ah[pj[n]]
+            ee, evv, ah = self.ego[pi[n], r], ev[n, r], self.ah[pj[n]]
+            a, av = self.ag[pi[n], pj[n]], self.ag_vel[pi[n], pj[n]]
             ttc = time_to_collision(
                 a[:, 0] - ee[:, 0], a[:, 1] - ee[:, 1], av[:, 0] - evv[:, 0], av[:, 1] - evv[:, 1],
                 ee[:, 2], self.eh[0], self.eh[1], a[:, 2], ah[:, 0], ah[:, 1],
