@@ -12,9 +12,14 @@ Evidence, per candidate pair and frame (each scored 0..1):
   off), closing fast (time to contact from the box's growth under ~1 s), and the camera jolts
   (a spike of the global image motion's second difference against its median: the impact shakes
   the camera);
-* two tracks: their boxes touch or overlap in the image with bottoms at a similar row (close in
-  3D: a similar ground distance), and one of them changes motion suddenly (a spike of the box
-  centre's acceleration); discounted when a road user is at the ego's bumper in the clip.
+* two tracks: their boxes touch or overlap in the image, they are close in 3D (``world``: their
+  ground positions, metres, less than ``CLOSE_3D_M`` apart beyond their half widths within
+  ``CLOSE_3D_WINDOW_S``; without ``world``, bottoms at a similar image row), and one of them changes
+  motion suddenly (a spike of the box centre's acceleration); discounted when a road user is at the
+  ego's bumper in the clip. Two pedestrians are never a crash pair.
+
+"Near" for an ego crash is the box's width or, for narrow road users (a person, a two-wheeler), its
+height as a share of the image, with its bottom in the lower part of the image.
 
 The contact frame of an ego crash is the first camera jolt while the road user is near, else the
 "knee" where its approaching box stops growing, else the first frame at which it is nearest.
@@ -33,6 +38,21 @@ import numpy as np
 import pandas as pd
 
 EGO = 0  # the ego's id in a crash pair
+#: Two road users count as close in 3D when their ground-plane gap (centre distance less their half
+#: widths, metres) is under this; chosen on the DAD clips (labelled pairs 0-1 m, others >= 2.5 m).
+CLOSE_3D_M = 2.5
+#: ... at some time within this (s) of the frame (mono 3D positions jump by metres from frame to frame).
+CLOSE_3D_WINDOW_S = 0.3
+
+
+@dataclass(frozen=True)
+class WorldTrack:
+    """A road user's ground position per video frame (world x, y metres) and its half width (m)."""
+
+    frames: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    half_width: float
 
 
 @dataclass(frozen=True)
@@ -127,7 +147,9 @@ def ego_scores(g: pd.DataFrame, width: int, height: int, fps: float, jolt: dict[
     """Per frame of one track: near (wide box reaching the image bottom), closing (box growth), jolt."""
     x1, y1, x2, y2 = (g[c].to_numpy(float) for c in ("x1", "y1", "x2", "y2"))
     size = np.log(np.sqrt(np.maximum((x2 - x1) * (y2 - y1), 1.0)))
-    raw_near = np.clip(((x2 - x1) / width - 0.12) / 0.3, 0, 1) * np.clip((y2 / height - 0.55) / 0.3, 0, 1)
+    wide = np.clip(((x2 - x1) / width - 0.12) / 0.3, 0, 1)
+    tall = np.clip(((y2 - y1) / height - 0.25) / 0.4, 0, 1)  # a person or two-wheeler close in front
+    raw_near = np.maximum(wide, tall) * np.clip((y2 / height - 0.55) / 0.3, 0, 1)
     near = pd.Series(raw_near, index=g.index).rolling(3, center=True, min_periods=1).max()
     closing = np.clip(_growth(g, fps).to_numpy(), 0, 1.5) / 1.5  # d ln(size)/dt = 1.5/s (TTC 0.67 s) -> 1
     j = pd.Series([jolt.get(int(f), 0.0) for f in g.index.to_numpy(int)], index=g.index)
@@ -170,8 +192,35 @@ def ego_best(s: pd.DataFrame, fps: float) -> tuple[float, int, dict[str, float]]
     return score, frame, ev
 
 
-def pair_scores(a: pd.DataFrame, b: pd.DataFrame, width: int, height: int) -> pd.DataFrame:
-    """Per common frame of two tracks: contact in the image, similar ground row, motion change."""
+def close_3d(a: WorldTrack, b: WorldTrack, frames: np.ndarray, fps: float) -> np.ndarray:
+    """0..1 per frame: 1 when the two road users' ground gap (m) is 0 at some time within
+    ``CLOSE_3D_WINDOW_S``, 0 from ``CLOSE_3D_M`` on."""
+    lo = max(a.frames[0], b.frames[0])
+    hi = min(a.frames[-1], b.frames[-1])
+    if hi < lo:
+        return np.zeros(len(frames))
+    grid = np.arange(lo, hi + 1)
+    d = np.hypot(
+        np.interp(grid, a.frames, a.x) - np.interp(grid, b.frames, b.x),
+        np.interp(grid, a.frames, a.y) - np.interp(grid, b.frames, b.y),
+    )
+    gap = pd.Series(np.maximum(d - a.half_width - b.half_width, 0.0), index=grid)
+    k = max(1, int(round(CLOSE_3D_WINDOW_S * fps)))
+    gap = gap.rolling(2 * k + 1, center=True, min_periods=1).min()
+    g = gap.reindex(frames).to_numpy(float)
+    return np.where(np.isfinite(g), np.clip(1 - g / CLOSE_3D_M, 0, 1), 0.0)
+
+
+def pair_scores(
+    a: pd.DataFrame,
+    b: pd.DataFrame,
+    width: int,
+    height: int,
+    world: tuple[WorldTrack, WorldTrack] | None = None,
+    fps: float = 10.0,
+) -> pd.DataFrame:
+    """Per common frame of two tracks: contact in the image, close in 3D (or a similar ground row),
+    motion change."""
     common = a.index.intersection(b.index)
     if not len(common):
         return pd.DataFrame(columns=["touch", "depth", "change", "score"])
@@ -182,6 +231,8 @@ def pair_scores(a: pd.DataFrame, b: pd.DataFrame, width: int, height: int) -> pd
     touch = np.clip(1 + np.minimum(ix, iy) / np.maximum(scale, 10) / 0.15, 0, 1) * (iy > 0)
     hb = np.maximum(np.maximum(a["y2"] - a["y1"], b["y2"] - b["y1"]), 10)
     depth = np.clip(1 - np.abs(a["y2"] - b["y2"]) / hb / 0.35, 0, 1)
+    if world is not None:
+        depth = pd.Series(close_3d(*world, common.to_numpy(), fps), index=common)
     change = pd.Series(np.maximum(_motion_change(a, width).to_numpy(), _motion_change(b, width).to_numpy()), common)
     score = touch * depth * (0.2 + 0.8 * change)
     return pd.DataFrame({"touch": touch, "depth": depth, "change": change, "score": score})
@@ -196,9 +247,11 @@ def detect_crash(
     min_score: float = 0.35,
     allowed: set[int] | None = None,
     frames: tuple[int, int] | None = None,
+    world: dict[int, WorldTrack] | None = None,
 ) -> CrashFinding | None:
     """The most likely crash (module docstring), or None. ``motion`` = (frames, shifts) of
-    :class:`GlobalMotion`; only tracks in ``allowed`` (if given) and frames in ``frames`` (inclusive)."""
+    :class:`GlobalMotion`; only tracks in ``allowed`` (if given) and frames in ``frames`` (inclusive);
+    ``world``: ground positions per track id (close in 3D; a pair without them uses the image rows)."""
     per = {k: g for k, g in _per_track(tracks).items() if allowed is None or k in allowed}
     jolt = jolt_score(*motion, fps) if motion is not None else {}
     lo, hi = frames if frames is not None else (-(10**9), 10**9)
@@ -211,9 +264,14 @@ def detect_crash(
             cands.append((score, frame, (EGO, tid), ev))
     ego_near = max((c[3].get("near", 0.0) for c in cands), default=0.0)
     ids = sorted(per)
+    cats = _categories(tracks)
+    world = world or {}
     for i, ta in enumerate(ids):
         for tb in ids[i + 1 :]:
-            s = pair_scores(per[ta], per[tb], width, height)
+            if cats.get(ta) == cats.get(tb) == "pedestrian":
+                continue
+            wpair = (world[ta], world[tb]) if ta in world and tb in world else None
+            s = pair_scores(per[ta], per[tb], width, height, wpair, fps)
             s = s[(s.index >= lo) & (s.index <= hi)]
             if len(s):  # something at the ego's bumper makes an ego crash the likelier one
                 score, frame, pair, ev = _best(s, (ta, tb))
@@ -224,6 +282,14 @@ def detect_crash(
     if score < min_score:
         return None
     return CrashFinding(frame, frame / fps, pair, float(np.clip(score, 0, 1)), ev)
+
+
+def _categories(tracks: pd.DataFrame) -> dict[int, str]:
+    """Each track's most frequent category (empty without a ``category`` column)."""
+    if "category" not in tracks.columns or not len(tracks):
+        return {}
+    top = tracks.groupby("track_id")["category"].agg(lambda c: c.value_counts().index[0])
+    return {int(k): str(v) for k, v in top.items()}
 
 
 def _best(s: pd.DataFrame, pair: tuple[int, int]) -> tuple[float, int, tuple[int, int], dict[str, float]]:
