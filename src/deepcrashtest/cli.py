@@ -219,7 +219,7 @@ def extract(
     fps: float | None = typer.Option(None, "--fps", help="Frame rate (required for image folders)."),
     detector: str = typer.Option(DEFAULT_DETECTOR, "--detector", help=DETECTOR_HELP),
     detect_every: int = typer.Option(
-        5, "--detect-every", help="Run the detector every N frames (and at least every 0.25 s); track between."
+        5, "--detect-every", help="Run the detector every N frames (at least every 0.25 s); track between."
     ),
     max_frames: int | None = typer.Option(None, "--max-frames", help="Stop after this many frames."),
     camera: Path | None = typer.Option(None, "--camera", help="Camera YAML: fx, fy, cx, cy [, height_m, ...]."),

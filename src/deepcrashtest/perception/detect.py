@@ -52,7 +52,8 @@ DEFAULT_DETECTOR = "yolo26n"
 #: clips' contact frames (bench/labels, 18 clips): labelled road users detected 15/42 -> 31/42 (384: 30/42).
 YOLO_COARSE = 320
 DETECTOR_HELP = (
-    "yolo26n[:area=PIXELS,size=N,score=S,coarse=N] (default; YOLO26n weights AGPL-3.0, Ultralytics; built once by `make models`)"
+    "yolo26n[:area=PIXELS,size=N,score=S,coarse=N] (default; YOLO26n weights AGPL-3.0, Ultralytics; built once by "
+    "`make models`)"
     " | ssd[:tiles=N,score=S,input=WxH] (SSD-MobileNet-v2, Apache-2.0) | onnx:PATH (any YOLO ONNX)."
 )
 
