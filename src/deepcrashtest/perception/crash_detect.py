@@ -43,6 +43,8 @@ EGO = 0  # the ego's id in a crash pair
 CLOSE_3D_M = 2.5
 #: ... at some time within this (s) of the frame (mono 3D positions jump by metres from frame to frame).
 CLOSE_3D_WINDOW_S = 0.3
+#: ... and the last gap is held this long (s) after a road user's 3D positions end.
+CLOSE_3D_HOLD_S = 0.6
 
 
 @dataclass(frozen=True)
@@ -192,23 +194,46 @@ def ego_best(s: pd.DataFrame, fps: float) -> tuple[float, int, dict[str, float]]
     return score, frame, ev
 
 
+def _extended(w: WorldTrack, frames: float) -> WorldTrack:
+    """``w`` carried ``frames`` frames before its first and after its last position at its constant
+    velocity there (over its first/last few positions)."""
+    f, x, y = w.frames, w.x, w.y
+    if len(f) < 2:
+        return WorldTrack(
+            np.r_[f[0] - frames, f, f[-1] + frames], np.r_[x[0], x, x[-1]], np.r_[y[0], y, y[-1]], w.half_width
+        )
+    k = min(len(f) - 1, 4)
+    v0 = np.array([x[k] - x[0], y[k] - y[0]]) / max(f[k] - f[0], 1e-6)
+    v1 = np.array([x[-1] - x[-1 - k], y[-1] - y[-1 - k]]) / max(f[-1] - f[-1 - k], 1e-6)
+    return WorldTrack(
+        np.r_[f[0] - frames, f, f[-1] + frames],
+        np.r_[x[0] - v0[0] * frames, x, x[-1] + v1[0] * frames],
+        np.r_[y[0] - v0[1] * frames, y, y[-1] + v1[1] * frames],
+        w.half_width,
+    )
+
+
 def close_3d(a: WorldTrack, b: WorldTrack, frames: np.ndarray, fps: float) -> np.ndarray:
     """0..1 per frame: 1 when the two road users' ground gap (m) is 0 at some time within
-    ``CLOSE_3D_WINDOW_S``, 0 from ``CLOSE_3D_M`` on."""
+    ``CLOSE_3D_WINDOW_S``, 0 from ``CLOSE_3D_M`` on. Each is carried at constant velocity for
+    ``CLOSE_3D_HOLD_S`` beyond its 3D positions (a road user at the contact is often partly hidden
+    and no longer placed in 3D); NaN where unknown."""
+    hold = CLOSE_3D_HOLD_S * fps
+    a, b = _extended(a, hold), _extended(b, hold)
     lo = max(a.frames[0], b.frames[0])
     hi = min(a.frames[-1], b.frames[-1])
-    if hi < lo:
-        return np.zeros(len(frames))
-    grid = np.arange(lo, hi + 1)
+    if hi < lo or not len(frames):
+        return np.full(len(frames), np.nan)
+    grid = np.arange(np.ceil(lo), np.floor(hi) + 1)
     d = np.hypot(
         np.interp(grid, a.frames, a.x) - np.interp(grid, b.frames, b.x),
         np.interp(grid, a.frames, a.y) - np.interp(grid, b.frames, b.y),
     )
-    gap = pd.Series(np.maximum(d - a.half_width - b.half_width, 0.0), index=grid)
+    gap = pd.Series(np.maximum(d - a.half_width - b.half_width, 0.0), index=grid.astype(int))
     k = max(1, int(round(CLOSE_3D_WINDOW_S * fps)))
     gap = gap.rolling(2 * k + 1, center=True, min_periods=1).min()
-    g = gap.reindex(frames).to_numpy(float)
-    return np.where(np.isfinite(g), np.clip(1 - g / CLOSE_3D_M, 0, 1), 0.0)
+    g = gap.reindex(frames.astype(int)).to_numpy(float)
+    return np.clip(1 - g / CLOSE_3D_M, 0, 1)
 
 
 def pair_scores(
@@ -232,7 +257,8 @@ def pair_scores(
     hb = np.maximum(np.maximum(a["y2"] - a["y1"], b["y2"] - b["y1"]), 10)
     depth = np.clip(1 - np.abs(a["y2"] - b["y2"]) / hb / 0.35, 0, 1)
     if world is not None:
-        depth = pd.Series(close_3d(*world, common.to_numpy(), fps), index=common)
+        near3 = close_3d(*world, common.to_numpy(), fps)
+        depth = pd.Series(np.where(np.isfinite(near3), near3, depth), index=common)
     change = pd.Series(np.maximum(_motion_change(a, width).to_numpy(), _motion_change(b, width).to_numpy()), common)
     score = touch * depth * (0.2 + 0.8 * change)
     return pd.DataFrame({"touch": touch, "depth": depth, "change": change, "score": score})
