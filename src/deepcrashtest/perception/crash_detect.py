@@ -38,6 +38,13 @@ import numpy as np
 import pandas as pd
 
 EGO = 0  # the ego's id in a crash pair
+#: A knee (the box stops growing) is one when the box grows less than this (log size) in the next 0.5 s
+#: (chosen on dad_000487: a box jump 1.6 s before the contact).
+KNEE_MAX_LATER_GROWTH = 0.1
+#: A pair's contact must follow a time apart: the share of the previous ONSET_WINDOW_S (s) with the boxes
+#: apart, saturating at ONSET_APART (chosen on dad_000478 and the highway clip: image overlap all along).
+ONSET_WINDOW_S = 1.0
+ONSET_APART = 0.3
 #: Two road users count as close in 3D when their ground-plane gap (centre distance less their half
 #: widths, metres) is under this; chosen on the DAD clips (labelled pairs 0-1 m, others >= 2.5 m).
 CLOSE_3D_M = 2.5
@@ -150,7 +157,7 @@ def ego_scores(g: pd.DataFrame, width: int, height: int, fps: float, jolt: dict[
     x1, y1, x2, y2 = (g[c].to_numpy(float) for c in ("x1", "y1", "x2", "y2"))
     size = np.log(np.sqrt(np.maximum((x2 - x1) * (y2 - y1), 1.0)))
     wide = np.clip(((x2 - x1) / width - 0.12) / 0.3, 0, 1)
-    tall = np.clip(((y2 - y1) / height - 0.25) / 0.4, 0, 1)  # a person or two-wheeler close in front
+    tall = np.clip(((y2 - y1) / height - 0.35) / 0.4, 0, 1)  # a person or two-wheeler close in front
     raw_near = np.maximum(wide, tall) * np.clip((y2 / height - 0.55) / 0.3, 0, 1)
     near = pd.Series(raw_near, index=g.index).rolling(3, center=True, min_periods=1).max()
     closing = np.clip(_growth(g, fps).to_numpy(), 0, 1.5) / 1.5  # d ln(size)/dt = 1.5/s (TTC 0.67 s) -> 1
@@ -160,13 +167,16 @@ def ego_scores(g: pd.DataFrame, width: int, height: int, fps: float, jolt: dict[
 
 def knee_frame(s: pd.DataFrame, fps: float) -> int | None:
     """The first frame at which an approaching box stops growing (two frames in a row growing at less
-    than a third of its rate over the previous half second): the other road user is at the bumper."""
+    than a third of its rate over the previous half second, and not more than ``KNEE_MAX_LATER_GROWTH``
+    in log size over the next half second: a detector's box jumping to a larger one is not it): the
+    other road user is at the bumper."""
     ls = s["log_size"].to_numpy(float)
     g = np.diff(ls)
     n_prev = max(2, int(round(0.5 * fps)))
     for k in range(n_prev, len(g) - 1):
         rate = float(np.median(g[k - n_prev : k]))
-        if rate > 0.02 and s["near"].iloc[k] >= 0.3 and g[k] < rate / 3 and g[k + 1] < rate / 3:
+        stays = ls[k + 1 : k + 1 + n_prev].max() - ls[k] < KNEE_MAX_LATER_GROWTH  # not a box jump
+        if rate > 0.02 and s["near"].iloc[k] >= 0.3 and g[k] < rate / 3 and g[k + 1] < rate / 3 and stays:
             return int(s.index[k])
     return None
 
@@ -260,8 +270,20 @@ def pair_scores(
         near3 = close_3d(*world, common.to_numpy(), fps)
         depth = pd.Series(np.where(np.isfinite(near3), near3, depth), index=common)
     change = pd.Series(np.maximum(_motion_change(a, width).to_numpy(), _motion_change(b, width).to_numpy()), common)
-    score = touch * depth * (0.2 + 0.8 * change)
-    return pd.DataFrame({"touch": touch, "depth": depth, "change": change, "score": score})
+    onset = _onset(pd.Series(np.asarray(touch, float), index=common), fps)
+    score = touch * depth * (0.2 + 0.8 * change) * onset
+    return pd.DataFrame({"touch": touch, "depth": depth, "change": change, "onset": onset, "score": score})
+
+
+def _onset(touch: pd.Series, fps: float) -> pd.Series:
+    """0..1 per frame: how much of the previous ``ONSET_WINDOW_S`` the two boxes were apart (touch < 0.5;
+    frames without both tracks do not count as apart: the pair must be seen apart first), saturating at ``ONSET_APART``: a contact starts at a
+    moment; boxes overlapping all along are one road user seen behind the other."""
+    frames = touch.index.to_numpy(int)
+    n = max(2, int(round(ONSET_WINDOW_S * fps)))
+    full = touch.reindex(np.arange(frames.min() - n, frames.max() + 1)).fillna(1.0)
+    apart = (full < 0.5).astype(float).rolling(n, min_periods=1).mean().shift(1).fillna(0.0)
+    return pd.Series(np.clip(apart.reindex(frames).to_numpy() / ONSET_APART, 0, 1), index=touch.index)
 
 
 def detect_crash(
