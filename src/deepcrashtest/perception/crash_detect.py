@@ -277,8 +277,9 @@ def pair_scores(
 
 def _onset(touch: pd.Series, fps: float) -> pd.Series:
     """0..1 per frame: how much of the previous ``ONSET_WINDOW_S`` the two boxes were apart (touch < 0.5;
-    frames without both tracks do not count as apart: the pair must be seen apart first), saturating at ``ONSET_APART``: a contact starts at a
-    moment; boxes overlapping all along are one road user seen behind the other."""
+    frames without both tracks do not count as apart: the pair must be seen apart first), saturating at
+    ``ONSET_APART``: a contact starts at a moment; boxes overlapping all along are one road user seen
+    behind the other."""
     frames = touch.index.to_numpy(int)
     n = max(2, int(round(ONSET_WINDOW_S * fps)))
     full = touch.reindex(np.arange(frames.min() - n, frames.max() + 1)).fillna(1.0)
