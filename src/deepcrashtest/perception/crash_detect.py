@@ -45,6 +45,9 @@ KNEE_MAX_LATER_GROWTH = 0.1
 #: apart, saturating at ONSET_APART (chosen on dad_000478 and the highway clip: image overlap all along).
 ONSET_WINDOW_S = 1.0
 ONSET_APART = 0.3
+#: An ego crash needs this much approach (closing) or jolt evidence at full score: a box at the bumper
+#: from the start without either is the ego's own bonnet or a queue (dad_000512: the bonnet as a "car").
+EGO_MIN_EVIDENCE = 0.3
 #: Two road users count as close in 3D when their ground-plane gap (centre distance less their half
 #: widths, metres) is under this; chosen on the DAD clips (labelled pairs 0-1 m, others >= 2.5 m).
 CLOSE_3D_M = 2.5
@@ -200,6 +203,7 @@ def ego_best(s: pd.DataFrame, fps: float) -> tuple[float, int, dict[str, float]]
     closing = float(before["closing"].max()) if len(before) else 0.0
     jolt = float(s["jolt"].to_numpy()[s.index.to_numpy() == frame][0])
     score = peak * (0.45 + 0.3 * closing + 0.25 * jolt) if not len(jolted) else peak * (0.6 + 0.4 * jolt)
+    score *= min(1.0, (closing + jolt) / EGO_MIN_EVIDENCE)  # near all along (the bonnet, a queue): no crash
     ev = {"near": round(peak, 3), "closing": round(closing, 3), "jolt": round(jolt, 3), "score": round(score, 3)}
     return score, frame, ev
 
