@@ -202,7 +202,9 @@ def ego_best(s: pd.DataFrame, fps: float) -> tuple[float, int, dict[str, float]]
     before = s[(s.index <= frame) & (s.index >= frame - fps)]
     closing = float(before["closing"].max()) if len(before) else 0.0
     jolt = float(s["jolt"].to_numpy()[s.index.to_numpy() == frame][0])
-    score = peak * (0.45 + 0.3 * closing + 0.25 * jolt) if not len(jolted) else peak * (0.6 + 0.4 * jolt)
+    score = (
+        peak * (0.45 + 0.3 * closing + 0.25 * jolt) if not len(jolted) else peak * (0.5 + 0.35 * jolt + 0.15 * closing)
+    )
     score *= min(1.0, (closing + jolt) / EGO_MIN_EVIDENCE)  # near all along (the bonnet, a queue): no crash
     ev = {"near": round(peak, 3), "closing": round(closing, 3), "jolt": round(jolt, 3), "score": round(score, 3)}
     return score, frame, ev
