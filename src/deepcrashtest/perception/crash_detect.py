@@ -271,10 +271,9 @@ def pair_scores(
     scale = np.minimum(a["x2"] - a["x1"], b["x2"] - b["x1"])
     touch = np.clip(1 + np.minimum(ix, iy) / np.maximum(scale, 10) / 0.15, 0, 1) * (iy > 0)
     hb = np.maximum(np.maximum(a["y2"] - a["y1"], b["y2"] - b["y1"]), 10)
-    depth = np.clip(1 - np.abs(a["y2"] - b["y2"]) / hb / 0.35, 0, 1)
-    if world is not None:
-        near3 = close_3d(*world, common.to_numpy(), fps)
-        depth = pd.Series(np.where(np.isfinite(near3), near3, depth), index=common)
+    rows = np.clip(1 - np.abs(a["y2"].to_numpy(float) - b["y2"].to_numpy(float)) / np.asarray(hb, float) / 0.35, 0, 1)
+    near3 = close_3d(*world, common.to_numpy(), fps) if world is not None else np.full(len(common), np.nan)
+    depth = pd.Series(np.where(np.isfinite(near3), near3, rows), index=common)
     change = pd.Series(np.maximum(_motion_change(a, width).to_numpy(), _motion_change(b, width).to_numpy()), common)
     onset = _onset(pd.Series(np.asarray(touch, float), index=common), fps)
     score = touch * depth * (0.2 + 0.8 * change) * onset
@@ -344,7 +343,7 @@ def _categories(tracks: pd.DataFrame) -> dict[int, str]:
     if "category" not in tracks.columns or not len(tracks):
         return {}
     top = tracks.groupby("track_id")["category"].agg(lambda c: c.value_counts().index[0])
-    return {int(k): str(v) for k, v in top.items()}
+    return {int(str(k)): str(v) for k, v in top.items()}
 
 
 def _best(s: pd.DataFrame, pair: tuple[int, int]) -> tuple[float, int, tuple[int, int], dict[str, float]]:
