@@ -121,18 +121,21 @@ def run_clip(name: str, label: CrashLabel, dirs: list[Path], cache: Path) -> dic
 
 
 def summary(rows: list[dict[str, Any]], which: str) -> str:
-    sel = [r for r in rows if r.get("split") == which or (which == "tune" and r["clip"].startswith("dad"))]
-    sel = [r for r in sel if r.get("ok") is not None and "error" not in r]
-    n = len(sel)
-    pair = sum(bool(r["pair_ok"]) for r in sel if r.get("pair_ok") is not None)
-    ok = sum(bool(r["ok"]) for r in sel)
-    tr = [tuple(map(int, r["tracked"].split("/"))) for r in sel if r.get("tracked", "-") != "-"]
-    ag = [tuple(map(int, r["agents"].split("/"))) for r in sel if r.get("agents", "-") != "-"]
-    dts = [abs(r["dt"]) for r in sel if r.get("pair_ok") and r.get("dt") is not None]
+    """One line per split: crash clips with a contact frame (pair right, and |dt| too), tracking, and the
+    clips without a crash that stay without one."""
+    sel = [r for r in rows if r.get("split") == which and "error" not in r]
+    crash = [r for r in sel if r.get("pair_ok") is not None]
+    quiet = [r for r in sel if r.get("tracked") == "-" and r.get("ok") is not None]
+    pair = sum(bool(r["pair_ok"]) for r in crash)
+    ok = sum(bool(r["ok"]) for r in crash)
+    tr = [tuple(map(int, r["tracked"].split("/"))) for r in crash]
+    ag = [tuple(map(int, r["agents"].split("/"))) for r in crash]
+    dts = [abs(r["dt"]) for r in crash if r.get("pair_ok") and r.get("dt") is not None]
     return (
-        f"{which}: {n} clips, pair right {pair}, pair+|dt|<=0.25 s {ok}, labelled road users tracked "
-        f"{sum(a for a, _ in tr)}/{sum(b for _, b in tr)}, agents {sum(a for a, _ in ag)}/{sum(b for _, b in ag)}, "
-        f"median |dt| (right pair) {np.median(dts) if dts else float('nan'):.2f} s"
+        f"{which}: {len(crash)} crash clips, pair right {pair}, pair+|dt|<=0.25 s {ok}, labelled road users "
+        f"tracked {sum(a for a, _ in tr)}/{sum(b for _, b in tr)}, agents {sum(a for a, _ in ag)}/"
+        f"{sum(b for _, b in ag)}, median |dt| (right pair) {np.median(dts) if dts else float('nan'):.2f} s; "
+        f"no-crash clips without a crash {sum(bool(r['ok']) for r in quiet)}/{len(quiet)}"
     )
 
 
