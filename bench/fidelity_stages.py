@@ -109,7 +109,8 @@ def main() -> None:
     print("|---|---|---|" + "---|" * len(keys) + "---|")
     for r in rows:
         cells = ["-" if r[k] is None else f"{r[k]:.2f}" for k in keys]
-        print(f"| {r['clip']} | {r['agents_raw']}/{r['agents_proc']} | {r['pairs']} | " + " | ".join(cells) + f" | {r['t_max_s']:.2f} |")
+        head = f"| {r['clip']} | {r['agents_raw']}/{r['agents_proc']} | {r['pairs']} | "
+        print(head + " | ".join(cells) + f" | {r['t_max_s']:.2f} |")
     for k in keys:
         v = [r[k] for r in rows if r[k] is not None]
         print(f"mean {k}: {np.mean(v):.3f} over {len(v)} clips" if v else f"mean {k}: -")

@@ -116,6 +116,7 @@ def _process_scenario(raw: Scenario, seed: int, params: Stage2Params | None) -> 
     t_max = _step_back_phase(run, ego, agents)
     crash = _crash_phase(run, ego, agents, t_max)
     vehicles = _final_phase(run, ego, crash)
+    vehicles[0] = _with_measured_yaw(vehicles[0], run, t_max)
     collision = _collision_record(crash, vehicles)
     road = _road_phase(run, ego, crash, ego_frame, t_max)
     return _assemble(run, vehicles, road, collision, crash, t_max, seed)
@@ -234,6 +235,38 @@ def _final_phase(run: _Run, ego: Dense, crash: CrashOutcome) -> list[Vehicle]:
         run.warnings.append("a participant of the collision was dropped (implausible trajectory); no collision")
         crash.collision = None
     return vehicles
+
+
+def _with_measured_yaw(ego: Vehicle, run: _Run, t_max: float) -> Vehicle:
+    """The ego's heading where the video saw it: the camera's measured yaw (the raw ego's, from the
+    image's rotation), lightly smoothed, instead of the direction of its fitted path.
+
+    The camera turns with the car: its rotation is measured frame by frame, while the path's direction is
+    noise when the ego is slow (a car waiting to turn) or its speed scale is unknown; every agent was placed
+    through that measured yaw, so the processed scenario must view them through it. Before the video
+    (step-back lead-in) the first measured yaw is held."""
+    e = run.raw.ego.trajectory.arrays()
+    t_video = e["t"] - run.t0
+    yaw_raw = np.unwrap(e["yaw"])
+    if len(t_video) < 2 or not np.all(np.isfinite(yaw_raw)):
+        return ego
+    yaw_m = _smooth_series(t_video, yaw_raw, run.p.ego_yaw_window_s)
+    a = ego.trajectory.arrays()
+    yaw = np.interp(a["t"] - t_max, t_video, yaw_m)
+    traj = ego.trajectory.model_copy(update={"yaw": [float(v) for v in yaw]})
+    return ego.model_copy(update={"trajectory": traj})
+
+
+def _smooth_series(t: np.ndarray, v: np.ndarray, window_s: float) -> np.ndarray:
+    """Savitzky-Golay (quadratic) over about ``window_s`` seconds; short series or windows unchanged."""
+    from scipy.signal import savgol_filter
+
+    dt = float(np.median(np.diff(t)))
+    win = int(round(window_s / max(dt, EPS_T))) | 1
+    win = min(win, len(v) if len(v) % 2 else len(v) - 1)
+    if win < 5:
+        return v.astype(float)
+    return np.asarray(savgol_filter(v, win, 2), dtype=float)
 
 
 def _collision_record(crash: CrashOutcome, vehicles: list[Vehicle]) -> Collision | None:
