@@ -63,3 +63,48 @@ def test_stage2_views_the_agents_through_the_measured_ego_heading(kitti8_raw, ki
         assert np.abs(p["yaw"][video] - yaw_at).max() < 0.02
     proc_iou = evaluate_fidelity(process_scenario(kitti8_raw), tracks).reprojection["processed"]["mean_iou"]
     assert proc_iou >= raw_iou - 0.05
+
+
+def _kitti_ego(seq: str = "0001"):
+    from deepcrashtest.datasets.kitti.files import read_poses
+    from deepcrashtest.geometry.egomotion import EgoMotion
+
+    poses = read_poses(need(KITTI / "orbslam3_poses" / seq / "CameraTrajectory.txt"))[:60]
+    return EgoMotion.from_poses(poses, 10.0)
+
+
+def test_lane_offsets_that_would_slide_the_ego_sideways_are_not_used():
+    """Lane offsets replace the ego's lateral drift only while the path stays drivable with the measured
+    heading; the lane-detector noise seen on crash clips (offsets jumping ~1 m) is refused, with a warning."""
+    from deepcrashtest.geometry.world_tracks import MAX_SIDEWAYS_MPS, corrected_ego_path, sideways_speed
+    from deepcrashtest.perception.lanes import LaneTimelineResult
+
+    ego = _kitti_ego()  # real ORB-SLAM3 camera path of KITTI 0001 (6 s)
+    n = len(ego.t)
+    own = -(ego.y - ego.y[0])  # the lane offset a perfect detector reads off this very path (right of centre)
+    consistent = LaneTimelineResult(ego.t, np.full(n, 3.5), -own, np.zeros(n, int), np.ones(n, bool))
+    warnings: list[str] = []
+    xy = corrected_ego_path(ego, consistent, warnings)
+    assert not warnings and np.allclose(xy[:, 1], ego.y - ego.y[0], atol=0.1)
+    assert sideways_speed(ego.t, xy, ego.yaw) < 0.1 < MAX_SIDEWAYS_MPS
+    jumps = np.where((np.arange(n) // 8) % 2 == 1, 0.9, 0.0)  # the offset flips between two lines every 0.8 s
+    noisy = LaneTimelineResult(ego.t, np.full(n, 3.5), -own + jumps, np.zeros(n, int), np.ones(n, bool))
+    xy = corrected_ego_path(ego, noisy, warnings)
+    assert np.array_equal(xy, np.column_stack([ego.x, ego.y]))
+    assert any("sideways" in w for w in warnings)
+
+
+def test_a_collision_with_an_agent_not_yet_seen_does_not_cut_the_video(kitti8_raw):
+    """A detected crash naming a road user first seen at that moment cannot be made to happen; stage 2 must
+    then keep every observed second, not end the scenario there and drop the collision afterwards."""
+    from deepcrashtest.scenario import Collision
+    from deepcrashtest.trajectory.pipeline import process_scenario
+
+    late = max(kitti8_raw.agents, key=lambda a: a.trajectory.t[0])
+    t_c = float(late.trajectory.t[0])
+    assert t_c > 2.0
+    raw = kitti8_raw.evolve(collision=Collision(time_s=t_c, other_id=0, agent_id=late.id, source="video-auto"))
+    proc = process_scenario(raw)
+    assert proc.collision is None and any("the whole video is kept" in w for w in proc.warnings)
+    video_end = raw.video_time(float(raw.ego.trajectory.t[-1]))
+    assert proc.video_time(float(proc.ego.trajectory.t[-1])) == pytest.approx(video_end, abs=0.11)

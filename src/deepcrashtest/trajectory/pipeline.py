@@ -111,6 +111,7 @@ def process_scenario(raw: Scenario, seed: int = 0, params: Stage2Params | None =
 def _process_scenario(raw: Scenario, seed: int, params: Stage2Params | None) -> Scenario:
     _check_raw(raw)
     run = _Run(raw, params or Stage2Params(), float(raw.source.fps), float(raw.ego.trajectory.t[0]), list(raw.warnings))
+    run.raw = _collision_with_seen_participants(run)
     ego_frame, ego = _ego_phase(run)
     agents = [d for a in raw.agents if (d := agent_dense(a, run.t0, ego_frame, run.p, run.warnings)) is not None]
     t_max = _step_back_phase(run, ego, agents)
@@ -120,6 +121,30 @@ def _process_scenario(raw: Scenario, seed: int, params: Stage2Params | None) -> 
     collision = _collision_record(crash, vehicles)
     road = _road_phase(run, ego, crash, ego_frame, t_max)
     return _assemble(run, vehicles, road, collision, crash, t_max, seed)
+
+
+def _collision_with_seen_participants(run: _Run) -> Scenario:
+    """The raw scenario, without its collision when a participant was not seen for at least
+    ``min_track_samples`` samples up to it: the pair cannot be made to touch then, and the scenario must not
+    end there (every observed second after it would be lost for a collision that is then dropped)."""
+    raw, c = run.raw, run.raw.collision
+    if c is None:
+        return raw
+    agents = {a.id: a for a in raw.agents}
+    unseen = []
+    for i in c.participants:
+        if i == raw.ego.id:
+            continue
+        t = agents[i].trajectory.arrays()["t"] if i in agents else np.zeros(0)
+        if int((t <= c.time_s + EPS_T).sum()) < run.p.min_track_samples:
+            unseen.append(i)
+    if not unseen:
+        return raw
+    run.warnings.append(
+        f"the collision at {c.time_s - run.t0:.2f} s (video time) names agent(s) {unseen} seen for fewer than "
+        f"{run.p.min_track_samples} samples before it: no collision, the whole video is kept"
+    )
+    return raw.evolve(collision=None)
 
 
 def _ego_phase(run: _Run) -> tuple[EgoFrame, Dense]:
