@@ -301,8 +301,8 @@ def self_calibrate(
             f"{cam.height_m:.2f} m (was row {cam.horizon_v():.0f}, {cam.pitch_source}); height and focal length keep "
             "their priors"
         )
-        update = {"pitch_rad": math.atan2(cam.cy - vh, cam.fy), "pitch_source": "self_calibration"}
-        cam = cam.model_copy(update=update | {"horizon_sigma_px": sig_v})
+        pitch = math.atan2(cam.cy - vh, cam.fy)
+        cam = cam.model_copy(update={"pitch_rad": pitch, "pitch_source": "self_calibration", "horizon_sigma_px": sig_v})
         return SelfCalibration(cam, vh, sig_v, cam.height_m, float("nan"), cam.fy, float("nan"), n, 0, notes)
     vh, sig_v, hc, sig_h, n = hh
     fy, sig_f, used = cam.fy, float("nan"), 0
