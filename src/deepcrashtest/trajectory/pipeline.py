@@ -21,7 +21,8 @@ Steps (times in seconds, world frame in metres):
    trajectory ends at the collision (the simulator's physics takes over).
 6. Each vehicle's final path is fitted with one spline (``Vehicle.spline``, x(t), y(t)); the
    samples (t, x, y, yaw, speed) are that spline and its derivative at the sample times, with
-   ``observed`` false on extrapolated and stepped-back samples.
+   ``observed`` false on extrapolated and stepped-back samples; the ego's yaw is the camera's measured
+   one (the raw ego's, lightly smoothed; held before the video), through which every agent was placed.
 7. Road (``trajectory.road``).
 
 Time: the raw ego's first sample is video time 0; scenario time = video time + t_max.
