@@ -248,6 +248,7 @@ def bonnet_contour(
     still_ratio: float = 1.5,
     max_static: float = 0.5,
     min_top: float = 0.68,
+    below_pct: float = 90.0,
 ) -> BonnetContour | None:
     """Top edge of the bonnet/dashboard per column bin, full-frame pixel rows (NaN: no bonnet there).
 
@@ -282,7 +283,7 @@ def bonnet_contour(
             if p[r] < best or p[r] < p[r - 1] or p[r] < p[r + 1]:
                 continue  # not the strongest persistent edge's crest so far
             above = float(np.median(s[max(0, r - 12) : r - 2]))
-            below = float(np.median(s[r + 2 :]))
+            below = float(np.percentile(s[r + 2 :], below_pct))
             if below <= still_ratio * above:
                 top[k], best = (r + 0.5) / scale, float(p[r])
     return BonnetContour(top, edges / scale, int(round(h / scale)))
@@ -293,24 +294,39 @@ def detect_dashboard_rows(
 ) -> int:
     """Rows at the bottom of the frame covered by the car's own bonnet/dashboard, full-frame pixels.
 
-    From :func:`bonnet_contour`: the contour must be found in at least ``min_coverage`` of the
-    column bins of the central half of the image and be smooth there (median step between
-    neighbouring bins at most ``max_step_px`` full-frame px); then the rows below its highest point
-    in the central half are returned. Otherwise 0: when unsure, masking too little costs less than
-    masking road (0 also for a stopped camera, where nothing tells the bonnet from the road).
+    From :func:`bonnet_contour` (frames spanning a second or more of driving) and
+    :func:`dashboard_rows_from_contour`; 0 when unsure (masking too little costs less than masking road)
+    and for a stopped camera, where nothing tells the bonnet from the road.
     """
     contour = bonnet_contour(frames, max_frames=max_frames)
+    return dashboard_rows_from_contour(contour, min_coverage, max_step_px)
+
+
+def dashboard_rows_from_contour(
+    contour: BonnetContour | None, min_coverage: float = 0.6, max_step_px: float = 12.0
+) -> int:
+    """Rows below the bonnet contour's highest point in the central half of the image, px.
+
+    The contour must be found in at least ``min_coverage`` of the column bins of the central half
+    and be smooth there (median step between neighbouring found bins at most ``max_step_px``
+    full-frame px); otherwise 0 (no bonnet claimed). The highest point is taken after a running
+    median over 5 found bins, so that a short persistent edge above the bonnet (the tail lights of
+    a car followed at a constant gap) does not pull it up.
+    """
     if contour is None:
         return 0
     n = len(contour.top_px)
-    bins = contour.top_px[n // 4 : 3 * n // 4]
-    ok = np.isfinite(bins)
-    if ok.mean() < min_coverage:
+    centre = np.zeros(n, bool)
+    centre[n // 4 : 3 * n // 4] = True
+    ok = np.isfinite(contour.top_px)
+    if ok[centre].mean() < min_coverage:
         return 0
-    steps = np.abs(np.diff(bins[ok]))
+    found = contour.top_px[ok]
+    smooth = np.array([np.median(found[max(0, i - 2) : i + 3]) for i in range(len(found))])[centre[ok]]
+    steps = np.abs(np.diff(contour.top_px[ok & centre]))
     if steps.size and float(np.median(steps)) > max_step_px:
         return 0
-    return max(0, int(math.ceil(contour.frame_height - float(np.nanmin(bins)))))
+    return max(0, int(math.ceil(contour.frame_height - float(smooth.min()))))
 
 
 def camera_for_video(
