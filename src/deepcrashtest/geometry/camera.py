@@ -248,7 +248,7 @@ def bonnet_contour(
     still_ratio: float = 1.5,
     max_static: float = 0.5,
     min_top: float = 0.68,
-    below_pct: float = 90.0,
+    below_pct: float = 50.0,
 ) -> BonnetContour | None:
     """Top edge of the bonnet/dashboard per column bin, full-frame pixel rows (NaN: no bonnet there).
 
@@ -309,9 +309,9 @@ def dashboard_rows_from_contour(
 
     The contour must be found in at least ``min_coverage`` of the column bins of the central half
     and be smooth there (median step between neighbouring found bins at most ``max_step_px``
-    full-frame px); otherwise 0 (no bonnet claimed). The highest point is taken after a running
-    median over 5 found bins, so that a short persistent edge above the bonnet (the tail lights of
-    a car followed at a constant gap) does not pull it up.
+    full-frame px); otherwise 0 (no bonnet claimed). Bins more than ``3 * max_step_px`` from the
+    contour's median are left out before the highest point is taken, so that a short persistent edge
+    above the bonnet (the tail lights of a car followed at a constant gap) does not pull it up.
     """
     if contour is None:
         return 0
@@ -321,12 +321,12 @@ def dashboard_rows_from_contour(
     ok = np.isfinite(contour.top_px)
     if ok[centre].mean() < min_coverage:
         return 0
-    found = contour.top_px[ok]
-    smooth = np.array([np.median(found[max(0, i - 2) : i + 3]) for i in range(len(found))])[centre[ok]]
     steps = np.abs(np.diff(contour.top_px[ok & centre]))
     if steps.size and float(np.median(steps)) > max_step_px:
         return 0
-    return max(0, int(math.ceil(contour.frame_height - float(smooth.min()))))
+    central = contour.top_px[ok & centre]
+    kept = central[np.abs(central - np.median(central)) <= 3.0 * max_step_px]
+    return max(0, int(math.ceil(contour.frame_height - float(kept.min()))))
 
 
 def camera_for_video(
