@@ -86,7 +86,8 @@ def main() -> None:
     e = np.asarray(errs)
     print(
         f"{args.split}: {len(pick)} clips, centre |err| median {np.median(e[:, 0]):.0f} px, "
-        f"max {e[:, 0].max():.0f} px; clips with centre |err| > 30 px: {int((e[:, 0] > 30).sum())}, road masked > 20 px: {over}"
+        f"max {e[:, 0].max():.0f} px; clips with centre |err| > 30 px: {int((e[:, 0] > 30).sum())}, "
+        f"road masked > 20 px: {over}"
     )
 
 
