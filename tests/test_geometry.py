@@ -124,7 +124,7 @@ BONNET_LABELS = json.loads((Path(__file__).resolve().parents[1] / "bench/labels/
 )
 def test_dashboard_rows_match_the_labelled_bonnet(folder: str, clip: str, count: int, step: int):
     """The first 2 s, as the geometry stage gives them; labels by eye (bench/labels/bonnet_rows.json).
-    The earlier optical-flow detector masked 212 road rows on ccd_000080 and 322 on dad_000528."""
+    The earlier optical-flow detector masked 212 road rows on ccd_000080 (and 84 on the highway clip)."""
     imgs = read_video(DATA / folder / f"{clip}.mp4", 0, count, step)
     h = imgs[0].shape[0]
     label = BONNET_LABELS[clip]["centre"]
