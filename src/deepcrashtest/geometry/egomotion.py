@@ -237,6 +237,7 @@ class _SpeedFilter:
         self.P = np.diag([100.0, 25.0])
         self.rejects = 0
         self.started = False
+        self.first = 0  # the step of the first measurement: earlier steps take its smoothed speed
         self.log: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
 
     def step(self, dt: float, z: float | None, var: float) -> float:
@@ -251,6 +252,8 @@ class _SpeedFilter:
             innov = z - xp[0]
             if not self.started or self.rejects >= self.max_rejects:
                 x, P = np.array([z, 0.0]), np.diag([var, 4.0])
+                if not self.started:
+                    self.first = len(self.log)
                 self.started, self.rejects = True, 0
             elif innov * innov > self.gate**2 * S:
                 self.rejects += 1
@@ -275,7 +278,9 @@ class _SpeedFilter:
             C = Pk @ F1.T @ np.linalg.pinv(Pp1)
             xs.append(xk + C @ (xs[-1] - xp1))
             Ps.append(Pk + C @ (Ps[-1] - Pp1) @ C.T)
-        return np.maximum(0.0, np.array([x[0] for x in reversed(xs)]))
+        out = np.maximum(0.0, np.array([x[0] for x in reversed(xs)]))
+        out[: self.first] = out[self.first]  # before any measurement: no evidence of another speed
+        return out
 
 
 class EgoMotionEstimator:
@@ -492,9 +497,13 @@ class EgoMotionEstimator:
             self._normal = n / np.linalg.norm(n)
 
     def _solve(
-        self, p0: np.ndarray, p1: np.ndarray, h: int
+        self, p0: np.ndarray, p1: np.ndarray, h: int, moving: bool = False
     ) -> tuple[float, float, int, np.ndarray, np.ndarray, PlaneFit | None] | None:
-        """Keyframe pair -> (metres or NaN, yaw change rad, road inliers, R, t, plane fit) or None."""
+        """Keyframe pair -> (metres or NaN, yaw change rad, road inliers, R, t, plane fit) or None.
+
+        ``moving``: the scene's parallax is well above the stopped threshold; road points that stay
+        still (< 0.3 work px) are then burned-in text or bonnet, not road, and leave the scale fit
+        (on ccd_000755 they decided the fit, which then swung with a few rows of dashboard mask)."""
         assert self._K is not None
         K = self._K
         scene = ~self._road_region(p0[:, 0], p0[:, 1], h)
@@ -515,6 +524,8 @@ class EgoMotionEstimator:
         t = t.ravel()
         dyaw = _rotation_yaw(R.T, self._normal)
         self._learn_travel(R, t, dyaw)
+        if moving:
+            ok = ok & (np.linalg.norm(p1 - p0, axis=1) >= 0.3)
         road = ok & self._road_region(p0[:, 0], p0[:, 1], h)
         if road.sum() < 2 * MIN_ROAD_POINTS:  # a narrow or textureless lane: take the shoulders too
             road = ok & self._road_region(p0[:, 0], p0[:, 1], h, width_factor=3.0)
@@ -582,7 +593,8 @@ class EgoMotionEstimator:
                 self._frame_motion = None
             elif parallax >= self.min_parallax_px or span >= self.max_keyframe_s:
                 keyframe = True
-                res = self._solve(self._undistort(q0), self._undistort(q1), h)
+                moving = parallax >= 5.0 * self.static_flow_px
+                res = self._solve(self._undistort(q0), self._undistort(q1), h, moving)
                 if res is None:
                     valid = False
                     self._invalid += 1
