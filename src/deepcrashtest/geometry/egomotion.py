@@ -585,13 +585,14 @@ class EgoMotionEstimator:
             keyframe = True
         else:
             q0, q1 = self._p_kf[has_kf], self._p[has_kf]
-            parallax = scene_parallax(q0, q1, cur.shape) / self._scale_f  # full-frame px
+            parallax = scene_parallax(q0, q1, cur.shape) / self._scale_f  # full-frame px, per cell
+            baseline = float(np.median(np.linalg.norm(q1 - q0, axis=1))) / self._scale_f  # per point
             span = float(time) - self._kf_time
             if parallax < self.static_flow_px and span >= self.static_window_s:
                 raw, var, keyframe = 0.0, 0.05**2, True  # a positive measurement: the ego is stopped
                 self._static += self._kf_frames
                 self._frame_motion = None
-            elif parallax >= self.min_parallax_px or span >= self.max_keyframe_s:
+            elif baseline >= self.min_parallax_px or span >= self.max_keyframe_s:
                 keyframe = True
                 moving = parallax >= 5.0 * self.static_flow_px
                 res = self._solve(self._undistort(q0), self._undistort(q1), h, moving)
