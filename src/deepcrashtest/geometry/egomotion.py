@@ -502,7 +502,7 @@ class EgoMotionEstimator:
         """Keyframe pair -> (metres or NaN, yaw change rad, road inliers, R, t, plane fit) or None.
 
         ``moving``: the scene's parallax is well above the stopped threshold; road points that stay
-        still (< 0.3 work px) are then burned-in text or bonnet, not road, and leave the scale fit
+        still (< 0.1 work px) are then burned-in text or bonnet, not road, and leave the scale fit
         (on ccd_000755 they decided the fit, which then swung with a few rows of dashboard mask)."""
         assert self._K is not None
         K = self._K
@@ -525,7 +525,7 @@ class EgoMotionEstimator:
         dyaw = _rotation_yaw(R.T, self._normal)
         self._learn_travel(R, t, dyaw)
         if moving:
-            ok = ok & (np.linalg.norm(p1 - p0, axis=1) >= 0.3)
+            ok = ok & (np.linalg.norm(p1 - p0, axis=1) >= 0.1)
         road = ok & self._road_region(p0[:, 0], p0[:, 1], h)
         if road.sum() < 2 * MIN_ROAD_POINTS:  # a narrow or textureless lane: take the shoulders too
             road = ok & self._road_region(p0[:, 0], p0[:, 1], h, width_factor=3.0)
