@@ -225,10 +225,16 @@ class _SpeedFilter:
     27 m/s in a city street over 5 s; 1.5 s, a vehicle-dynamics prior not tuned on any clip, ends
     those ramps at 15 m/s and leaves the KITTI odometry errors as they were). Measurements whose innovation is
     beyond ``gate`` standard deviations are ignored, unless ``max_rejects`` come in a row (then the
-    filter re-starts from the measurement: a real change, not an outlier).
+    filter re-starts from the measurement: a real change, not an outlier). After ``hold_s`` seconds
+    without a measurement the acceleration is dropped and the speed held: on ccd_000882 (no road scale
+    after frame 11) the last, noisy deceleration was extrapolated to 0 m/s, and 27 of 49 frames read
+    "stopped" while the ego drove.
     """
 
-    def __init__(self, jerk: float = 3.0, gate: float = 3.0, max_rejects: int = 3, accel_tau_s: float = 0.0) -> None:
+    def __init__(
+        self, jerk: float = 3.0, gate: float = 3.0, max_rejects: int = 3, accel_tau_s: float = 0.0, hold_s: float = 0.5
+    ) -> None:
+        self.hold_s = hold_s
         self.q = jerk**2
         self.tau = accel_tau_s
         self.gate = gate
@@ -237,17 +243,22 @@ class _SpeedFilter:
         self.P = np.diag([100.0, 25.0])
         self.rejects = 0
         self.started = False
+        self.since = 0.0  # seconds since the last measurement
         self.first = 0  # the step of the first measurement: earlier steps take its smoothed speed
         self.log: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
 
     def step(self, dt: float, z: float | None, var: float) -> float:
         """Advance by ``dt`` seconds, fuse the speed measurement ``z`` (variance ``var``); returns speed."""
+        self.since += dt
         decay = math.exp(-dt / self.tau) if self.tau > 0 else 1.0
+        if self.since > self.hold_s:
+            decay = 0.0  # no speed measured for a while: keep the speed, forget the acceleration
         F = np.array([[1.0, dt], [0.0, decay]])
         Q = self.q * np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]])
         xp, Pp = F @ self.x, F @ self.P @ F.T + Q
         x, P = xp, Pp
         if z is not None:
+            self.since = 0.0
             S = Pp[0, 0] + var
             innov = z - xp[0]
             if not self.started or self.rejects >= self.max_rejects:
