@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from deepcrashtest.errors import UserError
-from deepcrashtest.scenario import Collision
+from deepcrashtest.scenario import Collision, kinematics
 from deepcrashtest.trajectory.collision import Contact, first_contact
 from deepcrashtest.trajectory.contact import ContactParams, Movable, make_contact, nudge_apart
 from deepcrashtest.trajectory.dense import EPS_T, Dense
@@ -45,7 +45,9 @@ def contact_params(p: Stage2Params) -> ContactParams:
 
 def _movable(d: Dense, is_ego: bool) -> Movable:
     weight = EGO_WEIGHT if is_ego else (STATIC_WEIGHT if d.static else 1.0)
-    return Movable(d.t, d.xy, d.vehicle.length, d.vehicle.width, d.heading, weight, rigid=d.static and not is_ego)
+    rigid = d.static and not is_ego
+    kin = None if rigid else kinematics(d.vehicle.category)
+    return Movable(d.t, d.xy, d.vehicle.length, d.vehicle.width, d.heading, weight, rigid=rigid, kin=kin)
 
 
 def resolve_crash(
@@ -85,8 +87,8 @@ def resolve_crash(
         for d in late:
             warnings.append(f"agent {d.id}: appears after the collision; dropped")
         agents = [d for d in agents if d not in late]
-        if not legacy:
-            record.update(_enforce_pair(collision, ego, agents, cp, warnings))
+    if collision is not None and not legacy:
+        record.update(_enforce_pair(collision, ego, agents, cp, warnings))
     t_end = collision.time_s if collision is not None else max(float(d.t[-1]) for d in [ego, *agents])
     pair = collision.participants if collision is not None else ()
     agents, nudges = _separate_others(ego, agents, pair, t_end - cp.touch_tol_s, cp, warnings)
