@@ -119,11 +119,6 @@ def box_track(m: Movable, xy: np.ndarray | None = None) -> BoxTrack:
     return BoxTrack(m.t, p[:, 0], p[:, 1], headings(m.t, p, m.heading), m.length, m.width)
 
 
-def _fast_track(m: Movable, yaw: np.ndarray, xy: np.ndarray) -> BoxTrack:
-    """Box track with a given heading (the optimiser keeps the uncorrected headings; checked after)."""
-    return BoxTrack(m.t, xy[:, 0], xy[:, 1], yaw, m.length, m.width)
-
-
 @dataclass(frozen=True)
 class _Basis:
     """A displacement basis on [lo, hi]: cubic B-splines (``anchored``: value, slope and curvature zero
@@ -252,13 +247,11 @@ def _solve(
         return float(total)
 
     fixed_tracks = [box_track(m) for m in fixed]
-    yaws = [box_track(m).yaw for m in movers]  # held during one solve, then updated from its result
 
-    def all_tracks(z: np.ndarray, exact: bool = False) -> list[BoxTrack]:
+    def all_tracks(z: np.ndarray) -> list[BoxTrack]:
+        """Box tracks of the corrected paths (headings of the corrected motion: a turn turns the box)."""
         ds = deltas(z)
-        if exact:
-            return [box_track(m, m.xy + ds[i]) for i, m in enumerate(movers)] + fixed_tracks
-        return [_fast_track(m, yaws[i], m.xy + ds[i]) for i, m in enumerate(movers)] + fixed_tracks
+        return [box_track(m, m.xy + ds[i]) for i, m in enumerate(movers)] + fixed_tracks
 
     def gap(i: int, j: int, ts: np.ndarray, target: float) -> Callable[[np.ndarray], np.ndarray]:
         return lambda z: separation(*_pick(all_tracks(z), i, j), ts) - target
@@ -273,9 +266,7 @@ def _solve(
     for _ in range(rounds):
         res = minimize(cost, z, method="SLSQP", constraints=cons, options={"maxiter": 200, "ftol": 1e-8})
         z = np.asarray(res.x)
-        ds = deltas(z)
-        yaws[:] = [box_track(m, m.xy + ds[i]).yaw for i, m in enumerate(movers)]
-        ok = bool(res.success) and _satisfied(all_tracks(z, exact=True), eq, ineq)
+        ok = bool(res.success) and _satisfied(all_tracks(z), eq, ineq)
         ok &= all(bool(np.all(k[0]["fun"](z) >= -KIN_TOL)) for k in kins)
         if ok:
             break
