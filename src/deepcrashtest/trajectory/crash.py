@@ -17,8 +17,8 @@ import numpy as np
 
 from deepcrashtest.errors import UserError
 from deepcrashtest.scenario import Collision, kinematics
-from deepcrashtest.trajectory.collision import Contact, first_contact
-from deepcrashtest.trajectory.contact import ContactParams, Movable, make_contact, nudge_apart
+from deepcrashtest.trajectory.collision import BoxTrack, Contact, first_contact
+from deepcrashtest.trajectory.contact import ContactParams, Movable, make_contact, nudge_apart, separation
 from deepcrashtest.trajectory.dense import EPS_T, Dense
 from deepcrashtest.trajectory.params import Stage2Params
 
@@ -200,6 +200,18 @@ def _trim_invented(d: Dense, t_hit: float, margin_s: float = 1.0) -> bool:
     return False
 
 
+def _contact_after_apart(a: BoxTrack, b: BoxTrack) -> Contact | None:
+    """The first contact of two boxes, as the simulator counts it: boxes that overlap from their first
+    common moment (label/depth noise) are ignored until they are apart, and a later re-touch counts."""
+    hit = first_contact(a, b)
+    t0 = max(a.t[0], b.t[0])
+    if hit is None or hit.time_s > t0 + EPS_T:
+        return hit
+    ts = np.unique(np.concatenate([a.t[(a.t >= t0) & (a.t <= b.t[-1])], b.t[(b.t >= t0) & (b.t <= a.t[-1])]]))
+    apart = ts[separation(a, b, ts) > 0.0]
+    return None if not len(apart) else first_contact(a, b, t_from=float(apart[0]))
+
+
 def _first_clash(ego: Dense, agents: list[Dense], pair: tuple[int, ...], t_end: float) -> tuple[Dense, float] | None:
     """The earliest contact before ``t_end`` between two road users that are not both the crash pair
     (nor both parked, nor overlapping from the moment both exist: the simulator ignores those too);
@@ -212,9 +224,9 @@ def _first_clash(ego: Dense, agents: list[Dense], pair: tuple[int, ...], t_end: 
             a, b = every[i], every[j]
             if (a.id in pair and b.id in pair) or (a.static and b.static):
                 continue
-            hit = first_contact(tracks[i], tracks[j])
-            if hit is None or hit.time_s >= t_end or hit.time_s <= max(a.t[0], b.t[0]) + EPS_T:
-                continue  # overlapping from their first common moment: label/depth noise, as the simulator ignores
+            hit = _contact_after_apart(tracks[i], tracks[j])
+            if hit is None or hit.time_s >= t_end:
+                continue
             cands = [d for d in (a, b) if d is not ego and d.id not in pair]
             if not cands:
                 continue
