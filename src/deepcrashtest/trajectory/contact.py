@@ -163,6 +163,7 @@ def _rigid(m: Movable) -> _Basis:
 
 KIN_STEP_S = 0.05  # grid on which the kinematic limits are checked (s)
 KIN_TOL = 0.02  # share of a limit a solution may exceed it by (SLSQP stops just short)
+MAX_ITER = 80  # SLSQP iterations per round: a correction that needs more is not found (stage 2 stays seconds)
 
 
 class _Kin:
@@ -219,7 +220,7 @@ def _solve(
     eq: list[tuple[int, int, float, float]],
     ineq: list[tuple[int, int, np.ndarray, float]],
     cp: ContactParams,
-    rounds: int = 3,
+    rounds: int = 2,
     strict_kin: bool = False,
 ) -> tuple[list[np.ndarray], bool, str]:
     """Least-squares coefficients for ``movers`` (index i < len(movers)) under the pair constraints.
@@ -264,7 +265,7 @@ def _solve(
     z = np.zeros(offs[-1])
     res = None
     for _ in range(rounds):
-        res = minimize(cost, z, method="SLSQP", constraints=cons, options={"maxiter": 200, "ftol": 1e-8})
+        res = minimize(cost, z, method="SLSQP", constraints=cons, options={"maxiter": MAX_ITER, "ftol": 1e-8})
         z = np.asarray(res.x)
         ok = bool(res.success) and _satisfied(all_tracks(z), eq, ineq)
         ok &= all(bool(np.all(k[0]["fun"](z) >= -KIN_TOL)) for k in kins)
