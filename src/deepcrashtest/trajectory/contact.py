@@ -20,7 +20,7 @@ constraints solved with SciPy's SLSQP:
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -111,6 +111,8 @@ class Correction:
     window_s: float
     ok: bool
     message: str = ""
+    kinematic: bool = True
+    """Whether the corrected paths keep the movers' kinematics (else only the per-axis bound)."""
 
 
 def box_track(m: Movable, xy: np.ndarray | None = None) -> BoxTrack:
@@ -338,8 +340,10 @@ def make_contact(
     """Smallest smooth displacement of the pair's last seconds so that their boxes first touch at
     ``t_crash`` (s): overlapping by ``penetration_m`` then, apart until ``touch_tol_s`` before.
 
-    Tries each window of ``cp.windows_s`` in turn; ``ok`` is False when none satisfies the constraints
-    (the displacements of the last try are returned). ``movable`` may pin one of the two (e.g. parked).
+    Tries each window of ``cp.windows_s`` in turn, within the movers' kinematics, then (where SLSQP
+    finds no such correction) each again with the per-axis acceleration bound only (``kinematic``
+    False); ``ok`` is False when none satisfies the constraints (the last try is returned).
+    ``movable`` may pin one of the two (e.g. parked).
     """
     cp = cp or ContactParams()
     movers = [m for m, free in zip((a, b), movable, strict=True) if free]
@@ -348,18 +352,19 @@ def make_contact(
         return Correction([], 0.0, 0.0, 0.0, False, "nothing may move")
     lo_common = max(a.t[0], b.t[0])
     last: Correction | None = None
-    for w in cp.windows_s:
+    for kinematic, w in [(True, w) for w in cp.windows_s] + [(False, w) for w in cp.windows_s]:
         lo = max(t_crash - w, lo_common)
         bases = [_rigid(m) if m.rigid else _basis(lo, t_crash, cp.knot_step_s, lo > m.t[0] + 1e-6) for m in movers]
         t_apart = t_crash - 0.8 * cp.touch_tol_s  # a margin for the final spline fit
         t_free = a.t[(a.t >= lo_common) & (a.t <= t_apart)]
         t_free = np.append(t_free, t_apart) if t_apart >= lo_common else t_free
         eq = [(0, 1, t_crash, -_penetration(a, b, t_crash, cp))]
-        ds, ok, msg = _solve(movers, fixed, bases, eq, [(0, 1, t_free, 0.0)], cp)
+        solve_movers = movers if kinematic else [replace(m, kin=None) for m in movers]
+        ds, ok, msg = _solve(solve_movers, fixed, bases, eq, [(0, 1, t_free, 0.0)], cp, rounds=2 if kinematic else 3)
         full = _full(ds, movable)
         size = max((float(np.hypot(*d.T).max()) if len(d) else 0.0) for d in ds)
         rms = float(np.sqrt(np.mean(np.concatenate([np.sum(d**2, 1) for d in ds]))))
-        last = Correction(full, size, rms, float(t_crash - lo), ok, msg)
+        last = Correction(full, size, rms, float(t_crash - lo), ok, msg, kinematic)
         if ok:
             return last
     assert last is not None

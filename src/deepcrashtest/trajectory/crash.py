@@ -25,6 +25,7 @@ from deepcrashtest.trajectory.params import Stage2Params
 EGO_WEIGHT = 3.0  # the ego's path (visual odometry) is trusted more than a monocular agent track
 STATIC_WEIGHT = 10.0  # a parked car moves last
 MAX_NUDGE_M = 3.0  # a bystander that must move farther than this is dropped instead
+MAX_FAILED_CORRECTION_M = 5.0  # a crash correction that failed and is larger than this is not applied
 
 
 @dataclass
@@ -120,7 +121,8 @@ def _enforce_pair(
     byid = {d.id: d for d in [ego, *agents]}
     a, b = byid[collision.other_id], byid[collision.agent_id]
     corr = make_contact(_movable(a, a is ego), _movable(b, b is ego), collision.time_s, cp)
-    for d, delta in zip((a, b), corr.deltas, strict=True):
+    applied = corr.ok or corr.max_m <= MAX_FAILED_CORRECTION_M
+    for d, delta in zip((a, b), corr.deltas if applied else [], strict=False):
         if len(delta):
             d.xy = d.xy + delta
             d.observed = d.observed & (np.hypot(*delta.T) < 0.5)  # moved samples are no longer "as observed"
@@ -130,13 +132,21 @@ def _enforce_pair(
         "rms_m": round(corr.rms_m, 3),
         "window_s": round(corr.window_s, 2),
         "satisfied": corr.ok,
+        "applied": applied,
+        "within_kinematics": corr.kinematic,
     }
     if not corr.ok:
         warnings.append(
             f"the crash of {a.id} and {b.id} at {collision.time_s:.2f} s could not be made exact within the "
-            f"acceleration limits ({corr.message}); the closest correction is used"
+            f"kinematic limits ({corr.message}); "
+            + ("the closest correction is used" if applied else "their paths are left uncorrected")
         )
-    elif corr.max_m > cp.large_m:
+    elif not corr.kinematic:
+        warnings.append(
+            f"the crash of {a.id} and {b.id}: no correction within the vehicles' steering limits was found; "
+            "the replay may not follow the corrected paths exactly"
+        )
+    if corr.ok and corr.max_m > cp.large_m:
         warnings.append(
             f"the crash of {a.id} and {b.id}: their last {corr.window_s:.1f} s were moved by up to "
             f"{corr.max_m:.1f} m to make them touch at {collision.time_s:.2f} s (monocular depth error?)"
