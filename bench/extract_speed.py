@@ -1,7 +1,8 @@
 """Speed and memory of detection + tracking at 1280x720 (stage 1a of `deepcrashtest extract`).
 
 Prints, for several --detect-every values, frames per second of decode + detect + track (end to end,
-with and without writing annotated.mp4), the per-detector-call time, and the process's peak RSS.
+with and without writing annotated.mp4), the process CPU per frame (all threads: less dependent on
+other load than fps), the per-detector-call time, and the process's peak RSS.
 Run: PYTHONPATH=src python bench/extract_speed.py [VIDEO] [--frames N] [--threads 2]
 Timings on a shared machine are inflated by other load; say so when you quote them.
 """
@@ -61,7 +62,7 @@ def main() -> None:
             with tempfile.TemporaryDirectory() as tmp, open_video(args.video) as video:
                 m = video.meta
                 src = _skip(video, args.skip)
-                t = time.perf_counter()
+                t, c = time.perf_counter(), time.process_time()
                 if write:
                     with VideoWriter(Path(tmp) / "a.mp4", m.fps, m.width, m.height) as w:
                         draw = Annotator(m.fps).draw
@@ -69,11 +70,12 @@ def main() -> None:
                         df = track_video(src, timed, every, args.frames, on_frame=hook, fps=m.fps)
                 else:
                     df = track_video(src, timed, every, args.frames, fps=m.fps)
-                el = time.perf_counter() - t
+                el, cpu = time.perf_counter() - t, time.process_time() - c
             per_det = calls["s"] / max(calls["n"], 1) * 1000
             what = "detect+track+annotate+encode" if write else "detect+track"
             print(
-                f"detect every {every:2d}: {what:29s} {args.frames / el:6.1f} fps "
+                f"detect every {every:2d}: {what:29s} {args.frames / el:6.1f} fps, "
+                f"{cpu / args.frames * 1000:4.0f} ms CPU/frame "
                 f"({per_det:.0f} ms/detector call, {calls['n']} calls, {df['track_id'].nunique()} tracks)"
             )
     print(f"peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")

@@ -23,23 +23,25 @@ DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kitti_t
 HELD_OUT = [3, 8, 10]
 TUNING = [s for s in range(21) if s not in HELD_OUT]
 GRID: dict[tuple[str, str], list] = {
-    ("mono", "class_switch_cost"): [3.0],
-    ("mono", "class_sample_inflation"): [1.5, 10.0],
-    ("mono", "horizon_shrink"): [1.0],
-    ("tracker", "min_detected"): [8, 16],
-    ("tracker", "min_score"): [0.3, 0.7],
-    ("tracker", "new_track_score"): [0.8, 0.97],
-    ("tracker", "min_hits"): [2, 5],
-    ("tracker", "max_age_s"): [1.0],
-    ("tracker", "min_iou"): [0.1],
-    ("mono", "accel_std"): [1.5, 5.0],
     ("mono", "road_height_rel"): [0.3, 0.8],
+    ("mono", "height_sigma_px"): [0.2, 0.8],
+    ("mono", "bearing_sigma_px"): [1.5],
+    ("mono", "class_sample_inflation"): [1.0, 3.0],
+    ("mono", "horizon_shrink"): [0.3, 3.0],
+    ("tracker", "new_track_score"): [0.9],
+    ("tracker", "max_age_s"): [0.5, 2.0],
+    ("mono", "gate_chi2"): [12.0, 50.0],
 }
 #: Round 0 of an earlier run of this script (before the class choice) had already moved the noise
 #: model from hand-set values to road_height_rel 0.5, height_sigma_px 0.4, width_sigma_rel 0.2,
 #: accel_std 3.0, min_detected 12 (tuning MOTA 39.3 -> 49.1); the defaults start from there; the
 #: per-frame horizon's shrinkage (0.3 against 2.0: 51.5 against 51.2) was compared by hand, also on
-#: the 18 tuning sequences.
+#: the 18 tuning sequences. This session (hull factor in the depth cue, tuning MOTA 54.75 -> 55.83):
+#: a first grid (prior_scale 0.98/1.02, class_switch_cost, size_sample_inflation, min_score,
+#: min_detected, min_hits, accel_std) moved accel_std 5.0 -> 3.0 (56.05); report_predicted True was
+#: 56.22 (by hand); the grid above then moved nothing (best 56.24, height_sigma_px 0.2, under the
+#: 0.05 threshold). A per-track height from the parallax of parked vehicles under the ego's travel
+#: (pooled at 3 % / 6 %) gave 51.57 / 55.08 and was dropped.
 
 
 def _with(cfg: MonoTracking, part: str, name: str, value: object) -> MonoTracking:

@@ -76,3 +76,37 @@ def test_dark_frames_give_a_warning(chessboard_camera):
         det.update(f, i / 25.0)
     tl = det.timeline()
     assert tl.warnings and "found in only" in tl.warnings[0]
+
+
+def test_dbscan_gives_scikit_learns_labels_on_real_marking_pixels():
+    """The lane clustering (SciPy k-d tree + components) labels real marking pixels exactly as
+    scikit-learn's DBSCAN does, numbering and border points included."""
+    from sklearn.cluster import DBSCAN
+
+    from deepcrashtest.geometry.camera import default_camera
+    from deepcrashtest.perception.lanes import dbscan
+
+    det = ClassicalLaneDetector(default_camera(1280, 720), mask_bottom_rows=132)
+    checked = 0
+    for frame in _frames("highway_lane_challenge.mp4", 60)[::15]:
+        mask, _, r0 = det.marking_mask(frame)
+        vs, us = np.nonzero(mask)
+        pts = np.column_stack([us, (vs + r0) * 0.35]).astype(float)
+        expected = DBSCAN(eps=4.0, min_samples=6).fit_predict(pts)
+        assert expected.max() >= 1  # several clusters: the numbering is tested too
+        np.testing.assert_array_equal(dbscan(pts, eps=4.0, min_samples=6), expected)
+        checked += 1
+    assert checked == 4
+    assert len(dbscan(np.zeros((0, 2)), 4.0, 6)) == 0
+    np.testing.assert_array_equal(dbscan(np.array([[0.0, 0.0], [100.0, 0.0]]), 4.0, 2), [-1, -1])
+
+
+def test_hausdorff_matrix_matches_scipy():
+    from scipy.spatial.distance import directed_hausdorff
+
+    from deepcrashtest.perception.lanes import hausdorff_matrix
+
+    rng = np.random.default_rng(3)
+    a, b = rng.normal(size=(4, 12, 2)) * 40, rng.normal(size=(3, 12, 2)) * 40
+    ref = [[max(directed_hausdorff(x, y)[0], directed_hausdorff(y, x)[0]) for y in b] for x in a]
+    np.testing.assert_allclose(hausdorff_matrix(a, b), ref, rtol=1e-12)

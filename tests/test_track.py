@@ -83,6 +83,25 @@ def test_output_table_contract(clip_tracks):
     assert [s.detections is not None for s in states] == [k % 5 == 0 for k in range(40)]
 
 
+def test_records_table_is_pandas_own_table_of_the_records(clip_tracks):
+    """The column-by-column table equals pandas' ``from_records`` + ``astype`` of the same rows (real
+    tracker rows, and no rows)."""
+    import pandas as pd
+
+    from deepcrashtest.perception.track import frame_records, records_table
+
+    _, states = clip_tracks
+    records = [r for ft in states for r in frame_records(ft)]
+    assert len(records) > 40
+    for rows in (records, []):
+        expected = pd.DataFrame.from_records(rows, columns=TRACK_COLUMNS).astype(
+            {"frame": "int64", "time": "float64", "track_id": "int64", "category": "str", "score": "float64"}
+            | {c: "float64" for c in ("x1", "y1", "x2", "y2")}
+            | {"state": "str"}
+        )
+        pd.testing.assert_frame_equal(records_table(rows), expected)
+
+
 def test_car_ahead_keeps_one_id(clip_tracks):
     """The car straight ahead (about x 680-770, y 400-480 px) is one track, carried between detections."""
     df, _ = clip_tracks

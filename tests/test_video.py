@@ -147,6 +147,7 @@ def test_h264_writer_round_trip(dad, tmp_path):
     with open_video(dad) as src:
         first = next(iter(src)).image[:359, :641].astype(float)
     assert np.abs(frames[0][:359, :641] - first).mean() < 6.0  # lossy but faithful
+    assert np.abs((frames[0][:359, :641] - first).mean(axis=(0, 1))).max() < 3.0  # no channel or level shifted
     with pytest.raises(UserError, match="already exists"):
         VideoWriter(out, 20, 64, 48)
     assert not list(tmp_path.glob(".out.mp4.*"))  # no temporary file left behind

@@ -218,7 +218,9 @@ def extract(
     output: Path = typer.Option(..., "-o", "--output", help="Output folder."),
     fps: float | None = typer.Option(None, "--fps", help="Frame rate (required for image folders)."),
     detector: str = typer.Option(DEFAULT_DETECTOR, "--detector", help=DETECTOR_HELP),
-    detect_every: int = typer.Option(5, "--detect-every", help="Run the detector every N frames; track between."),
+    detect_every: int = typer.Option(
+        5, "--detect-every", help="Run the detector every N frames (at least every 0.25 s); track between."
+    ),
     max_frames: int | None = typer.Option(None, "--max-frames", help="Stop after this many frames."),
     camera: Path | None = typer.Option(None, "--camera", help="Camera YAML: fx, fy, cx, cy [, height_m, ...]."),
     hfov: float | None = typer.Option(None, "--hfov", help="Horizontal field of view, degrees (no YAML)."),

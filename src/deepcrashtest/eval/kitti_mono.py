@@ -88,7 +88,7 @@ class MonoTracking:
     max_age_s: float = 1.0
     min_iou: float = 0.2
     min_detected: int = 8
-    report_predicted: bool = False
+    report_predicted: bool = True
     mono: MonoConfig = field(default_factory=MonoConfig)
 
 

@@ -216,15 +216,21 @@ def _epipolar_px(E: np.ndarray, p0: np.ndarray, p1: np.ndarray, K: np.ndarray) -
 
 
 class _SpeedFilter:
-    """Constant-acceleration Kalman filter on speed (m/s) with gating, and an RTS smoother.
+    """Kalman filter on speed (m/s) and acceleration with gating, and an RTS smoother.
 
-    ``jerk`` (m/s^3): white-noise jerk density of the process. Measurements whose innovation is
+    ``jerk`` (m/s^3): white-noise jerk density of the process. ``accel_tau_s``: the acceleration decays
+    towards 0 with this time constant (a Singer model; 0 = constant acceleration). A car brakes or
+    speeds up for a second or two, not for a whole clip: without the decay, a few scattered road-scale
+    measurements on a dashcam clip were extrapolated into ramps over the whole clip (CCD clips: 10 ->
+    27 m/s in a city street over 5 s; 1.5 s, a vehicle-dynamics prior not tuned on any clip, ends
+    those ramps at 15 m/s and leaves the KITTI odometry errors as they were). Measurements whose innovation is
     beyond ``gate`` standard deviations are ignored, unless ``max_rejects`` come in a row (then the
     filter re-starts from the measurement: a real change, not an outlier).
     """
 
-    def __init__(self, jerk: float = 3.0, gate: float = 3.0, max_rejects: int = 3) -> None:
+    def __init__(self, jerk: float = 3.0, gate: float = 3.0, max_rejects: int = 3, accel_tau_s: float = 0.0) -> None:
         self.q = jerk**2
+        self.tau = accel_tau_s
         self.gate = gate
         self.max_rejects = max_rejects
         self.x = np.zeros(2)
@@ -235,7 +241,8 @@ class _SpeedFilter:
 
     def step(self, dt: float, z: float | None, var: float) -> float:
         """Advance by ``dt`` seconds, fuse the speed measurement ``z`` (variance ``var``); returns speed."""
-        F = np.array([[1.0, dt], [0.0, 1.0]])
+        decay = math.exp(-dt / self.tau) if self.tau > 0 else 1.0
+        F = np.array([[1.0, dt], [0.0, decay]])
         Q = self.q * np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]])
         xp, Pp = F @ self.x, F @ self.P @ F.T + Q
         x, P = xp, Pp
@@ -280,6 +287,8 @@ class EgoMotionEstimator:
     ``static_flow_px`` / ``min_parallax_px``: median parallax (full-frame px) below which the ego
     counts as stopped (held ``static_window_s``) / above which a keyframe pair is solved.
     ``smooth_window``: kept for compatibility (the Kalman filter replaced the running median).
+    ``accel_tau_s``: correlation time (s) of the ego's acceleration in the speed filter (0: constant
+    acceleration).
     """
 
     def __init__(
@@ -305,6 +314,7 @@ class EgoMotionEstimator:
         speed_noise_rel: float = 0.05,
         max_road_m: float = 30.0,
         coarse_corners: bool = True,
+        accel_tau_s: float = 1.5,
     ) -> None:
         if scale_method != "homography":
             raise ValueError(f"scale_method must be 'homography' (got {scale_method!r})")
@@ -334,7 +344,7 @@ class EgoMotionEstimator:
         self._travel: np.ndarray | None = None  # direction of travel, camera frame (running mean)
         self._travels = 0
         self._pitch_from_motion = horizon_v is None and camera.pitch_source not in ("user", "kitti_calib")
-        self._filter = _SpeedFilter(jerk=jerk)
+        self._filter = _SpeedFilter(jerk=jerk, accel_tau_s=accel_tau_s)
         self._states: list[EgoState] = []
         self._dt: list[float] = []
         self._dyaw: list[float] = []
@@ -353,6 +363,7 @@ class EgoMotionEstimator:
         self._kf_frames = 0
         self._frame_motion: tuple[np.ndarray, np.ndarray, float, np.ndarray] | None = None
         self._overlay: np.ndarray | None = None  # votes per 16-px cell for still overlay points
+        self._dist = np.asarray(camera.distortion, dtype=float)
 
     # ------------------------------------------------------------------ helpers
     def _prepare(self, frame: np.ndarray) -> np.ndarray:
@@ -384,6 +395,15 @@ class EgoMotionEstimator:
             still = cv2.resize(cells.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST)
             mask[still > 0] = 0
         return mask
+
+    def _undistort(self, p: np.ndarray) -> np.ndarray:
+        """Work-px points without the lens distortion (the camera's, if it has one): the essential
+        matrix and the road homography hold for a pinhole only. Tracking stays on the raw frames."""
+        if not self._dist.size or not len(p):
+            return p
+        assert self._K is not None
+        pts = p.reshape(-1, 1, 2).astype(np.float64)
+        return cv2.undistortPoints(pts, self._K, self._dist, P=self._K).reshape(-1, 2).astype(np.float32)
 
     def _horizon_row(self) -> float:
         assert self._K is not None
@@ -562,7 +582,7 @@ class EgoMotionEstimator:
                 self._frame_motion = None
             elif parallax >= self.min_parallax_px or span >= self.max_keyframe_s:
                 keyframe = True
-                res = self._solve(q0, q1, h)
+                res = self._solve(self._undistort(q0), self._undistort(q1), h)
                 if res is None:
                     valid = False
                     self._invalid += 1

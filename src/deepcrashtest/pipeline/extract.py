@@ -1,10 +1,11 @@
 """``deepcrashtest extract``: one decoding pass over a video -> tracks.csv, annotated.mp4 (, scenario.json).
 
-A fast scan for shot cuts comes first (a compilation gives one extraction per shot, never one scenario
-across a cut: :mod:`deepcrashtest.video.shots`).
+Shot cuts are looked for in the same pass (a compilation gives one extraction per shot, never one
+scenario across a cut: :mod:`deepcrashtest.video.shots`); a cut abandons the pass, nothing written, and
+each shot is extracted on its own.
 
-Phases of :func:`run_extract`: check the options and outputs, (shot scan,) the one decoding pass
-(:class:`_Pass`), tracks.csv, the summary, then stage 2 and the report (:func:`_finish_scenario`).
+Phases of :func:`run_extract`: check the options and outputs, the one decoding pass (:class:`_Pass`,
+with the shot watch), tracks.csv, the summary, then stage 2 and the report (:func:`_finish_scenario`).
 The pass is pipelined, one thread per stage with bounded queues between: decode | detect + track |
 ego-motion (+ lanes in a second thread, :mod:`.geometry_pass`) | draw + H.264 encode. Decoding,
 onnxruntime, OpenCV and the encoder release the GIL, so two cores stay busy; results are the same as
@@ -42,15 +43,18 @@ from deepcrashtest.pipeline.threads import Worker, prefetch
 from deepcrashtest.scenario import Camera, VideoSource
 from deepcrashtest.trajectory.params import Stage2Params
 from deepcrashtest.ui import track as progress
-from deepcrashtest.video.shots import Shot
+from deepcrashtest.video.shots import Shot, ShotWatch
 from deepcrashtest.video.source import Frame, VideoMeta, open_video
 from deepcrashtest.video.writer import VideoWriter
 
 DEFAULT_DETECT_EVERY = 5
+#: The detector runs at least this often (s) whatever ``detect_every`` says: at 10 fps (the CCD crash clips)
+#: every 5th frame left half a second between detections, and the road user the ego hits went untracked.
+MAX_DETECT_GAP_S = 0.25
 #: Every file ``extract`` may write into its output folder (one set per run: see fileio.output_set).
 OUTPUT_NAMES = ("tracks.csv", "annotated.mp4", "scenario_raw.json", "scenario.json", "report.html")
 #: Modules of the later phases imported in the background at the start (:func:`_warm_imports`).
-WARM_IMPORTS = ("sklearn.cluster", "deepcrashtest.geometry.world_tracks", "deepcrashtest.trajectory.pipeline")
+WARM_IMPORTS = ("deepcrashtest.geometry.world_tracks", "deepcrashtest.trajectory.pipeline")
 #: Shots of a compilation shorter than this (seconds) are not extracted.
 MIN_EXTRACT_SHOT_S = 1.0
 
@@ -96,23 +100,34 @@ def run_extract(
     _check_options(detect_every, max_frames)
     src_path, out = Path(video), Path(output)
     paths = _output_paths(src_path, out, annotate, geometry, report, force)
-    if shots and frame_range is None:
-        from deepcrashtest.video.shots import detect_shots
-
-        found = detect_shots(src_path, fps, max_frames)
-        if len(found) > 1:
-            options = dict(detector=detector, detect_every=detect_every, fps=fps, annotate=annotate, geometry=geometry)
-            options |= dict(camera=camera, dashboard_rows=dashboard_rows, lanes=lanes, report=report, seed=seed)
-            options |= dict(stage2=stage2)
-            return _extract_shots(src_path, out, found, force, options, crash_spec)
     det = make_detector(detector)
     if geometry:
         _warm_imports(WARM_IMPORTS + (("deepcrashtest.viz.report", "matplotlib.figure") if report else ()))
-    with output_set(out, OUTPUT_NAMES, force) as stage:  # the whole set of one run, or nothing
-        staged = {key: stage / path.name for key, path in paths.items()}
-        plan = _Pass(src_path, out, staged, det, detect_every, max_frames, fps, False, frame_range, seed)
-        result = _run_pass(plan, camera, dashboard_rows, geometry, lanes, report, crash_spec, stage2)
+    watch = shots and frame_range is None  # cuts are looked for in the same decoding pass
+    try:
+        with output_set(out, OUTPUT_NAMES, force) as stage:  # the whole set of one run, or nothing
+            staged = {key: stage / path.name for key, path in paths.items()}
+            plan = _Pass(src_path, out, staged, det, detect_every, max_frames, fps, False, frame_range, seed, watch)
+            result = _run_pass(plan, camera, dashboard_rows, geometry, lanes, report, crash_spec, stage2)
+    except _Compilation as comp:  # nothing was written: one extraction per shot instead
+        from deepcrashtest.video.shots import detect_shots
+
+        found = comp.shots or detect_shots(src_path, fps, max_frames)
+        options: dict[str, Any] = dict(detector=detector, detect_every=detect_every, fps=fps, annotate=annotate)
+        options |= dict(camera=camera, dashboard_rows=dashboard_rows, lanes=lanes, report=report, seed=seed)
+        options |= dict(stage2=stage2, geometry=geometry)
+        if len(found) > 1:
+            return _extract_shots(src_path, out, found, force, options, crash_spec)
+        return run_extract(src_path, out, force=force, shots=False, crash=crash, max_frames=max_frames, **options)
     return _final_paths(result, stage, out)
+
+
+class _Compilation(Exception):
+    """The decoding pass met a shot cut: the video is a compilation (``shots``: all of them when known)."""
+
+    def __init__(self, shots: list[Shot]) -> None:
+        super().__init__("shot cut")
+        self.shots = shots
 
 
 def _final_paths(value: Any, stage: Path, out: Path) -> Any:
@@ -137,11 +152,13 @@ def _run_pass(
     """The decoding pass, the tracks table, the crash and stage 2, all written to ``plan.paths``."""
     src_path, paths, force, seed = plan.src_path, plan.paths, plan.force, plan.seed
     t0 = time.perf_counter()
-    with _few_gc_passes():
+    with _few_gc_passes(), _opencv_threads(1):
         records, geo, meta = plan.run(camera, dashboard_rows, geometry, lanes)
     elapsed = time.perf_counter() - t0
     if meta.decoded_frames == 0:
         raise UserError(f"{src_path}: no frame could be decoded")
+    if plan.shot_watch is not None and len(shots := plan.shot_watch.shots()) > 1:
+        raise _Compilation(shots)
     df = records_table(records).sort_values(["frame", "track_id"], ignore_index=True)
     crash_info: dict[str, Any] | None = None
     if geo is not None:  # before anything is written: a bad --crash id refuses the whole set
@@ -188,6 +205,23 @@ def _few_gc_passes() -> Iterator[None]:
         gc.unfreeze()
 
 
+@contextlib.contextmanager
+def _opencv_threads(n: int) -> Iterator[None]:
+    """OpenCV's own thread pool set to ``n`` threads for the pass, then restored.
+
+    The pass already runs a thread per stage; OpenCV splitting each small call (LK flow, resizes)
+    over the cores as well cost ~6 % more process CPU on 2 cores, with the same results.
+    """
+    import cv2
+
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(n)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(before)
+
+
 def _check_options(detect_every: int, max_frames: int | None) -> None:
     if detect_every < 1:
         raise UserError(f"--detect-every must be >= 1 (got {detect_every})")
@@ -231,8 +265,12 @@ class _Pass:
     force: bool
     frame_range: tuple[int, int] | None
     seed: int
+    watch_shots: bool = False
+    """Look for shot cuts in this pass (:class:`~deepcrashtest.video.shots.ShotWatch`); a cut raises
+    :class:`_Compilation` (at the first cut found, or after the last frame)."""
     motion: GlobalMotion = field(default_factory=GlobalMotion)
     """The camera's global image motion per frame (the ego's jolt, for crash detection)."""
+    shot_watch: ShotWatch | None = field(default=None, init=False)
 
     def run(
         self,
@@ -246,8 +284,12 @@ class _Pass:
         with open_video(self.src_path, self.fps) as source, contextlib.ExitStack() as stack:
             meta = source.meta
             ensure_output_dir(self.paths["tracks_csv"].parent)
-            frames = stack.enter_context(closing(prefetch(_in_range(source, self.frame_range), 8, "decode")))
-            tracked = iter_tracks(frames, self.det, self.detect_every, self.max_frames, fps=meta.fps)
+            frames = _in_range(source, self.frame_range)
+            if self.watch_shots:
+                frames = _watched(frames, self._shot_watch(meta), self.max_frames)
+            frames = stack.enter_context(closing(prefetch(frames, 8, "decode")))
+            every = max(1, min(self.detect_every, int(meta.fps * MAX_DETECT_GAP_S + 1e-6)))
+            tracked = iter_tracks(frames, self.det, every, self.max_frames, fps=meta.fps)
             tracked = stack.enter_context(closing(prefetch(tracked, 8, "track")))
             tracked = progress(tracked, "extract", total=self._total(meta))
             draw = self._drawing(meta, stack)
@@ -259,6 +301,10 @@ class _Pass:
             cam = camera(meta.width, meta.height) if callable(camera) else camera
             cam = cam or default_camera(meta.width, meta.height)
             return records, self._geometry(tracked, records, meta, cam, dashboard_rows, lanes, draw), meta
+
+    def _shot_watch(self, meta: VideoMeta) -> ShotWatch:
+        self.shot_watch = ShotWatch(meta.fps)
+        return self.shot_watch
 
     def _total(self, meta: VideoMeta) -> int | None:
         total = min(meta.frame_count, self.max_frames) if self.max_frames else meta.frame_count
@@ -396,6 +442,15 @@ def _finish_scenario(
         build_report(paths["scenario"], paths["report"], force=force)
         info["report"] = str(paths["report"])
     return info
+
+
+def _watched(frames: Iterable[Frame], watch: ShotWatch, max_frames: int | None) -> Iterator[Frame]:
+    """The frames, each shown to ``watch`` first (the first ``max_frames``); raises
+    :class:`_Compilation` as soon as a cut is found."""
+    for k, frame in enumerate(frames):
+        if (max_frames is None or k < max_frames) and watch.feed(int(frame.index), frame.image):
+            raise _Compilation([])
+        yield frame
 
 
 def _in_range(frames: Iterable[Frame], frame_range: tuple[int, int] | None) -> Iterator[Frame]:

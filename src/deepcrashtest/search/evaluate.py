@@ -2,13 +2,15 @@
 
 Every engine cuts the variants into the same fixed-size chunks and simulates each chunk with
 ``deepcrashtest.sim.simulate_batch`` under the same seed, so the results do not depend on the
-engine or the number of workers.
+engine or the number of workers. With the replay controller (no sensor noise; every variant's
+outcome depends on its own parameters alone) the chunks are instead sized to keep every worker
+equally busy, at most ``chunk`` variants each.
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
@@ -102,13 +104,22 @@ class Evaluator:
 
     def _map(self, chunks: Sequence[tuple[np.ndarray, np.ndarray]]) -> list[dict[str, np.ndarray]]:
         args = [(self._json, o, p, self.controller, self.seed, self.duration) for o, p in chunks]
+        results: Iterable[dict[str, np.ndarray]]
         if self.engine == "ray":
-            return _ray_map(args, self.workers)
-        if self.workers == 1 or len(chunks) == 1:
-            return [simulate_chunk(*a) for a in args]
-        if self._pool is None:
-            self._pool = ProcessPoolExecutor(max_workers=self.workers)
-        return list(self._pool.map(simulate_chunk, *zip(*args, strict=True)))
+            results = _ray_map(args, self.workers)
+        elif self.workers == 1 or len(chunks) == 1:
+            results = (simulate_chunk(*a) for a in args)
+        else:
+            if self._pool is None:
+                self._pool = ProcessPoolExecutor(max_workers=self.workers)
+            results = self._pool.map(simulate_chunk, *zip(*args, strict=True))
+        parts = []
+        for (o, _), part in zip(chunks, results, strict=True):  # as each chunk finishes: the progress bar
+            parts.append(part)
+            self.simulations += len(o)
+            if self.on_progress is not None:
+                self.on_progress(len(o))
+        return parts
 
     # ------------------------------------------------------------------ evaluate
     def __call__(self, theta: np.ndarray) -> dict[str, np.ndarray]:
@@ -119,14 +130,14 @@ class Evaluator:
         offsets = np.zeros((len(th), 2))
         paths = self.space.paths(th)
         n = self.chunk
+        if self.controller == "replay":  # no sensor noise: any cut gives the same results; balance the workers
+            per_worker = -(-len(th) // (self.workers * n))
+            n = max(1, -(-len(th) // (self.workers * per_worker)))
         chunks = [(offsets[i : i + n], paths[i : i + n]) for i in range(0, len(th), n)]
         parts = self._map(chunks)
         out = {k: np.concatenate([p[k] for p in parts]) for k in OUTCOME_FIELDS}
         out["collided"] = out["collided"].astype(bool)
         out["change"] = self.space.change(th)
-        self.simulations += len(th)
-        if self.on_progress is not None:
-            self.on_progress(len(th))
         return out
 
 

@@ -208,3 +208,71 @@ def _plain(o: Any) -> Any:
     if isinstance(o, Path):
         return str(o)
     raise TypeError(type(o).__name__)
+
+
+class BackgroundPlot:
+    """``plot_starts`` in a forked process that imports Matplotlib (~1 s) while the parent simulates.
+
+    Start it before the simulations; ``submit(...)`` (``plot_starts``' arguments) hands it the data,
+    ``result()`` waits for the file. Where ``fork`` is not available the plot is drawn in this process.
+    """
+
+    def __init__(self) -> None:
+        import multiprocessing
+
+        self._conn: Any = None
+        self._proc: Any = None
+        self._args: tuple[Any, ...] = ()
+        if "fork" in multiprocessing.get_all_start_methods():
+            ctx = multiprocessing.get_context("fork")
+            self._conn, child = ctx.Pipe()
+            self._proc = ctx.Process(target=_plot_worker, args=(child,), daemon=True)
+            self._proc.start()
+            child.close()
+
+    def submit(self, *args: Any) -> None:
+        if self._proc is None:
+            self._args = args
+        else:
+            self._conn.send(args)
+
+    def result(self) -> Path:
+        if self._proc is None:
+            return plot_starts(*self._args)
+        ok, result = self._conn.recv()
+        self.close()
+        if not ok:
+            raise result
+        return result
+
+    def close(self) -> None:
+        if self._proc is not None:
+            if self._proc.is_alive():
+                try:
+                    self._conn.send(None)
+                except OSError:  # the worker already finished
+                    pass
+            self._proc.join()
+            self._conn.close()
+            self._proc = None
+
+    def __enter__(self) -> BackgroundPlot:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _plot_worker(conn: Any) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot  # noqa: F401  (the slow import, done while the parent simulates)
+
+    args = conn.recv()
+    if args is None:
+        return
+    try:
+        conn.send((True, plot_starts(*args)))
+    except Exception as exc:  # handed to the parent, which raises it
+        conn.send((False, exc))

@@ -88,8 +88,21 @@ def run_search(
 
 def _search(scenario: Scenario, out_dir: Path, cfg: SearchConfig, engine: str, workers: int) -> dict[str, Any]:
     """Run the search and write every output but summary.json into ``out_dir`` (an empty staging folder)."""
-    force = False
     space = SearchSpace.for_scenario(scenario, cfg.box_lateral, cfg.box_longitudinal, cfg.noise_sigma)
+    with outputs.BackgroundPlot() as plotter:
+        return _search_and_write(scenario, out_dir, cfg, engine, workers, space, plotter)
+
+
+def _search_and_write(
+    scenario: Scenario,
+    out_dir: Path,
+    cfg: SearchConfig,
+    engine: str,
+    workers: int,
+    space: SearchSpace,
+    plotter: outputs.BackgroundPlot,
+) -> dict[str, Any]:
+    force = False
     t0 = time.perf_counter()
     log = Log()
     cem_best: np.ndarray | None = None
@@ -114,13 +127,23 @@ def _search(scenario: Scenario, out_dir: Path, cfg: SearchConfig, engine: str, w
     theta, res = log.arrays()
     safe = is_safe(res, cfg.margin)
     df = outputs.results_table(space, theta, res, log.method, log.iteration, safe)
-    outputs.write_csv(df, out_dir / "results.csv", force)
     meta = {**asdict(cfg), "engine": engine}
     meta.pop("video")
     scen_paths, problems, best_sc = outputs.write_variants(
         scenario, space, df, theta, out_dir / "safe_variants", meta, cfg.max_scenarios, force
     )
     best_id = _best_safe(df, problems)
+    is_random = np.array(log.method) == "random"
+    plotter.submit(
+        df,
+        space,
+        boundary,
+        best_id,
+        out_dir / "starts.png",
+        force,
+        f"{scenario.name}: {int(safe[is_random].sum())} of {int(is_random.sum())} random variants safe",
+    )  # drawn in the background while the table is written
+    outputs.write_csv(df, out_dir / "results.csv", force)
     summary: dict[str, Any] = {
         "scenario": scenario.name,
         "controller": cfg.controller,
@@ -142,18 +165,7 @@ def _search(scenario: Scenario, out_dir: Path, cfg: SearchConfig, engine: str, w
         "results_csv": str(out_dir / "results.csv"),
         "safe_scenarios": scen_paths,
         "scenario_problems": [f"variant {k}: {v}" for k, v in problems.items()],
-        "plot": str(
-            outputs.plot_starts(
-                df,
-                space,
-                boundary,
-                best_id,
-                out_dir / "starts.png",
-                force,
-                f"{scenario.name}: {int(safe[np.array(log.method) == 'random'].sum())} of "
-                f"{int((np.array(log.method) == 'random').sum())} random variants safe",
-            )
-        ),
+        "plot": str(plotter.result()),
         "video": None,
     }
     if cfg.video and best_sc is not None:

@@ -186,6 +186,7 @@ class AgentTimeline:
         self._segments: dict[int, _Segment] = {}
         self._live: AgentSet | None = None
         self._next = 0  # first step the live AgentSet has not recorded yet
+        self._whole: _Segment | None = None
 
     def rewind(self) -> None:
         if not self.keep_all:
@@ -197,6 +198,18 @@ class AgentTimeline:
         if self.keep_all:
             for k in range(0, len(self.world.times) - 1, SEGMENT):
                 self.segment(k)
+
+    def whole(self) -> _Segment | None:
+        """Every step's recorded quantities in one segment (``k0 = 0``), for kept runs only (else None)."""
+        if not self.keep_all:
+            return None
+        n_seg = (len(self.world.times) - 2) // SEGMENT + 1
+        if self._whole is None or len(self._segments) != n_seg:
+            self.record_all()
+            parts = [self._segments[i] for i in range(n_seg)]
+            fields = [f for f in _Segment.__dataclass_fields__ if f != "k0"]
+            self._whole = _Segment(0, *(np.concatenate([getattr(p, f) for p in parts]) for f in fields))
+        return self._whole
 
     def segment(self, k: int) -> _Segment:
         s = self._segments.get(k // SEGMENT)

@@ -23,8 +23,9 @@ from deepcrashtest.errors import UserError, check_seed
 from deepcrashtest.scenario import Scenario
 from deepcrashtest.sim.agents import agent_timeline
 from deepcrashtest.sim.controllers import controller_name, resolve_controller
-from deepcrashtest.sim.loop import Contact, LoopOutput, run_loop
-from deepcrashtest.sim.reference import PathSet, build_references
+from deepcrashtest.sim.loop import Contact, LoopOutput, is_replay_controller, run_loop
+from deepcrashtest.sim.reference import PathSet, build_pathset
+from deepcrashtest.sim.replay_batch import replay_batch_available, run_replay_batch
 from deepcrashtest.sim.vehicle import VehicleLimits
 from deepcrashtest.sim.world import World, build_world
 
@@ -149,10 +150,9 @@ def _ego_variants(
     traj = world.scenario.ego.trajectory
     t = np.linspace(traj.t[0], traj.t[-1], ego_paths.shape[1])
     yaw = np.interp(t, traj.t, traj.yaw)
-    refs = build_references(t, ego_paths, yaw, world.times, world.dt)
-    init = np.stack([r.init for r in refs])
+    paths, init = build_pathset(t, ego_paths, yaw, world.times, world.dt)
     init[:, :2] += off
-    return PathSet.stack(refs, world.dt), np.arange(B, dtype=np.intp), off, init
+    return paths, np.arange(B, dtype=np.intp), off, init
 
 
 def _check_batch_inputs(ego_offsets: Any, ego_paths: Any) -> tuple[np.ndarray, np.ndarray | None]:
@@ -253,6 +253,8 @@ def _run_chunk(c: int) -> LoopOutput:
     lo, hi = c * size, min((c + 1) * size, job["B"])
     paths, q, off, init = job["variants"]
     ctrl = resolve_controller(job["controller"])
+    if is_replay_controller(ctrl) and job["fast"] and replay_batch_available(job["world"]):
+        return run_replay_batch(job["world"], paths, q[lo:hi], off[lo:hi], init[lo:hi])
     return run_loop(
         job["world"],
         paths,
@@ -280,6 +282,7 @@ def simulate_batch(
     duration: float | None = None,
     workers: int = 1,
     chunk_size: int = CHUNK,
+    stepwise: bool = False,
 ) -> BatchResult:
     """Simulate ``B`` ego variants of ``scenario`` (or of a world from :func:`prepare`) together.
 
@@ -291,6 +294,8 @@ def simulate_batch(
     ``chunk_size`` variants in that many processes (fork); results do not depend on ``workers``.
     ``dt`` defaults to 0.02 s (a prepared world: its own). Passing a prepared world skips
     rebuilding it; its agents' run is recorded by the first batch and reused by the next ones.
+    With the replay controller the variants run through :mod:`deepcrashtest.sim.replay_batch` (the
+    whole run of every ego at once, same outcomes); ``stepwise=True`` forces the per-step loop instead.
     """
     check_seed(seed)
     off, paths = _check_batch_inputs(ego_offsets, ego_paths)
@@ -301,7 +306,9 @@ def simulate_batch(
     if chunk_size < 1:
         raise UserError(f"chunk_size must be >= 1 (got {chunk_size})")
     variants = _ego_variants(world, off, paths)
-    _JOB.update(world=world, variants=variants, controller=controller, seed=seed, B=B, chunk=chunk_size)
+    _JOB.update(
+        world=world, variants=variants, controller=controller, seed=seed, B=B, chunk=chunk_size, fast=not stepwise
+    )
     chunks = list(range((B + chunk_size - 1) // chunk_size))
     try:
         if workers > 1 and len(chunks) > 1:

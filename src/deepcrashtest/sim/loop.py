@@ -134,7 +134,7 @@ class _Loop:
         self.needs_sensors = bool(getattr(controller, "needs_sensors", True))
         if hasattr(controller, "reset"):
             controller.reset(B, self.dt, seed)
-        self.is_replay = type(controller).__name__ == "ReplayController"
+        self.is_replay = is_replay_controller(controller)
         self.compactable = not physics_mode and (self.is_replay or hasattr(controller, "select"))
         self.period = max(1, int(round(CONTROL_PERIOD_S / self.dt)))
         self.held: tuple[np.ndarray, np.ndarray] | None = None
@@ -153,7 +153,7 @@ class _Loop:
         if physics_mode:
             self.out.states = np.full((T, M + 1, 4), np.nan)
             self.out.present = np.zeros((T, M + 1), dtype=bool)
-        self.pre_contact: dict[int, tuple[np.ndarray, np.ndarray, float, int, np.ndarray, np.ndarray, float]] = {}
+        self.pre_contact: dict[int, PreContact] = {}
         self.pres_prev = np.zeros(M, dtype=bool)
         self.ignore_e = np.zeros((B, M), dtype=bool)
 
@@ -438,12 +438,29 @@ class _Loop:
                 out.delta_v_ego[0] = first.delta_v.get(0, np.nan)
                 out.delta_v_other[0] = first.delta_v.get(other, np.nan)
             return out
-        size_e = (self.ego_size[0], self.ego_size[1], float(world.mass[0]))
-        for row, (e_pose, e_vel, e_om, agent, a_pose, a_vel, a_om) in self.pre_contact.items():
-            size_a = (float(world.length[agent + 1]), float(world.width[agent + 1]), float(world.mass[agent + 1]))
-            dv_e, dv_o, _ = impact_delta_v(e_pose[:3], e_vel, e_om, size_e, a_pose[:3], a_vel, a_om, size_a)
-            out.delta_v_ego[row], out.delta_v_other[row] = dv_e, dv_o
+        batch_delta_v(world, self.pre_contact, out)
         return out
+
+
+PreContact = tuple[np.ndarray, np.ndarray, float, int, np.ndarray, np.ndarray, float]
+
+
+def is_replay_controller(controller: Any) -> bool:
+    """True for the built-in replay controller (the ego follows its reference, blind to the agents)."""
+    return type(controller).__name__ == "ReplayController"
+
+
+def batch_delta_v(world: World, pre_contact: dict[int, PreContact], out: LoopOutput) -> None:
+    """Batch mode: delta-v (m/s) of the ego and the agent it hit, from a two-body Box2D impact per variant.
+
+    ``pre_contact[row]`` = ego state, velocity, yaw rate; agent index; agent state, velocity, yaw rate,
+    all at the start of the step of the first contact.
+    """
+    size_e = (float(world.length[0]), float(world.width[0]), float(world.mass[0]))
+    for row, (e_pose, e_vel, e_om, agent, a_pose, a_vel, a_om) in pre_contact.items():
+        size_a = (float(world.length[agent + 1]), float(world.width[agent + 1]), float(world.mass[agent + 1]))
+        dv_e, dv_o, _ = impact_delta_v(e_pose[:3], e_vel, e_om, size_e, a_pose[:3], a_vel, a_om, size_a)
+        out.delta_v_ego[row], out.delta_v_other[row] = dv_e, dv_o
 
 
 def _finish_contacts(out: LoopOutput, phys: PhysicsWorld | None) -> None:

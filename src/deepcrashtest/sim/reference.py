@@ -86,10 +86,10 @@ def resample_path(points: np.ndarray, end_heading: float, extension: float, ds: 
 
 
 def path_heading_curvature(path: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Heading (rad, unwrapped) and curvature (1/m) along an arc-length-uniform path."""
-    d = np.gradient(path, axis=0)
-    heading = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
-    curv = np.gradient(heading) / PATH_DS_M
+    """Heading (rad, unwrapped) and curvature (1/m) along arc-length-uniform paths ``(..., P, 2)`` -> ``(..., P)``."""
+    d = np.gradient(path, axis=-2)
+    heading = np.unwrap(np.arctan2(d[..., 1], d[..., 0]), axis=-1)
+    curv = np.gradient(heading, axis=-1) / PATH_DS_M
     # curvature of a smoothed vehicle path: bounded by the minimum turning radius (~4 m)
     return heading, np.clip(curv, -0.25, 0.25)
 
@@ -126,13 +126,106 @@ def build_references(
     xys = np.asarray(xys, float)
     if len(t) < 4:
         return [build_reference(t, xy, yaw_label, times, dt, smooth=False) for xy in xys]
+    start, end, pos, vel = _interp_paths(t, xys, times, dt)
+    yaw = np.asarray(yaw_label, float)
+    return [_reference(pos[:, b], vel[:, b], xys[b], yaw, times, start, end) for b in range(len(xys))]
+
+
+def _interp_paths(
+    t: np.ndarray, xys: np.ndarray, times: np.ndarray, dt: float
+) -> tuple[int, int, np.ndarray, np.ndarray]:
+    """Grid span and cubic-interpolated positions and velocities (L, B, 2) of ``B`` paths sampled at ``t``."""
     B, n = xys.shape[:2]
     start, end, tq = _span(t, times, dt)
-    spline = make_interp_spline(t, xys.transpose(1, 0, 2).reshape(n, 2 * B), k=3)
-    pos = spline(tq).reshape(len(tq), B, 2)
-    vel = spline.derivative()(tq).reshape(len(tq), B, 2)
-    yaw = np.asarray(yaw_label, float)
-    return [_reference(pos[:, b], vel[:, b], xys[b], yaw, times, start, end) for b in range(B)]
+    pos, vel = np.empty((len(tq), B, 2)), np.empty((len(tq), B, 2))
+    for lo in range(0, B, 256):  # blocks of columns stay in cache (SciPy solves each column alike)
+        blk = xys[lo : lo + 256]
+        spline = make_interp_spline(t, blk.transpose(1, 0, 2).reshape(n, 2 * len(blk)), k=3)
+        pos[:, lo : lo + len(blk)] = spline(tq).reshape(len(tq), len(blk), 2)
+        vel[:, lo : lo + len(blk)] = spline.derivative()(tq).reshape(len(tq), len(blk), 2)
+    return start, end, pos, vel
+
+
+def build_pathset(
+    t: np.ndarray, xys: np.ndarray, yaw_label: np.ndarray, times: np.ndarray, dt: float
+) -> tuple[PathSet, np.ndarray]:
+    """``PathSet`` and initial states (B, 4: x, y, yaw, speed) of ``B`` paths ``xys`` (B, n, 2) at times ``t``.
+
+    Bit-identical to ``PathSet.stack(build_references(...))`` and the references' ``init``, vectorised
+    over the paths (only the arc-length resampling runs per path): thousands of search variants cost
+    milliseconds. Falls back to the per-path construction when a path is static or ``n < 4``.
+    """
+    t = np.asarray(t, float)
+    xys = np.asarray(xys, float)
+    if len(t) < 4:
+        refs = build_references(t, xys, yaw_label, times, dt)
+        return PathSet.stack(refs, dt), np.stack([r.init for r in refs])
+    start, end, pos, vel = _interp_paths(t, xys, times, dt)
+    seg = np.hypot(*np.diff(pos, axis=0).T)  # (B, L-1)
+    s_span = np.concatenate([np.zeros((len(xys), 1)), np.cumsum(seg, axis=1)], axis=1)
+    if (s_span[:, -1] < STATIC_PATH_M).any():
+        refs = build_references(t, xys, yaw_label, times, dt)
+        return PathSet.stack(refs, dt), np.stack([r.init for r in refs])
+    speed = np.hypot(vel[..., 0], vel[..., 1]).T  # (B, L)
+    moving = speed > 0.5
+    head = np.arctan2(vel[..., 1], vel[..., 0]).T
+    last_moving = speed.shape[1] - 1 - np.argmax(moving[:, ::-1], axis=1)
+    rows = np.arange(len(xys))
+    end_heading = np.where(moving.any(axis=1), head[rows, last_moving], float(np.asarray(yaw_label, float)[-1]))
+    v_end = speed[:, -1]
+    extension = EXTENSION_M + v_end * max(0.0, times[-1] - times[end])
+    paths, lengths = _resample_paths(pos, seg, s_span, end_heading, extension)
+    T = len(times)
+    s_ref = np.empty((len(xys), T))
+    s_ref[:, : start + 1] = 0.0
+    s_ref[:, start : end + 1] = s_span
+    s_ref[:, end:] = s_span[:, -1:] + v_end[:, None] * (times[end:] - times[end])
+    v_ref = np.empty((len(xys), T))
+    v_ref[:, :start] = speed[:, :1]
+    v_ref[:, start : end + 1] = speed
+    v_ref[:, end:] = v_end[:, None]
+    d0 = paths[:, 1] - paths[:, 0]  # np.gradient's first-order edge of path[:3]
+    heading0 = np.arctan2(d0[:, 1], d0[:, 0])
+    init = np.column_stack([pos[0, :, 0], pos[0, :, 1], np.where(moving[:, 0], head[:, 0], heading0), speed[:, 0]])
+    return PathSet.from_padded(paths, lengths, s_ref, v_ref, dt), init
+
+
+def _resample_paths(
+    pos: np.ndarray, seg: np.ndarray, s_span: np.ndarray, end_heading: np.ndarray, extension: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``resample_path`` of ``B`` polylines ``pos`` (L, B, 2) at once: (B, P, 2) paths, each extended straight
+    to the longest, and each one's own length (before that extension).
+
+    ``seg`` (B, L-1) and ``s_span`` (B, L) are the polylines' segment lengths and stations (m).
+    """
+    B = pos.shape[1]
+    keep = np.concatenate([np.ones((B, 1), bool), seg > 1e-9], axis=1)
+    last_kept = keep.shape[1] - 1 - np.argmax(keep[:, ::-1], axis=1)
+    s_last = s_span[np.arange(B), last_kept]
+    n_base = np.ceil((s_last + 1e-9) / PATH_DS_M).astype(np.intp)  # len(np.arange(0, s_last + 1e-9, ds))
+    n_ext = np.ceil(extension / PATH_DS_M).astype(np.intp) + 2
+    lengths = n_base + n_ext
+    out = np.empty((B, int(lengths.max()), 2))
+    grid = np.arange(0.0, float(s_last.max()) + 1e-9, PATH_DS_M)
+    xy = np.ascontiguousarray(pos.transpose(1, 2, 0))  # (B, 2, L)
+    all_kept = np.all(keep, axis=1).tolist()
+    for b in range(B):  # np.interp per polyline: their stations differ
+        n, s, px, py = n_base[b], s_span[b], xy[b, 0], xy[b, 1]
+        if not all_kept[b]:
+            k = keep[b]
+            s, px, py = s[k], px[k], py[k]
+        if len(s) > 1:
+            out[b, :n, 0] = np.interp(grid[:n], s, px)
+            out[b, :n, 1] = np.interp(grid[:n], s, py)
+        else:
+            out[b, :n] = (px[0], py[0])
+    last = out[np.arange(B), n_base - 1]
+    direction = np.column_stack([np.cos(end_heading), np.sin(end_heading)])
+    m = np.arange(out.shape[1])[None, :] - n_base[:, None] + 1  # 1.. along each extension
+    ext = (m >= 1) & (m <= n_ext[:, None])
+    steps = (np.where(ext, m, 0) * PATH_DS_M)[..., None]
+    out[ext] = (last[:, None, :] + steps * direction[:, None, :])[ext]
+    return out, lengths
 
 
 def _span(t: np.ndarray, times: np.ndarray, dt: float) -> tuple[int, int, np.ndarray]:
@@ -199,21 +292,39 @@ class PathSet:
 
     @classmethod
     def stack(cls, refs: list[Reference], dt: float) -> PathSet:
-        P = max(len(r.path) for r in refs)
-        paths, heads, curvs = [], [], []
-        for r in refs:
-            p = r.path
-            if len(p) < P:
-                d = p[-1] - p[-2]
-                d = d / max(float(np.hypot(*d)), 1e-12) * PATH_DS_M
-                p = np.vstack([p, p[-1] + np.arange(1, P - len(p) + 1)[:, None] * d])
-            h, c = path_heading_curvature(p)
-            paths.append(p)
-            heads.append(h)
-            curvs.append(c)
-        v_ref = np.stack([r.v_ref for r in refs])
+        return cls.from_arrays(
+            [r.path for r in refs], np.stack([r.s_ref for r in refs]), np.stack([r.v_ref for r in refs]), dt
+        )
+
+    @classmethod
+    def from_arrays(cls, paths: list[np.ndarray], s_ref: np.ndarray, v_ref: np.ndarray, dt: float) -> PathSet:
+        """Stack paths (each (P_q, 2)), extending the shorter ones straight, with their (Q, T) profiles."""
+        lengths = np.array([len(p) for p in paths])
+        out = np.empty((len(paths), int(lengths.max()), 2))
+        for q, p in enumerate(paths):
+            out[q, : len(p)] = p
+        return cls.from_padded(out, lengths, s_ref, v_ref, dt)
+
+    @classmethod
+    def from_padded(
+        cls, paths: np.ndarray, lengths: np.ndarray, s_ref: np.ndarray, v_ref: np.ndarray, dt: float
+    ) -> PathSet:
+        """From paths (Q, P, 2) of which only the first ``lengths[q]`` points are set: the rest continue
+        each path straight along its last segment, ``PATH_DS_M`` apart."""
+        Q, P = paths.shape[:2]
+        lengths = np.asarray(lengths, np.intp)
+        short = lengths < P
+        if short.any():
+            q = np.arange(Q)
+            p1, p2 = paths[q, lengths - 1], paths[q, np.maximum(lengths - 2, 0)]
+            d = p1 - p2
+            d = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None] * PATH_DS_M
+            m = np.arange(P)[None, :] - lengths[:, None] + 1
+            pad = m >= 1
+            paths[pad] = (p1[:, None, :] + np.where(pad, m, 0)[..., None] * d[:, None, :])[pad]
+        heads, curvs = path_heading_curvature(paths)
         a_ref = np.gradient(v_ref, dt, axis=1) if v_ref.shape[1] > 1 else np.zeros_like(v_ref)
-        return cls(np.stack(paths), np.stack(heads), np.stack(curvs), np.stack([r.s_ref for r in refs]), v_ref, a_ref)
+        return cls(paths, heads, curvs, s_ref, v_ref, a_ref)
 
     def pose_at(self, k: int) -> np.ndarray:
         """(Q, 4) x, y, heading, speed of every reference at grid step ``k`` (position at ``s_ref``)."""

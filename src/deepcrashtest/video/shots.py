@@ -1,8 +1,9 @@
 """Shot cuts in a video: crash videos found online are often compilations of several clips.
 
 A scenario must never span a cut (the ego and every track jump). :func:`detect_shots` decodes the
-video once with this package's own frame source (so frame numbers are those of ``extract``), feeds
-frames shrunk to ``ANALYSIS_WIDTH`` pixels to PySceneDetect's ``AdaptiveDetector`` (PyPI
+video once with this package's own frame source (so frame numbers are those of ``extract``; extract's
+own pass feeds a :class:`ShotWatch` instead of decoding twice), feeds frames shrunk to
+``ANALYSIS_WIDTH`` pixels to PySceneDetect's ``AdaptiveDetector`` (PyPI
 ``scenedetect-headless``) and returns the shots as frame ranges.
 
 Why the adaptive detector: a dashcam crash has exactly the fast content changes that fire a fixed
@@ -52,38 +53,59 @@ class Shot:
         return self.last_frame - self.first_frame + 1
 
 
-def detect_shots(path: str | Path, fps: float | None = None, max_frames: int | None = None) -> list[Shot]:
-    """The shots of the video (or image folder) at ``path``, in order; one shot when there is no cut."""
-    import cv2
-    from scenedetect import AdaptiveDetector, FrameTimecode
+class ShotWatch:
+    """Cut detection fed one frame at a time, in order (``extract`` feeds it from its own decoding
+    pass, so a video without cuts, the usual case, is decoded once and not scanned beforehand)."""
 
-    with open_video(Path(path), fps) as source:
-        rate = float(source.meta.fps)
-        min_len = max(2, int(round(MIN_SHOT_S * rate)))
-        detector = AdaptiveDetector(
+    def __init__(self, fps: float) -> None:
+        from scenedetect import AdaptiveDetector
+
+        self.fps = float(fps)
+        min_len = max(2, int(round(MIN_SHOT_S * self.fps)))
+        self._detector = AdaptiveDetector(
             adaptive_threshold=ADAPTIVE_THRESHOLD, min_scene_len=min_len, min_content_val=MIN_CONTENT_VAL
         )
-        cuts: list[int] = []
-        first = last = None
+        self.cuts: list[int] = []
+        self.first: int | None = None
+        self.last: int | None = None
+
+    def feed(self, index: int, image: np.ndarray) -> bool:
+        """Look at video frame ``index`` (BGR); True when a cut has been found so far."""
+        import cv2
+        from scenedetect import FrameTimecode
+
+        h, w = image.shape[:2]
+        if w > ANALYSIS_WIDTH:
+            size = (ANALYSIS_WIDTH, max(1, round(h * ANALYSIS_WIDTH / w)))
+            image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+        if self.first is None:
+            self.first = index
+        self.last = index
+        found = self._detector.process_frame(FrameTimecode(int(index), fps=self.fps), np.ascontiguousarray(image))
+        self.cuts.extend(int(c.frame_num) for c in found)
+        return bool(self.cuts)
+
+    def shots(self) -> list[Shot]:
+        """The shots of the frames fed so far (call once, after the last frame)."""
+        from scenedetect import FrameTimecode
+
+        if self.first is None or self.last is None:
+            return []
+        first, last = self.first, self.last
+        self.cuts.extend(int(c.frame_num) for c in self._detector.post_process(FrameTimecode(int(last), fps=self.fps)))
+        bounds = [first, *sorted(c for c in set(self.cuts) if first < c <= last), last + 1]
+        return [Shot(i, a, b - 1, self.fps) for i, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True))]
+
+
+def detect_shots(path: str | Path, fps: float | None = None, max_frames: int | None = None) -> list[Shot]:
+    """The shots of the video (or image folder) at ``path``, in order; one shot when there is no cut."""
+    with open_video(Path(path), fps) as source:
+        watch = ShotWatch(float(source.meta.fps))
         for k, frame in enumerate(source):
             if max_frames is not None and k >= max_frames:
                 break
-            img = frame.image
-            h, w = img.shape[:2]
-            if w > ANALYSIS_WIDTH:
-                size = (ANALYSIS_WIDTH, max(1, round(h * ANALYSIS_WIDTH / w)))
-                img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
-            if first is None:
-                first = frame.index
-            last = frame.index
-            found = detector.process_frame(FrameTimecode(int(frame.index), fps=rate), np.ascontiguousarray(img))
-            cuts.extend(int(c.frame_num) for c in found)
-        if last is not None:
-            cuts.extend(int(c.frame_num) for c in detector.post_process(FrameTimecode(int(last), fps=rate)))
-    if first is None or last is None:
-        return []
-    bounds = [first, *sorted(c for c in set(cuts) if first < c <= last), last + 1]
-    return [Shot(i, a, b - 1, rate) for i, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True))]
+            watch.feed(int(frame.index), frame.image)
+    return watch.shots()
 
 
 def cut_times(shots: list[Shot]) -> list[float]:

@@ -555,19 +555,22 @@ def scenario_sections(
     fidelity: Any | None = None,
 ) -> list[Section]:
     """Every section a scenario (+ optional annotated video, sim metrics, search table, fidelity result) gives."""
+    from concurrent.futures import ThreadPoolExecutor
+
     from deepcrashtest.viz.fidelity_section import fidelity_section
 
-    sheet = contact_sheet_section(video, sc=sc) if video is not None else None
-    marks = sheet_marks(sc, _frame_count(video)) if video is not None else []
+    with ThreadPoolExecutor(1, thread_name_prefix="contact-sheet") as pool:
+        # the sheet decodes the video (PyAV and OpenCV release the GIL) while matplotlib draws the plots
+        sheet = pool.submit(contact_sheet_section, video, sc=sc) if video is not None else None
+        marks = sheet_marks(sc, _frame_count(video)) if video is not None else []
+        plots = [birdseye_section(sc), motion_section(sc, marks), lane_offset_section(sc)]
     parts: list[Section | None] = [
         overview_section(sc),
         warnings_section(sc),
         source_section(sc),
         camera_section(sc),
-        sheet,
-        birdseye_section(sc),
-        motion_section(sc, marks),
-        lane_offset_section(sc),
+        sheet.result() if sheet is not None else None,
+        *plots,
         simulation_section(sim_metrics, sc=sc) if sim_metrics is not None else None,
         search_section(search) if search is not None else None,
         fidelity_section(fidelity) if fidelity is not None else None,

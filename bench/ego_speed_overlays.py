@@ -1,0 +1,149 @@
+"""Ego speed on real dashcam clips against the speed their overlay shows (bench/labels/ego_speed_overlays.json).
+
+For each labelled clip the geometry stage's own camera estimate (dashboard rows + horizon from the first
+2 s, as ``extract`` does) feeds :class:`~deepcrashtest.geometry.egomotion.EgoMotionEstimator` over the
+decoded frames; the smoothed speed is compared frame by frame with the overlay reading. Printed per clip:
+the overlay's mean, the estimate's mean and median over the labelled frames, the median error in % of the
+overlay on frames where it reads > 0, the frames the estimator calls stopped (< 0.3 m/s), how many frames
+had a road-scale measurement (and their spread, before smoothing), and the camera
+``fx * height`` that would make the means agree: the road plane's metric scale is proportional to the
+assumed focal length times the assumed camera height, and a clip without calibration runs on the
+unknown-dashcam default (90 deg horizontal field of view, 1.3 m). The highway clip (no overlay) runs with
+its chessboard calibration and is checked against a plausible range.
+
+Run: PYTHONPATH=src python bench/ego_speed_overlays.py [--data DIR] [--clips a,b] [--tracks DIR] [--set NAME=X]
+``--tracks DIR``: ``DIR/<clip>/tracks.csv`` from an earlier extract masks the road users (as extract does);
+``--set``: an :class:`EgoMotionEstimator` option (repeatable), to compare variants on the same clips.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT.parent / "shared" / "data"
+LABELS = ROOT / "bench" / "labels" / "ego_speed_overlays.json"
+
+
+@dataclass
+class ClipRun:
+    speed: np.ndarray  # smoothed ego speed per decoded frame, m/s
+    fx: float  # px
+    height_m: float
+    cpu_ms: float  # estimator CPU time per frame (decoding not counted)
+    raw: np.ndarray  # per frame: the keyframe pair's speed measurement (m/s) or NaN (none, or no road scale)
+
+
+def overlay_speeds(entry: dict[str, Any], n: int) -> np.ndarray:
+    """Per-frame overlay speed (m/s; NaN where unlabelled) for ``n`` frames."""
+    out = np.full(n, np.nan)
+    for r in entry["readings"]:
+        out[r["first_frame"] : min(n, r["last_frame"] + 1)] = r["kmh"] / 3.6
+    return out
+
+
+def run_clip(video: Path, chessboard: bool, last_frame: int, tracks: Path | None, options: dict[str, Any]) -> ClipRun:
+    import cv2
+    import pandas as pd
+
+    from deepcrashtest.geometry.camera import calibrate_chessboard, default_camera
+    from deepcrashtest.geometry.egomotion import EgoMotionEstimator
+    from deepcrashtest.pipeline.geometry_pass import estimate_camera
+
+    cap = cv2.VideoCapture(str(video))
+    fps = float(cap.get(cv2.CAP_PROP_FPS))
+    images = []
+    while len(images) <= last_frame:
+        ok, img = cap.read()
+        if not ok:
+            break
+        images.append(img)
+    cap.release()
+    h, w = images[0].shape[:2]
+    cam = default_camera(w, h)
+    if chessboard:
+        calib, _, _ = calibrate_chessboard(video.parent / "camera_calibration")
+        cam = calib.model_copy(update={"height_m": cam.height_m})
+    cam, rows, _ = estimate_camera(images[: int(2 * fps) + 1], cam)
+    boxes = pd.read_csv(tracks) if tracks is not None and tracks.exists() else None
+    est = EgoMotionEstimator(cam, mask_bottom_rows=rows, **options)
+    t0 = time.process_time()
+    raw = []
+    for i, img in enumerate(images):
+        b = boxes[boxes.frame == i][["x1", "y1", "x2", "y2"]].to_numpy(float) if boxes is not None else None
+        state = est.update(img, i / fps, b)
+        raw.append(np.nan if state.raw_speed is None else state.raw_speed)
+    cpu_ms = (time.process_time() - t0) / len(images) * 1000
+    return ClipRun(est.result().speed, cam.fx, cam.height_m, cpu_ms, np.asarray(raw))
+
+
+def report_labelled(name: str, entry: dict[str, Any], r: ClipRun) -> None:
+    truth = overlay_speeds(entry, len(r.speed))
+    lab = np.isfinite(truth) & (np.arange(len(r.speed)) > 0)
+    moving = lab & (truth > 0)
+    s, tr = r.speed, truth
+    err = 100 * float(np.median((s[moving] - tr[moving]) / tr[moving])) if moving.any() else float("nan")
+    mean_t, mean_e = float(np.mean(tr[lab])), float(np.mean(s[lab]))
+    fh = r.fx * r.height_m * mean_t / mean_e if mean_e > 0.05 else float("nan")
+    print(
+        f"{name:22} {'default':10} {mean_t * 3.6:6.1f}kh {mean_e * 3.6:6.1f}kh {np.median(s[lab]) * 3.6:6.1f}kh "
+        f"{err:7.1f} {int(np.sum(s[lab] < 0.3)):3d}/{int(lab.sum()):<3d} {r.fx * r.height_m:7.0f} {fh:9.0f} "
+        f"{r.cpu_ms:8.1f}"
+    )
+    m = lab & np.isfinite(r.raw)
+    if m.any():
+        print(
+            f"{'':22} road-scale measurements on {int(m.sum())} of {int(lab.sum())} frames: median "
+            f"{np.median(r.raw[m]) * 3.6:.1f} km/h, 10-90 % {np.percentile(r.raw[m], 10) * 3.6:.1f}-"
+            f"{np.percentile(r.raw[m], 90) * 3.6:.1f} km/h (before the Kalman/RTS smoother)"
+        )
+    zero = lab & (tr == 0)
+    if zero.any():
+        print(f"{'':22} overlay 0 km/h on {int(zero.sum())} frames: mean speed there {np.mean(s[zero]):.2f} m/s")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--data", default=str(DATA))
+    ap.add_argument("--clips", default="", help="comma-separated clip names (default: all)")
+    ap.add_argument("--tracks", default="", help="folder with <clip>/tracks.csv to mask road users")
+    ap.add_argument("--set", action="append", default=[], help="estimator option NAME=NUMBER (repeatable)")
+    args = ap.parse_args()
+    import cv2
+
+    cv2.setNumThreads(2)
+    options = {k: float(v) for k, v in (o.split("=", 1) for o in args.set)}
+    labels = json.loads(LABELS.read_text())
+    wanted = set(filter(None, args.clips.split(",")))
+    print(
+        f"{'clip':22} {'camera':10} {'overlay':>8} {'est mean':>8} {'est med':>8} {'err %':>7} "
+        f"{'stopped':>7} {'fx*h':>7} {'to match':>9} {'cpu ms/f':>8}"
+    )
+    for name, entry in labels["clips"].items():
+        if wanted and name not in wanted:
+            continue
+        last = max(r["last_frame"] for r in entry["readings"])
+        tracks = Path(args.tracks) / name / "tracks.csv" if args.tracks else None
+        report_labelled(name, entry, run_clip(Path(args.data) / entry["video"], False, last, tracks, options))
+    for name, entry in labels["plausibility"].items():
+        if wanted and name not in wanted:
+            continue
+        r = run_clip(Path(args.data) / entry["video"], True, 250, None, options)
+        lo, hi = entry["range_kmh"]
+        med = float(np.median(r.speed[1:])) * 3.6
+        verdict = "plausible" if lo <= med <= hi else "IMPLAUSIBLE"
+        print(
+            f"{name:22} {'chessboard':10} {lo:3d}-{hi:3d}kh {float(np.mean(r.speed[1:])) * 3.6:6.1f}kh {med:6.1f}kh "
+            f"{verdict:>15} {r.fx * r.height_m:7.0f} {'':>9} {r.cpu_ms:8.1f}"
+        )
+
+
+if __name__ == "__main__":
+    main()

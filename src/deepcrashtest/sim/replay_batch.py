@@ -1,0 +1,272 @@
+"""Batch mode with the replay controller: every ego variant's whole run at once, then contacts and metrics.
+
+With the replay controller the ego follows its reference blind to the agents, and in batch mode the
+agents come from the world's recorded :class:`~deepcrashtest.sim.agents.AgentTimeline` (independent
+of the ego). So the ego of every variant can be stepped through the whole time grid first (one
+vectorised step per grid step, ~70 array operations for all variants together), and the per-step
+tests of :mod:`deepcrashtest.sim.loop` become array operations over (steps, variants, agents):
+
+* contacts: only where the bounding circles overlap can the boxes touch; the separating-axis gap
+  there, the loop's rule for ignored overlaps (a pair that overlaps when it first co-exists is
+  ignored until it has separated once) as runs of consecutive overlapping steps, and the first
+  contact of each variant (its run ends there);
+* minimum distance: the separating-axis gap is at least ``|d| / sqrt(2) - max half extent of the
+  ego - circumradius of the agent`` (``d``: centre offset), and the minimum is at most the smallest
+  centre distance, so exact distances are computed only where that bound can reach the minimum;
+* time to collision: at the loop's evaluation steps; the swept test only where the distance over
+  the closing speed can beat the variant's minimum.
+
+Every number comes from the same functions on the same inputs as in the loop, element by element:
+the outcomes equal :func:`deepcrashtest.sim.loop.run_loop`'s (checked on KITTI scenes in the tests).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from deepcrashtest.sim.agents import agent_timeline
+from deepcrashtest.sim.boxes import contact_fraction, sat_gap, signed_distance, time_to_collision
+from deepcrashtest.sim.follow import Follower
+from deepcrashtest.sim.loop import NEAR_M, TTC_EVERY, LoopOutput, PreContact, batch_delta_v
+from deepcrashtest.sim.reference import PathSet
+from deepcrashtest.sim.vehicle import VehicleLimits, bicycle_step, limit_commands, velocity_xy, yaw_rate
+from deepcrashtest.sim.world import World
+
+#: Variants whose (steps x agents) geometry is handled together (bounds the memory: ~10 arrays of
+#: steps x ROWS x agents doubles).
+ROWS = 256
+_EPS = 1e-6  # metres / seconds of slack on the pruning bounds (they are exact up to rounding)
+
+
+def replay_batch_available(world: World, limits: VehicleLimits | None = None) -> bool:
+    """True when the world's agent run is kept in memory (the fast path needs it whole)."""
+    return agent_timeline(world, limits or VehicleLimits()).keep_all
+
+
+def run_replay_batch(
+    world: World,
+    ego_paths: PathSet,
+    ego_q: np.ndarray,
+    ego_offset: np.ndarray,
+    ego_init: np.ndarray,
+    limits: VehicleLimits | None = None,
+) -> LoopOutput:
+    """The outcomes of ``run_loop(..., ReplayController(), physics_mode=False)`` for ``B`` ego variants."""
+    lim = limits or VehicleLimits()
+    seg = agent_timeline(world, lim).whole()
+    if seg is None:
+        raise ValueError("the agents' run is not kept in memory (replay_batch_available is False)")
+    B = len(ego_init)
+    out = LoopOutput(
+        collided=np.zeros(B, bool),
+        collision_time=np.full(B, np.nan),
+        collision_agent=np.full(B, -1),
+        relative_speed=np.full(B, np.nan),
+        delta_v_ego=np.full(B, np.nan),
+        delta_v_other=np.full(B, np.nan),
+        min_distance=np.full(B, np.inf),
+        min_ttc=np.full(B, np.inf),
+        aeb_time=np.full(B, np.nan),
+        warning_time=np.full(B, np.nan),
+    )
+    ego, steer = _rollout(world, ego_paths, ego_q, ego_offset, ego_init, lim)
+    # agents at each evaluation index i: i = 0 the start, i = k + 1 the candidate states of step k
+    ag = np.concatenate([seg.state[:1], seg.new])
+    pres = np.concatenate([seg.pres[:1], seg.pres_next]).astype(bool)
+    ag_vel = np.concatenate([seg.vel[:1], seg.new_vel])
+    pre_contact: dict[int, PreContact] = {}
+    for lo in range(0, B, ROWS):
+        rows = slice(lo, min(lo + ROWS, B))
+        _Rows(world, ego[:, rows], steer[:, rows], ag, pres, ag_vel).evaluate(seg, out, rows, pre_contact)
+    batch_delta_v(world, pre_contact, out)
+    return out
+
+
+def _rollout(
+    world: World, paths: PathSet, q: np.ndarray, offset: np.ndarray, init: np.ndarray, lim: VehicleLimits
+) -> tuple[np.ndarray, np.ndarray]:
+    """Ego states (T, B, 4: x, y, yaw, speed) and steering angles (T, B) over the whole grid."""
+    T, B, dt = len(world.times), len(init), world.dt
+    wb = np.full(B, world.wheelbase[0])
+    states, steers = np.empty((T, B, 4)), np.empty((T, B))
+    state, steer = np.array(init, float), np.zeros(B)
+    states[0], steers[0] = state, steer
+    follow = Follower(paths, q, offset, wb)
+    for k in range(T - 1):
+        acc_cmd, steer_cmd = follow.command(state, k, dt)
+        acc, steer = limit_commands(acc_cmd, steer_cmd, steer, dt, lim)
+        state = bicycle_step(state, acc, steer, wb, dt)
+        states[k + 1], steers[k + 1] = state, steer
+    return states, steers
+
+
+class _Rows:
+    """The contacts and metrics of ``R`` variants over the present (index, agent) pairs ``N`` (arrays (N, R))."""
+
+    def __init__(
+        self, world: World, ego: np.ndarray, steer: np.ndarray, ag: np.ndarray, pres: np.ndarray, ag_vel: np.ndarray
+    ) -> None:
+        self.world, self.ego, self.steer, self.ag, self.pres, self.ag_vel = world, ego, steer, ag, pres, ag_vel
+        self.eh, self.ah = world.half[0], world.half[1:]
+        self.pi, self.pj = np.nonzero(pres)  # the present pairs: evaluation index, agent
+        a = ag[self.pi, self.pj]  # (N, 4)
+        dx = a[:, None, 0] - ego[:, :, 0][self.pi]
+        dy = a[:, None, 1] - ego[:, :, 1][self.pi]
+        self.dist = np.sqrt(dx * dx + dy * dy)  # centre distances (N, R)
+        self.r_a = np.hypot(self.ah[self.pj, 0], self.ah[self.pj, 1])[:, None]  # (N, 1) agents' circumradii
+        c, s = np.cos(ego[:, :, 2])[self.pi], np.sin(ego[:, :, 2])[self.pi]
+        along = np.abs(dx * c + dy * s) - self.eh[0]
+        across = np.abs(dy * c - dx * s) - self.eh[1]
+        # the separating-axis gap is the largest of four, two of them on the ego's axes, each at least this
+        self.lower = np.maximum(along, across) - self.r_a - _EPS
+
+    def gap(self, n: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """Separating-axis gaps of the entries (pair n, row r), as the loop computes them."""
+        e, a, eh, ah = self.ego[self.pi[n], r], self.ag[self.pi[n], self.pj[n]], self.eh, self.ah[self.pj[n]]
+        return sat_gap(e[:, 0], e[:, 1], e[:, 2], eh[0], eh[1], a[:, 0], a[:, 1], a[:, 2], ah[:, 0], ah[:, 1])
+
+    def evaluate(self, seg: Any, out: LoopOutput, rows: slice, pre_contact: dict[int, PreContact]) -> None:
+        T, R = self.ego.shape[:2]
+        # ---- contacts: boxes can touch only where their circumcircles do
+        cn, cr = np.nonzero(self.dist <= np.hypot(*self.eh) + self.r_a + _EPS)
+        cg = self.gap(cn, cr)
+        last = np.full(R, T - 1)  # last evaluation index of each row (its first contact, or the end)
+        hit_i, hit_r, hit_j = self._first_contacts(cn, cr, cg)
+        last[hit_r] = hit_i
+        if len(hit_r):
+            self._record_contacts(seg, out, rows, hit_i, hit_r, hit_j, pre_contact)
+        valid = self.pi[:, None] <= last[None, :]  # (N, R) the row still drives at the pair's index
+        gap_known = np.full(self.dist.shape, np.nan)
+        gap_known[cn, cr] = cg
+        self._min_distance(out, rows, valid, gap_known)
+        self._min_ttc(out, rows, valid, gap_known)
+
+    def _first_contacts(
+        self, cn: np.ndarray, cr: np.ndarray, cg: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Index, row and agent of each row's first contact (rows without one are left out).
+
+        A run of consecutive overlapping indices of one pair is ignored when it starts at index 0 or
+        where the agent appears (the loop's rule); the first index of any other run is a contact.
+        """
+        o = cg <= 0
+        i, j, r, g = self.pi[cn[o]], self.pj[cn[o]], cr[o], cg[o]
+        if not len(i):
+            return i, r, j
+        order = np.lexsort((i, j, r))
+        i, r, j, g = i[order], r[order], j[order], g[order]
+        start = np.ones(len(i), bool)
+        start[1:] = (r[1:] != r[:-1]) | (j[1:] != j[:-1]) | (i[1:] != i[:-1] + 1)
+        run = np.cumsum(start) - 1
+        si, sj = i[start], j[start]
+        appears = (si > 0) & ~self.pres[np.maximum(si - 1, 0), sj]
+        hit = ~((si == 0) | appears)[run]
+        i, r, j, g = i[hit], r[hit], j[hit], g[hit]
+        if not len(i):
+            return i, r, j
+        # per row: the earliest index, then the smallest gap, then the lowest agent (np.argmin's tie rule)
+        order = np.lexsort((j, g, i, r))
+        first = order[np.r_[True, r[order][1:] != r[order][:-1]]]
+        return i[first], r[first], j[first]
+
+    def _record_contacts(
+        self,
+        seg: Any,
+        out: LoopOutput,
+        rows: slice,
+        hit_i: np.ndarray,
+        hit_r: np.ndarray,
+        hit_j: np.ndarray,
+        pre_contact: dict[int, PreContact],
+    ) -> None:
+        """Time (bisection inside the step), agent, relative speed and pre-contact states of first contacts."""
+        k = hit_i - 1  # the step in which the contact happens
+        world, eh, ah = self.world, self.eh, self.ah
+        e0, e1 = self.ego[k, hit_r], self.ego[hit_i, hit_r]
+        a0, a1 = seg.state[k, hit_j], seg.new[k, hit_j]
+        frac = contact_fraction(e0[:, :3], e1[:, :3], a0[:, :3], a1[:, :3], np.tile(eh, (len(k), 1)), ah[hit_j])
+        st = self.steer[k, hit_r]
+        ev = velocity_xy(e0[:, 2], e0[:, 3], st)
+        av, aw = seg.hit_vel[k, hit_j], seg.hit_omega[k, hit_j]
+        o = rows.start + hit_r
+        out.collided[o] = True
+        out.collision_time[o] = world.times[k] + frac * world.dt
+        out.collision_agent[o] = hit_j + 1
+        out.relative_speed[o] = np.hypot(*(ev - av).T)
+        wb = world.wheelbase[:1]
+        for n in range(len(k)):
+            ew = float(yaw_rate(e0[n : n + 1, 3], st[n : n + 1], wb)[0])
+            pre_contact[int(o[n])] = (e0[n].copy(), ev[n], ew, int(hit_j[n]), a0[n].copy(), av[n].copy(), float(aw[n]))
+
+    def _gap(self, n: np.ndarray, r: np.ndarray, gap_known: np.ndarray) -> np.ndarray:
+        """Separating-axis gaps of entries (n, r), computed where not known yet."""
+        g = gap_known[n, r]
+        unknown = np.isnan(g)
+        g[unknown] = self.gap(n[unknown], r[unknown])
+        return g
+
+    def _distance(self, n: np.ndarray, r: np.ndarray, g: np.ndarray) -> np.ndarray:
+        """The loop's distance of entries (n, r) with gaps ``g``: the exact box distance where the gap is in
+        (0, NEAR_M), else the gap."""
+        g = g.copy()
+        refine = (g > 0) & (g < NEAR_M)
+        e, a = self.ego[self.pi[n[refine]], r[refine]], self.ag[self.pi[n[refine]], self.pj[n[refine]]]
+        g[refine] = signed_distance(e[:, :3], a[:, :3], self.eh[None, :], self.ah[self.pj[n[refine]]])
+        return g
+
+    def _min_distance(self, out: LoopOutput, rows: slice, valid: np.ndarray, gap_known: np.ndarray) -> None:
+        """Minimum over driven indices of the loop's distance.
+
+        Bounds first: the exact distance at each row's closest centres (no box distance exceeds the
+        centre distance), then at its smallest gap among the entries whose lower bound can reach that;
+        exact distances only where the gap (a lower bound of the distance) is below the bound.
+        """
+        R = valid.shape[1]
+        dist = np.where(valid, self.dist, np.inf)
+        upper = np.full(R, np.inf)
+        has = np.isfinite(dist).any(axis=0)
+        if not has.any():
+            out.min_distance[rows] = upper
+            return
+        r0 = np.nonzero(has)[0]
+        n0 = np.argmin(dist[:, r0], axis=0)
+        upper[r0] = self._distance(n0, r0, self._gap(n0, r0, gap_known))
+        n, r = np.nonzero(valid & (self.lower <= upper[None, :]))
+        g = self._gap(n, r, gap_known)
+        order = np.lexsort((g, r))  # by row, smallest gap first
+        n, r, g = n[order], r[order], g[order]
+        rank = np.arange(len(r)) - np.searchsorted(r, r)  # position within the row
+        for lo, hi in ((0, 1), (1, 8), (8, 64), (64, len(r) + 1)):  # the bound tightens round by round
+            sel = (rank >= lo) & (rank < hi) & (g <= upper[r])
+            np.minimum.at(upper, r[sel], self._distance(n[sel], r[sel], g[sel]))
+        out.min_distance[rows] = upper
+
+    def _min_ttc(self, out: LoopOutput, rows: slice, valid: np.ndarray, gap_known: np.ndarray) -> None:
+        """Minimum time to collision at the loop's evaluation indices (0, TTC_EVERY, ...), apart pairs only."""
+        R = valid.shape[1]
+        sel = np.nonzero(self.pi % TTC_EVERY == 0)[0]  # pairs at evaluation indices
+        gk = gap_known[sel]
+        ok = valid[sel] & (np.isnan(gk) | (gk > 0))  # unknown gaps are positive (the circles do not touch)
+        pi, pj = self.pi[sel], self.pj[sel]
+        e, st = self.ego[pi], self.steer[pi]  # (S, R, 4), (S, R)
+        ev = velocity_xy(e[..., 2], e[..., 3], st)
+        w = self.ag_vel[pi, pj][:, None, :] - ev
+        speed = np.hypot(w[..., 0], w[..., 1])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # no contact before the gap closes at the closing speed
+            t_lower = np.nan_to_num(np.where(ok, np.maximum(self.lower[sel], 0.0) / speed, np.inf), nan=0.0)
+        best = np.full(R, np.inf)
+        for cap in (4.0, np.inf):  # the likely minima first, then whatever can still beat them
+            n, r = np.nonzero(ok & (t_lower <= np.minimum(cap, best)[None, :] + _EPS))
+            ok[n, r] = False
+            if not len(n):
+                continue
+            ee, evv, a, av, ah = e[n, r], ev[n, r], self.ag[pi[n], pj[n]], self.ag_vel[pi[n], pj[n]], self.ah[pj[n]]
+            ttc = time_to_collision(
+                a[:, 0] - ee[:, 0], a[:, 1] - ee[:, 1], av[:, 0] - evv[:, 0], av[:, 1] - evv[:, 1],
+                ee[:, 2], self.eh[0], self.eh[1], a[:, 2], ah[:, 0], ah[:, 1],
+            )  # fmt: skip
+            np.minimum.at(best, r, ttc)
+        out.min_ttc[rows] = best
