@@ -88,6 +88,13 @@ def resolve_crash(
         for d in late:
             warnings.append(f"agent {d.id}: appears after the collision; dropped")
         agents = [d for d in agents if d not in late]
+        for d in [ego, *agents]:
+            if d.id in collision.participants and d.t[-1] < collision.time_s - EPS_T:
+                _reach(d, collision.time_s)
+                warnings.append(
+                    f"agent {d.id}: last seen {collision.time_s - d.t[-1]:.2f} s before the crash; continued at its "
+                    "last velocity to the crash"
+                )
     if collision is not None and not legacy:
         record.update(_enforce_pair(collision, ego, agents, cp, warnings))
     t_end = collision.time_s if collision is not None else max(float(d.t[-1]) for d in [ego, *agents])
@@ -208,6 +215,20 @@ def _trim_invented(d: Dense, t_hit: float, margin_s: float = 1.0) -> bool:
         d.keep(d.t >= min(float(seen[0]), t_hit + margin_s) - EPS_T)
         return True
     return False
+
+
+def _reach(d: Dense, t_end: float, fit_s: float = 0.5) -> None:
+    """Continue ``d`` (unobserved samples) at its mean velocity of its last ``fit_s`` seconds until
+    ``t_end`` (s): a crash participant that left the view (or was lost) just before the crash still
+    takes part in it (the simulator removes a vehicle after its last sample)."""
+    last = d.t >= d.t[-1] - fit_s
+    span_s = float(d.t[-1] - d.t[last][0])
+    vel = (d.xy[-1] - d.xy[last][0]) / span_s if span_s > EPS_T and not d.static else np.zeros(2)
+    step = float(np.median(np.diff(d.t))) if len(d.t) > 1 else 0.05
+    t_new = np.append(np.arange(d.t[-1] + step, t_end - EPS_T, step), t_end)
+    d.t = np.concatenate([d.t, t_new])
+    d.xy = np.vstack([d.xy, d.xy[-1] + (t_new - d.t[-len(t_new) - 1])[:, None] * vel])
+    d.observed = np.concatenate([d.observed, np.zeros(len(t_new), bool)])
 
 
 def _contact_after_apart(a: BoxTrack, b: BoxTrack) -> Contact | None:
