@@ -193,3 +193,15 @@ def test_cli_search_json(crash, tmp_path):
     assert again.returncode == 2 and "already exists" in again.stderr and len(again.stderr.splitlines()) == 1
     bad = subprocess.run([*args, "--method", "genetic", "--force"], capture_output=True, text=True, timeout=300)
     assert bad.returncode == 2 and "--method" in bad.stderr
+
+
+def test_results_csv_text_is_pandas_to_csv(searched):
+    from deepcrashtest.search.outputs import csv_text
+
+    out, _ = searched
+    df = pd.read_csv(out / "results.csv")
+    df.loc[0, "min_ttc"] = np.inf
+    assert csv_text(df) == df.to_csv(index=False, float_format="%.6g")
+    df["method"] = df["method"].astype(object)
+    df.loc[1, "method"] = 'a "quoted", name'  # needs quoting: pandas writes it
+    assert csv_text(df) == df.to_csv(index=False, float_format="%.6g")

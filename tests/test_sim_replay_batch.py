@@ -74,3 +74,27 @@ def test_pathset_of_many_paths_equals_stacked_references(kitti3_raw):
     for name in stacked.__dataclass_fields__:
         assert np.array_equal(getattr(stacked, name), getattr(fast, name)), name
     assert np.array_equal(init, np.stack([r.init for r in refs]))
+
+
+def test_search_variants_of_kitti8_with_a_head_on_agent(kitti8_raw):
+    """Perturbed ego paths (the search's variants) on the 28-vehicle scene, with collisions."""
+    sc = meet_ego(kitti8_raw, 10, 8.8)
+    space = SearchSpace.for_scenario(sc)
+    theta = space.reference_grid(np.random.default_rng([0, 3]), 8, 2)
+    world = prepare(sc, duration=10.0)
+    paths, zero = space.paths(theta), np.zeros((len(theta), 2))
+    fast = simulate_batch(world, zero, ego_paths=paths)
+    loop = simulate_batch(world, zero, ego_paths=paths, stepwise=True)
+    _equivalent(fast, loop)
+    assert fast.collided.any()
+
+
+def test_unwrap_shortcut_is_numpy_unwrap():
+    from deepcrashtest.sim.reference import _unwrap
+
+    rng = np.random.default_rng(0)
+    smooth = np.cumsum(rng.normal(0, 0.1, (3, 50)), axis=1)
+    wrapped = np.angle(np.exp(1j * np.cumsum(rng.normal(0, 0.8, (3, 50)), axis=1)))  # steps across +-pi
+    for p in (smooth, wrapped, np.array([[-0.0, -0.0, 0.1]]), np.zeros((2, 1))):
+        got, want = _unwrap(p), np.unwrap(p, axis=-1)
+        assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want))

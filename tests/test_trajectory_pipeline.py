@@ -72,7 +72,10 @@ def test_samples_are_the_spline_and_its_derivative(kitti):
         if np.any(a["speed"] > 0):
             assert np.allclose(a["speed"], np.hypot(vx, vy), atol=1e-6)
         assert np.all(a["speed"] >= 0)
-        assert np.allclose(wrap_angle(a["yaw"][moving] - np.arctan2(vy, vx)[moving]), 0, atol=1e-6)
+        # agents: the direction of their spline; the ego: the camera's measured yaw (as the agents were placed
+        # with), which agrees with its path's direction on KITTI's ORB-SLAM poses
+        tol = 0.03 if v.id == sc.ego.id else 1e-6
+        assert np.allclose(wrap_angle(a["yaw"][moving] - np.arctan2(vy, vx)[moving]), 0, atol=tol)
 
 
 def test_delayed_vehicles_start_at_their_delay(kitti):

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -207,44 +208,125 @@ def estimate_horizon_flow(frames: Iterable[np.ndarray], max_pairs: int = 10) -> 
 
 
 # --------------------------------------------------------------------------- dashboard
-def detect_dashboard_rows(frames: Iterable[np.ndarray], max_pairs: int = 8, still_px: float = 0.2) -> int:
-    """Rows at the bottom of the frame that do not move under optical flow (dashboard/bonnet), pixels.
+_BONNET_WIDTH = 320  # frames are analysed downscaled to this width, px
+_BONNET_BINS = 32  # column bins of the contour
 
-    Dense Farneback flow is computed on downscaled frame pairs; going up from the bottom, rows whose
-    median flow magnitude stays below ``still_px`` (and well below the road's motion just above) are
-    the dashboard. Returns 0 when none is found (or the camera does not move).
-    """
-    mags: list[np.ndarray] = []
-    prev = None
+
+def _bonnet_stack(frames: Iterable[np.ndarray], max_frames: int) -> tuple[np.ndarray, float]:
+    """Downscaled, lightly blurred grey frames (t, h, w) as float32 and the downscale factor."""
+    out: list[np.ndarray] = []
     scale = 1.0
-    full_h = 0
     for f in frames:
         g = f if f.ndim == 2 else cv2.cvtColor(f, cv2.COLOR_BGR2GRAY)
-        full_h = g.shape[0]
-        scale = min(1.0, 320.0 / g.shape[1])
+        scale = min(1.0, _BONNET_WIDTH / g.shape[1])
         g = cv2.resize(g, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-        if prev is not None:
-            flow = cv2.calcOpticalFlowFarneback(prev, g, None, 0.5, 3, 15, 3, 5, 1.2, 0)  # type: ignore[call-overload]
-            mags.append(np.hypot(flow[..., 0], flow[..., 1]))
-            if len(mags) >= max_pairs:
-                break
-        prev = g
-    if not mags:
-        return 0
-    row = np.median(np.median(np.stack(mags), axis=0), axis=1)  # per-row median flow, px (downscaled)
-    h = len(row)
-    road_motion = float(np.percentile(row[h // 2 :], 90))
-    if road_motion < 4 * still_px:  # flow of the moving road, px per (downscaled) pair
-        return 0  # the camera is not moving: nothing to tell the dashboard from the road
-    still = row < max(still_px, 0.2 * road_motion)
-    n = 0
-    for r in range(h - 1, h // 2, -1):
-        if not still[r]:
+        out.append(cv2.GaussianBlur(g.astype(np.float32), (3, 3), 0))
+        if len(out) >= max_frames:
             break
-        n += 1
-    if n < 2:
+    return (np.stack(out) if out else np.zeros((0, 1, 1), np.float32)), scale
+
+
+@dataclass(frozen=True)
+class BonnetContour:
+    """Top edge of the bonnet/dashboard: ``top_px[k]`` is the full-frame row (NaN: no bonnet) over the
+    full-frame columns ``bin_edges_px[k]`` to ``bin_edges_px[k + 1]``; ``frame_height`` in px."""
+
+    top_px: np.ndarray
+    bin_edges_px: np.ndarray
+    frame_height: int
+
+    def row_at(self, u: float) -> float:
+        """The contour's row at full-frame column ``u`` (px); NaN where no bonnet was found."""
+        k = int(np.clip(np.searchsorted(self.bin_edges_px, u, side="right") - 1, 0, len(self.top_px) - 1))
+        return float(self.top_px[k])
+
+
+def bonnet_contour(
+    frames: Iterable[np.ndarray],
+    max_frames: int = 12,
+    edge_min: float = 12.0,
+    still_ratio: float = 1.5,
+    max_static: float = 0.5,
+    min_top: float = 0.68,
+    below_pct: float = 50.0,
+) -> BonnetContour | None:
+    """Top edge of the bonnet/dashboard per column bin, full-frame pixel rows (NaN: no bonnet there).
+
+    ``frames`` should span a second or more of driving (BGR or grey, any size). The bonnet is what
+    stays put in the image while the scene moves past: below its top edge the image hardly changes
+    (temporal std of the grey level), above it the road does, and the edge itself is in the same
+    place in every frame (the ``edge_min`` grey levels per pixel of vertical Sobel gradient in at
+    least 80 % of the frames). Per column bin, the highest row in the lower 45 % of the frame where
+    such a persistent edge has a region below it whose temporal std is at most ``still_ratio``
+    times the road's just above is taken; bins without one are NaN. A plain blurred road has no
+    persistent edge, so it is not mistaken for a bonnet. Returns None when the scene does not
+    change (median temporal std of the lower half under ``min_moving`` grey levels: a stopped
+    camera, nothing to tell the bonnet from the road) or fewer than 4 frames are given.
+    """
+    stack, scale = _bonnet_stack(frames, max_frames)
+    if len(stack) < 4:
+        return None
+    t, h, w = stack.shape
+    std = stack.std(axis=0)
+    grad = np.abs(np.stack([cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3) for g in stack])) / 4.0
+    persistent = np.percentile(grad, 20, axis=0)  # an edge present in >= 80 % of the frames
+    scene = grad[:, : int(0.6 * h)].mean(axis=0) >= edge_min  # the scene's edges (upper 60 %)
+    if not scene.any() or float((persistent[: int(0.6 * h)] >= edge_min)[scene].mean()) > max_static:
+        return None  # the scene's own edges stay put: a stopped camera
+    edges = np.linspace(0, w, _BONNET_BINS + 1).astype(int)
+    top = np.full(_BONNET_BINS, np.nan)
+    for k in range(_BONNET_BINS):
+        p = np.median(persistent[:, edges[k] : edges[k + 1]], axis=1)
+        s = np.median(std[:, edges[k] : edges[k + 1]], axis=1)
+        best = edge_min
+        for r in range(int(min_top * h), h - 2):
+            if p[r] < best or p[r] < p[r - 1] or p[r] < p[r + 1]:
+                continue  # not the strongest persistent edge's crest so far
+            above = float(np.median(s[max(0, r - 12) : r - 2]))
+            below = float(np.percentile(s[r + 2 :], below_pct))
+            if below <= still_ratio * above:
+                top[k], best = (r + 0.5) / scale, float(p[r])
+    return BonnetContour(top, edges / scale, int(round(h / scale)))
+
+
+def detect_dashboard_rows(
+    frames: Iterable[np.ndarray], max_frames: int = 12, min_coverage: float = 0.6, max_step_px: float = 12.0
+) -> int:
+    """Rows at the bottom of the frame covered by the car's own bonnet/dashboard, full-frame pixels.
+
+    From :func:`bonnet_contour` (frames spanning a second or more of driving) and
+    :func:`dashboard_rows_from_contour`; 0 when unsure (masking too little costs less than masking road)
+    and for a stopped camera, where nothing tells the bonnet from the road.
+    """
+    contour = bonnet_contour(frames, max_frames=max_frames)
+    return dashboard_rows_from_contour(contour, min_coverage, max_step_px)
+
+
+def dashboard_rows_from_contour(
+    contour: BonnetContour | None, min_coverage: float = 0.6, max_step_px: float = 12.0
+) -> int:
+    """Rows below the bonnet contour's highest point in the central half of the image, px.
+
+    The contour must be found in at least ``min_coverage`` of the column bins of the central half
+    and be smooth there (median step between neighbouring found bins at most ``max_step_px``
+    full-frame px); otherwise 0 (no bonnet claimed). Bins more than ``3 * max_step_px`` from the
+    contour's median are left out before the highest point is taken, so that a short persistent edge
+    above the bonnet (the tail lights of a car followed at a constant gap) does not pull it up.
+    """
+    if contour is None:
         return 0
-    return int(math.ceil(n / scale)) if full_h else 0
+    n = len(contour.top_px)
+    centre = np.zeros(n, bool)
+    centre[n // 4 : 3 * n // 4] = True
+    ok = np.isfinite(contour.top_px)
+    if ok[centre].mean() < min_coverage:
+        return 0
+    steps = np.abs(np.diff(contour.top_px[ok & centre]))
+    if steps.size and float(np.median(steps)) > max_step_px:
+        return 0
+    central = contour.top_px[ok & centre]
+    kept = central[np.abs(central - np.median(central)) <= 3.0 * max_step_px]
+    return max(0, int(math.ceil(contour.frame_height - float(kept.min()))))
 
 
 def camera_for_video(

@@ -33,6 +33,12 @@ from deepcrashtest.geometry.mono3d import class_size
 from deepcrashtest.scenario import Camera
 
 MIN_BOXES = 30
+#: With fewer than MIN_BOXES boxes (a short, low-frame-rate crash clip) but at least this many, the
+#: horizon alone is measured from the boxes with the camera height kept at its prior.
+MIN_HORIZON_BOXES = 3
+#: 1-sigma of the camera-height prior (metres) when only the horizon is measured: dashcams sit at
+#: 1.1-1.6 m in cars, higher in vans and trucks.
+HEIGHT_PRIOR_SIGMA_M = 0.2
 #: A vehicle's box is taller than ``fy H / Z`` (its top edge is the roof's far edge): on the 18 KITTI
 #: tracking training sequences other than 3, 8, 10 the PointRCNN boxes of labelled cars 10-50 m away
 #: imply 1.54-1.55 m at the near corner's depth against the class prior 1.5 m (labels: median 1.51 m).
@@ -120,6 +126,26 @@ def horizon_and_height(
     prior_rel = 0.07  # the class height prior's spread sets a floor on the metric scale
     sig_h = math.hypot(float(np.std(sb)), prior_rel * b)
     return a, float(np.std(sa)), b, sig_h, len(d)
+
+
+def horizon_from_few_boxes(
+    tracks: pd.DataFrame, size: tuple[int, int], height_m: float
+) -> tuple[float, float, int] | None:
+    """(horizon row px, its sigma, boxes used) from a few boxes with the camera height known (its prior).
+
+    Each box gives ``v_h = v_b - hc h / H`` (the line of the module docstring at a fixed slope); the
+    median over boxes is kept. Sigma: the boxes' spread over the number of tracks, and the height
+    prior's spread times the typical ``h / H``. None with fewer than :data:`MIN_HORIZON_BOXES` boxes."""
+    d = _usable(tracks, size)
+    if len(d) < MIN_HORIZON_BOXES:
+        return None
+    H = np.array([class_size(str(c))[2] for c in d["category"]])
+    ratio = (d["y2"] - d["y1"]).to_numpy(float) / H
+    est = d["y2"].to_numpy(float) - height_m * ratio
+    vh = float(np.median(est))
+    spread = 1.4826 * float(np.median(np.abs(est - vh))) / math.sqrt(d["track_id"].nunique())
+    sigma = math.hypot(spread, HEIGHT_PRIOR_SIGMA_M * float(np.median(ratio)))
+    return vh, sigma, len(d)
 
 
 def focal_from_motion(
@@ -264,9 +290,20 @@ def self_calibrate(
     hh = horizon_and_height(tracks, size)
     cam = camera
     if hh is None:
-        notes.append(f"fewer than {MIN_BOXES} uncut vehicle boxes: horizon and camera height keep their priors")
-        vh = cam.cy - cam.fy * math.tan(cam.pitch_rad)
-        return SelfCalibration(cam, vh, float("nan"), cam.height_m, float("nan"), cam.fy, float("nan"), 0, 0, notes)
+        few = horizon_from_few_boxes(tracks, size, cam.height_m)
+        if few is None:
+            notes.append(f"fewer than {MIN_HORIZON_BOXES} uncut vehicle boxes: the camera keeps its priors")
+            vh = cam.horizon_v()
+            return SelfCalibration(cam, vh, float("nan"), cam.height_m, float("nan"), cam.fy, float("nan"), 0, 0, notes)
+        vh, sig_v, n = few
+        notes.append(
+            f"fewer than {MIN_BOXES} uncut vehicle boxes: horizon from {n} boxes at the prior camera height "
+            f"{cam.height_m:.2f} m (was row {cam.horizon_v():.0f}, {cam.pitch_source}); height and focal length keep "
+            "their priors"
+        )
+        pitch = math.atan2(cam.cy - vh, cam.fy)
+        cam = cam.model_copy(update={"pitch_rad": pitch, "pitch_source": "self_calibration", "horizon_sigma_px": sig_v})
+        return SelfCalibration(cam, vh, sig_v, cam.height_m, float("nan"), cam.fy, float("nan"), n, 0, notes)
     vh, sig_v, hc, sig_h, n = hh
     fy, sig_f, used = cam.fy, float("nan"), 0
     focal = None

@@ -8,8 +8,8 @@ libraries; the stages themselves stay libraries).
 frame (columns of :data:`deepcrashtest.geometry.world_tracks.TRACK_COLUMNS`; may be empty).
 
 The first ``calib_seconds`` of frames are buffered to estimate what the stream needs before it
-starts: the dashboard/bonnet rows (still rows under optical flow, unless given), and the horizon
-(vanishing point of the lane lines, else the focus of expansion of the flow, else the camera's
+starts: the dashboard/bonnet rows (below a persistent edge with a still image beneath, unless
+given), and the horizon (vanishing point of the lane lines, else the focus of expansion of the flow, else the camera's
 own pitch). Then every buffered and later frame goes through the ego-motion estimator and the
 lane detector once; frames are never decoded twice. Lanes run in a second thread beside the
 ego-motion estimator (both spend their time in OpenCV / NumPy, which release the GIL). When no

@@ -31,7 +31,35 @@ def results_table(
 
 
 def write_csv(df: pd.DataFrame, path: Path, force: bool) -> Path:
-    return atomic_write_text(path, df.to_csv(index=False, float_format="%.6g"), force=force)
+    return atomic_write_text(path, csv_text(df), force=force)
+
+
+def csv_text(df: pd.DataFrame, float_format: str = "%.6g") -> str:
+    """``df.to_csv(index=False, float_format=float_format)``, the same text, ~20x faster for wide float tables.
+
+    Columns are formatted whole (floats with ``float_format``, NaN empty; booleans ``True``/``False``;
+    integers as numbers); a table with other columns, or text that would need quoting, goes to pandas.
+    """
+    cols: list[list[str]] = []
+    for name in df.columns:
+        v = df[name].to_numpy()
+        kind = v.dtype.kind
+        if kind == "f":
+            cols.append(["" if x != x else float_format % x for x in v.tolist()])
+        elif kind in "biu":
+            cols.append([str(x) for x in v.tolist()])
+        elif kind == "O" and all(type(x) is str and not _NEEDS_QUOTES.intersection(x) for x in v.tolist()):
+            cols.append(v.tolist())
+        else:
+            return df.to_csv(index=False, float_format=float_format)
+    names = [str(c) for c in df.columns]
+    if any(_NEEDS_QUOTES.intersection(c) for c in names):
+        return df.to_csv(index=False, float_format=float_format)
+    lines = [",".join(names), *map(",".join, zip(*cols, strict=True))] if cols else [",".join(names)]
+    return "\n".join(lines) + "\n"
+
+
+_NEEDS_QUOTES = frozenset(',"\n\r')
 
 
 def variant_scenario(

@@ -240,12 +240,14 @@ class AgentTimeline:
             k = k0 + r
             seg.state[r] = ag.state
             seg.pres[r] = ag.presence(k)
-            seg.vel[r] = ag.velocity()[0]
+            vel, omega = ag.velocity()
+            seg.vel[r] = vel
             if M == 0:
                 continue
             new, steer_new, pres = ag.predict(k, dt)
-            ag.join_contacts(k, new, pres)
-            seg.hit_vel[r], seg.hit_omega[r] = ag.velocity()
+            if ag.join_contacts(k, new, pres):  # new Box2D bodies: their velocities from now on
+                vel, omega = ag.velocity()
+            seg.hit_vel[r], seg.hit_omega[r] = vel, omega
             seg.new_vel[r] = ag.new_velocity(new, steer_new)
             seg.new[r], seg.pres_next[r] = new, pres
             ag.pres_prev = pres

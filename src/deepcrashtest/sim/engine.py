@@ -24,6 +24,7 @@ from deepcrashtest.scenario import Scenario
 from deepcrashtest.sim.agents import agent_timeline
 from deepcrashtest.sim.controllers import controller_name, resolve_controller
 from deepcrashtest.sim.loop import Contact, LoopOutput, is_replay_controller, run_loop
+from deepcrashtest.sim.memory import retain_freed_memory
 from deepcrashtest.sim.reference import PathSet, build_pathset
 from deepcrashtest.sim.replay_batch import replay_batch_available, run_replay_batch
 from deepcrashtest.sim.vehicle import VehicleLimits
@@ -298,6 +299,7 @@ def simulate_batch(
     whole run of every ego at once, same outcomes); ``stepwise=True`` forces the per-step loop instead.
     """
     check_seed(seed)
+    retain_freed_memory()
     off, paths = _check_batch_inputs(ego_offsets, ego_paths)
     world = _world(scenario, _dt(scenario, dt), duration)
     resolve_controller(controller)  # fail early on a bad spec

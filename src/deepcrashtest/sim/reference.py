@@ -88,10 +88,22 @@ def resample_path(points: np.ndarray, end_heading: float, extension: float, ds: 
 def path_heading_curvature(path: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Heading (rad, unwrapped) and curvature (1/m) along arc-length-uniform paths ``(..., P, 2)`` -> ``(..., P)``."""
     d = np.gradient(path, axis=-2)
-    heading = np.unwrap(np.arctan2(d[..., 1], d[..., 0]), axis=-1)
+    heading = _unwrap(np.arctan2(d[..., 1], d[..., 0]))
     curv = np.gradient(heading, axis=-1) / PATH_DS_M
     # curvature of a smoothed vehicle path: bounded by the minimum turning radius (~4 m)
     return heading, np.clip(curv, -0.25, 0.25)
+
+
+def _unwrap(p: np.ndarray) -> np.ndarray:
+    """``np.unwrap(p, axis=-1)``, bit for bit, skipping its corrections where no step reaches pi (the usual case).
+
+    Where no correction applies numpy adds a cumulative sum of zeros (+0.0) to ``p[..., 1:]``; so does this.
+    """
+    if p.shape[-1] < 2 or (np.abs(np.diff(p, axis=-1)) < np.pi).all():
+        up = p.copy()
+        up[..., 1:] += 0.0
+        return up
+    return np.unwrap(p, axis=-1)
 
 
 def reference_from_trajectory(traj: Trajectory, times: np.ndarray, dt: float, smooth: bool = True) -> Reference:
@@ -224,7 +236,7 @@ def _resample_paths(
     m = np.arange(out.shape[1])[None, :] - n_base[:, None] + 1  # 1.. along each extension
     ext = (m >= 1) & (m <= n_ext[:, None])
     steps = (np.where(ext, m, 0) * PATH_DS_M)[..., None]
-    out[ext] = (last[:, None, :] + steps * direction[:, None, :])[ext]
+    np.copyto(out, last[:, None, :] + steps * direction[:, None, :], where=ext[..., None])
     return out, lengths
 
 
@@ -321,7 +333,7 @@ class PathSet:
             d = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None] * PATH_DS_M
             m = np.arange(P)[None, :] - lengths[:, None] + 1
             pad = m >= 1
-            paths[pad] = (p1[:, None, :] + np.where(pad, m, 0)[..., None] * d[:, None, :])[pad]
+            np.copyto(paths, p1[:, None, :] + np.where(pad, m, 0)[..., None] * d[:, None, :], where=pad[..., None])
         heads, curvs = path_heading_curvature(paths)
         a_ref = np.gradient(v_ref, dt, axis=1) if v_ref.shape[1] > 1 else np.zeros_like(v_ref)
         return cls(paths, heads, curvs, s_ref, v_ref, a_ref)

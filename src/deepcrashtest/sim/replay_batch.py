@@ -116,7 +116,7 @@ class _Rows:
         dy = a[:, None, 1] - ego[:, :, 1][self.pi]
         self.dist = np.sqrt(dx * dx + dy * dy)  # centre distances (N, R)
         self.r_a = np.hypot(self.ah[self.pj, 0], self.ah[self.pj, 1])[:, None]  # (N, 1) agents' circumradii
-        c, s = np.cos(ego[:, :, 2])[self.pi], np.sin(ego[:, :, 2])[self.pi]
+        c, s = np.cos(ego[:, :, 2])[self.pi], np.sin(ego[:, :, 2])[self.pi]  # per (index, row), then gathered
         along = np.abs(dx * c + dy * s) - self.eh[0]
         across = np.abs(dy * c - dx * s) - self.eh[1]
         # the separating-axis gap is the largest of four, two of them on the ego's axes, each at least this
@@ -250,8 +250,8 @@ class _Rows:
         gk = gap_known[sel]
         ok = valid[sel] & (np.isnan(gk) | (gk > 0))  # unknown gaps are positive (the circles do not touch)
         pi, pj = self.pi[sel], self.pj[sel]
-        e, st = self.ego[pi], self.steer[pi]  # (S, R, 4), (S, R)
-        ev = velocity_xy(e[..., 2], e[..., 3], st)
+        at, inv = np.unique(pi, return_inverse=True)  # each evaluation index once (several agents share it)
+        ev = velocity_xy(self.ego[at, :, 2], self.ego[at, :, 3], self.steer[at])[inv]
         w = self.ag_vel[pi, pj][:, None, :] - ev
         speed = np.hypot(w[..., 0], w[..., 1])
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -263,7 +263,8 @@ class _Rows:
             ok[n, r] = False
             if not len(n):
                 continue
-            ee, evv, a, av, ah = e[n, r], ev[n, r], self.ag[pi[n], pj[n]], self.ag_vel[pi[n], pj[n]], self.ah[pj[n]]
+            ee, evv, ah = self.ego[pi[n], r], ev[n, r], self.ah[pj[n]]
+            a, av = self.ag[pi[n], pj[n]], self.ag_vel[pi[n], pj[n]]
             ttc = time_to_collision(
                 a[:, 0] - ee[:, 0], a[:, 1] - ee[:, 1], av[:, 0] - evv[:, 0], av[:, 1] - evv[:, 1],
                 ee[:, 2], self.eh[0], self.eh[1], a[:, 2], ah[:, 0], ah[:, 1],

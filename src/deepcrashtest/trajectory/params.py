@@ -29,6 +29,9 @@ class Stage2Params:
     """Global fit: allowed RMS deviation from the blended local fits (low smoothing), metres."""
     final_sigma_m: float = 0.003
     """Fit of the final (extended, stepped-back) path that becomes ``Vehicle.spline``, metres."""
+    ego_yaw_window_s: float = 0.3
+    """The ego's heading is the camera's measured yaw, smoothed over this window, seconds (short: the
+    camera's turns and shake are what the video shows)."""
     max_smoothing_accel_mps2: float = 12.0
     """If a smoothed track still accelerates harder than this, it is smoothed again more strongly."""
     # --- track selection and classes (trajectory.classify)

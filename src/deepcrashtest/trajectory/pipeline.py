@@ -21,7 +21,8 @@ Steps (times in seconds, world frame in metres):
    trajectory ends at the collision (the simulator's physics takes over).
 6. Each vehicle's final path is fitted with one spline (``Vehicle.spline``, x(t), y(t)); the
    samples (t, x, y, yaw, speed) are that spline and its derivative at the sample times, with
-   ``observed`` false on extrapolated and stepped-back samples.
+   ``observed`` false on extrapolated and stepped-back samples; the ego's yaw is the camera's measured
+   one (the raw ego's, lightly smoothed; held before the video), through which every agent was placed.
 7. Road (``trajectory.road``).
 
 Time: the raw ego's first sample is video time 0; scenario time = video time + t_max.
@@ -111,14 +112,40 @@ def process_scenario(raw: Scenario, seed: int = 0, params: Stage2Params | None =
 def _process_scenario(raw: Scenario, seed: int, params: Stage2Params | None) -> Scenario:
     _check_raw(raw)
     run = _Run(raw, params or Stage2Params(), float(raw.source.fps), float(raw.ego.trajectory.t[0]), list(raw.warnings))
+    run.raw = _collision_with_seen_participants(run)
     ego_frame, ego = _ego_phase(run)
     agents = [d for a in raw.agents if (d := agent_dense(a, run.t0, ego_frame, run.p, run.warnings)) is not None]
     t_max = _step_back_phase(run, ego, agents)
     crash = _crash_phase(run, ego, agents, t_max)
     vehicles = _final_phase(run, ego, crash)
+    vehicles[0] = _with_measured_yaw(vehicles[0], run, t_max)
     collision = _collision_record(crash, vehicles)
     road = _road_phase(run, ego, crash, ego_frame, t_max)
     return _assemble(run, vehicles, road, collision, crash, t_max, seed)
+
+
+def _collision_with_seen_participants(run: _Run) -> Scenario:
+    """The raw scenario, without its collision when a participant was not seen for at least
+    ``min_track_samples`` samples up to it: the pair cannot be made to touch then, and the scenario must not
+    end there (every observed second after it would be lost for a collision that is then dropped)."""
+    raw, c = run.raw, run.raw.collision
+    if c is None:
+        return raw
+    agents = {a.id: a for a in raw.agents}
+    unseen = []
+    for i in c.participants:
+        if i == raw.ego.id:
+            continue
+        t = agents[i].trajectory.arrays()["t"] if i in agents else np.zeros(0)
+        if int((t <= c.time_s + EPS_T).sum()) < run.p.min_track_samples:
+            unseen.append(i)
+    if not unseen:
+        return raw
+    run.warnings.append(
+        f"the collision at {c.time_s - run.t0:.2f} s (video time) names agent(s) {unseen} seen for fewer than "
+        f"{run.p.min_track_samples} samples before it: no collision, the whole video is kept"
+    )
+    return raw.evolve(collision=None)
 
 
 def _ego_phase(run: _Run) -> tuple[EgoFrame, Dense]:
@@ -234,6 +261,38 @@ def _final_phase(run: _Run, ego: Dense, crash: CrashOutcome) -> list[Vehicle]:
         run.warnings.append("a participant of the collision was dropped (implausible trajectory); no collision")
         crash.collision = None
     return vehicles
+
+
+def _with_measured_yaw(ego: Vehicle, run: _Run, t_max: float) -> Vehicle:
+    """The ego's heading where the video saw it: the camera's measured yaw (the raw ego's, from the
+    image's rotation), lightly smoothed, instead of the direction of its fitted path.
+
+    The camera turns with the car: its rotation is measured frame by frame, while the path's direction is
+    noise when the ego is slow (a car waiting to turn) or its speed scale is unknown; every agent was placed
+    through that measured yaw, so the processed scenario must view them through it. Before the video
+    (step-back lead-in) the first measured yaw is held."""
+    e = run.raw.ego.trajectory.arrays()
+    t_video = e["t"] - run.t0
+    yaw_raw = np.unwrap(e["yaw"])
+    if len(t_video) < 2 or not np.all(np.isfinite(yaw_raw)):
+        return ego
+    yaw_m = _smooth_series(t_video, yaw_raw, run.p.ego_yaw_window_s)
+    a = ego.trajectory.arrays()
+    yaw = np.interp(a["t"] - t_max, t_video, yaw_m)
+    traj = ego.trajectory.model_copy(update={"yaw": [float(v) for v in yaw]})
+    return ego.model_copy(update={"trajectory": traj})
+
+
+def _smooth_series(t: np.ndarray, v: np.ndarray, window_s: float) -> np.ndarray:
+    """Savitzky-Golay (quadratic) over about ``window_s`` seconds; short series or windows unchanged."""
+    from scipy.signal import savgol_filter
+
+    dt = float(np.median(np.diff(t)))
+    win = int(round(window_s / max(dt, EPS_T))) | 1
+    win = min(win, len(v) if len(v) % 2 else len(v) - 1)
+    if win < 5:
+        return v.astype(float)
+    return np.asarray(savgol_filter(v, win, 2), dtype=float)
 
 
 def _collision_record(crash: CrashOutcome, vehicles: list[Vehicle]) -> Collision | None:
