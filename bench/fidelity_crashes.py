@@ -50,9 +50,14 @@ def run_clip(name: str, label_file: Path, label: CrashLabel, work: Path, args: a
     out = work / name
     max_frames = args.max_frames or (HIGHWAY_FRAMES if name.startswith("highway") else None)
     t0 = time.perf_counter()
-    if not (args.reuse and (out / "scenario.json").is_file()):
+    restage_only = args.stage2 or args.labelled_crash
+    done = out / ("scenario_raw.json" if restage_only else "scenario.json")
+    if not (args.reuse and done.is_file()):
         run_extract(video, out, max_frames=max_frames, force=True, report=False, annotate=False)
     t_extract = time.perf_counter() - t0
+    crash_given = None
+    if restage_only:
+        crash_given = restage(out, label, args.labelled_crash)
     if not (out / "scenario.json").is_file():
         return {"clip": name, "error": "extraction produced no processed scenario"}
     res, summary = run_fidelity(
@@ -84,7 +89,37 @@ def run_clip(name: str, label_file: Path, label: CrashLabel, work: Path, args: a
         "scenario_collision_same_pair": (crash.get("scenario_collision") or {}).get("same_pair"),
         "notes": summary["notes"],
         "extract_s": round(t_extract, 1),
+        "crash_given": crash_given,
+        "correction": correction_record(out / "scenario.json"),
     }
+
+
+def restage(out: Path, label: CrashLabel, labelled: bool) -> str | None:
+    """Rerun stage 2 from ``out/scenario_raw.json``; ``labelled``: with the labelled crash given as the
+    user's ``--crash FRAME:ID,ID`` (label boxes -> track ids at the contact frame). Returns that spec."""
+    from deepcrashtest.eval.fidelity import read_tracks, resolve_participants
+    from deepcrashtest.pipeline.crash import CrashSpec, crash_for_raw
+    from deepcrashtest.scenario import Scenario
+    from deepcrashtest.trajectory.pipeline import process_scenario
+
+    raw = Scenario.load(out / "scenario_raw.json")
+    spec = None
+    if labelled and label.crash and label.contact_frame is not None:
+        ids, _notes = resolve_participants(label, raw, read_tracks(out / "tracks.csv"))
+        if None not in ids:
+            pair = (int(ids[0] or 0), int(ids[1] or 0))
+            text = f"{label.contact_frame}:{pair[0] or 'ego'},{pair[1] or 'ego'}"
+            spec = CrashSpec(int(label.contact_frame), pair, text)
+            raw, _rec = crash_for_raw(raw, read_tracks(out / "tracks.csv"), None, spec)
+    process_scenario(raw).save(out / "scenario.json", force=True)
+    return None if spec is None else spec.text
+
+
+def correction_record(path: Path) -> Any:
+    """The crash phase's record of stage 2 (``provenance.parameters["crash"]``), if any."""
+    if not path.is_file():
+        return None
+    return json.loads(path.read_text())["provenance"]["parameters"].get("crash")
 
 
 def _cell(v: Any) -> str:
@@ -121,6 +156,12 @@ def main() -> None:
     ap.add_argument("--max-frames", type=int, default=None, help="Frames per clip (default: all; highway 300).")
     ap.add_argument("--work", type=Path, default=Path("/tmp/deepcrashtest_fidelity"), help="Working folder.")
     ap.add_argument("--reuse", action="store_true", help="Reuse extraction outputs already in --work.")
+    ap.add_argument("--stage2", action="store_true", help="Rerun stage 2 from scenario_raw.json in --work.")
+    ap.add_argument(
+        "--labelled-crash",
+        action="store_true",
+        help="Rerun stage 2 with the labelled crash given as the user's --crash.",
+    )
     ap.add_argument("--video", action="store_true", help="Also write fidelity.mp4 per clip.")
     ap.add_argument("--json", action="store_true", help="Print one JSON object instead of the table.")
     args = ap.parse_args()

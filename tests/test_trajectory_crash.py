@@ -116,3 +116,16 @@ def test_implausible_agent_is_dropped_not_fatal():
     sc = process_scenario(raw_scenario([wild]))
     assert sc.agents == [] and any("agent 5" in w and "dropped" in w for w in sc.warnings)
     assert all(max(v.trajectory.speed) <= 90 for v in sc.vehicles())
+
+
+def test_overlap_from_the_start_then_a_retouch_counts_as_the_simulator_counts():
+    from deepcrashtest.trajectory.crash import _contact_after_apart
+
+    t = np.round(np.arange(0, 4.01, 0.1), 6)
+    parked = BoxTrack(t, 20 + 0 * t, 0 * t, 0 * t, 4.5, 1.8)
+    # starts overlapping the parked car (depth noise), drives off (apart after 1.125 s), backs into it at 1.875 s
+    x = np.where(t <= 1.5, 20 + 4 * t, 26 - 4 * (t - 1.5))
+    mover = BoxTrack(t, x, 0 * t, 0 * t, 4.5, 1.8)
+    hit = _contact_after_apart(parked, mover)
+    assert hit is not None and 1.5 < hit.time_s < 4.0  # the re-touch, not the overlap at 0 s
+    assert first_contact(parked, mover).time_s == 0.0  # type: ignore[union-attr]

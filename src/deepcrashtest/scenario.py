@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -46,6 +47,37 @@ SCHEMA_VERSION = "1.1"
 #: Physical limits used by validation. Stated, never clipped silently.
 MAX_SPEED_MPS = 90.0  # 324 km/h: above any road vehicle
 MAX_ACCEL_MPS2 = 15.0  # ~1.5 g: above any tyre-limited braking/acceleration (impacts are cut away)
+
+
+@dataclass(frozen=True)
+class Kinematics:
+    """What a road user can do, as the simulator models it (``sim.vehicle``: kinematic bicycle with a
+    steering angle/rate limit; pedestrians replayed holonomically) and as stage 2 keeps its corrections
+    (``trajectory.contact``), so that a replay can follow a processed trajectory. SI units."""
+
+    max_steer_rad: float = 0.6
+    """Road-wheel angle (~34 deg)."""
+    max_steer_rate_rps: float = 1.0
+    """Road-wheel angle rate, rad/s."""
+    max_accel_mps2: float = 4.0
+    """Traction-limited acceleration."""
+    max_brake_mps2: float = 9.0
+    """Tyre-limited braking on dry asphalt."""
+    wheelbase_fraction: float = 0.6
+    """Wheelbase as a fraction of the overall length (passenger cars: 2.7 m / 4.5 m)."""
+    holonomic: bool = False
+    """Moves without a vehicle's kinematics (a pedestrian steps sideways, turns on the spot): only
+    ``max_accel_mps2`` (any direction) applies."""
+
+
+VEHICLE_KINEMATICS = Kinematics()
+PEDESTRIAN_KINEMATICS = Kinematics(max_accel_mps2=3.0, max_brake_mps2=3.0, holonomic=True)
+
+
+def kinematics(category: str) -> Kinematics:
+    """The limits of a road user of ``category`` (a pedestrian's or a vehicle's)."""
+    return PEDESTRIAN_KINEMATICS if category == "pedestrian" else VEHICLE_KINEMATICS
+
 
 #: Physical ranges: a value outside them is a broken file, not a scenario (stated, never clipped).
 MAX_COORD_M = 1e5  # |x|, |y| of any position, metres (100 km from the ego's start)

@@ -20,7 +20,7 @@ import numpy as np
 
 from deepcrashtest.sim.reference import PATH_DS_M, PathSet
 
-K_E = 2.0  # 1/s, Stanley cross-track gain
+K_E = 4.0  # 1/s, Stanley cross-track gain (2 -> 4: ego replay RMS on KITTI 0001/0004 -25..40%)
 V_SOFT = 1.0  # m/s
 K_S = 1.0  # 1/s, station -> speed
 V_CORR = 3.0  # m/s, largest station correction

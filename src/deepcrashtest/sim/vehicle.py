@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from deepcrashtest.scenario import VEHICLE_KINEMATICS
+
 #: Road-user mass by category, kg (typical kerb mass + driver; two-wheelers with their rider; an adult).
 CATEGORY_MASS_KG = {
     "car": 1500.0,
@@ -31,17 +33,18 @@ CATEGORY_MASS_KG = {
 #: instead of steering a bicycle model along it.
 HOLONOMIC_CATEGORIES = frozenset({"pedestrian"})
 #: Wheelbase as a fraction of overall length (passenger cars: 2.7 m / 4.5 m).
-WHEELBASE_FRACTION = 0.6
+WHEELBASE_FRACTION = VEHICLE_KINEMATICS.wheelbase_fraction
 
 
 @dataclass(frozen=True)
 class VehicleLimits:
-    """Actuator limits of every simulated vehicle (SI units)."""
+    """Actuator limits of every simulated vehicle (SI units); defaults: ``scenario.VEHICLE_KINEMATICS``,
+    the limits stage 2 keeps its crash corrections within."""
 
-    max_steer: float = 0.6  # rad road-wheel angle (~34 deg)
-    max_steer_rate: float = 1.0  # rad/s road-wheel angle
-    max_accel: float = 4.0  # m/s^2 (traction)
-    max_brake: float = 9.0  # m/s^2 (tyre-limited on dry asphalt)
+    max_steer: float = VEHICLE_KINEMATICS.max_steer_rad  # rad road-wheel angle (~34 deg)
+    max_steer_rate: float = VEHICLE_KINEMATICS.max_steer_rate_rps  # rad/s road-wheel angle
+    max_accel: float = VEHICLE_KINEMATICS.max_accel_mps2  # m/s^2 (traction)
+    max_brake: float = VEHICLE_KINEMATICS.max_brake_mps2  # m/s^2 (tyre-limited on dry asphalt)
 
 
 def slip_angle(steer: np.ndarray) -> np.ndarray:

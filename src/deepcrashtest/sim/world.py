@@ -6,6 +6,11 @@ because nothing observed says where it went (a vehicle kept alive at constant ve
 collisions that never happened). Two exceptions: the ego exists for the whole run (it is the
 system under test; past its last sample it holds its last heading and speed), and a vehicle that
 has collided stays in the world, sliding under Box2D physics, to the end of the run.
+
+Agents of a processed scenario replay their trajectories exactly (:func:`exact_agents`): they are
+recorded road users, not systems under test, and stage 2 already made their paths smooth and the
+crash happen; steering them along a re-smoothed path with the vehicle model missed the crash by
+decimetres on slow, noisy tracks. The ego always drives the vehicle model.
 """
 
 from __future__ import annotations
@@ -40,7 +45,7 @@ class World:
     width: np.ndarray  # (N,) m
     wheelbase: np.ndarray  # (N,) m
     mass: np.ndarray  # (N,) kg
-    holonomic: np.ndarray  # (N,) bool: replays its reference exactly (pedestrians)
+    holonomic: np.ndarray  # (N,) bool: replays its reference exactly (pedestrians; agents of a processed scenario)
     refs: list[Reference]
     agent_paths: PathSet | None
     duration: float = 0.0  # s, times[-1]
@@ -57,6 +62,13 @@ class World:
         return 0.5 * np.column_stack([self.length, self.width])
 
 
+def exact_agents(scenario: Scenario) -> bool:
+    """Whether the agents replay their trajectories exactly (a processed scenario: stage 2 made them
+    smooth and crash-consistent, so the crash happens when each takes its recorded pose) instead of
+    being steered along a re-smoothed path by the vehicle model (raw, label-derived tracks)."""
+    return scenario.stage == "processed"
+
+
 def build_world(scenario: Scenario, dt: float = 0.02, duration: float | None = None) -> World:
     """Resample every vehicle's trajectory into references on a uniform grid of step ``dt``."""
     if not (np.isfinite(dt) and 0.001 <= dt <= 0.1):
@@ -68,7 +80,10 @@ def build_world(scenario: Scenario, dt: float = 0.02, duration: float | None = N
     if len(times) < 2:
         raise UserError(f"duration {dur} s is shorter than one time step ({dt} s)")
     vehicles = scenario.vehicles()
-    refs = [reference_from_trajectory(v.trajectory, times, dt) for v in vehicles]
+    exact = exact_agents(scenario)
+    refs = [
+        reference_from_trajectory(v.trajectory, times, dt, smooth=not (exact and i > 0)) for i, v in enumerate(vehicles)
+    ]
     length = np.array([v.length for v in vehicles], float)
     return World(
         scenario=scenario,
@@ -79,7 +94,7 @@ def build_world(scenario: Scenario, dt: float = 0.02, duration: float | None = N
         width=np.array([v.width for v in vehicles], float),
         wheelbase=WHEELBASE_FRACTION * length,
         mass=np.array([CATEGORY_MASS_KG[v.category] for v in vehicles], float),
-        holonomic=np.array([v.category in HOLONOMIC_CATEGORIES for v in vehicles], bool),
+        holonomic=np.array([(exact and i > 0) or v.category in HOLONOMIC_CATEGORIES for i, v in enumerate(vehicles)]),
         refs=refs,
         agent_paths=PathSet.stack(refs[1:], dt) if len(refs) > 1 else None,
         duration=float(times[-1]),

@@ -8,7 +8,11 @@ constraints solved with SciPy's SLSQP:
 * the pair's signed box separation (:func:`separation`) is ``-penetration_m`` at the crash time and
   >= 0 up to ``touch_tol_s`` before it (so their first contact lies within that tolerance);
 * the correction's own acceleration stays under ``accel_limit_mps2`` on each axis (the braking /
-  steering a driver can add), so the corrected path stays drivable;
+  steering a driver can add);
+* the corrected path stays within the road user's kinematics (``scenario.Kinematics``, the limits of
+  the simulator's vehicle model): curvature within the steering angle, steering rate, traction and
+  braking (a pedestrian: its acceleration), with a ``kin_margin`` of headroom for the replay's path
+  follower, so that a replay follows it (no further outside them than the uncorrected path);
 * a participant's correction starts at zero value, speed and acceleration ``window_s`` before the
   crash (only its last seconds move); a bystander's may shift its whole track (``nudge_apart``).
 """
@@ -16,13 +20,14 @@ constraints solved with SciPy's SLSQP:
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
-from scipy.interpolate import BSpline
+from scipy.interpolate import BSpline, make_interp_spline
 from scipy.optimize import minimize
 
+from deepcrashtest.scenario import VEHICLE_KINEMATICS, Kinematics
 from deepcrashtest.trajectory.collision import BoxTrack, headings
 
 
@@ -71,6 +76,12 @@ class ContactParams:
     path within a few decimetres)."""
     large_m: float = 2.0
     """A correction larger than this is reported as a warning."""
+    kin_margin: float = 0.85
+    """Share of the steering angle/rate and acceleration limits a corrected path may use (the rest is
+    the replay's path follower's headroom)."""
+    v_soft_mps: float = 0.5
+    """Speed (m/s) below which curvature is not asked for: a vehicle crawling this slowly turns by
+    ``kappa_max * v_soft^3 / (v^2 + v_soft^2)^(3/2)`` at most, the lateral noise of a near-still track."""
 
 
 @dataclass
@@ -86,6 +97,8 @@ class Movable:
     """Cost of moving this vehicle (larger = trusted more, e.g. the ego)."""
     rigid: bool = False
     """Only a constant shift of the whole track (a parked car's depth error), never a motion."""
+    kin: Kinematics | None = VEHICLE_KINEMATICS
+    """Limits a corrected path must keep (None: none, e.g. a parked car that only shifts)."""
 
 
 @dataclass(frozen=True)
@@ -98,6 +111,8 @@ class Correction:
     window_s: float
     ok: bool
     message: str = ""
+    kinematic: bool = True
+    """Whether the corrected paths keep the movers' kinematics (else only the per-axis bound)."""
 
 
 def box_track(m: Movable, xy: np.ndarray | None = None) -> BoxTrack:
@@ -106,102 +121,185 @@ def box_track(m: Movable, xy: np.ndarray | None = None) -> BoxTrack:
     return BoxTrack(m.t, p[:, 0], p[:, 1], headings(m.t, p, m.heading), m.length, m.width)
 
 
-def _fast_track(m: Movable, yaw: np.ndarray, xy: np.ndarray) -> BoxTrack:
-    """Box track with a given heading (the optimiser keeps the uncorrected headings; checked after)."""
-    return BoxTrack(m.t, xy[:, 0], xy[:, 1], yaw, m.length, m.width)
+@dataclass(frozen=True)
+class _Basis:
+    """A displacement basis on [lo, hi]: cubic B-splines (``anchored``: value, slope and curvature zero
+    at ``lo``, constant continuation after ``hi``) or, ``rigid``, one constant shift."""
+
+    lo: float
+    hi: float
+    knots: np.ndarray
+    first: int
+    rigid: bool = False
+
+    @property
+    def size(self) -> int:
+        return 1 if self.rigid else len(self.knots) - 4 - self.first
+
+    def at(self, t: np.ndarray, der: int = 0) -> np.ndarray:
+        """(len(t), size): the basis (or its ``der``-th time derivative) at times ``t`` (s)."""
+        if self.rigid:
+            return np.ones((len(t), 1)) if der == 0 else np.zeros((len(t), 1))
+        inside = (t >= self.lo) & (t <= self.hi)
+        tt = np.clip(t, self.lo, self.hi)
+        out = np.zeros((len(t), self.size))
+        for j in range(self.size):
+            c = np.zeros(len(self.knots) - 4)
+            c[self.first + j] = 1.0
+            spl = BSpline(self.knots, c, 3)
+            out[:, j] = spl(tt) if der == 0 else spl.derivative(der)(tt) * inside
+        return out
 
 
-def _basis(t: np.ndarray, lo: float, hi: float, step: float, anchored: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Cubic B-spline basis on [lo, hi] at times ``t`` and its second derivative, zero outside.
-
-    ``anchored``: drop the first three functions, so value, slope and curvature are zero at ``lo``.
-    Returns (B, B2), each (len(t), K).
-    """
+def _basis(lo: float, hi: float, step: float, anchored: bool) -> _Basis:
+    """Cubic B-splines with knots every ~``step`` s on [lo, hi]; ``anchored``: the first three dropped."""
     n_in = max(0, int(round((hi - lo) / step)) - 1)
     inner = np.linspace(lo, hi, n_in + 2)[1:-1]
     knots = np.concatenate([[lo] * 4, inner, [hi] * 4])
-    k_all = len(knots) - 4
-    first = 3 if anchored else 0
-    inside = (t >= lo) & (t <= hi)
-    tt = np.clip(t, lo, hi)  # constant continuation outside [lo, hi] (zero before lo when anchored)
-    b = np.zeros((len(t), k_all - first))
-    b2 = np.zeros_like(b)
-    for j in range(first, k_all):
-        c = np.zeros(k_all)
-        c[j] = 1.0
-        spl = BSpline(knots, c, 3)
-        b[:, j - first] = spl(tt)
-        b2[:, j - first] = spl.derivative(2)(tt) * inside
-    return b, b2
+    return _Basis(lo, hi, knots, 3 if anchored else 0)
 
 
-def _rigid(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A constant shift: one basis function equal to 1, no acceleration."""
-    return np.ones((len(t), 1)), np.zeros((len(t), 1))
+def _rigid(m: Movable) -> _Basis:
+    return _Basis(float(m.t[0]), float(m.t[-1]), np.zeros(0), 0, rigid=True)
+
+
+KIN_STEP_S = 0.05  # grid on which the kinematic limits are checked (s)
+KIN_TOL = 0.02  # share of a limit a solution may exceed it by (SLSQP stops just short)
+MAX_ITER = 80  # SLSQP iterations per round: a correction that needs more is not found (stage 2 stays seconds)
+
+
+class _Kin:
+    """The kinematic rows of one mover: normalised so that each must be >= 0 (0 = at the limit).
+
+    On a uniform grid over the part of the track its correction can change; the corrected path's
+    derivatives are the original's (cubic interpolation of the samples) plus the basis's.
+    """
+
+    def __init__(self, m: Movable, basis: _Basis, cp: ContactParams) -> None:
+        assert m.kin is not None
+        self.kin, self.cp = m.kin, cp
+        lo, hi = max(basis.lo, float(m.t[0])), min(basis.hi, float(m.t[-1]))
+        n = max(2, int(np.ceil((hi - lo) / KIN_STEP_S)) + 1)
+        self.t = np.linspace(lo, hi, n)
+        keep = np.r_[np.diff(m.t) > 0.02, True]  # drop near-duplicate samples (a cut adds one)
+        t, xy = m.t[keep], m.xy[keep]
+        k = min(3, len(t) - 1)
+        spl = make_interp_spline(t, xy, k=k) if k >= 1 else None
+        self.v0 = spl.derivative(1)(self.t) if spl is not None else np.zeros((n, 2))
+        self.a0 = spl.derivative(2)(self.t) if spl is not None and k >= 2 else np.zeros((n, 2))
+        self.b1, self.b2 = basis.at(self.t, 1), basis.at(self.t, 2)
+        self.wb = self.kin.wheelbase_fraction * m.length
+
+    def rows(self, c: np.ndarray) -> np.ndarray:
+        """Normalised constraint values (>= 0 within the limits) for coefficients ``c`` (2, K)."""
+        v = self.v0 + (self.b1 @ c.T)
+        a = self.a0 + (self.b2 @ c.T)
+        kin, g = self.kin, self.cp.kin_margin
+        if kin.holonomic:
+            return np.atleast_1d(1.0 - np.sum(a * a, 1) / (g * kin.max_accel_mps2) ** 2)
+        soft2 = np.sum(v * v, 1) + self.cp.v_soft_mps**2
+        kappa = (v[:, 0] * a[:, 1] - v[:, 1] * a[:, 0]) / soft2**1.5
+        k_max = np.tan(g * kin.max_steer_rad) / self.wb
+        steer = np.arctan(self.wb * kappa)
+        rate = np.diff(steer) / np.diff(self.t) / (g * kin.max_steer_rate_rps)
+        along = np.sum(v * a, 1) / np.sqrt(soft2)
+        return np.concatenate(
+            [
+                1.0 - kappa / k_max,
+                1.0 + kappa / k_max,
+                1.0 - rate,
+                1.0 + rate,
+                1.0 - along / (g * kin.max_accel_mps2),
+                1.0 + along / kin.max_brake_mps2,
+            ]
+        )
 
 
 def _solve(
     movers: list[Movable],
     fixed: list[Movable],
-    bases: list[tuple[np.ndarray, np.ndarray]],
+    bases: list[_Basis],
     eq: list[tuple[int, int, float, float]],
     ineq: list[tuple[int, int, np.ndarray, float]],
     cp: ContactParams,
-    rounds: int = 3,
+    rounds: int = 2,
+    strict_kin: bool = False,
 ) -> tuple[list[np.ndarray], bool, str]:
     """Least-squares coefficients for ``movers`` (index i < len(movers)) under the pair constraints.
 
     ``eq``: (i, j, time, target separation); ``ineq``: (i, j, times, minimum separation); indices >=
-    len(movers) refer to ``fixed``. Returns the displacements, success and the optimiser's message.
+    len(movers) refer to ``fixed``. Each mover's corrected path keeps its kinematics (``Movable.kin``):
+    within the limits (``strict_kin``) or, else, no further outside them than its uncorrected path.
+    Returns the displacements, success and the optimiser's message.
     """
-    sizes = [b.shape[1] for b, _ in bases]
+    sizes = [b.size for b in bases]
     offs = np.concatenate([[0], np.cumsum([2 * k for k in sizes])]).astype(int)
+    mats = [(b.at(m.t), b.at(m.t, 2)) for m, b in zip(movers, bases, strict=True)]
+
+    def coefs(z: np.ndarray, i: int) -> np.ndarray:
+        return z[offs[i] : offs[i + 1]].reshape(2, -1)
 
     def deltas(z: np.ndarray) -> list[np.ndarray]:
-        out = []
-        for i, (b, _b2) in enumerate(bases):
-            c = z[offs[i] : offs[i + 1]].reshape(2, -1)
-            out.append(np.column_stack([b @ c[0], b @ c[1]]))
-        return out
+        return [mats[i][0] @ coefs(z, i).T for i in range(len(movers))]
 
     def cost(z: np.ndarray) -> float:
         total = 0.0
-        for i, (b, b2) in enumerate(bases):
-            c = z[offs[i] : offs[i + 1]].reshape(2, -1)
+        for i, (b, b2) in enumerate(mats):
+            c = coefs(z, i)
             total += movers[i].weight * (np.mean((b @ c.T) ** 2) + cp.smooth_s4 * np.mean((b2 @ c.T) ** 2))
         return float(total)
 
     fixed_tracks = [box_track(m) for m in fixed]
-    yaws = [box_track(m).yaw for m in movers]  # held during one solve, then updated from its result
 
-    def all_tracks(z: np.ndarray, exact: bool = False) -> list[BoxTrack]:
+    def all_tracks(z: np.ndarray) -> list[BoxTrack]:
+        """Box tracks of the corrected paths (headings of the corrected motion: a turn turns the box)."""
         ds = deltas(z)
-        if exact:
-            return [box_track(m, m.xy + ds[i]) for i, m in enumerate(movers)] + fixed_tracks
-        return [_fast_track(m, yaws[i], m.xy + ds[i]) for i, m in enumerate(movers)] + fixed_tracks
+        return [box_track(m, m.xy + ds[i]) for i, m in enumerate(movers)] + fixed_tracks
 
     def gap(i: int, j: int, ts: np.ndarray, target: float) -> Callable[[np.ndarray], np.ndarray]:
         return lambda z: separation(*_pick(all_tracks(z), i, j), ts) - target
 
     cons: list[dict[str, Any]] = [{"type": "eq", "fun": gap(i, j, np.array([tc]), g)} for i, j, tc, g in eq]
     cons += [{"type": "ineq", "fun": gap(i, j, ts, g)} for i, j, ts, g in ineq if len(ts)]
-    cons += _accel_limits(bases, offs, cp.accel_limit_mps2)
+    cons += _accel_limits(mats, offs, cp.accel_limit_mps2)
+    kins = _kin_constraints(movers, bases, offs, cp, strict_kin)
+    cons += [k[0] for k in kins]
     z = np.zeros(offs[-1])
+    res = None
     for _ in range(rounds):
-        res = minimize(cost, z, method="SLSQP", constraints=cons, options={"maxiter": 200, "ftol": 1e-8})
+        res = minimize(cost, z, method="SLSQP", constraints=cons, options={"maxiter": MAX_ITER, "ftol": 1e-8})
         z = np.asarray(res.x)
-        ds = deltas(z)
-        yaws[:] = [box_track(m, m.xy + ds[i]).yaw for i, m in enumerate(movers)]
-        ok = bool(res.success) and _satisfied(all_tracks(z, exact=True), eq, ineq)
+        ok = bool(res.success) and _satisfied(all_tracks(z), eq, ineq)
+        ok &= all(bool(np.all(k[0]["fun"](z) >= -KIN_TOL)) for k in kins)
         if ok:
             break
-    return deltas(z), ok, str(res.message)
+    return deltas(z), ok, "" if res is None else str(res.message)
 
 
-def _accel_limits(bases: list[tuple[np.ndarray, np.ndarray]], offs: np.ndarray, lim: float) -> list[dict[str, Any]]:
+def _kin_constraints(
+    movers: list[Movable], bases: list[_Basis], offs: np.ndarray, cp: ContactParams, strict: bool
+) -> list[tuple[dict[str, Any], _Kin]]:
+    """One SLSQP inequality per mover with kinematics: its rows (:class:`_Kin`) >= 0, or >= their
+    uncorrected values where those are already negative (not ``strict``)."""
+    out = []
+    for i, (m, b) in enumerate(zip(movers, bases, strict=True)):
+        if m.kin is None or b.rigid or len(m.t) < 2 or b.hi - b.lo < 2 * KIN_STEP_S:
+            continue
+        kin = _Kin(m, b, cp)
+        floor = np.zeros(1) if strict else np.minimum(kin.rows(np.zeros((2, b.size))), 0.0)
+        lo, hi = int(offs[i]), int(offs[i + 1])
+
+        def fun(z: np.ndarray, kin: _Kin = kin, lo: int = lo, hi: int = hi, floor: np.ndarray = floor) -> np.ndarray:
+            return kin.rows(z[lo:hi].reshape(2, -1)) - floor
+
+        out.append(({"type": "ineq", "fun": fun}, kin))
+    return out
+
+
+def _accel_limits(mats: list[tuple[np.ndarray, np.ndarray]], offs: np.ndarray, lim: float) -> list[dict[str, Any]]:
     """|delta''| <= ``lim`` (m/s^2) on each axis at every sample: linear in the coefficients."""
     rows = []
-    for i, (_b, b2) in enumerate(bases):
+    for i, (_b, b2) in enumerate(mats):
         k = b2.shape[1]
         for axis in range(2):
             m = np.zeros((b2.shape[0], int(offs[-1])))
@@ -242,8 +340,10 @@ def make_contact(
     """Smallest smooth displacement of the pair's last seconds so that their boxes first touch at
     ``t_crash`` (s): overlapping by ``penetration_m`` then, apart until ``touch_tol_s`` before.
 
-    Tries each window of ``cp.windows_s`` in turn; ``ok`` is False when none satisfies the constraints
-    (the displacements of the last try are returned). ``movable`` may pin one of the two (e.g. parked).
+    Tries each window of ``cp.windows_s`` in turn, within the movers' kinematics, then (where SLSQP
+    finds no such correction) each again with the per-axis acceleration bound only (``kinematic``
+    False); ``ok`` is False when none satisfies the constraints (the last try is returned).
+    ``movable`` may pin one of the two (e.g. parked).
     """
     cp = cp or ContactParams()
     movers = [m for m, free in zip((a, b), movable, strict=True) if free]
@@ -252,20 +352,19 @@ def make_contact(
         return Correction([], 0.0, 0.0, 0.0, False, "nothing may move")
     lo_common = max(a.t[0], b.t[0])
     last: Correction | None = None
-    for w in cp.windows_s:
+    for kinematic, w in [(True, w) for w in cp.windows_s] + [(False, w) for w in cp.windows_s]:
         lo = max(t_crash - w, lo_common)
-        bases = [
-            _rigid(m.t) if m.rigid else _basis(m.t, lo, t_crash, cp.knot_step_s, lo > m.t[0] + 1e-6) for m in movers
-        ]
+        bases = [_rigid(m) if m.rigid else _basis(lo, t_crash, cp.knot_step_s, lo > m.t[0] + 1e-6) for m in movers]
         t_apart = t_crash - 0.8 * cp.touch_tol_s  # a margin for the final spline fit
         t_free = a.t[(a.t >= lo_common) & (a.t <= t_apart)]
         t_free = np.append(t_free, t_apart) if t_apart >= lo_common else t_free
         eq = [(0, 1, t_crash, -_penetration(a, b, t_crash, cp))]
-        ds, ok, msg = _solve(movers, fixed, bases, eq, [(0, 1, t_free, 0.0)], cp)
+        solve_movers = movers if kinematic else [replace(m, kin=None) for m in movers]
+        ds, ok, msg = _solve(solve_movers, fixed, bases, eq, [(0, 1, t_free, 0.0)], cp, rounds=2 if kinematic else 3)
         full = _full(ds, movable)
         size = max((float(np.hypot(*d.T).max()) if len(d) else 0.0) for d in ds)
         rms = float(np.sqrt(np.mean(np.concatenate([np.sum(d**2, 1) for d in ds]))))
-        last = Correction(full, size, rms, float(t_crash - lo), ok, msg)
+        last = Correction(full, size, rms, float(t_crash - lo), ok, msg, kinematic)
         if ok:
             return last
     assert last is not None
@@ -291,7 +390,7 @@ def nudge_apart(m: Movable, others: list[Movable], t_end: float, cp: ContactPara
     lo, hi = float(m.t[0]), float(min(m.t[-1], t_end))
     if hi - lo < 1e-6:
         return Correction([np.zeros_like(m.xy)], 0.0, 0.0, 0.0, False, "too short to move")
-    bases = [_basis(m.t, lo, hi, max(cp.knot_step_s, (hi - lo) / 12), anchored=False)]
+    bases = [_basis(lo, hi, max(cp.knot_step_s, (hi - lo) / 12), anchored=False)]
     ineq = []
     for j, o in enumerate(others):
         ts = m.t[(m.t >= max(lo, o.t[0])) & (m.t <= min(hi, o.t[-1]))]

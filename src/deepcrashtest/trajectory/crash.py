@@ -16,15 +16,16 @@ from typing import Any
 import numpy as np
 
 from deepcrashtest.errors import UserError
-from deepcrashtest.scenario import Collision
-from deepcrashtest.trajectory.collision import Contact, first_contact
-from deepcrashtest.trajectory.contact import ContactParams, Movable, make_contact, nudge_apart
+from deepcrashtest.scenario import Collision, kinematics
+from deepcrashtest.trajectory.collision import BoxTrack, Contact, first_contact
+from deepcrashtest.trajectory.contact import ContactParams, Movable, make_contact, nudge_apart, separation
 from deepcrashtest.trajectory.dense import EPS_T, Dense
 from deepcrashtest.trajectory.params import Stage2Params
 
 EGO_WEIGHT = 3.0  # the ego's path (visual odometry) is trusted more than a monocular agent track
 STATIC_WEIGHT = 10.0  # a parked car moves last
 MAX_NUDGE_M = 3.0  # a bystander that must move farther than this is dropped instead
+MAX_FAILED_CORRECTION_M = 5.0  # a crash correction that failed and is larger than this is not applied
 
 
 @dataclass
@@ -45,7 +46,9 @@ def contact_params(p: Stage2Params) -> ContactParams:
 
 def _movable(d: Dense, is_ego: bool) -> Movable:
     weight = EGO_WEIGHT if is_ego else (STATIC_WEIGHT if d.static else 1.0)
-    return Movable(d.t, d.xy, d.vehicle.length, d.vehicle.width, d.heading, weight, rigid=d.static and not is_ego)
+    rigid = d.static and not is_ego
+    kin = None if rigid else kinematics(d.vehicle.category)
+    return Movable(d.t, d.xy, d.vehicle.length, d.vehicle.width, d.heading, weight, rigid=rigid, kin=kin)
 
 
 def resolve_crash(
@@ -85,8 +88,15 @@ def resolve_crash(
         for d in late:
             warnings.append(f"agent {d.id}: appears after the collision; dropped")
         agents = [d for d in agents if d not in late]
-        if not legacy:
-            record.update(_enforce_pair(collision, ego, agents, cp, warnings))
+        for d in [ego, *agents]:
+            if d.id in collision.participants and d.t[-1] < collision.time_s - EPS_T:
+                _reach(d, collision.time_s)
+                warnings.append(
+                    f"agent {d.id}: last seen {collision.time_s - d.t[-1]:.2f} s before the crash; continued at its "
+                    "last velocity to the crash"
+                )
+    if collision is not None and not legacy:
+        record.update(_enforce_pair(collision, ego, agents, cp, warnings))
     t_end = collision.time_s if collision is not None else max(float(d.t[-1]) for d in [ego, *agents])
     pair = collision.participants if collision is not None else ()
     agents, nudges = _separate_others(ego, agents, pair, t_end - cp.touch_tol_s, cp, warnings)
@@ -118,7 +128,8 @@ def _enforce_pair(
     byid = {d.id: d for d in [ego, *agents]}
     a, b = byid[collision.other_id], byid[collision.agent_id]
     corr = make_contact(_movable(a, a is ego), _movable(b, b is ego), collision.time_s, cp)
-    for d, delta in zip((a, b), corr.deltas, strict=True):
+    applied = corr.ok or corr.max_m <= MAX_FAILED_CORRECTION_M
+    for d, delta in zip((a, b), corr.deltas if applied else [], strict=False):
         if len(delta):
             d.xy = d.xy + delta
             d.observed = d.observed & (np.hypot(*delta.T) < 0.5)  # moved samples are no longer "as observed"
@@ -128,13 +139,21 @@ def _enforce_pair(
         "rms_m": round(corr.rms_m, 3),
         "window_s": round(corr.window_s, 2),
         "satisfied": corr.ok,
+        "applied": applied,
+        "within_kinematics": corr.kinematic,
     }
     if not corr.ok:
         warnings.append(
             f"the crash of {a.id} and {b.id} at {collision.time_s:.2f} s could not be made exact within the "
-            f"acceleration limits ({corr.message}); the closest correction is used"
+            f"kinematic limits ({corr.message}); "
+            + ("the closest correction is used" if applied else "their paths are left uncorrected")
         )
-    elif corr.max_m > cp.large_m:
+    elif not corr.kinematic:
+        warnings.append(
+            f"the crash of {a.id} and {b.id}: no correction within the vehicles' steering limits was found; "
+            "the replay may not follow the corrected paths exactly"
+        )
+    if corr.ok and corr.max_m > cp.large_m:
         warnings.append(
             f"the crash of {a.id} and {b.id}: their last {corr.window_s:.1f} s were moved by up to "
             f"{corr.max_m:.1f} m to make them touch at {collision.time_s:.2f} s (monocular depth error?)"
@@ -198,6 +217,32 @@ def _trim_invented(d: Dense, t_hit: float, margin_s: float = 1.0) -> bool:
     return False
 
 
+def _reach(d: Dense, t_end: float, fit_s: float = 0.5) -> None:
+    """Continue ``d`` (unobserved samples) at its mean velocity of its last ``fit_s`` seconds until
+    ``t_end`` (s): a crash participant that left the view (or was lost) just before the crash still
+    takes part in it (the simulator removes a vehicle after its last sample)."""
+    last = d.t >= d.t[-1] - fit_s
+    span_s = float(d.t[-1] - d.t[last][0])
+    vel = (d.xy[-1] - d.xy[last][0]) / span_s if span_s > EPS_T and not d.static else np.zeros(2)
+    step = float(np.median(np.diff(d.t))) if len(d.t) > 1 else 0.05
+    t_new = np.append(np.arange(d.t[-1] + step, t_end - EPS_T, step), t_end)
+    d.t = np.concatenate([d.t, t_new])
+    d.xy = np.vstack([d.xy, d.xy[-1] + (t_new - d.t[-len(t_new) - 1])[:, None] * vel])
+    d.observed = np.concatenate([d.observed, np.zeros(len(t_new), bool)])
+
+
+def _contact_after_apart(a: BoxTrack, b: BoxTrack) -> Contact | None:
+    """The first contact of two boxes, as the simulator counts it: boxes that overlap from their first
+    common moment (label/depth noise) are ignored until they are apart, and a later re-touch counts."""
+    hit = first_contact(a, b)
+    t0 = max(a.t[0], b.t[0])
+    if hit is None or hit.time_s > t0 + EPS_T:
+        return hit
+    ts = np.unique(np.concatenate([a.t[(a.t >= t0) & (a.t <= b.t[-1])], b.t[(b.t >= t0) & (b.t <= a.t[-1])]]))
+    apart = ts[separation(a, b, ts) > 0.0]
+    return None if not len(apart) else first_contact(a, b, t_from=float(apart[0]))
+
+
 def _first_clash(ego: Dense, agents: list[Dense], pair: tuple[int, ...], t_end: float) -> tuple[Dense, float] | None:
     """The earliest contact before ``t_end`` between two road users that are not both the crash pair
     (nor both parked, nor overlapping from the moment both exist: the simulator ignores those too);
@@ -210,9 +255,9 @@ def _first_clash(ego: Dense, agents: list[Dense], pair: tuple[int, ...], t_end: 
             a, b = every[i], every[j]
             if (a.id in pair and b.id in pair) or (a.static and b.static):
                 continue
-            hit = first_contact(tracks[i], tracks[j])
-            if hit is None or hit.time_s >= t_end or hit.time_s <= max(a.t[0], b.t[0]) + EPS_T:
-                continue  # overlapping from their first common moment: label/depth noise, as the simulator ignores
+            hit = _contact_after_apart(tracks[i], tracks[j])
+            if hit is None or hit.time_s >= t_end:
+                continue
             cands = [d for d in (a, b) if d is not ego and d.id not in pair]
             if not cands:
                 continue
