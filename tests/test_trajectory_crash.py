@@ -54,6 +54,21 @@ def test_make_contact_touches_at_the_crash_time_within_limits():
         assert np.abs(acc).max() < 4.0 * 1.5
 
 
+def test_make_contact_stops_unsuccessful_when_its_evaluation_budget_is_spent(monkeypatch):
+    """A correction that cannot be found in MAX_EVALS corrected-path evaluations is given up (not
+    applied), deterministically: stage 2 stays bounded on pathological tracks."""
+    import deepcrashtest.trajectory.contact as contact
+
+    t = np.round(np.arange(0, 4.01, 0.1), 6)
+    ego = Movable(t, np.column_stack([10 * t, 0 * t]), 4.5, 1.8, 0.0, weight=3.0)
+    car = Movable(t, np.column_stack([40.5 + 2 * t, 0.4 + 0 * t]), 4.5, 1.8, 0.0)
+    monkeypatch.setattr(contact, "MAX_EVALS", 5)
+    c = make_contact(ego, car, 4.0)
+    assert not c.ok and "budget" in c.message
+    monkeypatch.setattr(contact, "MAX_EVALS", 1_000_000)
+    assert make_contact(ego, car, 4.0).ok
+
+
 def _rear_end_raw(**kw) -> Scenario:  # type: ignore[no-untyped-def]
     """Ego at 10 m/s; a car ahead at 4 m/s whose monocular depth is 3 m too far: at 5 s the tracks are
     3 m apart, but the video shows the rear-end then; a bystander overlaps the ego's lane at 2 s."""

@@ -166,6 +166,30 @@ def _rigid(m: Movable) -> _Basis:
 KIN_STEP_S = 0.05  # grid on which the kinematic limits are checked (s)
 KIN_TOL = 0.02  # share of a limit a solution may exceed it by (SLSQP stops just short)
 MAX_ITER = 80  # SLSQP iterations per round: a correction that needs more is not found (stage 2 stays seconds)
+# Box-track evaluations (~1 ms each) one make_contact / nudge_apart call may spend over all its windows and
+# rounds: bounds stage 2's time on pathological tracks (a wrong pair once ran > 10 min). Measured on the 19
+# labelled crash clips (2026-12-01): at most 64,186 box tracks built for a correction that was found, so none is cut.
+MAX_EVALS = 100_000
+
+
+class _OutOfBudget(Exception):
+    """Raised inside the optimiser when a call's :data:`MAX_EVALS` are spent."""
+
+
+class _Budget:
+    """Deterministic evaluation budget (a count, not a clock: the same input gives the same output)."""
+
+    def __init__(self, evals: int | None = None) -> None:
+        self.left = MAX_EVALS if evals is None else evals
+
+    def spend(self) -> None:
+        self.left -= 1
+        if self.left < 0:
+            raise _OutOfBudget
+
+    @property
+    def spent(self) -> bool:
+        return self.left < 0
 
 
 class _Kin:
@@ -224,13 +248,15 @@ def _solve(
     cp: ContactParams,
     rounds: int = 2,
     strict_kin: bool = False,
+    budget: _Budget | None = None,
 ) -> tuple[list[np.ndarray], bool, str]:
     """Least-squares coefficients for ``movers`` (index i < len(movers)) under the pair constraints.
 
     ``eq``: (i, j, time, target separation); ``ineq``: (i, j, times, minimum separation); indices >=
     len(movers) refer to ``fixed``. Each mover's corrected path keeps its kinematics (``Movable.kin``):
     within the limits (``strict_kin``) or, else, no further outside them than its uncorrected path.
-    Returns the displacements, success and the optimiser's message.
+    Returns the displacements, success and the optimiser's message; stops, unsuccessful, when
+    ``budget`` is spent.
     """
     sizes = [b.size for b in bases]
     offs = np.concatenate([[0], np.cumsum([2 * k for k in sizes])]).astype(int)
@@ -253,6 +279,8 @@ def _solve(
 
     def all_tracks(z: np.ndarray) -> list[BoxTrack]:
         """Box tracks of the corrected paths (headings of the corrected motion: a turn turns the box)."""
+        if budget is not None:
+            budget.spend()
         ds = deltas(z)
         return [box_track(m, m.xy + ds[i]) for i, m in enumerate(movers)] + fixed_tracks
 
@@ -267,7 +295,10 @@ def _solve(
     z = np.zeros(offs[-1])
     res = None
     for _ in range(rounds):
-        res = minimize(cost, z, method="SLSQP", constraints=cons, options={"maxiter": MAX_ITER, "ftol": 1e-8})
+        try:
+            res = minimize(cost, z, method="SLSQP", constraints=cons, options={"maxiter": MAX_ITER, "ftol": 1e-8})
+        except _OutOfBudget:
+            return deltas(z), False, f"evaluation budget ({MAX_EVALS}) spent"
         z = np.asarray(res.x)
         ok = bool(res.success) and _satisfied(all_tracks(z), eq, ineq)
         ok &= all(bool(np.all(k[0]["fun"](z) >= -KIN_TOL)) for k in kins)
@@ -352,6 +383,7 @@ def make_contact(
         return Correction([], 0.0, 0.0, 0.0, False, "nothing may move")
     lo_common = max(a.t[0], b.t[0])
     last: Correction | None = None
+    budget = _Budget()
     for kinematic, w in [(True, w) for w in cp.windows_s] + [(False, w) for w in cp.windows_s]:
         lo = max(t_crash - w, lo_common)
         bases = [_rigid(m) if m.rigid else _basis(lo, t_crash, cp.knot_step_s, lo > m.t[0] + 1e-6) for m in movers]
@@ -360,12 +392,14 @@ def make_contact(
         t_free = np.append(t_free, t_apart) if t_apart >= lo_common else t_free
         eq = [(0, 1, t_crash, -_penetration(a, b, t_crash, cp))]
         solve_movers = movers if kinematic else [replace(m, kin=None) for m in movers]
-        ds, ok, msg = _solve(solve_movers, fixed, bases, eq, [(0, 1, t_free, 0.0)], cp, rounds=2 if kinematic else 3)
+        ds, ok, msg = _solve(
+            solve_movers, fixed, bases, eq, [(0, 1, t_free, 0.0)], cp, rounds=2 if kinematic else 3, budget=budget
+        )
         full = _full(ds, movable)
         size = max((float(np.hypot(*d.T).max()) if len(d) else 0.0) for d in ds)
         rms = float(np.sqrt(np.mean(np.concatenate([np.sum(d**2, 1) for d in ds]))))
         last = Correction(full, size, rms, float(t_crash - lo), ok, msg, kinematic)
-        if ok:
+        if ok or budget.spent:
             return last
     assert last is not None
     return last
@@ -395,7 +429,7 @@ def nudge_apart(m: Movable, others: list[Movable], t_end: float, cp: ContactPara
     for j, o in enumerate(others):
         ts = m.t[(m.t >= max(lo, o.t[0])) & (m.t <= min(hi, o.t[-1]))]
         ineq.append((0, 1 + j, ts, cp.clearance_m))
-    ds, ok, msg = _solve([m], others, bases, [], ineq, cp)
+    ds, ok, msg = _solve([m], others, bases, [], ineq, cp, budget=_Budget())
     d = ds[0]
     size = float(np.hypot(*d.T).max()) if len(d) else 0.0
     return Correction([d], size, float(np.sqrt(np.mean(np.sum(d**2, 1)))), hi - lo, ok, msg)
