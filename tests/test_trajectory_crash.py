@@ -144,3 +144,18 @@ def test_overlap_from_the_start_then_a_retouch_counts_as_the_simulator_counts():
     hit = _contact_after_apart(parked, mover)
     assert hit is not None and 1.5 < hit.time_s < 4.0  # the re-touch, not the overlap at 0 s
     assert first_contact(parked, mover).time_s == 0.0  # type: ignore[union-attr]
+
+
+def test_a_slow_ego_that_creeps_backwards_is_kept_with_a_warning():
+    """A crawling ego whose monocular track runs backwards for a second (ccd_000080's extraction did)
+    must not sink stage 2: its path is kept, with a warning, never 'not physically possible'."""
+
+    def creep(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        back = np.where(t < 1.5, -0.9 * t, -1.35 + 0.0 * t)  # 0.9 m/s backwards, then stopped
+        fwd = np.where(t > 2.5, 2.0 * (t - 2.5) ** 2 / 2, 0.0)  # then 2 m/s^2 forward
+        return back + fwd, 0.0 * t
+
+    lead = vehicle(1, track(lambda t: (30 + 0 * t, 0.3 + 0 * t), 0, 60))
+    sc = process_scenario(raw_scenario([lead], ego=track(creep, 0, 60)))
+    assert len(sc.ego.trajectory) > 10
+    assert any("runs briefly backwards" in w for w in sc.warnings)

@@ -66,14 +66,21 @@ class Dense:
         self.observed = np.concatenate([np.zeros(len(t), bool), self.observed])
 
     def cut(self, t_end: float) -> None:
-        """Keep samples up to ``t_end`` (adding one exactly at ``t_end`` by interpolation)."""
-        keep = self.t < t_end - EPS_T
+        """Keep samples up to ``t_end`` (adding one exactly at ``t_end`` by interpolation). A kept sample
+        closer than ``CUT_MIN_GAP_S`` to ``t_end`` is dropped: a near-duplicate sample makes the final
+        spline's speed jump between the two (ccd_000080: 5 ms apart, "not physically possible")."""
+        keep = self.t < t_end - CUT_MIN_GAP_S
+        if not keep.any():
+            keep = self.t < t_end - EPS_T
         if self.t[-1] >= t_end - EPS_T:
             end = np.array([[np.interp(t_end, self.t, self.xy[:, 0]), np.interp(t_end, self.t, self.xy[:, 1])]])
             obs_end = bool(self.observed[min(int(np.searchsorted(self.t, t_end)), len(self.t) - 1)])
             self.t = np.append(self.t[keep], t_end)
             self.xy = np.vstack([self.xy[keep], end])
             self.observed = np.append(self.observed[keep], obs_end)
+
+
+CUT_MIN_GAP_S = 0.02  # s: a fifth of a 10 fps frame interval; cut ends closer to a sample replace it
 
 
 def span(grid: np.ndarray, a: float, b: float) -> np.ndarray:

@@ -248,7 +248,11 @@ def _crash_phase(run: _Run, ego: Dense, agents: list[Dense], t_max: float) -> Cr
 def _final_phase(run: _Run, ego: Dense, crash: CrashOutcome) -> list[Vehicle]:
     """Final splines and samples; the ego first. An agent whose path cannot be made physically
     possible (a monocular depth jump) is dropped with a warning instead of sinking the scenario."""
-    vehicles = [_final_vehicle(ego, run.p, None)]
+    try:
+        vehicles = [_final_vehicle(ego, run.p, None)]
+    except UserError:  # a slow, noisy ego-motion track whose every fit runs briefly backwards
+        vehicles = [_final_vehicle(ego, run.p, None, allow_reverse=True)]
+        run.warnings.append("ego: its processed path runs briefly backwards (a slow, noisy ego-motion track); kept")
     for d in crash.agents:
         try:
             vehicles.append(_final_vehicle(d, run.p, d.cls))
@@ -410,16 +414,17 @@ def _reverses(d: Dense, vel: np.ndarray, tol_mps: float = 0.5) -> bool:
     return bool((vel @ (disp / norm)).min() < -tol_mps)
 
 
-def _final_vehicle(d: Dense, p: Stage2Params, cls: str | None) -> Vehicle:
+def _final_vehicle(d: Dense, p: Stage2Params, cls: str | None, allow_reverse: bool = False) -> Vehicle:
     """Fit the final spline and sample it: positions, heading and speed from its derivative; a
-    stronger fit where a junction of pieces is too abrupt; refused if still not physically possible."""
+    stronger fit where a junction of pieces is too abrupt; refused if still not physically possible.
+    ``allow_reverse``: accept an ego path that runs briefly backwards (the last resort for a slow ego)."""
     label = "ego" if cls is None else f"agent {d.vehicle.id}"
     for scale in (1.0, 4.0, 16.0, 64.0, 256.0):
         tck = fit_xy_spline(d.t, d.xy[:, 0], d.xy[:, 1], p.final_sigma_m * scale)
         xy = eval_xy(tck, d.t)
         vel = eval_xy(tck, d.t, der=1)
         speed = np.zeros(len(d.t)) if d.static else np.hypot(vel[:, 0], vel[:, 1])
-        if speed.max(initial=0.0) > MAX_SPEED_MPS or _reverses(d, vel):
+        if speed.max(initial=0.0) > MAX_SPEED_MPS or (not allow_reverse and _reverses(d, vel)):
             continue
         yaw = headings(d.t, xy, d.heading, vel)
         traj = Trajectory.from_arrays(d.t, xy[:, 0], xy[:, 1], yaw, speed, observed=d.observed)
