@@ -148,6 +148,10 @@ def _collision_with_seen_participants(run: _Run) -> Scenario:
     return raw.evolve(collision=None)
 
 
+SLOW_EGO_MPS = 1.0  # below it the ego's start heading is the camera's measured yaw (ccd_000882: the crawl's
+# noisy first steps pointed backwards, the lead-in ran backwards and the replay's vehicle turned round)
+
+
 def _ego_phase(run: _Run) -> tuple[EgoFrame, Dense]:
     """Smooth the ego on the frame grid (video time, up to the crash) and build the road frame from it."""
     raw, p = run.raw, run.p
@@ -162,15 +166,39 @@ def _ego_phase(run: _Run) -> tuple[EgoFrame, Dense]:
     dt = 1.0 / run.fps
     grid = span(dt * np.arange(int(np.floor(t_end / dt + 1e-6)) + 1), 0.0, t_end)
     ex, ey = _repair_start_jump(ego_t, e["x"], e["y"], run.warnings)
+    ex, ey = _hold_backward_steps(ex, ey, run.warnings)
     sm = smooth_track(ego_t, ex, ey, run.fps, p)
     xy, vel = sm.pos(grid), sm.vel(grid)
     heading0 = headings(grid, xy, float(e["yaw"][0]), vel)[0]
+    if float(np.hypot(*vel[0])) < SLOW_EGO_MPS:  # a crawling start: the camera's yaw, not the noise's direction
+        heading0 = float(e["yaw"][0])
     frame = RoadFrame.from_path(xy, p.road_sigma_m, heading=heading0)
     s_ego = frame.project(xy)[0]
     v_road = np.gradient(s_ego, grid) if len(grid) > 1 else np.zeros(1)
     dense = Dense(raw.ego, grid, xy, np.ones(len(grid), bool), heading0)
     ego_frame = EgoFrame(grid, frame, s_ego, v_road, np.hypot(vel[:, 0], vel[:, 1]), dense.box_track(), run.fps)
     return ego_frame, dense
+
+
+def _hold_backward_steps(
+    x: np.ndarray, y: np.ndarray, warnings: list[str], min_m: float = 0.3
+) -> tuple[np.ndarray, np.ndarray]:
+    """The raw ego (m) with its backward steps along its overall travel held in place, when they add up
+    to more than ``min_m``: a crawling dashcam car's monocular track drifts backwards (ccd_000882: 2 m
+    over 4 s), the lead-in then extends that backwards and the replay's vehicle turns round to follow."""
+    xy = np.column_stack([x, y])
+    disp = xy[-1] - xy[0]
+    norm = float(np.hypot(*disp))
+    if len(xy) < 3 or norm < 1.0:
+        return x, y
+    u = disp / norm
+    s = (xy - xy[0]) @ u
+    held = np.maximum.accumulate(s) - s
+    if held.max() <= min_m:
+        return x, y
+    warnings.append(f"ego: its monocular track ran up to {held.max():.1f} m backwards; held in place there")
+    xy = xy + held[:, None] * u
+    return xy[:, 0], xy[:, 1]
 
 
 def _repair_start_jump(
@@ -212,7 +240,8 @@ def _step_back_phase(run: _Run, ego: Dense, agents: list[Dense]) -> float:
         d.t = d.t + t_max
     if t_pre.size:
         for d, v in zip(present, v0, strict=True):
-            heading = headings(d.t[:3], d.xy[:3], d.heading)[0] if v > MOVING_MPS else d.heading
+            moving = v > MOVING_MPS and not (d is ego and v < SLOW_EGO_MPS)
+            heading = headings(d.t[:3], d.xy[:3], d.heading)[0] if moving else d.heading
             d.prepend(t_pre, step_back_prefix(d.xy[0], heading, float(v), plan, t_pre))
     return t_max
 
@@ -251,8 +280,7 @@ def _final_phase(run: _Run, ego: Dense, crash: CrashOutcome) -> list[Vehicle]:
     try:
         vehicles = [_final_vehicle(ego, run.p, None)]
     except UserError:  # a slow, noisy ego-motion track whose every fit runs briefly backwards
-        vehicles = [_final_vehicle(ego, run.p, None, allow_reverse=True)]
-        run.warnings.append("ego: its processed path runs briefly backwards (a slow, noisy ego-motion track); kept")
+        vehicles = [_forward_only_ego(ego, run)]
     for d in crash.agents:
         try:
             vehicles.append(_final_vehicle(d, run.p, d.cls))
@@ -265,6 +293,25 @@ def _final_phase(run: _Run, ego: Dense, crash: CrashOutcome) -> list[Vehicle]:
         run.warnings.append("a participant of the collision was dropped (implausible trajectory); no collision")
         crash.collision = None
     return vehicles
+
+
+def _forward_only_ego(ego: Dense, run: _Run) -> Vehicle:
+    """The ego of a crawling, noisy monocular track: its backward steps along its overall travel are
+    held in place (a dashcam car crawling does not reverse and drive on; the replay's vehicle cannot
+    follow a path that turns back on itself); if a fit still runs backwards, it is kept as it is."""
+    disp = ego.xy[-1] - ego.xy[0]
+    norm = float(np.hypot(*disp))
+    if norm > EPS_T:
+        u = disp / norm
+        s = (ego.xy - ego.xy[0]) @ u
+        held = np.maximum.accumulate(s) - s
+        ego.xy = ego.xy + held[:, None] * u
+        run.warnings.append(f"ego: its monocular track ran up to {held.max():.1f} m backwards; held in place there")
+    try:
+        return _final_vehicle(ego, run.p, None)
+    except UserError:
+        run.warnings.append("ego: its processed path runs briefly backwards (a slow, noisy ego-motion track); kept")
+        return _final_vehicle(ego, run.p, None, allow_reverse=True)
 
 
 def _with_measured_yaw(ego: Vehicle, run: _Run, t_max: float) -> Vehicle:
