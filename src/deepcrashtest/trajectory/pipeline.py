@@ -299,14 +299,8 @@ def _forward_only_ego(ego: Dense, run: _Run) -> Vehicle:
     """The ego of a crawling, noisy monocular track: its backward steps along its overall travel are
     held in place (a dashcam car crawling does not reverse and drive on; the replay's vehicle cannot
     follow a path that turns back on itself); if a fit still runs backwards, it is kept as it is."""
-    disp = ego.xy[-1] - ego.xy[0]
-    norm = float(np.hypot(*disp))
-    if norm > EPS_T:
-        u = disp / norm
-        s = (ego.xy - ego.xy[0]) @ u
-        held = np.maximum.accumulate(s) - s
-        ego.xy = ego.xy + held[:, None] * u
-        run.warnings.append(f"ego: its monocular track ran up to {held.max():.1f} m backwards; held in place there")
+    x, y = _hold_backward_steps(ego.xy[:, 0], ego.xy[:, 1], run.warnings, min_m=0.0)
+    ego.xy = np.column_stack([x, y])
     try:
         return _final_vehicle(ego, run.p, None)
     except UserError:
