@@ -68,6 +68,23 @@ class LoopOutput:
     present: np.ndarray | None = None  # (T, N)
     contacts: list[Contact] = field(default_factory=list)
 
+    @classmethod
+    def empty(cls, batch: int) -> LoopOutput:
+        """Outcomes of ``batch`` variants before any step: no collision, no AEB, infinite distance and TTC."""
+        B = batch
+        return cls(
+            collided=np.zeros(B, bool),
+            collision_time=np.full(B, np.nan),
+            collision_agent=np.full(B, -1),
+            relative_speed=np.full(B, np.nan),
+            delta_v_ego=np.full(B, np.nan),
+            delta_v_other=np.full(B, np.nan),
+            min_distance=np.full(B, np.inf),
+            min_ttc=np.full(B, np.inf),
+            aeb_time=np.full(B, np.nan),
+            warning_time=np.full(B, np.nan),
+        )
+
 
 def run_loop(
     world: World,
@@ -138,18 +155,7 @@ class _Loop:
         self.compactable = not physics_mode and (self.is_replay or hasattr(controller, "select"))
         self.period = max(1, int(round(CONTROL_PERIOD_S / self.dt)))
         self.held: tuple[np.ndarray, np.ndarray] | None = None
-        self.out = LoopOutput(
-            collided=np.zeros(B, bool),
-            collision_time=np.full(B, np.nan),
-            collision_agent=np.full(B, -1),
-            relative_speed=np.full(B, np.nan),
-            delta_v_ego=np.full(B, np.nan),
-            delta_v_other=np.full(B, np.nan),
-            min_distance=np.full(B, np.inf),
-            min_ttc=np.full(B, np.inf),
-            aeb_time=np.full(B, np.nan),
-            warning_time=np.full(B, np.nan),
-        )
+        self.out = LoopOutput.empty(B)
         if physics_mode:
             self.out.states = np.full((T, M + 1, 4), np.nan)
             self.out.present = np.zeros((T, M + 1), dtype=bool)

@@ -59,18 +59,7 @@ def run_replay_batch(
     if seg is None:
         raise ValueError("the agents' run is not kept in memory (replay_batch_available is False)")
     B = len(ego_init)
-    out = LoopOutput(
-        collided=np.zeros(B, bool),
-        collision_time=np.full(B, np.nan),
-        collision_agent=np.full(B, -1),
-        relative_speed=np.full(B, np.nan),
-        delta_v_ego=np.full(B, np.nan),
-        delta_v_other=np.full(B, np.nan),
-        min_distance=np.full(B, np.inf),
-        min_ttc=np.full(B, np.inf),
-        aeb_time=np.full(B, np.nan),
-        warning_time=np.full(B, np.nan),
-    )
+    out = LoopOutput.empty(B)
     ego, steer = _rollout(world, ego_paths, ego_q, ego_offset, ego_init, lim)
     # agents at each evaluation index i: i = 0 the start, i = k + 1 the candidate states of step k
     ag = np.concatenate([seg.state[:1], seg.new])
