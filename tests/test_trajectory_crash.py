@@ -85,7 +85,7 @@ def test_labelled_crash_is_reproduced_and_nothing_touches_before():
     assert sc.collision.time_s == pytest.approx(5.0 + t_max)
     contacts = _contacts(sc)
     pair = [c for c in contacts if set(c[:2]) == {0, 1}]
-    assert pair and 5.0 + t_max - 0.1 <= pair[0][2] <= 5.0 + t_max + 1e-6
+    assert pair and abs(pair[0][2] - (5.0 + t_max)) <= 0.03  # the first touch of the 3D boxes is the crash time
     assert all(set(c[:2]) == {0, 1} for c in contacts), contacts  # the bystander was moved or dropped
     rec = sc.provenance.parameters["crash"]["correction"]
     assert rec["pair"] == [0, 1] and rec["satisfied"] and 1.0 < rec["max_m"] < 5.0

@@ -58,6 +58,11 @@ CLOSE_3D_M = 2.5
 CLOSE_3D_WINDOW_S = 0.3
 #: ... and the last gap is held this long (s) after a road user's 3D positions end.
 CLOSE_3D_HOLD_S = 0.6
+#: A box edge within this many pixels of the image border is cut off by it.
+BORDER_PX = 4
+#: ... and a box growing more than this (log size) in the frame it reaches the border jumped onto it
+#: (chosen on the tune clips: ccd_000014 0.33, ccd_001143 0.26 jumped; ccd_000132 0.07 grew).
+BORDER_JUMP = 0.15
 
 
 @dataclass(frozen=True)
@@ -168,7 +173,24 @@ def ego_scores(g: pd.DataFrame, width: int, height: int, fps: float, jolt: dict[
     near = pd.Series(raw_near, index=g.index).rolling(3, center=True, min_periods=1).max()
     closing = np.clip(_growth(g, fps).to_numpy(), 0, 1.5) / 1.5  # d ln(size)/dt = 1.5/s (TTC 0.67 s) -> 1
     j = pd.Series([jolt.get(int(f), 0.0) for f in g.index.to_numpy(int)], index=g.index)
-    return pd.DataFrame({"near": near, "closing": closing, "jolt": j, "log_size": size})
+    edge = _reaches_border(g, width)
+    return pd.DataFrame({"near": near, "closing": closing, "jolt": j, "log_size": size, "reaches_border": edge})
+
+
+def _reaches_border(g: pd.DataFrame, width: int) -> pd.Series:
+    """True at the frames where the box jumps onto the left, right or top image border (it did not
+    reach it in the previous frame, and it grew by more than ``BORDER_JUMP`` in log size into this
+    one): the detector's box switched to the road user filling the view. Cut off, the box stops
+    growing there, and the road user fills the image on which the camera's motion is measured (a
+    "jolt" that is its own motion): a knee or jolt in that frame marks the road user arriving, the
+    contact comes a frame later at the earliest (ccd_000014, ccd_001143: 2-3 frames before the label)."""
+    m = BORDER_PX
+    at = np.column_stack([g["x1"] <= m, g["x2"] >= width - m, g["y1"] <= m]).astype(bool)
+    prev = np.vstack([np.zeros((1, 3), bool), at[:-1]])
+    w, h = (g["x2"] - g["x1"]).to_numpy(float), (g["y2"] - g["y1"]).to_numpy(float)
+    size = np.log(np.sqrt(np.maximum(w * h, 1.0)))
+    jump = np.r_[False, np.diff(size) > BORDER_JUMP]
+    return pd.Series((at & ~prev).any(axis=1) & jump, index=g.index)
 
 
 def knee_frame(s: pd.DataFrame, fps: float) -> int | None:
@@ -210,6 +232,8 @@ def ego_best(s: pd.DataFrame, fps: float) -> tuple[float, int, dict[str, float]]
     )
     score *= min(1.0, (closing + jolt) / EGO_MIN_EVIDENCE)  # near all along (the bonnet, a queue): no crash
     ev = {"near": round(peak, 3), "closing": round(closing, 3), "jolt": round(jolt, 3), "score": round(score, 3)}
+    if "reaches_border" in s and bool(s.loc[frame, "reaches_border"]):
+        frame += 1  # the box jumped onto the image border there: the road user fills the view, not yet touching
     return score, frame, ev
 
 

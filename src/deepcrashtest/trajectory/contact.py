@@ -170,6 +170,7 @@ MAX_ITER = 80  # SLSQP iterations per round: a correction that needs more is not
 # rounds: bounds stage 2's time on pathological tracks (a wrong pair once ran > 10 min). Measured on the 19
 # labelled crash clips (2026-12-01): at most 64,186 box tracks built for a correction that was found, so none is cut.
 MAX_EVALS = 100_000
+TOUCH_SLACK_S = 0.02  # make_contact(overlap_s > 0): apart until this long before the first touch (s)
 
 
 class _OutOfBudget(Exception):
@@ -366,10 +367,18 @@ def _before(m: Movable, t_end: float) -> np.ndarray:
 
 
 def make_contact(
-    a: Movable, b: Movable, t_crash: float, cp: ContactParams | None = None, movable: tuple[bool, bool] = (True, True)
+    a: Movable,
+    b: Movable,
+    t_crash: float,
+    cp: ContactParams | None = None,
+    movable: tuple[bool, bool] = (True, True),
+    overlap_s: float = 0.0,
 ) -> Correction:
     """Smallest smooth displacement of the pair's last seconds so that their boxes first touch at
     ``t_crash`` (s): overlapping by ``penetration_m`` then, apart until ``touch_tol_s`` before.
+    ``overlap_s`` > 0: they first touch exactly at ``t_crash`` (separation 0, apart until
+    ``TOUCH_SLACK_S`` before) and overlap by the penetration ``overlap_s`` later, where the paths end
+    (the contact is the first touch of the 3D boxes, the overlap after it is what a lagging replay needs).
 
     Tries each window of ``cp.windows_s`` in turn, within the movers' kinematics, then (where SLSQP
     finds no such correction) each again with the per-axis acceleration bound only (``kinematic``
@@ -382,15 +391,17 @@ def make_contact(
     if not movers:
         return Correction([], 0.0, 0.0, 0.0, False, "nothing may move")
     lo_common = max(a.t[0], b.t[0])
+    t_end = t_crash + max(overlap_s, 0.0)
+    # apart until shortly before the first touch (a margin for the final spline fit)
+    t_apart = t_crash - (TOUCH_SLACK_S if overlap_s > 0 else 0.8 * cp.touch_tol_s)
     last: Correction | None = None
     budget = _Budget()
     for kinematic, w in [(True, w) for w in cp.windows_s] + [(False, w) for w in cp.windows_s]:
         lo = max(t_crash - w, lo_common)
-        bases = [_rigid(m) if m.rigid else _basis(lo, t_crash, cp.knot_step_s, lo > m.t[0] + 1e-6) for m in movers]
-        t_apart = t_crash - 0.8 * cp.touch_tol_s  # a margin for the final spline fit
+        bases = [_rigid(m) if m.rigid else _basis(lo, t_end, cp.knot_step_s, lo > m.t[0] + 1e-6) for m in movers]
         t_free = a.t[(a.t >= lo_common) & (a.t <= t_apart)]
         t_free = np.append(t_free, t_apart) if t_apart >= lo_common else t_free
-        eq = [(0, 1, t_crash, -_penetration(a, b, t_crash, cp))]
+        eq = [(0, 1, t_end, -_penetration(a, b, t_end, cp))] + ([(0, 1, t_crash, 0.0)] if overlap_s > 0 else [])
         solve_movers = movers if kinematic else [replace(m, kin=None) for m in movers]
         ds, ok, msg = _solve(
             solve_movers, fixed, bases, eq, [(0, 1, t_free, 0.0)], cp, rounds=2 if kinematic else 3, budget=budget
@@ -398,7 +409,7 @@ def make_contact(
         full = _full(ds, movable)
         size = max((float(np.hypot(*d.T).max()) if len(d) else 0.0) for d in ds)
         rms = float(np.sqrt(np.mean(np.concatenate([np.sum(d**2, 1) for d in ds]))))
-        last = Correction(full, size, rms, float(t_crash - lo), ok, msg, kinematic)
+        last = Correction(full, size, rms, float(t_end - lo), ok, msg, kinematic)
         if ok or budget.spent:
             return last
     assert last is not None

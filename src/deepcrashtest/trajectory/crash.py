@@ -2,7 +2,8 @@
 
 Scenario time (seconds), world frame (metres). Given the crash (time and pair, from the raw
 scenario's ``collision``), the pair's last seconds are corrected so that their boxes first touch
-at that time (``trajectory.contact.make_contact``); then every other pair that touches before the
+at that time (``trajectory.contact.make_contact``; every path ends ``ContactParams.penetration_s``
+later, the pair overlapping there, so that a replay that lags its path slightly still touches); then every other pair that touches before the
 crash is separated by nudging the bystander (``nudge_apart``) or, if that fails, dropping it. With
 no crash known, either the first ego-agent overlap is the crash (legacy, ``find_first``) or, when
 the video is known to show no crash, every contact is removed the same way.
@@ -82,15 +83,16 @@ def resolve_crash(
             warnings.append(f"{msg}; the scenario has no collision")
             collision = None
     if collision is not None:
+        t_cut = collision.time_s + (0.0 if legacy else cp.penetration_s)  # the pair overlaps until the paths end
         for d in [ego, *agents]:
-            d.cut(collision.time_s)
+            d.cut(t_cut)
         late = [d for d in agents if d.t[0] >= collision.time_s - EPS_T]
         for d in late:
             warnings.append(f"agent {d.id}: appears after the collision; dropped")
         agents = [d for d in agents if d not in late]
         for d in [ego, *agents]:
-            if d.id in collision.participants and d.t[-1] < collision.time_s - EPS_T:
-                _reach(d, collision.time_s)
+            if d.id in collision.participants and d.t[-1] < t_cut - EPS_T:
+                _reach(d, t_cut)
                 warnings.append(
                     f"agent {d.id}: last seen {collision.time_s - d.t[-1]:.2f} s before the crash; continued at its "
                     "last velocity to the crash"
@@ -127,7 +129,7 @@ def _enforce_pair(
     """Correct the pair's last seconds so they first touch at the collision time; returns the record."""
     byid = {d.id: d for d in [ego, *agents]}
     a, b = byid[collision.other_id], byid[collision.agent_id]
-    corr = make_contact(_movable(a, a is ego), _movable(b, b is ego), collision.time_s, cp)
+    corr = make_contact(_movable(a, a is ego), _movable(b, b is ego), collision.time_s, cp, overlap_s=cp.penetration_s)
     applied = corr.ok or corr.max_m <= MAX_FAILED_CORRECTION_M
     for d, delta in zip((a, b), corr.deltas if applied else [], strict=False):
         if len(delta):
