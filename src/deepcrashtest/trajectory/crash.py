@@ -99,9 +99,12 @@ def resolve_crash(
                 )
     if collision is not None and not legacy:
         record.update(_enforce_pair(collision, ego, agents, cp, warnings))
-    t_end = collision.time_s if collision is not None else max(float(d.t[-1]) for d in [ego, *agents])
+    if collision is None:
+        t_apart = max(float(d.t[-1]) for d in [ego, *agents]) - cp.touch_tol_s
+    else:  # the pair first touches at the collision time (legacy: up to touch_tol_s before); the paths end after it
+        t_apart = collision.time_s - (cp.touch_tol_s if legacy else -cp.penetration_s)
     pair = collision.participants if collision is not None else ()
-    agents, nudges = _separate_others(ego, agents, pair, t_end - cp.touch_tol_s, cp, warnings)
+    agents, nudges = _separate_others(ego, agents, pair, t_apart, cp, warnings)
     if nudges:
         record["bystanders"] = nudges
     return CrashOutcome(collision, agents, record)
