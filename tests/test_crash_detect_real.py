@@ -84,6 +84,29 @@ def test_ego_crash_found_from_tracks_of_a_real_clip(yolo_ok):
     assert abs(found.frame - label.contact_frame) <= 2 and found.confidence >= 0.5
 
 
+def test_a_box_jumping_onto_the_image_border_is_not_the_contact(yolo_ok):
+    """ccd_001143 (a bus cuts in; the ego is against its side from frame 33): at frame 30 the bus's box
+    jumps onto the left and top image borders and the bus fills the view, moving the image the camera's
+    jolt is measured on; the contact comes later (it was taken at 30, 0.3 s early)."""
+    video, label = _label("ccd_001143")
+    box = label.participants[1].box
+    assert box is not None and label.contact_frame is not None
+    motion = GlobalMotion()
+    rows: list[tuple[object, ...]] = []
+    with open_video(video) as src:
+        frames = (f for f in src if f.index <= label.contact_frame + 6)
+        for ft in iter_tracks(frames, make_detector(DEFAULT_DETECTOR), detect_every=2, fps=src.meta.fps):
+            motion.update(ft.frame.index, ft.frame.image)
+            rows.extend(frame_records(ft))
+    tracks = records_table(rows)
+    at = tracks[tracks["frame"] == label.contact_frame]
+    ious = iou_matrix(np.asarray(box, float), at[["x1", "y1", "x2", "y2"]].to_numpy(float))[0]
+    bus = int(at["track_id"].iloc[int(ious.argmax())])
+    found = detect_crash(tracks, 1280, 720, 10.0, motion.arrays())
+    assert found is not None and found.pair == (EGO, bus)
+    assert abs(found.frame - label.contact_frame) <= 2, found
+
+
 def _line(x0: float, vx: float, y: float, half_width: float = 0.9) -> WorldTrack:
     f = np.arange(0, 40, dtype=float)
     return WorldTrack(f, x0 + vx * f / 10, np.full(40, y), half_width)
