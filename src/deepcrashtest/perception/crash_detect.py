@@ -22,7 +22,9 @@ Evidence, per candidate pair and frame (each scored 0..1):
 height as a share of the image, with its bottom in the lower part of the image.
 
 The contact frame of an ego crash is the first camera jolt while the road user is near, else the
-"knee" where its approaching box stops growing, else the first frame at which it is nearest.
+"knee" where its approaching box stops growing, else the first frame at which it is nearest; one
+frame later when that frame is where the box jumps onto the image border (the road user filling the
+view: its box stops growing and it moves the image the jolt is measured on).
 
 The crash is the best-scoring (pair, frame); the contact frame is the first frame of that pair's
 evidence peak. ``confidence`` is the combined score (0..1). None when nothing scores above

@@ -3,8 +3,9 @@
 Scenario time (seconds), world frame (metres). Given the crash (time and pair, from the raw
 scenario's ``collision``), the pair's last seconds are corrected so that their boxes first touch
 at that time (``trajectory.contact.make_contact``; every path ends ``ContactParams.penetration_s``
-later, the pair overlapping there, so that a replay that lags its path slightly still touches); then every other pair that touches before the
-crash is separated by nudging the bystander (``nudge_apart``) or, if that fails, dropping it. With
+later, the pair overlapping there, so that a replay that lags its path slightly still touches); then
+every other pair that touches before the paths end is separated by nudging the bystander
+(``nudge_apart``) or, if that fails, dropping it. With
 no crash known, either the first ego-agent overlap is the crash (legacy, ``find_first``) or, when
 the video is known to show no crash, every contact is removed the same way.
 """
