@@ -99,6 +99,9 @@ class Movable:
     """Only a constant shift of the whole track (a parked car's depth error), never a motion."""
     kin: Kinematics | None = VEHICLE_KINEMATICS
     """Limits a corrected path must keep (None: none, e.g. a parked car that only shifts)."""
+    yaw: np.ndarray | None = None
+    """Box headings (rad) per sample that a correction does not turn (a crawling ego: the camera's
+    measured yaw, its path's direction being noise); None: the heading of the (corrected) motion."""
 
 
 @dataclass(frozen=True)
@@ -118,7 +121,8 @@ class Correction:
 def box_track(m: Movable, xy: np.ndarray | None = None) -> BoxTrack:
     """The movable's box track (heading of the motion, ``heading`` where it is still)."""
     p = m.xy if xy is None else xy
-    return BoxTrack(m.t, p[:, 0], p[:, 1], headings(m.t, p, m.heading), m.length, m.width)
+    yaw = headings(m.t, p, m.heading) if m.yaw is None else m.yaw
+    return BoxTrack(m.t, p[:, 0], p[:, 1], yaw, m.length, m.width)
 
 
 @dataclass(frozen=True)

@@ -50,7 +50,8 @@ def _movable(d: Dense, is_ego: bool) -> Movable:
     weight = EGO_WEIGHT if is_ego else (STATIC_WEIGHT if d.static else 1.0)
     rigid = d.static and not is_ego
     kin = None if rigid else kinematics(d.vehicle.category)
-    return Movable(d.t, d.xy, d.vehicle.length, d.vehicle.width, d.heading, weight, rigid=rigid, kin=kin)
+    yaw = None if d.box_yaw is None else d.box_headings()
+    return Movable(d.t, d.xy, d.vehicle.length, d.vehicle.width, d.heading, weight, rigid=rigid, kin=kin, yaw=yaw)
 
 
 def resolve_crash(

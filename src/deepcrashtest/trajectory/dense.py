@@ -37,6 +37,8 @@ class Dense:
     feats: ClassFeatures | None = None
     rel_t: np.ndarray = field(default_factory=lambda: np.zeros(0))  # video time, s
     rel_s: np.ndarray = field(default_factory=lambda: np.zeros(0))  # station minus the ego's, m
+    box_yaw: tuple[np.ndarray, np.ndarray] | None = None
+    """(t s, yaw rad) the box faces instead of the motion's direction (a crawling ego: the camera's yaw)."""
 
     @property
     def id(self) -> int:
@@ -52,9 +54,13 @@ class Dense:
 
     def box_track(self) -> BoxTrack:
         v = self.vehicle
-        return BoxTrack(
-            self.t, self.xy[:, 0], self.xy[:, 1], headings(self.t, self.xy, self.heading), v.length, v.width
-        )
+        return BoxTrack(self.t, self.xy[:, 0], self.xy[:, 1], self.box_headings(), v.length, v.width)
+
+    def box_headings(self) -> np.ndarray:
+        """The box's heading (rad) per sample: ``box_yaw`` where set, else the motion's direction."""
+        if self.box_yaw is not None:
+            return np.interp(self.t, *self.box_yaw)
+        return headings(self.t, self.xy, self.heading)
 
     def keep(self, mask: np.ndarray) -> None:
         self.t, self.xy, self.observed = self.t[mask], self.xy[mask], self.observed[mask]

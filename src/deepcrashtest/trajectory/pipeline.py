@@ -262,6 +262,8 @@ def _crash_phase(run: _Run, ego: Dense, agents: list[Dense], t_max: float) -> Cr
     known = run.raw.collision
     if known is not None:
         known = known.model_copy(update={"time_s": known.time_s - run.t0 + t_max})
+        if _crawling(ego, known.time_s):  # its box faces where the camera faces, not its noisy path's way
+            ego.box_yaw = _measured_yaw(run, t_max)
     out = resolve_crash(
         known, ego, agents, run.p, run.warnings, t_from=t_max, no_crash=known is None and run.no_crash_in_video
     )
@@ -309,6 +311,27 @@ def _forward_only_ego(ego: Dense, run: _Run) -> Vehicle:
         return _final_vehicle(ego, run.p, None, allow_reverse=True)
 
 
+def _crawling(ego: Dense, t_crash: float, window_s: float = 1.0) -> bool:
+    """True when the ego moves slower than ``SLOW_EGO_MPS`` on average over the ``window_s`` before the
+    crash (scenario time, s): the direction of its path is then noise (ccd_000132: 0.2 rad off the
+    camera's yaw at 0.4 m/s), which a replayed vehicle does not turn to."""
+    m = (ego.t >= t_crash - window_s) & (ego.t <= t_crash + EPS_T)
+    if m.sum() < 2:
+        return False
+    length = float(np.hypot(*np.diff(ego.xy[m], axis=0).T).sum())
+    return length / max(float(ego.t[m][-1] - ego.t[m][0]), EPS_T) < SLOW_EGO_MPS
+
+
+def _measured_yaw(run: _Run, t_max: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """(scenario time s, yaw rad): the camera's measured yaw, lightly smoothed (None when unusable)."""
+    e = run.raw.ego.trajectory.arrays()
+    t_video = e["t"] - run.t0
+    yaw_raw = np.unwrap(e["yaw"])
+    if len(t_video) < 2 or not np.all(np.isfinite(yaw_raw)):
+        return None
+    return t_video + t_max, _smooth_series(t_video, yaw_raw, run.p.ego_yaw_window_s)
+
+
 def _with_measured_yaw(ego: Vehicle, run: _Run, t_max: float) -> Vehicle:
     """The ego's heading where the video saw it: the camera's measured yaw (the raw ego's, from the
     image's rotation), lightly smoothed, instead of the direction of its fitted path.
@@ -317,14 +340,11 @@ def _with_measured_yaw(ego: Vehicle, run: _Run, t_max: float) -> Vehicle:
     noise when the ego is slow (a car waiting to turn) or its speed scale is unknown; every agent was placed
     through that measured yaw, so the processed scenario must view them through it. Before the video
     (step-back lead-in) the first measured yaw is held."""
-    e = run.raw.ego.trajectory.arrays()
-    t_video = e["t"] - run.t0
-    yaw_raw = np.unwrap(e["yaw"])
-    if len(t_video) < 2 or not np.all(np.isfinite(yaw_raw)):
+    measured = _measured_yaw(run, t_max)
+    if measured is None:
         return ego
-    yaw_m = _smooth_series(t_video, yaw_raw, run.p.ego_yaw_window_s)
     a = ego.trajectory.arrays()
-    yaw = np.interp(a["t"] - t_max, t_video, yaw_m)
+    yaw = np.interp(a["t"], *measured)
     traj = ego.trajectory.model_copy(update={"yaw": [float(v) for v in yaw]})
     return ego.model_copy(update={"trajectory": traj})
 
