@@ -166,3 +166,18 @@ def test_a_slow_ego_that_creeps_backwards_is_kept_with_a_warning():
 
     yaw = np.asarray(simulate(sc).states)[:, 0, 2]  # the replayed ego keeps facing forward
     assert np.abs(yaw).max() < np.pi / 4
+
+
+def test_a_crawling_egos_crash_is_made_with_the_cameras_heading():
+    """An ego crawling at 0.4 m/s whose monocular path drifts 0.2 rad off the camera's (measured) yaw 0:
+    the processed ego faces the camera's yaw, and so must the box the crash correction touches with
+    (the replayed ego does not turn to a crawl's noisy direction either): the processed pair's first
+    contact is at the crash time (with the path's direction, the touch moved or vanished)."""
+    ego = track(lambda t: (0.4 * t, 0.08 * t), 0, 60, yaw=0.0)
+    parked = vehicle(1, track(lambda t: (7.0 + 0 * t, 2.3 + 0 * t), 0, 60, yaw=0.0))
+    raw = raw_scenario([parked], ego=ego, collision=Collision(time_s=5.0, agent_id=1, other_id=0, source="user"))
+    sc = process_scenario(raw)
+    t_max = sc.provenance.parameters["t_max_s"]
+    pair = [c for c in _contacts(sc) if set(c[:2]) == {0, 1}]
+    assert pair and abs(pair[0][2] - (5.0 + t_max)) <= 0.05, (pair, 5.0 + t_max)
+    assert abs(sc.provenance.parameters["crash"]["contact_time_s"] - (5.0 + t_max)) <= 0.05
