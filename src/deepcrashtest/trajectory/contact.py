@@ -381,7 +381,8 @@ def make_contact(
     """Smallest smooth displacement of the pair's last seconds so that their boxes first touch at
     ``t_crash`` (s): overlapping by ``penetration_m`` then, apart until ``touch_tol_s`` before.
     ``overlap_s`` > 0: they first touch exactly at ``t_crash`` (separation 0, apart until
-    ``TOUCH_SLACK_S`` before) and overlap by the penetration ``overlap_s`` later, where the paths end
+    ``TOUCH_SLACK_S`` before) and overlap ``overlap_s`` later, where the paths end, by as much as their
+    own separation closes in that time (at least ``penetration_m[0]``)
     (the contact is the first touch of the 3D boxes, the overlap after it is what a lagging replay needs).
 
     Tries each window of ``cp.windows_s`` in turn, within the movers' kinematics, then (where SLSQP
@@ -398,6 +399,10 @@ def make_contact(
     t_end = t_crash + max(overlap_s, 0.0)
     # apart until shortly before the first touch (a margin for the final spline fit)
     t_apart = t_crash - (TOUCH_SLACK_S if overlap_s > 0 else 0.8 * cp.touch_tol_s)
+    if overlap_s > 0:  # touching at t_crash, overlapping by the pair's own closing at t_end
+        eq = [(0, 1, t_crash, 0.0), (0, 1, t_end, -_closing_overlap(a, b, t_crash, t_end, cp))]
+    else:
+        eq = [(0, 1, t_crash, -_penetration(a, b, t_crash, cp))]
     last: Correction | None = None
     budget = _Budget()
     for kinematic, w in [(True, w) for w in cp.windows_s] + [(False, w) for w in cp.windows_s]:
@@ -405,7 +410,6 @@ def make_contact(
         bases = [_rigid(m) if m.rigid else _basis(lo, t_end, cp.knot_step_s, lo > m.t[0] + 1e-6) for m in movers]
         t_free = a.t[(a.t >= lo_common) & (a.t <= t_apart)]
         t_free = np.append(t_free, t_apart) if t_apart >= lo_common else t_free
-        eq = [(0, 1, t_end, -_penetration(a, b, t_end, cp))] + ([(0, 1, t_crash, 0.0)] if overlap_s > 0 else [])
         solve_movers = movers if kinematic else [replace(m, kin=None) for m in movers]
         ds, ok, msg = _solve(
             solve_movers, fixed, bases, eq, [(0, 1, t_free, 0.0)], cp, rounds=2 if kinematic else 3, budget=budget
@@ -425,6 +429,14 @@ def _penetration(a: Movable, b: Movable, t: float, cp: ContactParams) -> float:
     va, vb = box_track(a).velocity(t), box_track(b).velocity(t)
     lo, hi = cp.penetration_m
     return float(np.clip(cp.penetration_s * np.hypot(*(va - vb)), lo, hi))
+
+
+def _closing_overlap(a: Movable, b: Movable, t_touch: float, t_end: float, cp: ContactParams) -> float:
+    """Overlap (m) at ``t_end`` after a touch at ``t_touch``: how much the pair's own (uncorrected)
+    separation closes in between, at least ``penetration_m[0]`` (a head-on pair overlaps deeper than a
+    sideswipe; asking a fixed depth bends the paths sideways to slow the closing)."""
+    sep = separation(box_track(a), box_track(b), np.array([t_touch, t_end]))
+    return float(max(cp.penetration_m[0], sep[0] - sep[1]))
 
 
 def _full(ds: list[np.ndarray], movable: tuple[bool, ...]) -> list[np.ndarray]:

@@ -2,8 +2,9 @@
 
 Scenario time (seconds), world frame (metres). Given the crash (time and pair, from the raw
 scenario's ``collision``), the pair's last seconds are corrected so that their boxes first touch
-at that time (``trajectory.contact.make_contact``; every path ends ``ContactParams.penetration_s``
-later, the pair overlapping there, so that a replay that lags its path slightly still touches); then
+at that time (``trajectory.contact.make_contact``; the pair's paths are continued at their last
+velocity for ``ContactParams.penetration_s`` more, overlapping there, so that a replay that lags its
+path slightly still touches; what the video shows after the contact is the impact); then
 every other pair that touches before the paths end is separated by nudging the bystander
 (``nudge_apart``) or, if that fails, dropping it. With
 no crash known, either the first ego-agent overlap is the crash (legacy, ``find_first``) or, when
@@ -85,20 +86,21 @@ def resolve_crash(
             warnings.append(f"{msg}; the scenario has no collision")
             collision = None
     if collision is not None:
-        t_cut = collision.time_s + (0.0 if legacy else cp.penetration_s)  # the pair overlaps until the paths end
         for d in [ego, *agents]:
-            d.cut(t_cut)
+            d.cut(collision.time_s)  # after the contact the video shows the impact, not the approach
         late = [d for d in agents if d.t[0] >= collision.time_s - EPS_T]
         for d in late:
             warnings.append(f"agent {d.id}: appears after the collision; dropped")
         agents = [d for d in agents if d not in late]
+        t_end = collision.time_s + (0.0 if legacy else cp.penetration_s)  # the pair overlaps until the paths end
         for d in [ego, *agents]:
-            if d.id in collision.participants and d.t[-1] < t_cut - EPS_T:
-                _reach(d, t_cut)
-                warnings.append(
-                    f"agent {d.id}: last seen {collision.time_s - d.t[-1]:.2f} s before the crash; continued at its "
-                    "last velocity to the crash"
-                )
+            if d.id in collision.participants and d.t[-1] < t_end - EPS_T:
+                if d.t[-1] < collision.time_s - EPS_T:
+                    warnings.append(
+                        f"agent {d.id}: last seen {collision.time_s - d.t[-1]:.2f} s before the crash; continued at "
+                        "its last velocity to the crash"
+                    )
+                _reach(d, t_end)
     if collision is not None and not legacy:
         record.update(_enforce_pair(collision, ego, agents, cp, warnings))
     if collision is None:

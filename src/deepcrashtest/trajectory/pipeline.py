@@ -18,8 +18,8 @@ Steps (times in seconds, world frame in metres):
    other contact before it is removed (bystanders nudged or dropped). Without one, the first
    ego-agent box overlap after t_max, unless the extraction saw no crash in the video
    (``parameters["crash_detection"]["found"] is False``): then no contact at all. Every
-   trajectory ends at the collision (the pair's first touch) plus ``penetration_s`` (0.1 s), the
-   pair overlapping there (the simulator's physics takes over).
+   trajectory ends at the collision (the pair's first touch; the pair's continue at their last
+   velocity for ``penetration_s``, 0.1 s, overlapping there; the simulator's physics takes over).
 6. Each vehicle's final path is fitted with one spline (``Vehicle.spline``, x(t), y(t)); the
    samples (t, x, y, yaw, speed) are that spline and its derivative at the sample times, with
    ``observed`` false on extrapolated and stepped-back samples; the ego's yaw is the camera's measured
@@ -56,7 +56,7 @@ from deepcrashtest.scenario import (
     format_validation_error,
 )
 from deepcrashtest.trajectory.collision import MOVING_MPS, first_contact, headings
-from deepcrashtest.trajectory.crash import CrashOutcome, contact_params, resolve_crash
+from deepcrashtest.trajectory.crash import CrashOutcome, resolve_crash
 from deepcrashtest.trajectory.dense import EPS_T, Dense, EgoFrame, agent_dense, span
 from deepcrashtest.trajectory.params import Stage2Params
 from deepcrashtest.trajectory.road import along_road, build_road, extend_head_on
@@ -163,7 +163,7 @@ def _ego_phase(run: _Run) -> tuple[EgoFrame, Dense]:
         tc = raw.collision.time_s - run.t0
         if not 0 < tc <= t_end + EPS_T:
             raise UserError(f"collision.time_s {raw.collision.time_s} is outside the ego's trajectory")
-        t_end = min(tc + contact_params(p).penetration_s, t_end)  # the paths end after the first touch
+        t_end = min(tc, t_end)  # what the video shows after the contact is the impact, not the approach
     dt = 1.0 / run.fps
     grid = span(dt * np.arange(int(np.floor(t_end / dt + 1e-6)) + 1), 0.0, t_end)
     ex, ey = _repair_start_jump(ego_t, e["x"], e["y"], run.warnings)
