@@ -20,7 +20,6 @@ infinitely far): the mode of ``log A`` over tracks is kept, ``fy = A / hc``. Wit
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -370,8 +369,10 @@ def self_calibrate(
 
     ``camera``: the prior (e.g. the unknown-dashcam default); ``tracks``: the image tracker's table;
     ``ego``: the ego path (metres), for the focal length. ``ego_scaled_by_height``: the ego path's
-    metric scale came from ``camera.height_m`` (monocular ego-motion): it is rescaled by the measured
-    height first (``SelfCalibration.ego_scale``). What cannot be measured keeps the prior."""
+    metric scale came from ``camera.height_m`` and the camera's focal length (monocular ego-motion: the
+    road plane's scale is proportional to focal length x camera height): it cannot calibrate the focal
+    length, and ``SelfCalibration.ego_scale`` is the factor (measured over assumed focal x height) that
+    rescales it. What cannot be measured keeps the prior."""
     notes: list[str] = []
     hh = horizon_and_height(tracks, size)
     cam = camera
@@ -394,9 +395,12 @@ def self_calibrate(
     fy, sig_f, used = cam.fy, float("nan"), 0
     focal = None
     ego_scale = hc / cam.height_m if ego_scaled_by_height else 1.0
+    if ego is not None and ego_scaled_by_height:
+        # the road-plane scale of image ego-motion is proportional to the assumed focal length (and its
+        # rotations were measured with it): parked vehicles and turns on that path give it back unchanged
+        notes.append("the ego path was measured from the images with the assumed focal length: it cannot calibrate it")
+        ego = None
     if ego is not None:
-        if ego_scale != 1.0:
-            ego = dataclasses.replace(ego, x=ego.x * ego_scale, y=ego.y * ego_scale)
         motion = focal_from_motion(tracks, size, cam.cx, ego)
         bounce = focal_from_pitch(tracks, size, ego)
         focal = combine_focal(cam.fy, motion, focal_from_rotation(tracks, size, cam.cx, ego, cam.fy), bounce)
@@ -405,10 +409,12 @@ def self_calibrate(
     if focal is not None:
         fy, rel, used = focal
         sig_f = fy * rel
-        notes.append(f"focal length from the ego's motion: {used} parked-vehicle tracks / turning box pairs")
+        notes.append(f"focal length from the ego's motion: {used} parked tracks / turn box pairs / bounce frames")
     else:
         notes.append("focal length not measurable (no ego motion, no parked vehicles, no turns): prior kept")
     scale = fy / cam.fy
+    if ego_scaled_by_height:
+        ego_scale *= scale  # image ego-motion's metric scale goes with focal length x camera height
     update: dict[str, Any] = {
         "height_m": hc, "height_source": "self_calibration", "height_sigma_m": sig_h,
         "pitch_source": "self_calibration", "horizon_sigma_px": sig_v,
