@@ -285,16 +285,16 @@ def focal_from_pitch(
     y = np.bincount(inv, np.concatenate(rows)) / n
     x = np.bincount(inv, np.concatenate(pitch)) / n
     w = np.ones_like(x)
-    f = 0.0
+    slope = 0.0
     for _ in range(15):  # line through the origin, Huber-like weights (scale by the MAD)
-        f = float(np.sum(w * x * y) / np.sum(w * x * x))
-        r = y - f * x
+        slope = float(np.sum(w * x * y) / np.sum(w * x * x))
+        r = y - slope * x
         s = 1.4826 * float(np.median(np.abs(r))) + 1e-9
         w = np.minimum(1.0, 2.0 * s / np.maximum(np.abs(r), 1e-12))
-    if not f > 0:
+    if not slope > 0:
         return None
     se = float(np.sqrt(np.sum(w * r**2) / max(np.sum(w) - 1.0, 1.0) / np.sum(w * x * x)))
-    return f, se / f, len(uniq)
+    return slope, se / slope, len(uniq)
 
 
 #: Relative 1-sigma of the focal-length prior (the unknown-dashcam default) and of each estimate
