@@ -240,6 +240,8 @@ def focal_from_rotation(
 
 #: Savitzky-Golay window (frames, order 2) whose residual is the fast part of a series (pitch bounce).
 BOUNCE_WINDOW = 13
+#: Sum of squared fast pitch (rad^2) below which there is no bounce to measure.
+MIN_BOUNCE_RAD2 = 1e-12
 
 
 def _fast_part(a: np.ndarray, window: int) -> np.ndarray:
@@ -284,6 +286,8 @@ def focal_from_pitch(
     n = np.bincount(inv).astype(float)
     y = np.bincount(inv, np.concatenate(rows)) / n
     x = np.bincount(inv, np.concatenate(pitch)) / n
+    if float(np.sum(x * x)) < MIN_BOUNCE_RAD2:  # poses without any pitch wobble (e.g. planar)
+        return None
     w = np.ones_like(x)
     slope = 0.0
     for _ in range(15):  # line through the origin, Huber-like weights (scale by the MAD)
