@@ -320,6 +320,10 @@ PITCH_MIN_REL = 0.03
 #: (vehicles turning with the road, lateral parallax), and on image-based ego-motion the yaw was
 #: itself measured with the assumed focal length.
 ROTATION_MIN_REL = 0.25
+#: A dashcam is mounted near level: a horizon further from the image centre than this pitch (at the
+#: prior focal length) hints at a longer focal length (ccd_000014: 540 px against 360, 16 deg at 640 px,
+#: while the overlay speed needs ~2,000-3,000 px); said in the notes, not acted on.
+STEEP_PITCH_RAD = math.radians(8.0)
 #: A parked-vehicle estimate further than this (log) from a trusted pitch-bounce estimate (inflated
 #: relative sigma under PITCH_TRUSTED_REL) is a mode of moving vehicles and is dropped (training
 #: sequence 4: 367 px from 11 agreeing tracks against 725 px from the bounce, true 721).
@@ -427,4 +431,10 @@ def self_calibrate(
         update |= {"fx": cam.fx * scale, "fy": fy, "intrinsics_source": "self_calibration", "focal_sigma_px": sig_f}
     cam = cam.model_copy(update=update)
     cam = cam.model_copy(update={"pitch_rad": math.atan2(cam.cy - vh, cam.fy)})
+    if focal is None and abs(cam.pitch_rad) > STEEP_PITCH_RAD:
+        notes.append(
+            f"horizon {abs(vh - cam.cy):.0f} px from the image centre: {math.degrees(abs(cam.pitch_rad)):.0f} deg of "
+            f"pitch at the assumed focal length {cam.fy:.0f} px, or a longer focal length (a narrower or cropped "
+            "view): distances and the ego's speed scale with the focal length"
+        )
     return SelfCalibration(cam, vh, sig_v, hc, sig_h, fy, sig_f, n, used, notes, ego_scale)
