@@ -151,7 +151,10 @@ def test_raw_collision_is_kept():
     t_max = sc.provenance.parameters["t_max_s"]
     assert sc.collision is not None and sc.collision.agent_id == 2
     assert sc.collision.time_s == pytest.approx(4.0 + t_max)
-    assert all(v.trajectory.t[-1] == pytest.approx(4.0 + t_max) for v in sc.vehicles())
+    # every path ends at the collision; the pair's 0.1 s later, overlapping (the first touch is the collision)
+    ends = {v.id: v.trajectory.t[-1] for v in sc.vehicles()}
+    pair = set(sc.collision.participants)
+    assert all(t == pytest.approx(4.0 + t_max + (0.1 if i in pair else 0.0)) for i, t in ends.items()), ends
 
 
 def test_lane_timeline_sets_the_lanes():
