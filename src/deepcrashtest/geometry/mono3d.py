@@ -56,6 +56,7 @@ from filterpy.kalman import KalmanFilter
 
 from deepcrashtest.geometry.egomotion import EgoMotion
 from deepcrashtest.geometry.localize import CLASS_DIMENSIONS, SIZE_PRIOR_SIGMA
+from deepcrashtest.perception.roadusers import track_category
 from deepcrashtest.scenario import Camera
 
 #: Classes a detector's category may really be (the size decides among them).
@@ -371,7 +372,7 @@ def _sizes_and_cues(
 ) -> tuple[list, _Cues]:
     """Each track's size (:func:`_track_size`) and the rows' cues, with the per-frame horizon."""
     cats = r.df["category"].to_numpy(dtype=str)
-    track_cat = [pd.Series(cats[a:b]).mode().iloc[0] for a, b in r.spans]  # the class most frames agree on
+    track_cat = [track_category(pd.Series(cats[a:b]).value_counts().to_dict()) for a, b in r.spans]
     cues = _cues(r.boxes, camera, image_size, np.full(len(r.df), vh), cfg)
     scale = size_scale(r.df, cues, r.detected, camera, cfg.size_scale_min_below_px) * cfg.prior_scale
 

@@ -31,6 +31,7 @@ from deepcrashtest.geometry.egomotion import EgoMotion
 from deepcrashtest.geometry.localize import Localizer
 from deepcrashtest.geometry.mono3d import MonoConfig, localize_tracks
 from deepcrashtest.perception.lanes import LaneTimelineResult
+from deepcrashtest.perception.roadusers import track_category
 from deepcrashtest.scenario import (
     MAX_SPEED_MPS,
     Camera,
@@ -279,7 +280,7 @@ def _localized_agents(
         aspect = ((g["x2"] - g["x1"]) / np.maximum(g["y2"] - g["y1"], 1.0)).to_numpy(float)
         fallback = ego_yaw + np.where(aspect > 2.2, math.pi / 2, 0.0)
         yaw, speed = _heading(t, x, y, fallback)
-        cat = str(g["category"].mode().iloc[0])  # the class most frames agree on
+        cat = track_category(g["category"].value_counts().to_dict())  # the class most frames agree on
         first = g[g["category"] == cat].iloc[0]
         if speed.max() > MAX_SPEED_MPS:
             clipped += 1
