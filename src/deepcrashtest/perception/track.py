@@ -66,9 +66,10 @@ TRACK_COLUMNS = ["frame", "time", "track_id", "category", "x1", "y1", "x2", "y2"
 #: Classes a track may switch between: motor vehicles; vulnerable road users (a rider seen without
 #: the two-wheeler is detected as a pedestrian for a frame or two, the votes keep the track's class).
 _GROUP = {"car": 0, "van": 0, "truck": 0, "bus": 0, "motorcycle": 1, "bicycle": 1, "pedestrian": 1}
-#: A detection more than this many times taller (or shorter) than a track's carried box is another road user:
-#: the distance cannot halve between two detection rounds (<= 0.25 s). dad_000487: a walker on the pavement
-#: (161 px) took over the riders' box at the bumper (350 px) and joined the two paths.
+#: A detection more than this many times taller (or shorter) per detection round than a track's last detected
+#: box is another road user (its distance cannot halve between two rounds, <= 0.25 s apart). Against the last
+#: *detected* box: a carried box drifts with whatever passes in front of it. dad_000487: a walker on the
+#: pavement (161 px) hidden by a passing scooter took over its riders' box (350 px), one track for both.
 MAX_HEIGHT_RATIO = 2.0
 
 
@@ -226,9 +227,7 @@ class BoxTracker:
             tg = np.array([_GROUP.get(t.category, 0) for t in tracks])
             dg = np.array([_GROUP.get(str(c), 0) for c in dets.categories])
             cost[tg[:, None] != dg[None, :]] = np.inf
-            th = np.array([max(t.box[3] - t.box[1], 1.0) for t in tracks])
-            ratio = np.maximum(dets.boxes[:, 3] - dets.boxes[:, 1], 1.0)[None, :] / th[:, None]
-            cost[(ratio > MAX_HEIGHT_RATIO) | (ratio < 1.0 / MAX_HEIGHT_RATIO)] = np.inf
+            cost[_height_jumps(tracks, dets.boxes, self._n, self.detect_every)] = np.inf
         result = self.core.step(cost, max_cost=1.0 - self.min_iou)
         for t, j in result.matched:
             self._absorb(t, dets, j)
@@ -259,6 +258,15 @@ class BoxTracker:
         cat = str(dets.categories[j])
         t.votes[cat] = t.votes.get(cat, 0.0) + float(dets.scores[j])
         t.detected_now = True
+
+
+def _height_jumps(tracks: list[ImageTrack], boxes: np.ndarray, n: int, every: int) -> np.ndarray:
+    """(tracks, detections) True where the detection's height is off the track's last detected box's by
+    more than :data:`MAX_HEIGHT_RATIO` per detection round since that detection."""
+    last = np.array([max(t.detected_box[3] - t.detected_box[1], 1.0) for t in tracks])
+    rounds = np.array([max(1, math.ceil((n - t.last_detected) / every)) for t in tracks])
+    ratio = np.abs(np.log(np.maximum(boxes[:, 3] - boxes[:, 1], 1.0)[None, :] / last[:, None]))
+    return ratio > rounds[:, None] * math.log(MAX_HEIGHT_RATIO)
 
 
 def _visible_fraction(box: np.ndarray, w: int, h: int) -> float:
