@@ -64,7 +64,7 @@ def track_category(votes: Mapping[str, float]) -> str:
     best = max(votes.items(), key=lambda kv: kv[1])[0]
     wheels = {k: v for k, v in votes.items() if k in TWO_WHEELERS and v > 0}
     if best == "pedestrian" and wheels:
-        wheel, n = max(wheels.items(), key=lambda kv: kv[1])
+        wheel = max(wheels, key=lambda k: wheels[k])
         if sum(wheels.values()) >= RIDER_TRACK_SHARE * (sum(wheels.values()) + votes[best]):
             return wheel
     return best

@@ -23,6 +23,9 @@ from deepcrashtest.trajectory.dense import EPS_T, Dense
 from deepcrashtest.trajectory.params import Stage2Params
 
 EGO_WEIGHT = 3.0  # the ego's path (visual odometry) is trusted more than a monocular agent track
+# The ego's path is first held as measured and only the other road user (monocular depth, metres of error)
+# corrected: a correction of both slid a crawling ego 1.3 m sideways across the camera's yaw (dad_000528),
+# which its replay, steering along the path, followed by turning the camera 0.7 rad.
 STATIC_WEIGHT = 10.0  # a parked car moves last
 MAX_NUDGE_M = 3.0  # a bystander that must move farther than this is dropped instead
 MAX_FAILED_CORRECTION_M = 5.0  # a crash correction that failed and is larger than this is not applied
@@ -127,7 +130,11 @@ def _enforce_pair(
     """Correct the pair's last seconds so they first touch at the collision time; returns the record."""
     byid = {d.id: d for d in [ego, *agents]}
     a, b = byid[collision.other_id], byid[collision.agent_id]
-    corr = make_contact(_movable(a, a is ego), _movable(b, b is ego), collision.time_s, cp)
+    ma, mb = _movable(a, a is ego), _movable(b, b is ego)
+    pinned = (a is not ego, b is not ego)
+    corr = make_contact(ma, mb, collision.time_s, cp, movable=pinned)
+    if not corr.ok and not all(pinned):  # the other alone cannot make it: both move (the ego weighted EGO_WEIGHT)
+        corr = make_contact(ma, mb, collision.time_s, cp)
     applied = corr.ok or corr.max_m <= MAX_FAILED_CORRECTION_M
     for d, delta in zip((a, b), corr.deltas if applied else [], strict=False):
         if len(delta):
