@@ -17,6 +17,7 @@ import numpy as np
 
 from deepcrashtest.errors import UserError
 from deepcrashtest.scenario import Collision, kinematics
+from deepcrashtest.trajectory.classify import is_static
 from deepcrashtest.trajectory.collision import BoxTrack, Contact, first_contact
 from deepcrashtest.trajectory.contact import ContactParams, Movable, make_contact, nudge_apart, separation
 from deepcrashtest.trajectory.dense import EPS_T, Dense
@@ -84,6 +85,13 @@ def resolve_crash(
                 raise UserError(msg)
             warnings.append(f"{msg}; the scenario has no collision")
             collision = None
+    if collision is not None and collision.source == "video-auto" and _neither_moves(collision, ego, agents, p):
+        warnings.append(
+            f"the detected crash of {collision.other_id} and {collision.agent_id} at {collision.time_s:.2f} s is "
+            "dropped: neither moves in the video (a crash needs one that does)"
+        )
+        record["dropped_detected_crash"] = [collision.other_id, collision.agent_id]
+        collision = None
     if collision is not None:
         for d in [ego, *agents]:
             d.cut(collision.time_s)
@@ -106,6 +114,15 @@ def resolve_crash(
     if nudges:
         record["bystanders"] = nudges
     return CrashOutcome(collision, agents, record)
+
+
+def _neither_moves(collision: Collision, ego: Dense, agents: list[Dense], p: Stage2Params) -> bool:
+    """Whether both participants stand still over the whole video (agents: stage 2's static class; the ego:
+    the same test on its measured path). dad_000528: a stopped ego and a parked car "crashed", and the
+    correction drove the ego 2.8 m sideways into the car."""
+    byid = {d.id: d for d in [ego, *agents]}
+    pair = [byid[i] for i in collision.participants]
+    return all(d.static or is_static(d.t, d.xy, p.static_speed_mps, p.static_min_displacement_m) for d in pair)
 
 
 def find_first(ego: Dense, agents: list[Dense], t_from: float) -> Collision | None:
