@@ -48,6 +48,7 @@ moves uniformly whatever the ego does.
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
@@ -372,7 +373,7 @@ def _sizes_and_cues(
 ) -> tuple[list, _Cues]:
     """Each track's size (:func:`_track_size`) and the rows' cues, with the per-frame horizon."""
     cats = r.df["category"].to_numpy(dtype=str)
-    track_cat = [track_category(pd.Series(cats[a:b]).value_counts().to_dict()) for a, b in r.spans]
+    track_cat = [track_category(Counter(cats[a:b].tolist())) for a, b in r.spans]
     cues = _cues(r.boxes, camera, image_size, np.full(len(r.df), vh), cfg)
     scale = size_scale(r.df, cues, r.detected, camera, cfg.size_scale_min_below_px) * cfg.prior_scale
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections import Counter
 from collections.abc import Mapping
 from typing import Any
 
@@ -280,7 +281,7 @@ def _localized_agents(
         aspect = ((g["x2"] - g["x1"]) / np.maximum(g["y2"] - g["y1"], 1.0)).to_numpy(float)
         fallback = ego_yaw + np.where(aspect > 2.2, math.pi / 2, 0.0)
         yaw, speed = _heading(t, x, y, fallback)
-        cat = track_category(g["category"].value_counts().to_dict())  # the class most frames agree on
+        cat = track_category(Counter(g["category"].astype(str)))  # the class most frames agree on
         first = g[g["category"] == cat].iloc[0]
         if speed.max() > MAX_SPEED_MPS:
             clipped += 1

@@ -61,7 +61,7 @@ def track_category(votes: Mapping[str, float]) -> str:
     """A track's category from its class ``votes`` (class -> summed scores, or frame counts): the class with
     most votes, except that a two-wheeler wins over ``pedestrian`` with ``RIDER_TRACK_SHARE`` of their votes
     (one road user: the two-wheeler and its riders)."""
-    best = max(votes.items(), key=lambda kv: kv[1])[0]
+    best = min(votes, key=lambda k: (-votes[k], k))  # ties: the first name, as pandas' mode
     wheels = {k: v for k, v in votes.items() if k in TWO_WHEELERS and v > 0}
     if best == "pedestrian" and wheels:
         wheel = max(wheels, key=lambda k: wheels[k])
