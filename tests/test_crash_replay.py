@@ -85,7 +85,8 @@ def test_agents_replay_their_processed_trajectories(kitti_root):
 
 def test_detected_crash_of_two_road_users_standing_still_is_dropped(kitti_root):
     """Two cars parked side by side (KITTI 0002, tracks 17 and 18, 8-23 s) cannot crash: a detected
-    (video-auto) crash between them is dropped with a warning, not forced by moving a parked car."""
+    (video-auto) crash between them is dropped with a warning, not forced by moving a parked car, and the
+    scenario keeps the whole video."""
     from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
 
     raw = scenario_from_kitti(kitti_root, 2, road_users=True)
@@ -93,4 +94,5 @@ def test_detected_crash_of_two_road_users_standing_still_is_dropped(kitti_root):
     sc = process_scenario(raw)
     assert sc.collision is None
     assert any("neither moves" in w for w in sc.warnings), sc.warnings
-    assert sc.provenance.parameters["crash"]["dropped_detected_crash"] == [17, 18]
+    # the scenario does not end at the dropped crash: every observed second is kept
+    assert sc.video_time(sc.ego.trajectory.t[-1]) >= raw.video_time(raw.ego.trajectory.t[-1]) - 0.2
