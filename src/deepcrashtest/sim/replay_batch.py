@@ -28,10 +28,10 @@ import numpy as np
 
 from deepcrashtest.sim.agents import agent_timeline
 from deepcrashtest.sim.boxes import contact_fraction, sat_gap, signed_distance, time_to_collision
-from deepcrashtest.sim.follow import Follower
 from deepcrashtest.sim.loop import NEAR_M, TTC_EVERY, LoopOutput, PreContact, batch_delta_v
 from deepcrashtest.sim.reference import PathSet
-from deepcrashtest.sim.vehicle import VehicleLimits, bicycle_step, limit_commands, velocity_xy, yaw_rate
+from deepcrashtest.sim.rollout import rollout
+from deepcrashtest.sim.vehicle import VehicleLimits, velocity_xy, yaw_rate
 from deepcrashtest.sim.world import World
 
 #: Variants whose (steps x agents) geometry is handled together (bounds the memory: ~10 arrays of
@@ -77,18 +77,8 @@ def _rollout(
     world: World, paths: PathSet, q: np.ndarray, offset: np.ndarray, init: np.ndarray, lim: VehicleLimits
 ) -> tuple[np.ndarray, np.ndarray]:
     """Ego states (T, B, 4: x, y, yaw, speed) and steering angles (T, B) over the whole grid."""
-    T, B, dt = len(world.times), len(init), world.dt
-    wb = np.full(B, world.wheelbase[0])
-    states, steers = np.empty((T, B, 4)), np.empty((T, B))
-    state, steer = np.array(init, float), np.zeros(B)
-    states[0], steers[0] = state, steer
-    follow = Follower(paths, q, offset, wb)
-    for k in range(T - 1):
-        acc_cmd, steer_cmd = follow.command(state, k, dt)
-        acc, steer = limit_commands(acc_cmd, steer_cmd, steer, dt, lim)
-        state = bicycle_step(state, acc, steer, wb, dt)
-        states[k + 1], steers[k + 1] = state, steer
-    return states, steers
+    run = rollout(paths, q, offset, init, float(world.wheelbase[0]), world.dt, len(world.times) - 1, lim)
+    return np.stack([run.x, run.y, run.yaw, run.v], axis=-1), run.steer
 
 
 class _Rows:
