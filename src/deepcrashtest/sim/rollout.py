@@ -79,8 +79,10 @@ def rollout(
     # buffers
     f = np.empty(B, np.intp)
     di = np.empty(B, np.intp)
+    moved = np.empty(B, np.intp)
     g = np.empty((B, 6))
     gx, gy, gc, gs, gh, gk = (g[:, c] for c in range(6))
+    np.take(table, base, axis=0, out=g)  # index 0 of every path
     fx, fy, t1, t2, t3 = (np.empty(B) for _ in range(5))
     steer_c, acc, tan_s, beta, tau = (np.empty(B) for _ in range(5))
     braking = np.empty(B, bool)
@@ -99,22 +101,16 @@ def rollout(
         if shifted:
             np.subtract(fx, ox, out=fx)
             np.subtract(fy, oy, out=fy)
-        for _ in range(2):
-            np.add(base, idx, out=f)
-            np.take(table, f, axis=0, out=g)
-            np.subtract(fx, gx, out=t1)
-            np.multiply(t1, gc, out=t1)
-            np.subtract(fy, gy, out=t2)
-            np.multiply(t2, gs, out=t2)
-            np.add(t1, t2, out=t1)
-            np.divide(t1, PATH_DS_M, out=t1)
-            np.rint(t1, out=t1)
-            np.copyto(di, t1, casting="unsafe")  # ``.astype(np.intp)``
-            np.add(idx, di, out=di)
-            np.maximum(di, 0, out=di)
-            np.minimum(di, last, out=idx)
+        # two updates of the path index from the along-track offset; ``g`` holds the table row at the index
+        _index_update(fx, fy, g, idx, last, di, t1, t2)  # first: at the previous step's index, already gathered
         np.add(base, idx, out=f)
         np.take(table, f, axis=0, out=g)
+        np.copyto(moved, idx)
+        _index_update(fx, fy, g, idx, last, di, t1, t2)
+        np.not_equal(idx, moved, out=nan)
+        if nan.any():  # rare: the second update moved the index; fetch those rows again
+            rows = np.flatnonzero(nan)
+            g[rows] = table[base[rows] + idx[rows]]
         np.subtract(fx, gx, out=t1)  # dx
         np.subtract(fy, gy, out=t2)  # dy
         # lateral = -dx * s + dy * c (``dy * c - dx * s`` bit for bit)
@@ -210,3 +206,28 @@ def _clip_nan_zero(a: np.ndarray, lo: float, hi: float, nan: np.ndarray) -> None
     np.isnan(a, out=nan)
     if nan.any():
         a[nan] = 0.0
+
+
+def _index_update(
+    fx: np.ndarray,
+    fy: np.ndarray,
+    g: np.ndarray,
+    idx: np.ndarray,
+    last: int,
+    di: np.ndarray,
+    t1: np.ndarray,
+    t2: np.ndarray,
+) -> None:
+    """``idx = clip(idx + rint(along / ds), 0, last)`` in place, ``along`` the front axle's offset along the path
+    at the gathered rows ``g`` (x, y, cos, sin of the heading, ...); ``di``, ``t1``, ``t2``: buffers."""
+    np.subtract(fx, g[:, 0], out=t1)
+    np.multiply(t1, g[:, 2], out=t1)
+    np.subtract(fy, g[:, 1], out=t2)
+    np.multiply(t2, g[:, 3], out=t2)
+    np.add(t1, t2, out=t1)
+    np.divide(t1, PATH_DS_M, out=t1)
+    np.rint(t1, out=t1)
+    np.copyto(di, t1, casting="unsafe")  # ``.astype(np.intp)``
+    np.add(idx, di, out=di)
+    np.maximum(di, 0, out=di)
+    np.minimum(di, last, out=idx)
