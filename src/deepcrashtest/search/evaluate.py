@@ -25,6 +25,10 @@ from deepcrashtest.search.space import SearchSpace
 #: from the worker count, so that every engine simulates exactly the same batches (the sensor
 #: noise of a batch depends on its size).
 CHUNK = 512
+#: With the replay controller (no sensor noise, so the cut does not change any result): variants per
+#: simulator call at most, the batch cut evenly over the workers. Larger calls spread the per-call
+#: costs (path tables, agent arrays) over more variants; ~0.15 GB of arrays per 1,000 variants.
+REPLAY_CHUNK = 2048
 #: Per-variant outcome columns returned by the simulator, in results.csv order.
 OUTCOME_FIELDS = ("collided", "collision_time", "min_distance", "min_ttc", "robustness", "aeb_time", "delta_v_ego")
 ENGINES = ("local", "ray")
@@ -75,7 +79,7 @@ class Evaluator:
     engine: str = "local"
     workers: int = 1
     duration: float | None = None  # seconds simulated (None: the whole scenario)
-    chunk: int = CHUNK
+    chunk: int | None = None  # variants per simulator call (None: CHUNK; with the replay controller REPLAY_CHUNK)
     simulations: int = 0
     on_progress: Callable[[int], None] | None = field(default=None, repr=False)  # simulations just run
     _json: str = field(default="", repr=False)
@@ -84,7 +88,7 @@ class Evaluator:
     def __post_init__(self) -> None:
         if self.engine not in ENGINES:
             raise UserError(f"--engine must be one of {', '.join(ENGINES)} (got {self.engine!r})")
-        if self.chunk < 1:
+        if self.chunk is not None and self.chunk < 1:
             raise UserError(f"chunk size must be >= 1 (got {self.chunk})")
         if self.workers < 1:
             raise UserError(f"--workers must be >= 1 (got {self.workers})")
@@ -129,8 +133,9 @@ class Evaluator:
         # that a variant's Scenario file holds exactly the path simulated here): no extra offset
         offsets = np.zeros((len(th), 2))
         paths = self.space.paths(th)
-        n = self.chunk
-        if self.controller == "replay":  # no sensor noise: any cut gives the same results; balance the workers
+        replay = self.controller == "replay"
+        n = self.chunk or (REPLAY_CHUNK if replay else CHUNK)
+        if replay:  # no sensor noise: any cut gives the same results; balance the workers
             per_worker = -(-len(th) // (self.workers * n))
             n = max(1, -(-len(th) // (self.workers * per_worker)))
         chunks = [(offsets[i : i + n], paths[i : i + n]) for i in range(0, len(th), n)]

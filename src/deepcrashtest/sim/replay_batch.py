@@ -222,6 +222,18 @@ class _Rows:
             np.minimum.at(upper, r[sel], self._distance(n[sel], r[sel], g[sel]))
         out.min_distance[rows] = upper
 
+    def _never_close(self, sel: np.ndarray, w: np.ndarray, speed: np.ndarray) -> np.ndarray:
+        """(n, R) True where the boxes of pairs ``sel`` can never touch moving at their relative velocity ``w``
+        (m/s): their circumcircles stay apart for all t >= 0, so the swept test gives infinity."""
+        a = self.ag[self.pi[sel], self.pj[sel]]
+        i = self.pi[sel]
+        dx = a[:, None, 0] - self.ego[i, :, 0]
+        dy = a[:, None, 1] - self.ego[i, :, 1]
+        reach = np.hypot(*self.eh) + self.r_a[sel] + _EPS  # (n, 1)
+        closing = dx * w[..., 0] + dy * w[..., 1] < 0.0
+        miss = np.abs(dx * w[..., 1] - dy * w[..., 0])  # closest approach of the centres times the speed
+        return np.where(closing, miss > reach * speed, self.dist[sel] > reach)
+
     def _min_ttc(self, out: LoopOutput, rows: slice, valid: np.ndarray, gap_known: np.ndarray) -> None:
         """Minimum time to collision at the loop's evaluation indices (0, TTC_EVERY, ...), apart pairs only."""
         R = valid.shape[1]
@@ -233,6 +245,7 @@ class _Rows:
         ev = velocity_xy(self.ego[at, :, 2], self.ego[at, :, 3], self.steer[at])[inv]
         w = self.ag_vel[pi, pj][:, None, :] - ev
         speed = np.hypot(w[..., 0], w[..., 1])
+        ok &= ~self._never_close(sel, w, speed)
         with np.errstate(divide="ignore", invalid="ignore"):
             # no contact before the gap closes at the closing speed
             t_lower = np.nan_to_num(np.where(ok, np.maximum(self.lower[sel], 0.0) / speed, np.inf), nan=0.0)
