@@ -38,6 +38,10 @@ from deepcrashtest.sim.world import World
 #: steps x ROWS x agents doubles).
 ROWS = 256
 _EPS = 1e-6  # metres / seconds of slack on the pruning bounds (they are exact up to rounding)
+#: Pairs (index, agent) farther than this from every row's ego (m) are left out of the distance
+#: geometry (TTC evaluation indices excepted); the bound this gives (~9 m for cars) must exceed each
+#: row's distance bound, else the rows are evaluated with every pair (see ``_Rows._prune_far_pairs``).
+FAR_M = 20.0
 
 
 def replay_batch_available(world: World, limits: VehicleLimits | None = None) -> bool:
@@ -68,7 +72,11 @@ def run_replay_batch(
     pre_contact: dict[int, PreContact] = {}
     for lo in range(0, B, ROWS):
         rows = slice(lo, min(lo + ROWS, B))
-        _Rows(world, ego[:, rows], steer[:, rows], ag, pres, ag_vel).evaluate(seg, out, rows, pre_contact)
+        for prune in (True, False):  # pairs far from every row left out, unless that could change a minimum
+            if _Rows(world, ego[:, rows], steer[:, rows], ag, pres, ag_vel, prune).evaluate(
+                seg, out, rows, pre_contact
+            ):
+                break
     batch_delta_v(world, pre_contact, out)
     return out
 
@@ -85,11 +93,21 @@ class _Rows:
     """The contacts and metrics of ``R`` variants over the present (index, agent) pairs ``N`` (arrays (N, R))."""
 
     def __init__(
-        self, world: World, ego: np.ndarray, steer: np.ndarray, ag: np.ndarray, pres: np.ndarray, ag_vel: np.ndarray
+        self,
+        world: World,
+        ego: np.ndarray,
+        steer: np.ndarray,
+        ag: np.ndarray,
+        pres: np.ndarray,
+        ag_vel: np.ndarray,
+        prune: bool = False,
     ) -> None:
         self.world, self.ego, self.steer, self.ag, self.pres, self.ag_vel = world, ego, steer, ag, pres, ag_vel
         self.eh, self.ah = world.half[0], world.half[1:]
         self.pi, self.pj = np.nonzero(pres)  # the present pairs: evaluation index, agent
+        self.far_bound = np.inf  # every pair left out has ``lower`` above this (m)
+        if prune and len(self.pi):
+            self._prune_far_pairs()
         a = ag[self.pi, self.pj]  # (N, 4)
         dx = a[:, None, 0] - ego[:, :, 0][self.pi]
         dy = a[:, None, 1] - ego[:, :, 1][self.pi]
@@ -101,12 +119,39 @@ class _Rows:
         # the separating-axis gap is the largest of four, two of them on the ego's axes, each at least this
         self.lower = np.maximum(along, across) - self.r_a - _EPS
 
+    def _prune_far_pairs(self) -> None:
+        """Leave out pairs (index, agent) whose agent is over ``FAR_M`` from every row's ego centre (the rows'
+        bounding box at that index), except at the TTC evaluation indices (a far pair may still close fast).
+
+        They cannot touch (``FAR_M`` exceeds any two circumradii), and their separating-axis lower bound
+        exceeds ``far_bound``: :meth:`evaluate` checks that every row's distance bound is below it, else the
+        rows are evaluated again with every pair.
+        """
+        x, y = self.ego[:, :, 0], self.ego[:, :, 1]
+        a = self.ag[self.pi, self.pj]
+        lo_x, hi_x, lo_y, hi_y = (
+            x.min(axis=1)[self.pi],
+            x.max(axis=1)[self.pi],
+            y.min(axis=1)[self.pi],
+            y.max(axis=1)[self.pi],
+        )
+        gx = np.maximum(np.maximum(lo_x - a[:, 0], a[:, 0] - hi_x), 0.0)
+        gy = np.maximum(np.maximum(lo_y - a[:, 1], a[:, 1] - hi_y), 0.0)
+        r_max = float(np.hypot(self.ah[:, 0], self.ah[:, 1]).max())
+        far_m = max(FAR_M, 2.0 * (float(np.hypot(*self.eh)) + r_max))
+        keep = (self.pi % TTC_EVERY == 0) | (np.hypot(gx, gy) <= far_m)
+        self.pi, self.pj = self.pi[keep], self.pj[keep]
+        # lower = max(along, across) - r_a - eps >= |centre offset| / sqrt(2) - max half extent - r_a - eps
+        self.far_bound = far_m / np.sqrt(2.0) - float(self.eh.max()) - r_max - 1e-3
+
     def gap(self, n: np.ndarray, r: np.ndarray) -> np.ndarray:
         """Separating-axis gaps of the entries (pair n, row r), as the loop computes them."""
         e, a, eh, ah = self.ego[self.pi[n], r], self.ag[self.pi[n], self.pj[n]], self.eh, self.ah[self.pj[n]]
         return sat_gap(e[:, 0], e[:, 1], e[:, 2], eh[0], eh[1], a[:, 0], a[:, 1], a[:, 2], ah[:, 0], ah[:, 1])
 
-    def evaluate(self, seg: Any, out: LoopOutput, rows: slice, pre_contact: dict[int, PreContact]) -> None:
+    def evaluate(self, seg: Any, out: LoopOutput, rows: slice, pre_contact: dict[int, PreContact]) -> bool:
+        """Write the rows' outcomes; False when pairs left out could hold a row's minimum (evaluate again
+        with every pair)."""
         T, R = self.ego.shape[:2]
         # ---- contacts: boxes can touch only where their circumcircles do
         cn, cr = np.nonzero(self.dist <= np.hypot(*self.eh) + self.r_a + _EPS)
@@ -119,8 +164,10 @@ class _Rows:
         valid = self.pi[:, None] <= last[None, :]  # (N, R) the row still drives at the pair's index
         gap_known = np.full(self.dist.shape, np.nan)
         gap_known[cn, cr] = cg
-        self._min_distance(out, rows, valid, gap_known)
+        if not self._min_distance(out, rows, valid, gap_known):
+            return False
         self._min_ttc(out, rows, valid, gap_known)
+        return True
 
     def _first_contacts(
         self, cn: np.ndarray, cr: np.ndarray, cg: np.ndarray
@@ -195,7 +242,7 @@ class _Rows:
         g[refine] = signed_distance(e[:, :3], a[:, :3], self.eh[None, :], self.ah[self.pj[n[refine]]])
         return g
 
-    def _min_distance(self, out: LoopOutput, rows: slice, valid: np.ndarray, gap_known: np.ndarray) -> None:
+    def _min_distance(self, out: LoopOutput, rows: slice, valid: np.ndarray, gap_known: np.ndarray) -> bool:
         """Minimum over driven indices of the loop's distance.
 
         Bounds first: the exact distance at each row's closest centres (no box distance exceeds the
@@ -206,12 +253,16 @@ class _Rows:
         dist = np.where(valid, self.dist, np.inf)
         upper = np.full(R, np.inf)
         has = np.isfinite(dist).any(axis=0)
+        if np.isfinite(self.far_bound) and not has.all():
+            return False
         if not has.any():
             out.min_distance[rows] = upper
-            return
+            return True
         r0 = np.nonzero(has)[0]
         n0 = np.argmin(dist[:, r0], axis=0)
         upper[r0] = self._distance(n0, r0, self._gap(n0, r0, gap_known))
+        if (upper >= self.far_bound).any():
+            return False
         n, r = np.nonzero(valid & (self.lower <= upper[None, :]))
         g = self._gap(n, r, gap_known)
         order = np.lexsort((g, r))  # by row, smallest gap first
@@ -221,6 +272,7 @@ class _Rows:
             sel = (rank >= lo) & (rank < hi) & (g <= upper[r])
             np.minimum.at(upper, r[sel], self._distance(n[sel], r[sel], g[sel]))
         out.min_distance[rows] = upper
+        return True
 
     def _never_close(self, sel: np.ndarray, w: np.ndarray, speed: np.ndarray) -> np.ndarray:
         """(n, R) True where the boxes of pairs ``sel`` can never touch moving at their relative velocity ``w``
