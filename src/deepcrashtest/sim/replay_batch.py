@@ -39,9 +39,9 @@ from deepcrashtest.sim.world import World
 ROWS = 256
 _EPS = 1e-6  # metres / seconds of slack on the pruning bounds (they are exact up to rounding)
 #: Pairs (index, agent) farther than this from every row's ego (m) are left out of the distance
-#: geometry (TTC evaluation indices excepted); the bound this gives (~9 m for cars) must exceed each
+#: geometry (TTC evaluation indices excepted); the bound this gives (~5.5 m for cars) must exceed each
 #: row's distance bound, else the rows are evaluated with every pair (see ``_Rows._prune_far_pairs``).
-FAR_M = 20.0
+FAR_M = 15.0
 
 
 def replay_batch_available(world: World, limits: VehicleLimits | None = None) -> bool:
