@@ -364,11 +364,15 @@ class PathSet:
 
     def pose_at(self, k: int) -> np.ndarray:
         """(Q, 4) x, y, heading, speed of every reference at grid step ``k`` (position at ``s_ref``)."""
+        return self.poses(np.array([k]))[0]
+
+    def poses(self, ks: np.ndarray) -> np.ndarray:
+        """(K, Q, 4) :meth:`pose_at` at each grid step of ``ks`` (K,), element for element the same arithmetic."""
         P = self.path.shape[1]
-        u = np.clip(self.s_ref[:, k] / PATH_DS_M, 0.0, P - 1.0)
-        i = np.minimum(u.astype(np.intp), P - 2) if P > 1 else np.zeros(len(u), np.intp)
-        f = (u - i)[:, None] if P > 1 else np.zeros((len(u), 1))
-        q = np.arange(len(u))
+        u = np.clip(self.s_ref[:, ks].T / PATH_DS_M, 0.0, P - 1.0)  # (K, Q)
+        i = np.minimum(u.astype(np.intp), P - 2) if P > 1 else np.zeros(u.shape, np.intp)
+        f = (u - i)[..., None] if P > 1 else np.zeros(u.shape + (1,))
+        q = np.arange(u.shape[1])[None, :]
         j = np.minimum(i + 1, P - 1)
         xy = self.path[q, i] * (1.0 - f) + self.path[q, j] * f
-        return np.column_stack([xy, self.heading[q, i], self.v_ref[:, k]])
+        return np.concatenate([xy, self.heading[q, i][..., None], self.v_ref[:, ks].T[..., None]], axis=-1)
