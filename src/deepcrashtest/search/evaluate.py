@@ -82,6 +82,8 @@ class Evaluator:
     chunk: int | None = None  # variants per simulator call (None: CHUNK; with the replay controller REPLAY_CHUNK)
     simulations: int = 0
     on_progress: Callable[[int], None] | None = field(default=None, repr=False)  # simulations just run
+    #: called once, when the worker processes have been forked and the parent starts waiting for them
+    while_waiting: Callable[[], None] | None = field(default=None, repr=False)
     _json: str = field(default="", repr=False)
     _pool: Any = field(default=None, repr=False)
 
@@ -117,6 +119,9 @@ class Evaluator:
             if self._pool is None:
                 self._pool = ProcessPoolExecutor(max_workers=self.workers)
             results = self._pool.map(simulate_chunk, *zip(*args, strict=True))
+            if self.while_waiting is not None:
+                self.while_waiting()
+                self.while_waiting = None
         parts = []
         for (o, _), part in zip(chunks, results, strict=True):  # as each chunk finishes: the progress bar
             parts.append(part)

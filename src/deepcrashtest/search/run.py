@@ -109,7 +109,17 @@ def _search_and_write(
     boundary = None
     with (
         progress_bar("search", _expected_simulations(cfg)) as advance,
-        Evaluator(scenario, space, cfg.controller, cfg.seed, engine, workers, cfg.duration, on_progress=advance) as ev,
+        Evaluator(
+            scenario,
+            space,
+            cfg.controller,
+            cfg.seed,
+            engine,
+            workers,
+            cfg.duration,
+            on_progress=advance,
+            while_waiting=outputs.preload_in_background,
+        ) as ev,
     ):
         original = ev(np.zeros((1, space.dim)))
         log.add("original", 0, np.zeros((1, space.dim)), original)
