@@ -310,12 +310,13 @@ def record_without_contacts(world: World, limits: VehicleLimits) -> _Segment | N
             mv = moving[k, walk]
             held = np.where(mv[:, None], poses[k], held)
             states[k + 1, walk] = held
-    rest = np.flatnonzero(~ag.walk)
-    if len(rest):
-        _step_rows(world, limits, ag, rest, moving, states, steers)
+    rest = np.flatnonzero(~ag.walk)  # static agents (all agents replay exactly): they keep their pose
+    states[1:, rest] = ag.state[rest]
     pres = (ag.start[None, :] <= np.arange(T)[:, None]) & (np.arange(T)[:, None] <= ag.end[None, :])
     if M > 1 and _agents_touch(ag, states, pres):
         return None
+    if len(rest):  # their steering still follows the reference (it signs their zero velocities)
+        _step_rows(world, limits, ag, rest, moving, states, steers)
     wb = world.wheelbase[1:]
     vel = velocity_xy(states[:-1, :, 2], states[:-1, :, 3], steers[:-1])
     omega = yaw_rate(states[:-1, :, 3], steers[:-1], wb)
