@@ -130,6 +130,16 @@ class Evaluator:
                 self.on_progress(len(o))
         return parts
 
+    def warm(self) -> None:
+        """Prepare the scenario's world and record the agents' run in this process (local engine, several
+        workers), so that the worker processes forked next share them instead of each building its own."""
+        if self.engine != "local" or self.workers == 1 or self._pool is not None:
+            return
+        from deepcrashtest.sim.agents import agent_timeline
+        from deepcrashtest.sim.vehicle import VehicleLimits
+
+        agent_timeline(_prepared_world(self._json, self.duration), VehicleLimits()).record_all()
+
     # ------------------------------------------------------------------ evaluate
     def __call__(self, theta: np.ndarray) -> dict[str, np.ndarray]:
         """Simulate the variants ``theta`` (B, D); returns outcome arrays (B,) plus ``change``."""
