@@ -5,7 +5,9 @@ Per clip: stage 2 is rerun from ``<work>/<clip>/scenario_raw.json`` and every ``
 reference solver (``contact.py`` as in ``--ref``, default ``main``, loaded from git) and by this
 tree's, one after the other in the same process, and the CPU seconds and the results are compared:
 satisfied or not, the correction's size (max, m), and for a crash correction the corrected pair's
-first contact time against the crash time (s). Nothing is written.
+first contact time against the crash time (s). Stage 2's output is also compared with the stored
+processed scenario ``<work>/<clip>/scenario.json`` (made by the reference): the crash record of
+provenance and the largest difference of any vehicle's position (m). Nothing is written.
 
 Usage::
 
@@ -48,8 +50,8 @@ def reference(ref: str) -> types.ModuleType:
     return mod
 
 
-def record_problems(raw: Scenario) -> list[tuple[str, tuple[Any, ...]]]:
-    """Run stage 2 on ``raw`` and return the correction problems it solved: (function name, args)."""
+def record_problems(raw: Scenario) -> tuple[Scenario, list[tuple[str, tuple[Any, ...]]]]:
+    """Run stage 2 on ``raw``: the processed scenario and the correction problems it solved (name, args)."""
     calls: list[tuple[str, tuple[Any, ...]]] = []
     originals = {n: getattr(crash_phase, n) for n in ("make_contact", "nudge_apart")}
 
@@ -63,11 +65,37 @@ def record_problems(raw: Scenario) -> list[tuple[str, tuple[Any, ...]]]:
     try:
         for n in originals:
             setattr(crash_phase, n, wrap(n))
-        process_scenario(raw)
+        out = process_scenario(raw)
     finally:
         for n, f in originals.items():
             setattr(crash_phase, n, f)
-    return calls
+    return out, calls
+
+
+def compare_stored(sc: Scenario, path: Path) -> dict[str, Any]:
+    """Stage 2's output against the stored processed scenario: same crash record, largest position
+    difference (m) over the vehicles both have, vehicles only one has."""
+    if not path.is_file():
+        return {}
+    old = Scenario.load(path)
+    mine = {v.id: v.trajectory.arrays() for v in sc.vehicles()}
+    theirs = {v.id: v.trajectory.arrays() for v in old.vehicles()}
+    worst = 0.0
+    for k in set(mine) & set(theirs):
+        a, b = mine[k], theirs[k]
+        t = a["t"][(a["t"] >= b["t"][0]) & (a["t"] <= b["t"][-1])]
+        for c in ("x", "y"):
+            if len(t):
+                worst = max(worst, float(np.abs(np.interp(t, a["t"], a[c]) - np.interp(t, b["t"], b[c])).max()))
+    rec = sc.provenance.parameters.get("crash")
+    rec_old = old.provenance.parameters.get("crash")
+    return {
+        "max_pos_diff_m": worst,
+        "vehicles_differ": sorted(set(mine) ^ set(theirs)),
+        "record_same": rec == rec_old,
+        "record": rec,
+        "record_stored": rec_old,
+    }
 
 
 def solve(mod: types.ModuleType, name: str, args: tuple[Any, ...]) -> dict[str, Any]:
@@ -78,7 +106,9 @@ def solve(mod: types.ModuleType, name: str, args: tuple[Any, ...]) -> dict[str, 
     out["window_s"], out["kinematic"] = corr.window_s, corr.kinematic
     if name == "make_contact":
         a, b, t_crash = args[:3]
-        tracks = [mod.box_track(m, m.xy + d) if len(d) else mod.box_track(m) for m, d in zip((a, b), corr.deltas, strict=True)]
+        tracks = [
+            mod.box_track(m, m.xy + d) if len(d) else mod.box_track(m) for m, d in zip((a, b), corr.deltas, strict=True)
+        ]
         hit = first_contact(*tracks)
         out["contact_dt_s"] = None if hit is None else hit.time_s - t_crash
     return out
@@ -104,12 +134,17 @@ def main() -> None:
         args.clips.split(",") if args.clips else sorted(p.parent.name for p in args.work.glob("*/scenario_raw.json"))
     )
     ref = None if args.no_ref else reference(args.ref)
-    rows = []
+    rows: list[dict[str, Any]] = []
+    summary: list[dict[str, Any]] = []
     for name in names:
         raw = Scenario.load(args.work / name / "scenario_raw.json")
         t0 = time.process_time()
-        problems = record_problems(raw)
+        processed, problems = record_problems(raw)
         stage2 = time.process_time() - t0
+        stored = compare_stored(processed, args.work / name / "scenario.json")
+        summary.append({"clip": name, "stage2_cpu_s": stage2, "problems": len(problems), **stored})
+        if not args.json:
+            print(json.dumps(summary[-1]), file=sys.stderr)
         for k, (fn, fargs) in enumerate(problems):
             row = {"clip": name, "call": f"{fn}#{k}", "stage2_cpu_s": stage2, "new": solve(new, fn, fargs)}
             if ref is not None:
@@ -120,8 +155,15 @@ def main() -> None:
         if not problems:
             rows.append({"clip": name, "call": "-", "stage2_cpu_s": stage2})
     if args.json:
-        print(json.dumps({"rows": rows}, indent=1))
+        print(json.dumps({"clips": summary, "rows": rows}, indent=1))
         return
+    print("| clip | stage 2 CPU s | problems | crash record as stored | largest position difference m |")
+    print("|---|---|---|---|---|")
+    for c in summary:
+        diff = c.get("max_pos_diff_m")
+        cells = [c["clip"], f"{c['stage2_cpu_s']:.2f}", str(c["problems"]), _fmt(c.get("record_same"))]
+        print("| " + " | ".join([*cells, "-" if diff is None else f"{diff:.3f}"]) + " |")
+    print()
     print(
         "| clip | call | stage 2 s (this tree) | ref s | new s | ref/new | ok ref/new | max m ref/new | dt s ref/new |"
     )
@@ -140,10 +182,11 @@ def main() -> None:
         tot_ref = sum(r["ref"]["cpu_s"] for r in solved)
         same = sum(r["ref"]["ok"] == r["new"]["ok"] for r in solved)
         dmax = max(abs(r["ref"]["max_m"] - r["new"]["max_m"]) for r in solved)
+        med = np.median([r["ref"]["cpu_s"] / max(r["new"]["cpu_s"], 1e-9) for r in solved])
         print(
             f"\n{len(solved)} problems: reference {tot_ref:.1f} s CPU, this tree {tot_new:.1f} s "
             f"(x{tot_ref / max(tot_new, 1e-9):.1f}); same ok {same}/{len(solved)}; largest |max_m| difference "
-            f"{dmax:.3f} m; per-call ratios median {np.median([r['ref']['cpu_s'] / max(r['new']['cpu_s'], 1e-9) for r in solved]):.1f}"
+            f"{dmax:.3f} m; per-call ratio median {med:.1f}"
         )
     else:
         print(f"\n{len(solved)} problems: this tree {tot_new:.1f} s CPU")

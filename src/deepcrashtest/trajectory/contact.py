@@ -19,6 +19,7 @@ constraints solved with SciPy's SLSQP:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -411,26 +412,28 @@ class _Gap:
         return out
 
 
-def _solve(
+@dataclass
+class _Problem:
+    """One SLSQP problem: the cost and its gradient, the constraints (each with its ``jac``), the paths."""
+
+    paths: _Paths
+    cost: Callable[[np.ndarray], float]
+    cost_jac: Callable[[np.ndarray], np.ndarray]
+    cons: list[dict[str, Any]]
+    kins: list[tuple[dict[str, Any], _Kin]]
+
+
+def _problem(
     movers: list[Movable],
     fixed: list[Movable],
     bases: list[_Basis],
     eq: list[tuple[int, int, float, float]],
     ineq: list[tuple[int, int, np.ndarray, float]],
     cp: ContactParams,
-    rounds: int = 2,
     strict_kin: bool = False,
     budget: _Budget | None = None,
-) -> tuple[list[np.ndarray], bool, str]:
-    """Least-squares coefficients for ``movers`` (index i < len(movers)) under the pair constraints.
-
-    ``eq``: (i, j, time, target separation); ``ineq``: (i, j, times, minimum separation); indices >=
-    len(movers) refer to ``fixed``. Each mover's corrected path keeps its kinematics (``Movable.kin``):
-    within the limits (``strict_kin``) or, else, no further outside them than its uncorrected path.
-    Every function SLSQP sees comes with its analytic derivative (no finite differences).
-    Returns the displacements, success and the optimiser's message; stops, unsuccessful, when
-    ``budget`` is spent.
-    """
+) -> _Problem:
+    """The least-squares problem of :func:`_solve`, every function with its analytic derivative."""
     sizes = [b.size for b in bases]
     offs = np.concatenate([[0], np.cumsum([2 * k for k in sizes])]).astype(int)
     mats = [(b.at(m.t), b.at(m.t, 2)) for m, b in zip(movers, bases, strict=True)]
@@ -451,23 +454,42 @@ def _solve(
     cons += _accel_limits(mats, offs, cp.accel_limit_mps2)
     kins = _kin_constraints(movers, bases, offs, cp, strict_kin)
     cons += [k[0] for k in kins]
-    z = np.zeros(offs[-1])
+    return _Problem(paths, cost, lambda z: 2.0 * (hess @ z), cons, kins)
+
+
+def _solve(
+    movers: list[Movable],
+    fixed: list[Movable],
+    bases: list[_Basis],
+    eq: list[tuple[int, int, float, float]],
+    ineq: list[tuple[int, int, np.ndarray, float]],
+    cp: ContactParams,
+    rounds: int = 2,
+    strict_kin: bool = False,
+    budget: _Budget | None = None,
+) -> tuple[list[np.ndarray], bool, str]:
+    """Least-squares coefficients for ``movers`` (index i < len(movers)) under the pair constraints.
+
+    ``eq``: (i, j, time, target separation); ``ineq``: (i, j, times, minimum separation); indices >=
+    len(movers) refer to ``fixed``. Each mover's corrected path keeps its kinematics (``Movable.kin``):
+    within the limits (``strict_kin``) or, else, no further outside them than its uncorrected path.
+    Every function SLSQP sees comes with its analytic derivative (no finite differences).
+    Returns the displacements, success and the optimiser's message; stops, unsuccessful, when
+    ``budget`` is spent.
+    """
+    pb = _problem(movers, fixed, bases, eq, ineq, cp, strict_kin, budget)
+    paths = pb.paths
+    z = np.zeros(int(paths.offs[-1]))
     res = None
     for _ in range(rounds):
         try:
-            res = minimize(
-                cost,
-                z,
-                jac=lambda z: 2.0 * (hess @ z),
-                method="SLSQP",
-                constraints=cons,
-                options={"maxiter": MAX_ITER, "ftol": 1e-8},
-            )
+            options = {"maxiter": MAX_ITER, "ftol": 1e-8}
+            res = minimize(pb.cost, z, jac=pb.cost_jac, method="SLSQP", constraints=pb.cons, options=options)
         except _OutOfBudget:
             return paths.deltas(z), False, f"evaluation budget ({MAX_EVALS}) spent"
         z = np.asarray(res.x)
         ok = bool(res.success) and _satisfied(paths.tracks(z), eq, ineq)
-        ok &= all(bool(np.all(k[0]["fun"](z) >= -KIN_TOL)) for k in kins)
+        ok &= all(bool(np.all(k[0]["fun"](z) >= -KIN_TOL)) for k in pb.kins)
         if ok:
             break
     return paths.deltas(z), ok, "" if res is None else str(res.message)
