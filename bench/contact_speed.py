@@ -100,9 +100,20 @@ def compare_stored(sc: Scenario, path: Path) -> dict[str, Any]:
 
 def solve(mod: types.ModuleType, name: str, args: tuple[Any, ...]) -> dict[str, Any]:
     """Solve one recorded problem with module ``mod``: CPU seconds and the outcome."""
-    t0 = time.process_time()
-    corr = getattr(mod, name)(*args)
-    out: dict[str, Any] = {"cpu_s": time.process_time() - t0, "ok": corr.ok, "max_m": corr.max_m}
+    spend, spent = mod._Budget.spend, [0]
+
+    def count(self: Any) -> None:
+        spent[0] += 1
+        spend(self)
+
+    mod._Budget.spend = count  # box-track evaluations, as counted against MAX_EVALS
+    try:
+        t0 = time.process_time()
+        corr = getattr(mod, name)(*args)
+        cpu = time.process_time() - t0
+    finally:
+        mod._Budget.spend = spend
+    out: dict[str, Any] = {"cpu_s": cpu, "evals": spent[0], "ok": corr.ok, "max_m": corr.max_m}
     out["window_s"], out["kinematic"] = corr.window_s, corr.kinematic
     if name == "make_contact":
         a, b, t_crash = args[:3]
@@ -190,6 +201,8 @@ def main() -> None:
         )
     else:
         print(f"\n{len(solved)} problems: this tree {tot_new:.1f} s CPU")
+    if solved:
+        print(f"largest box-track evaluations of one call (MAX_EVALS): {max(r['new']['evals'] for r in solved)}")
 
 
 if __name__ == "__main__":

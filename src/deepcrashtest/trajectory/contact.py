@@ -15,6 +15,11 @@ constraints solved with SciPy's SLSQP:
   follower, so that a replay follows it (no further outside them than the uncorrected path);
 * a participant's correction starts at zero value, speed and acceleration ``window_s`` before the
   crash (only its last seconds move); a bystander's may shift its whole track (``nudge_apart``).
+
+SLSQP is given the analytic derivative of every function (the cost is quadratic in the coefficients,
+the acceleration bound linear; the separation's is that of its active separating axis through the
+boxes' interpolated positions and headings; the kinematic rows' through the corrected velocity and
+acceleration), so an iteration costs one evaluation of the corrected paths, not one per coefficient.
 """
 
 from __future__ import annotations
