@@ -370,7 +370,7 @@ class _Paths:
 def _gradient_matrix(t: np.ndarray) -> np.ndarray:
     """(N, N) matrix G with ``G @ x == np.gradient(x, t)`` (zeros for a single sample)."""
     n = len(t)
-    return np.gradient(np.eye(n), t, axis=0) if n > 1 else np.zeros((n, n))
+    return np.asarray(np.gradient(np.eye(n), t, axis=0)) if n > 1 else np.zeros((n, n))
 
 
 def _interp_matrix(t: np.ndarray, ts: np.ndarray) -> np.ndarray:
