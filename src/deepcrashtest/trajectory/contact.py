@@ -542,19 +542,17 @@ def _kin_constraints(
 
 
 def _accel_limits(mats: list[tuple[np.ndarray, np.ndarray]], offs: np.ndarray, lim: float) -> list[dict[str, Any]]:
-    """|delta''| <= ``lim`` (m/s^2) on each axis at every sample: linear in the coefficients (the samples
-    where no correction can accelerate, outside its window, are left out: nothing to bound there)."""
+    """|delta''| <= ``lim`` (m/s^2) on each axis at every sample: linear in the coefficients."""
     rows = []
     for i, (_b, b2) in enumerate(mats):
         k = b2.shape[1]
-        b2 = b2[np.any(b2 != 0.0, axis=1)]
         for axis in range(2):
             m = np.zeros((b2.shape[0], int(offs[-1])))
             m[:, offs[i] + axis * k : offs[i] + (axis + 1) * k] = b2
             rows.append(m)
-    a_mat = np.vstack(rows) if rows else np.zeros((0, 0))
-    if not len(a_mat):
+    if not rows:
         return []
+    a_mat = np.vstack(rows)
     return [
         {"type": "ineq", "fun": lambda z: lim - a_mat @ z, "jac": lambda z: -a_mat},
         {"type": "ineq", "fun": lambda z: lim + a_mat @ z, "jac": lambda z: a_mat},
