@@ -199,7 +199,8 @@ KIN_TOL = 0.02  # share of a limit a solution may exceed it by (SLSQP stops just
 MAX_ITER = 80  # SLSQP iterations per round: a correction that needs more is not found (stage 2 stays seconds)
 # Box-track evaluations (~1 ms each) one make_contact / nudge_apart call may spend over all its windows and
 # rounds: bounds stage 2's time on pathological tracks (a wrong pair once ran > 10 min). Measured on the 19
-# labelled crash clips (2026-12-01): at most 64,186 box tracks built for a correction that was found, so none is cut.
+# labelled crash clips (2026-12-01): at most 64,186 box tracks built for a correction that was found, so none is cut;
+# with analytic derivatives (one build per iterate) at most 1,177 (bench/contact_speed.py): MAX_ITER bounds the time.
 MAX_EVALS = 100_000
 
 
