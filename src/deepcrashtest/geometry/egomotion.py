@@ -120,11 +120,17 @@ def _rotation_yaw(R_cam: np.ndarray, down: np.ndarray) -> float:
     return float(-(rvec.ravel() @ down))
 
 
-def _tilted(n0: np.ndarray, a: float, b: float) -> np.ndarray:
-    """``n0`` tilted by small angles ``a`` (about camera x: pitch) and ``b`` (roll), unit length."""
+def _tilt_basis(n0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The two unit directions :func:`_tilted` tilts ``n0`` along (about camera x, then about the first)."""
     e1 = np.cross(n0, [1.0, 0.0, 0.0])
     e1 /= np.linalg.norm(e1)
-    e2 = np.cross(n0, e1)
+    return e1, np.cross(n0, e1)
+
+
+def _tilted(n0: np.ndarray, a: float, b: float, basis: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """``n0`` tilted by small angles ``a`` (about camera x: pitch) and ``b`` (roll), unit length.
+    ``basis``: :func:`_tilt_basis` of ``n0`` when already known (the same numbers, computed once)."""
+    e1, e2 = basis if basis is not None else _tilt_basis(n0)
     n = n0 + a * e1 + b * e2
     return n / np.linalg.norm(n)
 
@@ -159,9 +165,10 @@ def fit_plane_motion(
     """
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     a = x0 @ R.T
+    basis = _tilt_basis(n_prior)
 
     def residuals(p: np.ndarray) -> np.ndarray:
-        n = _tilted(n_prior, p[1], p[2])
+        n = _tilted(n_prior, p[1], p[2], basis)
         X = a + p[0] * (x0 @ n)[:, None] * t[None, :]
         z = np.where(np.abs(X[:, 2]) < 1e-9, 1e-9, X[:, 2])
         return np.column_stack([fx * X[:, 0] / z + cx - p1[:, 0], fy * X[:, 1] / z + cy - p1[:, 1]]) / noise_px
@@ -203,7 +210,7 @@ def fit_plane_motion(
         return None
     s2 = float(np.sum(w[inl] * e[inl] ** 2) / max(1, 2 * int(inl.sum()) - 3))
     var = float(np.linalg.inv(A)[0, 0]) * max(s2, 0.25)
-    return PlaneFit(float(p[0]), math.sqrt(max(var, 0.0)), _tilted(n_prior, p[1], p[2]), int(inl.sum()))
+    return PlaneFit(float(p[0]), math.sqrt(max(var, 0.0)), _tilted(n_prior, p[1], p[2], basis), int(inl.sum()))
 
 
 def _epipolar_px(E: np.ndarray, p0: np.ndarray, p1: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -467,8 +474,13 @@ class EgoMotionEstimator:
         R, t, sigma, n = self._frame_motion
         K = self._K
         H = K @ (R + sigma * np.outer(t, n)) @ np.linalg.inv(K)
-        warped = cv2.warpPerspective(prev, H, (prev.shape[1], h), flags=cv2.INTER_LINEAR)
         q = cv2.perspectiveTransform(p[road].reshape(-1, 1, 2).astype(np.float64), H).reshape(-1, 2).astype(np.float32)
+        # Only the box around the road points is warped (the road is a fraction of the frame); LK reads
+        # nothing beyond the margin, so the tracks are the same as on a wholly warped frame.
+        x0, y0, x1, y1 = _crop_box(q, prev.shape[1], h, margin=_ROAD_CROP_MARGIN_PX, align=4)
+        shift = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
+        warped = np.zeros_like(prev)
+        warped[y0:y1, x0:x1] = cv2.warpPerspective(prev, shift @ H, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR)
         q1, ok = track_points(warped, cur, q, None, win=self.lk_win, fb_max_px=self.fb_max_px, levels=2)
         p1[road], good[road] = q1, ok
         return p1, good
@@ -726,6 +738,21 @@ def scene_parallax(p0: np.ndarray, p1: np.ndarray, shape: tuple[int, int], grid:
     cell = iy * cols + ix
     votes = [float(np.median(d[cell == c])) for c in np.unique(cell) if np.count_nonzero(cell == c) >= 3]
     return float(np.median(votes)) if len(votes) >= 3 else float(np.median(d))
+
+
+#: Margin (px) around the road points of the region :meth:`EgoMotionEstimator._track` warps: an 11-px LK
+#: window at pyramid level 2 reaches 4 x 6 = 24 px, plus the Scharr kernel and the pyramid's border rows.
+_ROAD_CROP_MARGIN_PX = 48
+
+
+def _crop_box(pts: np.ndarray, w: int, h: int, margin: int, align: int) -> tuple[int, int, int, int]:
+    """(x0, y0, x1, y1) px: the box around ``pts`` (N, 2) widened by ``margin``, its top-left corner on a
+    multiple of ``align``, clipped to a ``w`` x ``h`` image."""
+    x0 = max(0, int(np.floor((float(pts[:, 0].min()) - margin) / align)) * align)
+    y0 = max(0, int(np.floor((float(pts[:, 1].min()) - margin) / align)) * align)
+    x1 = min(w, int(np.ceil(float(pts[:, 0].max()) + margin)))
+    y1 = min(h, int(np.ceil(float(pts[:, 1].max()) + margin)))
+    return x0, y0, max(x1, x0 + align), max(y1, y0 + align)
 
 
 def _tilted_towards(n_ref: np.ndarray, n_new: np.ndarray, rate: float) -> np.ndarray:
