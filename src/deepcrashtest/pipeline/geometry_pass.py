@@ -11,7 +11,8 @@ The first ``calib_seconds`` of frames are buffered to estimate what the stream n
 starts: the dashboard/bonnet rows (below a persistent edge with a still image beneath, unless
 given), and the horizon (vanishing point of the lane lines, else the focus of expansion of the flow, else the camera's
 own pitch). Then every buffered and later frame goes through the ego-motion estimator and the
-lane detector once; frames are never decoded twice. Lanes run in a second thread beside the
+lane detector once (both measure at most ``MAX_RATE_HZ`` frames a second: a 25 fps video at 12.5 fps,
+the frames between interpolated or showing the last lanes); frames are never decoded twice. Lanes run in a second thread beside the
 ego-motion estimator (both spend their time in OpenCV / NumPy, which release the GIL). When no
 calibration was given (the camera's intrinsics are the unknown-dashcam default), the whole video's
 tracks then calibrate the camera (:func:`~deepcrashtest.geometry.selfcalib.self_calibrate`: horizon,
@@ -38,7 +39,7 @@ from deepcrashtest.geometry.camera import (
     vanishing_point_from_lines,
     with_horizon,
 )
-from deepcrashtest.geometry.egomotion import EgoMotion, EgoMotionEstimator
+from deepcrashtest.geometry.egomotion import MAX_RATE_HZ, EgoMotion, EgoMotionEstimator
 from deepcrashtest.geometry.localize import Localizer
 from deepcrashtest.geometry.selfcalib import SelfCalibration, self_calibrate
 from deepcrashtest.perception.lanes import ClassicalLaneDetector, LaneDetector, LaneState, LaneTimelineResult
@@ -119,17 +120,21 @@ def extract_geometry(
     lane_states: dict[int, LaneState] = {}
     indices: list[int] = []
     all_tracks: list[pd.DataFrame] = []
+    lane_rate = _RateGate(MAX_RATE_HZ)  # lanes on as many frames a second as ego-motion measures
+    last_lanes: LaneState | None = None
 
     with ThreadPoolExecutor(1, thread_name_prefix="lanes") as pool:
         for frame, trk in chain(_drain(buffer), rest):
             boxes = trk[["x1", "y1", "x2", "y2"]].to_numpy(float) if len(trk) else np.zeros((0, 4))
             indices.append(int(frame.index))
             lanes_job: Future[LaneState] | None = None
-            if lane_det is not None:
+            if lane_det is not None and lane_rate.take(float(frame.time)):
                 lanes_job = pool.submit(lane_det.update, frame.image, float(frame.time), boxes)
             ego_est.update(frame.image, float(frame.time), boxes)
             if lanes_job is not None:
-                lane_states[int(frame.index)] = lanes_job.result()
+                last_lanes = lanes_job.result()
+            if last_lanes is not None:  # a frame between two lane updates shows the last lanes
+                lane_states[int(frame.index)] = last_lanes
             if len(trk):
                 all_tracks.append(trk)
             if on_frame is not None:
@@ -153,6 +158,22 @@ def extract_geometry(
         params["self_calibration"] = calibration.summary()
     sc = sc.evolve(provenance=sc.provenance.model_copy(update={"parameters": params}))
     return GeometryResult(sc, cam, ego, lane_tl, lane_states, rows, horizon_source, calibration)
+
+
+class _RateGate:
+    """``take(time)``: True for the first frame and for each frame at least ~1 / ``max_hz`` s after the
+    last taken one (the rule of ``EgoMotionEstimator(max_rate_hz)``: a 25 fps video at 12.5 fps, 10
+    and 20 fps videos at every frame)."""
+
+    def __init__(self, max_hz: float | None) -> None:
+        self.min_gap_s = 0.9 / max_hz if max_hz else 0.0
+        self.last: float | None = None
+
+    def take(self, time: float) -> bool:
+        if self.last is not None and time - self.last < self.min_gap_s:
+            return False
+        self.last = time
+        return True
 
 
 def _drain(buffer: list[tuple[FrameLike, pd.DataFrame]]) -> Iterator[tuple[FrameLike, pd.DataFrame]]:
