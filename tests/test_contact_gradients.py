@@ -35,7 +35,7 @@ def kitti_crash_problem(kitti_root) -> tuple[Any, ...]:
     raw = raw.evolve(collision=Collision(time_s=13.0, other_id=4, agent_id=6, source="user"))
     seen: list[tuple[Any, ...]] = []
 
-    def record(*args: Any) -> Any:
+    def record(*args: Any, **_kw: Any) -> Any:  # keywords (movable, overlap_s) do not change the problem checked
         seen.append(args)
         raise _Recorded
 
