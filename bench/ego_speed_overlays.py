@@ -12,7 +12,9 @@ unknown-dashcam default (90 deg horizontal field of view, 1.3 m). The highway cl
 its chessboard calibration and is checked against a plausible range.
 
 Run: PYTHONPATH=src python bench/ego_speed_overlays.py [--data DIR] [--clips a,b] [--tracks DIR] [--set NAME=X]
-``--tracks DIR``: ``DIR/<clip>/tracks.csv`` from an earlier extract masks the road users (as extract does);
+``--tracks DIR``: ``DIR/<clip>/tracks.csv`` from an earlier extract masks the road users (as extract does)
+and self-calibrates the unknown camera from them as extract does (one more line: the speed rescaled by the
+measured over the assumed focal length x camera height);
 ``--set``: an :class:`EgoMotionEstimator` option (repeatable), to compare variants on the same clips.
 """
 
@@ -39,6 +41,8 @@ class ClipRun:
     height_m: float
     cpu_ms: float  # estimator CPU time per frame (decoding not counted)
     raw: np.ndarray  # per frame: the keyframe pair's speed measurement (m/s) or NaN (none, or no road scale)
+    calibration: str = ""  # with --tracks: extract's self-calibration of the unknown camera (one line)
+    ego_scale: float = 1.0  # the factor it applies to the speed (measured over assumed focal x height)
 
 
 def overlay_speeds(entry: dict[str, Any], n: int) -> np.ndarray:
@@ -81,7 +85,15 @@ def run_clip(video: Path, chessboard: bool, last_frame: int, tracks: Path | None
         state = est.update(img, i / fps, b)
         raw.append(np.nan if state.raw_speed is None else state.raw_speed)
     cpu_ms = (time.process_time() - t0) / len(images) * 1000
-    return ClipRun(est.result().speed, cam.fx, cam.height_m, cpu_ms, np.asarray(raw))
+    ego = est.result()
+    run = ClipRun(ego.speed, cam.fx, cam.height_m, cpu_ms, np.asarray(raw))
+    if boxes is not None and len(boxes) and cam.intrinsics_source == "default":
+        from deepcrashtest.geometry.selfcalib import self_calibrate
+
+        cal = self_calibrate(boxes, cam, (w, h), ego, ego_scaled_by_height=True)
+        run.ego_scale = cal.ego_scale
+        run.calibration = f"height {cal.height_m:.2f} m, focal {cal.fy:.0f} px, horizon row {cal.horizon_v:.0f}"
+    return run
 
 
 def report_labelled(name: str, entry: dict[str, Any], r: ClipRun) -> None:
@@ -97,6 +109,13 @@ def report_labelled(name: str, entry: dict[str, Any], r: ClipRun) -> None:
         f"{err:7.1f} {int(np.sum(s[lab] < 0.3)):3d}/{int(lab.sum()):<3d} {r.fx * r.height_m:7.0f} {fh:9.0f} "
         f"{r.cpu_ms:8.1f}"
     )
+    if r.calibration:
+        sc = s * r.ego_scale
+        err_c = 100 * float(np.median((sc[moving] - tr[moving]) / tr[moving])) if moving.any() else float("nan")
+        print(
+            f"{'':22} self-calibrated as extract does ({r.calibration}): speed x {r.ego_scale:.2f}, mean "
+            f"{np.mean(sc[lab]) * 3.6:.1f} km/h, median error {err_c:.1f} %"
+        )
     m = lab & np.isfinite(r.raw)
     if m.any():
         print(

@@ -80,6 +80,10 @@ class EgoMotion:
     valid: np.ndarray
     warnings: list[str] = field(default_factory=list)
     static: bool = False
+    #: Per-frame camera pitch (radians, nose up positive) from an external pose source (e.g. stereo
+    #: SLAM poses); None for image-based ego-motion, whose rotations are measured with the assumed
+    #: focal length and so cannot calibrate it.
+    pitch: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.t)
@@ -103,7 +107,8 @@ class EgoMotion:
         grad = len(poses) > 1
         speed = np.hypot(np.gradient(xy[:, 0], t), np.gradient(xy[:, 1], t)) if grad else np.zeros(len(t))
         rate = np.gradient(yaw, t) if grad else np.zeros(len(t))
-        return cls(frame, t, xy[:, 0], xy[:, 1], yaw, speed, rate, np.ones(len(t), bool))
+        pitch = np.array([math.asin(float(np.clip(-T[1, 2], -1.0, 1.0))) for T in poses])  # optical axis up
+        return cls(frame, t, xy[:, 0], xy[:, 1], yaw, speed, rate, np.ones(len(t), bool), pitch=pitch)
 
 
 def _down_vector(pitch_rad: float, roll_rad: float = 0.0) -> np.ndarray:

@@ -20,7 +20,6 @@ infinitely far): the mode of ``log A`` over tracks is kept, ``fy = A / hc``. Wit
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -239,6 +238,69 @@ def focal_from_rotation(
     return f, max(rel, 0.01), int(ok.sum())
 
 
+#: Savitzky-Golay window (frames, order 2) whose residual is the fast part of a series (pitch bounce).
+BOUNCE_WINDOW = 13
+#: Sum of squared fast pitch (rad^2) below which there is no bounce to measure.
+MIN_BOUNCE_RAD2 = 1e-12
+
+
+def _fast_part(a: np.ndarray, window: int) -> np.ndarray:
+    """``a`` minus its local quadratic trend (Savitzky-Golay, ``window`` frames): the fast wobble."""
+    from scipy.signal import savgol_filter
+
+    return a - savgol_filter(a, window, 2)
+
+
+def focal_from_pitch(
+    tracks: pd.DataFrame, size: tuple[int, int], ego: EgoMotion, window: int = BOUNCE_WINDOW
+) -> tuple[float, float, int] | None:
+    """(focal length px, relative sigma, frames used) from the camera's pitch bounce (needs ``ego.pitch``).
+
+    When the camera pitches up by ``dtheta`` every box in the image moves down by ``fy dtheta``
+    pixels, whatever the vehicle does; the vehicles' own motion (and the ego's travel towards them)
+    changes their rows slowly. So the fast part (:func:`_fast_part`) of each track's box-centre row,
+    averaged over the tracks of each frame, is a line through the origin against the fast part of
+    the pitch with slope ``fy`` (robust fit); its standard error gives the sigma. Only external
+    poses carry a pitch measured independently of the focal length (``EgoMotion.pitch``)."""
+    if ego.pitch is None:
+        return None
+    d = _usable(tracks, size).sort_values(["track_id", "frame"])
+    frame_to_i = {int(f): i for i, f in enumerate(ego.frame)}
+    d = d[d["frame"].isin(frame_to_i.keys())]
+    frames, rows, pitch = [], [], []
+    for _, g in d.groupby("track_id"):
+        f = g["frame"].to_numpy(int)
+        v = 0.5 * (g["y1"] + g["y2"]).to_numpy(float)
+        for seg in np.split(np.arange(len(f)), np.nonzero(np.diff(f) != 1)[0] + 1):
+            if len(seg) < window + 2:
+                continue
+            i = np.array([frame_to_i[int(k)] for k in f[seg]])
+            frames.append(f[seg])
+            rows.append(_fast_part(v[seg], window))
+            pitch.append(_fast_part(ego.pitch[i], window))
+    if not frames:
+        return None
+    uniq, inv = np.unique(np.concatenate(frames), return_inverse=True)
+    if len(uniq) < MIN_BOXES:
+        return None
+    n = np.bincount(inv).astype(float)
+    y = np.bincount(inv, np.concatenate(rows)) / n
+    x = np.bincount(inv, np.concatenate(pitch)) / n
+    if float(np.sum(x * x)) < MIN_BOUNCE_RAD2:  # poses without any pitch wobble (e.g. planar)
+        return None
+    w = np.ones_like(x)
+    slope = 0.0
+    for _ in range(15):  # line through the origin, Huber-like weights (scale by the MAD)
+        slope = float(np.sum(w * x * y) / np.sum(w * x * x))
+        r = y - slope * x
+        s = 1.4826 * float(np.median(np.abs(r))) + 1e-9
+        w = np.minimum(1.0, 2.0 * s / np.maximum(np.abs(r), 1e-12))
+    if not slope > 0:
+        return None
+    se = float(np.sqrt(np.sum(w * r**2) / max(np.sum(w) - 1.0, 1.0) / np.sum(w * x * x)))
+    return slope, se / slope, len(uniq)
+
+
 #: Relative 1-sigma of the focal-length prior (the unknown-dashcam default) and of each estimate
 #: when its support is thin; chosen on the 18 KITTI tracking training sequences other than 3, 8, 10.
 FOCAL_PRIOR_REL = 0.35
@@ -249,22 +311,53 @@ MOTION_MIN_AGREEING = 3
 ROTATION_MIN_PAIRS = 200
 
 
+#: The pitch-bounce estimate's standard error is inflated by this (the fast parts of neighbouring
+#: frames are correlated) and floored at PITCH_MIN_REL; chosen on the 18 KITTI tracking training
+#: sequences other than 3, 8, 10 (errors -12..+19 %, median |error| 3 %, within 2-3 inflated sigmas).
+PITCH_SE_INFLATION = 2.0
+PITCH_MIN_REL = 0.03
+#: Floor of the turn estimate's relative sigma: on the training sequences it reads 6-50 % high
+#: (vehicles turning with the road, lateral parallax), and on image-based ego-motion the yaw was
+#: itself measured with the assumed focal length.
+ROTATION_MIN_REL = 0.25
+#: A dashcam is mounted near level: a horizon further from the image centre than this pitch (at the
+#: prior focal length) hints at a longer focal length (ccd_000014: 540 px against 360, 16 deg at 640 px,
+#: while the overlay speed needs ~2,000-3,000 px); said in the notes, not acted on.
+STEEP_PITCH_RAD = math.radians(8.0)
+#: A parked-vehicle estimate further than this (log) from a trusted pitch-bounce estimate (inflated
+#: relative sigma under PITCH_TRUSTED_REL) is a mode of moving vehicles and is dropped (training
+#: sequence 4: 367 px from 11 agreeing tracks against 725 px from the bounce, true 721).
+MOTION_PITCH_MAX_LOG = 0.2
+PITCH_TRUSTED_REL = 0.12
+
+
 def combine_focal(
-    prior: float, motion: tuple[float, float, int] | None, rotation: tuple[float, float, int] | None
+    prior: float,
+    motion: tuple[float, float, int] | None,
+    rotation: tuple[float, float, int] | None,
+    pitch: tuple[float, float, int] | None = None,
 ) -> tuple[float, float, int] | None:
-    """Inverse-variance (log) combination of the prior and the two estimates -> (f, rel sigma, support).
+    """Inverse-variance (log) combination of the prior and the estimates -> (f, rel sigma, support).
 
     The parked-vehicle estimate needs :data:`MOTION_MIN_AGREEING` agreeing tracks, and counts fully
-    from :data:`MOTION_MIN_TRACKS` on (relative sigma at least 4 %); the turn estimate counts fully
-    from :data:`ROTATION_MIN_PAIRS` box pairs on (at least 12 %: vehicles turning with the road bias
-    it); thinner support counts as 25-30 %."""
+    from :data:`MOTION_MIN_TRACKS` on (relative sigma at least 4 %), thinner support as 25 %; the
+    pitch-bounce estimate counts with its inflated standard error (:data:`PITCH_SE_INFLATION`,
+    :data:`PITCH_MIN_REL`); the turn estimate at :data:`ROTATION_MIN_REL` at best (30 % below
+    :data:`ROTATION_MIN_PAIRS` box pairs)."""
     terms = [(math.log(prior), FOCAL_PRIOR_REL)]
     support = 0
+    if motion is not None and pitch is not None and pitch[1] * PITCH_SE_INFLATION < PITCH_TRUSTED_REL:
+        if abs(math.log(motion[0] / pitch[0])) > MOTION_PITCH_MAX_LOG:
+            motion = None  # a mode of moving vehicles (all parked-vehicle estimates are for the same car kind)
     if motion is not None and motion[2] >= MOTION_MIN_AGREEING:
         terms.append((math.log(motion[0]), max(motion[1], 0.04) if motion[2] >= MOTION_MIN_TRACKS else 0.25))
         support += motion[2]
+    if pitch is not None:
+        terms.append((math.log(pitch[0]), max(PITCH_SE_INFLATION * pitch[1], PITCH_MIN_REL)))
+        support += pitch[2]
     if rotation is not None:
-        terms.append((math.log(rotation[0]), max(3 * rotation[1], 0.12) if rotation[2] >= ROTATION_MIN_PAIRS else 0.3))
+        rel = max(3 * rotation[1], ROTATION_MIN_REL) if rotation[2] >= ROTATION_MIN_PAIRS else 0.3
+        terms.append((math.log(rotation[0]), rel))
         support += rotation[2]
     if len(terms) == 1:
         return None
@@ -284,8 +377,10 @@ def self_calibrate(
 
     ``camera``: the prior (e.g. the unknown-dashcam default); ``tracks``: the image tracker's table;
     ``ego``: the ego path (metres), for the focal length. ``ego_scaled_by_height``: the ego path's
-    metric scale came from ``camera.height_m`` (monocular ego-motion): it is rescaled by the measured
-    height first (``SelfCalibration.ego_scale``). What cannot be measured keeps the prior."""
+    metric scale came from ``camera.height_m`` and the camera's focal length (monocular ego-motion: the
+    road plane's scale is proportional to focal length x camera height): it cannot calibrate the focal
+    length, and ``SelfCalibration.ego_scale`` is the factor (measured over assumed focal x height) that
+    rescales it. What cannot be measured keeps the prior."""
     notes: list[str] = []
     hh = horizon_and_height(tracks, size)
     cam = camera
@@ -308,20 +403,26 @@ def self_calibrate(
     fy, sig_f, used = cam.fy, float("nan"), 0
     focal = None
     ego_scale = hc / cam.height_m if ego_scaled_by_height else 1.0
+    if ego is not None and ego_scaled_by_height:
+        # the road-plane scale of image ego-motion is proportional to the assumed focal length (and its
+        # rotations were measured with it): parked vehicles and turns on that path give it back unchanged
+        notes.append("the ego path was measured from the images with the assumed focal length: it cannot calibrate it")
+        ego = None
     if ego is not None:
-        if ego_scale != 1.0:
-            ego = dataclasses.replace(ego, x=ego.x * ego_scale, y=ego.y * ego_scale)
         motion = focal_from_motion(tracks, size, cam.cx, ego)
-        focal = combine_focal(cam.fy, motion, focal_from_rotation(tracks, size, cam.cx, ego, cam.fy))
+        bounce = focal_from_pitch(tracks, size, ego)
+        focal = combine_focal(cam.fy, motion, focal_from_rotation(tracks, size, cam.cx, ego, cam.fy), bounce)
         if focal is not None:  # the turn estimate removes the parallax with the focal length: redo it with the new one
-            focal = combine_focal(cam.fy, motion, focal_from_rotation(tracks, size, cam.cx, ego, focal[0]))
+            focal = combine_focal(cam.fy, motion, focal_from_rotation(tracks, size, cam.cx, ego, focal[0]), bounce)
     if focal is not None:
         fy, rel, used = focal
         sig_f = fy * rel
-        notes.append(f"focal length from the ego's motion: {used} parked-vehicle tracks / turning box pairs")
+        notes.append(f"focal length from the ego's motion: {used} parked tracks / turn box pairs / bounce frames")
     else:
         notes.append("focal length not measurable (no ego motion, no parked vehicles, no turns): prior kept")
     scale = fy / cam.fy
+    if ego_scaled_by_height:
+        ego_scale *= scale  # image ego-motion's metric scale goes with focal length x camera height
     update: dict[str, Any] = {
         "height_m": hc, "height_source": "self_calibration", "height_sigma_m": sig_h,
         "pitch_source": "self_calibration", "horizon_sigma_px": sig_v,
@@ -330,4 +431,10 @@ def self_calibrate(
         update |= {"fx": cam.fx * scale, "fy": fy, "intrinsics_source": "self_calibration", "focal_sigma_px": sig_f}
     cam = cam.model_copy(update=update)
     cam = cam.model_copy(update={"pitch_rad": math.atan2(cam.cy - vh, cam.fy)})
+    if focal is None and abs(cam.pitch_rad) > STEEP_PITCH_RAD:
+        notes.append(
+            f"horizon {abs(vh - cam.cy):.0f} px from the image centre: {math.degrees(abs(cam.pitch_rad)):.0f} deg of "
+            f"pitch at the assumed focal length {cam.fy:.0f} px, or a longer focal length (a narrower or cropped "
+            "view): distances and the ego's speed scale with the focal length"
+        )
     return SelfCalibration(cam, vh, sig_v, hc, sig_h, fy, sig_f, n, used, notes, ego_scale)
