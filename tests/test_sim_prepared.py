@@ -101,3 +101,24 @@ def test_references_of_many_paths_equal_one_by_one(head_on):
         for name in ("path", "s_ref", "v_ref", "init"):
             assert np.array_equal(getattr(one, name), getattr(many, name)), name
         assert (one.start, one.end, one.static) == (many.start, many.end, many.static)
+
+
+@pytest.mark.parametrize("name", ["head_on", "agents_crash"])
+def test_agents_run_without_contacts_equals_the_step_by_step_recording(name, request, monkeypatch):
+    """Agents replaying their references exactly (processed scenario): the whole-run recording gives every
+    recorded array bit for bit (zero signs included); with an agent-agent crash it steps aside (None)."""
+    # real (raw, noisy) tracks replayed exactly; a processed scenario's validation would refuse their noise
+    sc = request.getfixturevalue(name).model_copy(update={"stage": "processed"})
+    world = prepare(sc, duration=12.0)
+    fast = agents_mod.record_without_contacts(world, VehicleLimits())
+    assert (fast is None) == (name == "agents_crash")
+    tl = agents_mod.AgentTimeline(world, VehicleLimits())
+    monkeypatch.setattr(agents_mod, "record_without_contacts", lambda *a: None)
+    slow = tl.whole()
+    assert slow is not None
+    if fast is not None:
+        for f in agents_mod._Segment.__dataclass_fields__:
+            assert (
+                getattr(fast, f) is getattr(slow, f)
+                or np.asarray(getattr(fast, f)).tobytes() == np.asarray(getattr(slow, f)).tobytes()
+            ), f

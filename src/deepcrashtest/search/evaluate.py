@@ -25,6 +25,10 @@ from deepcrashtest.search.space import SearchSpace
 #: from the worker count, so that every engine simulates exactly the same batches (the sensor
 #: noise of a batch depends on its size).
 CHUNK = 512
+#: With the replay controller (no sensor noise, so the cut does not change any result): variants per
+#: simulator call at most, the batch cut evenly over the workers. Larger calls spread the per-call
+#: costs (path tables, agent arrays) over more variants; ~0.15 GB of arrays per 1,000 variants.
+REPLAY_CHUNK = 2048
 #: Per-variant outcome columns returned by the simulator, in results.csv order.
 OUTCOME_FIELDS = ("collided", "collision_time", "min_distance", "min_ttc", "robustness", "aeb_time", "delta_v_ego")
 ENGINES = ("local", "ray")
@@ -75,16 +79,18 @@ class Evaluator:
     engine: str = "local"
     workers: int = 1
     duration: float | None = None  # seconds simulated (None: the whole scenario)
-    chunk: int = CHUNK
+    chunk: int | None = None  # variants per simulator call (None: CHUNK; with the replay controller REPLAY_CHUNK)
     simulations: int = 0
     on_progress: Callable[[int], None] | None = field(default=None, repr=False)  # simulations just run
+    #: called once, when the worker processes have been forked and the parent starts waiting for them
+    while_waiting: Callable[[], None] | None = field(default=None, repr=False)
     _json: str = field(default="", repr=False)
     _pool: Any = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         if self.engine not in ENGINES:
             raise UserError(f"--engine must be one of {', '.join(ENGINES)} (got {self.engine!r})")
-        if self.chunk < 1:
+        if self.chunk is not None and self.chunk < 1:
             raise UserError(f"chunk size must be >= 1 (got {self.chunk})")
         if self.workers < 1:
             raise UserError(f"--workers must be >= 1 (got {self.workers})")
@@ -113,6 +119,9 @@ class Evaluator:
             if self._pool is None:
                 self._pool = ProcessPoolExecutor(max_workers=self.workers)
             results = self._pool.map(simulate_chunk, *zip(*args, strict=True))
+            if self.while_waiting is not None:
+                self.while_waiting()
+                self.while_waiting = None
         parts = []
         for (o, _), part in zip(chunks, results, strict=True):  # as each chunk finishes: the progress bar
             parts.append(part)
@@ -120,6 +129,16 @@ class Evaluator:
             if self.on_progress is not None:
                 self.on_progress(len(o))
         return parts
+
+    def warm(self) -> None:
+        """Prepare the scenario's world and record the agents' run in this process (local engine, several
+        workers), so that the worker processes forked next share them instead of each building its own."""
+        if self.engine != "local" or self.workers == 1 or self._pool is not None:
+            return
+        from deepcrashtest.sim.agents import agent_timeline
+        from deepcrashtest.sim.vehicle import VehicleLimits
+
+        agent_timeline(_prepared_world(self._json, self.duration), VehicleLimits()).record_all()
 
     # ------------------------------------------------------------------ evaluate
     def __call__(self, theta: np.ndarray) -> dict[str, np.ndarray]:
@@ -129,8 +148,9 @@ class Evaluator:
         # that a variant's Scenario file holds exactly the path simulated here): no extra offset
         offsets = np.zeros((len(th), 2))
         paths = self.space.paths(th)
-        n = self.chunk
-        if self.controller == "replay":  # no sensor noise: any cut gives the same results; balance the workers
+        replay = self.controller == "replay"
+        n = self.chunk or (REPLAY_CHUNK if replay else CHUNK)
+        if replay:  # no sensor noise: any cut gives the same results; balance the workers
             per_worker = -(-len(th) // (self.workers * n))
             n = max(1, -(-len(th) // (self.workers * per_worker)))
         chunks = [(offsets[i : i + n], paths[i : i + n]) for i in range(0, len(th), n)]

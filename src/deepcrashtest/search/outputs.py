@@ -2,24 +2,30 @@
 
 from __future__ import annotations
 
+import threading
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 from pydantic import ValidationError
 
 from deepcrashtest.errors import ScenarioError
-from deepcrashtest.fileio import atomic_path, atomic_write_text
+from deepcrashtest.fileio import atomic_write_text
 from deepcrashtest.scenario import Provenance, Scenario, format_validation_error
 from deepcrashtest.search.evaluate import OUTCOME_FIELDS
+from deepcrashtest.search.plot import plot_starts
 from deepcrashtest.search.space import SearchSpace
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 
 def results_table(
     space: SearchSpace, theta: np.ndarray, out: dict[str, np.ndarray], methods: list[str], iters: list[int], safe
 ) -> pd.DataFrame:
     """One row per simulated variant: id, method, iteration, per-method simulation number, params, outcome."""
+    import pandas as pd
+
     df = pd.DataFrame({"variant": np.arange(len(methods)), "method": methods, "iteration": iters})
     df["simulation"] = df.groupby("method").cumcount() + 1
     df["safe"] = np.asarray(safe, bool)
@@ -28,6 +34,18 @@ def results_table(
         df[k] = out[k]
     params = pd.DataFrame(theta, columns=space.names()) if len(theta) else pd.DataFrame(columns=space.names())
     return pd.concat([df, params], axis=1)
+
+
+def preload_in_background() -> None:
+    """Import pandas (~0.7 s of CPU, needed only for the tables written at the end) in a thread.
+
+    Call it once the worker processes are forked (never before a fork: a thread holding an import lock
+    in the parent would leave it locked in the child) and while the parent waits for them.
+    """
+    import sys
+
+    if "pandas" not in sys.modules:
+        threading.Thread(target=__import__, args=("pandas",), daemon=True).start()
 
 
 def write_csv(df: pd.DataFrame, path: Path, force: bool) -> Path:
@@ -136,55 +154,6 @@ def write_variants(
     return paths, problems, best
 
 
-def plot_starts(
-    df: pd.DataFrame, space: SearchSpace, boundary: dict | None, best: int | None, path: Path, force: bool, title: str
-) -> Path:
-    """Start offsets (lateral, longitudinal) coloured by outcome; CEM samples, boundary and best safe marked."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(5.5, 7.0), dpi=110)
-    hb = space.half_box
-    ax.add_patch(plt.Rectangle((-hb[1], -hb[0]), 2 * hb[1], 2 * hb[0], fill=False, ls="--", color="0.5"))
-    styles = {"random": ("o", 36, 0.85), "cem": ("^", 22, 0.6)}
-    for method, (marker, size, alpha) in styles.items():
-        d = df[df["method"] == method]
-        for safe, colour, label in ((False, "tab:red", "collision / unsafe"), (True, "tab:green", "safe")):
-            e = d[d["safe"] == safe]
-            if len(e):
-                ax.scatter(
-                    e["d_lat"], e["d_lon"], c=colour, marker=marker, s=size, alpha=alpha, label=f"{method}: {label}"
-                )
-    if boundary is not None:
-        r = np.array([np.nan if v is None else v for v in boundary["radius_m"]], dtype=float)
-        a = np.radians(boundary["angle_deg"])
-        ax.plot(
-            np.append(r, r[:1]) * np.sin(np.append(a, a[:1])),
-            np.append(r, r[:1]) * np.cos(np.append(a, a[:1])),
-            "k-",
-            lw=1.2,
-            label="safe/unsafe boundary (no noise)",
-        )
-    ax.scatter([0], [0], marker="x", c="k", s=60, label="original start")
-    if best is not None:
-        row = df[df["variant"] == best].iloc[0]
-        ax.scatter([row["d_lat"]], [row["d_lon"]], marker="*", c="gold", edgecolors="k", s=220, label="best safe")
-    ax.set_xlim(hb[1] * 1.15, -hb[1] * 1.15)  # left (positive lateral) drawn on the left
-    ax.set_ylim(-hb[0] * 1.15, hb[0] * 1.15)
-    ax.set_aspect("equal")
-    ax.set_xlabel("lateral start offset (m, left +)")
-    ax.set_ylabel("longitudinal start offset (m, forward +)")
-    ax.set_title(title, fontsize=9)
-    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=2)
-    fig.tight_layout()
-    with atomic_path(path, force=force) as tmp:
-        fig.savefig(tmp, format="png")
-    plt.close(fig)
-    return path
-
-
 def write_video(
     original: Scenario,
     best: Scenario,
@@ -239,7 +208,7 @@ def _plain(o: Any) -> Any:
 
 
 class BackgroundPlot:
-    """``plot_starts`` in a forked process that imports Matplotlib (~1 s) while the parent simulates.
+    """``plot_starts`` in a forked process that imports OpenCV while the parent simulates.
 
     Start it before the simulations; ``submit(...)`` (``plot_starts``' arguments) hands it the data,
     ``result()`` waits for the file. Where ``fork`` is not available the plot is drawn in this process.
@@ -292,10 +261,7 @@ class BackgroundPlot:
 
 
 def _plot_worker(conn: Any) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot  # noqa: F401  (the slow import, done while the parent simulates)
+    import cv2  # noqa: F401  (imported while the parent simulates)
 
     args = conn.recv()
     if args is None:

@@ -109,12 +109,19 @@ def _search_and_write(
     boundary = None
     with (
         progress_bar("search", _expected_simulations(cfg)) as advance,
-        Evaluator(scenario, space, cfg.controller, cfg.seed, engine, workers, cfg.duration, on_progress=advance) as ev,
+        Evaluator(
+            scenario,
+            space,
+            cfg.controller,
+            cfg.seed,
+            engine,
+            workers,
+            cfg.duration,
+            on_progress=advance,
+            while_waiting=outputs.preload_in_background,
+        ) as ev,
     ):
-        original = ev(np.zeros((1, space.dim)))
-        log.add("original", 0, np.zeros((1, space.dim)), original)
-        if cfg.method in ("random", "both"):
-            random_search(ev, log, np.random.default_rng([cfg.seed, 1]), cfg.starts, cfg.noise_variants)
+        original = _original_and_random(ev, log, cfg)
         if cfg.method in ("cem", "both"):
             budget = cfg.cem_budget or cfg.starts * cfg.noise_variants
             cem_cfg = CemConfig(budget=budget, margin=cfg.margin, line_search=min(16, budget // 4))
@@ -181,6 +188,30 @@ def _search_and_write(
             f"variant {r['variant']}: start ({r['d_lon_m']:+.2f}, {r['d_lat_m']:+.2f}) m, change {r['change_m']:.2f} m",
         )
     return summary
+
+
+def _original_and_random(ev: Evaluator, log: Log, cfg: SearchConfig) -> dict[str, np.ndarray]:
+    """Simulate the original (logged first) and the random experiment (``random``/``both``); the original's outcome.
+
+    With the replay controller a variant's outcome does not depend on the batch it is simulated in, so the
+    original joins the random experiment's batch: one call, simulated by the workers (the parent prepares the
+    world and the agents' run once, before they fork), instead of a one-variant run in the parent first.
+    """
+    zero = np.zeros((1, ev.space.dim))
+    rng = np.random.default_rng([cfg.seed, 1])
+    if cfg.method in ("random", "both") and cfg.controller == "replay":
+        theta = ev.space.reference_grid(rng, cfg.starts, cfg.noise_variants)
+        ev.warm()
+        out = ev(np.vstack([zero, theta]))
+        original = {k: v[:1] for k, v in out.items()}
+        log.add("original", 0, zero, original)
+        log.add("random", 0, theta, {k: v[1:] for k, v in out.items()})
+        return original
+    original = ev(zero)
+    log.add("original", 0, zero, original)
+    if cfg.method in ("random", "both"):
+        random_search(ev, log, rng, cfg.starts, cfg.noise_variants)
+    return original
 
 
 def crash_question(scenario: Scenario, cfg: SearchConfig) -> dict[str, Any]:

@@ -8,6 +8,8 @@ truth, ``Vehicle.spline is None``) a least-squares cubic B-spline is fitted here
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from scipy.interpolate import BSpline, make_lsq_spline
 
@@ -63,7 +65,21 @@ def evaluate_paths(sp: SplineParams, ctrl: np.ndarray, t: np.ndarray, nu: int = 
 
 
 def basis_matrix(knots: np.ndarray, degree: int, t: np.ndarray, nu: int = 0) -> np.ndarray:
-    """(K, M) matrix of B-spline basis functions (or their derivatives) at times ``t``."""
+    """(K, M) matrix of B-spline basis functions (or their derivatives) at times ``t`` (read-only; the last
+    few are kept: a search asks the same ones for every batch and every variant file)."""
+    k = np.asarray(knots, dtype=float)
+    tt = np.asarray(t, dtype=float)
+    return _basis_cached(k.tobytes(), int(degree), tt.tobytes(), int(nu))
+
+
+@functools.lru_cache(maxsize=16)
+def _basis_cached(knots_b: bytes, degree: int, t_b: bytes, nu: int) -> np.ndarray:
+    out = _basis(np.frombuffer(knots_b), degree, np.frombuffer(t_b), nu)
+    out.flags.writeable = False
+    return out
+
+
+def _basis(knots: np.ndarray, degree: int, t: np.ndarray, nu: int) -> np.ndarray:
     m = len(knots) - degree - 1
     eye = np.eye(m)
     spl = BSpline(knots, eye, degree, extrapolate=False)

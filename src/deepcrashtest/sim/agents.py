@@ -213,6 +213,16 @@ class AgentTimeline:
 
     def segment(self, k: int) -> _Segment:
         s = self._segments.get(k // SEGMENT)
+        if s is None and self.keep_all and not self._segments and self._live is None:
+            whole = record_without_contacts(self.world, self.limits)
+            if whole is not None:  # no agent-agent contact: every segment at once
+                n = len(whole.state)
+                fields = [f for f in _Segment.__dataclass_fields__ if f != "k0"]
+                for i, k0 in enumerate(range(0, n, SEGMENT)):
+                    part = [getattr(whole, f)[k0 : k0 + SEGMENT] for f in fields]
+                    self._segments[i] = _Segment(k0, *part)
+                self._next = n
+                s = self._segments.get(k // SEGMENT)
         if s is None:
             s = self._record(k // SEGMENT)
         return s
@@ -269,3 +279,98 @@ def agent_timeline(world: World, limits: VehicleLimits) -> AgentTimeline:
     if timeline is None:
         timeline = world.timelines[limits] = AgentTimeline(world, limits)
     return timeline
+
+
+def record_without_contacts(world: World, limits: VehicleLimits) -> _Segment | None:
+    """The agents' whole run as :meth:`AgentTimeline._record` records it, when no two agents ever touch
+    (else None): the same values, computed without stepping every agent through Python per step.
+
+    Only for agents that replay their references exactly (a processed scenario; otherwise None).
+    Rows are independent until a contact: an agent that replays its reference exactly (``walk``) takes its
+    reference pose at every step it moves (steering 0), so its states come from one
+    :meth:`~deepcrashtest.sim.reference.PathSet.poses` call; the other agents (static, or driven by the
+    vehicle model) step through the same follower and bicycle functions as :meth:`AgentSet.predict`, on their
+    rows only. The agent-agent contact rule of :meth:`AgentSet.join_contacts` then runs on the gaps of all
+    steps; a contact (Box2D from then on) returns None.
+    """
+    M, T = world.n_agents, len(world.times)
+    if M == 0 or world.agent_paths is None or not world.holonomic[1:].all():
+        return None  # agents driven by the vehicle model (raw tracks) gain little: they step as before
+    ag = AgentSet(world, limits)
+    states = np.empty((T, M, 4))
+    steers = np.zeros((T, M))
+    states[0] = ag.state
+    ks = np.arange(T - 1)
+    moving = (ag.start[None, :] <= ks[:, None]) & (ks[:, None] < ag.end[None, :])  # (T-1, M) at step k
+    walk = np.flatnonzero(ag.walk)
+    if len(walk):
+        poses = world.agent_paths.poses(np.minimum(ks + 1, T - 1))[:, walk]  # pose at k + 1
+        held = ag.state[walk].copy()
+        for k in range(T - 1):  # hold the last pose where the agent does not move
+            mv = moving[k, walk]
+            held = np.where(mv[:, None], poses[k], held)
+            states[k + 1, walk] = held
+    rest = np.flatnonzero(~ag.walk)  # static agents (all agents replay exactly): they keep their pose
+    states[1:, rest] = ag.state[rest]
+    pres = (ag.start[None, :] <= np.arange(T)[:, None]) & (np.arange(T)[:, None] <= ag.end[None, :])
+    if M > 1 and _agents_touch(ag, states, pres):
+        return None
+    if len(rest):  # their steering still follows the reference (it signs their zero velocities)
+        _step_rows(world, limits, ag, rest, moving, states, steers)
+    wb = world.wheelbase[1:]
+    vel = velocity_xy(states[:-1, :, 2], states[:-1, :, 3], steers[:-1])
+    omega = yaw_rate(states[:-1, :, 3], steers[:-1], wb)
+    new_vel = velocity_xy(states[1:, :, 2], states[1:, :, 3], steers[1:])
+    return _Segment(0, states[:-1], pres[:-1], vel, states[1:], pres[1:], vel, omega, new_vel)
+
+
+def _step_rows(
+    world: World,
+    limits: VehicleLimits,
+    ag: AgentSet,
+    rows: np.ndarray,
+    moving: np.ndarray,
+    states: np.ndarray,
+    steers: np.ndarray,
+) -> None:
+    """:meth:`AgentSet.predict` + commit for the agents ``rows`` (none of them replays its pose), every step."""
+    assert world.agent_paths is not None
+    lim, dt = limits, world.dt
+    wb = world.wheelbase[1:][rows]
+    static = ag.static[rows]
+    follow = Follower(world.agent_paths, rows, np.zeros((len(rows), 2)), wb)
+    state, steer = ag.state[rows].copy(), np.zeros(len(rows))
+    for k in range(len(moving)):
+        a_acc, a_str = follow.command(state, k, dt)
+        a_acc = np.where(static, -lim.max_brake, a_acc)
+        mv = moving[k, rows]
+        a_acc_l, steer_new = limit_commands(a_acc, a_str, steer, dt, lim)
+        state = np.where(mv[:, None], bicycle_step(state, a_acc_l, steer_new, wb, dt), state)
+        steer = np.where(mv, steer_new, steer)
+        states[k + 1, rows], steers[k + 1, rows] = state, steer
+
+
+def _agents_touch(ag: AgentSet, states: np.ndarray, pres: np.ndarray) -> bool:
+    """Whether :meth:`AgentSet.join_contacts` would find a contact at any step (its ignore rule, in order)."""
+    ignore, prev = ag.ignore.copy(), ag.pres_prev
+    block = max(1, 65536 // (ag.M * ag.M))  # steps whose (M, M) gaps are computed together
+    for k in range(len(states) - 1):
+        if k % block == 0:  # gaps of the candidate states at k + 1
+            gaps = agent_gaps_all(states[k + 1 : k + 1 + block], ag.half)
+        p, g = pres[k + 1], gaps[k % block]
+        both = p[:, None] & p[None, :]
+        newly = both & ~(prev[:, None] & prev[None, :])
+        ignore |= newly & (g <= 0)
+        ignore &= ~(g > 0)
+        if np.triu(both & (g <= 0) & ~ignore, 1).any():
+            return True
+        prev = p
+    return False
+
+
+def agent_gaps_all(ag: np.ndarray, ah: np.ndarray) -> np.ndarray:
+    """(K, M, M) :func:`agent_gaps` of K sets of agent boxes ``ag`` (K, M, >=3)."""
+    return sat_gap(
+        ag[:, :, None, 0], ag[:, :, None, 1], ag[:, :, None, 2], ah[None, :, None, 0], ah[None, :, None, 1],
+        ag[:, None, :, 0], ag[:, None, :, 1], ag[:, None, :, 2], ah[None, None, :, 0], ah[None, None, :, 1],
+    )  # fmt: skip

@@ -14,11 +14,12 @@ solver's impulses, so tyre friction during the contact does not blur it.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from Box2D import b2ContactListener, b2World
+from Box2D import b2ContactListener, b2World, b2WorldManifold
 
 G = 9.81
 MU_TYRE = 0.8  # locked wheels on dry asphalt
@@ -42,6 +43,7 @@ class _Listener(b2ContactListener):
     def __init__(self, world: PhysicsWorld) -> None:
         super().__init__()
         self.world = world
+        self._wm = b2WorldManifold()  # filled by each PostSolve (one object, not one per call)
 
     @staticmethod
     def _keys(contact: Any) -> tuple[Any, Any]:
@@ -73,7 +75,8 @@ class _Listener(b2ContactListener):
         ep = self.world.episodes.get(pair_key(ka, kb))
         if ep is None or ep.ended:
             return
-        wm = contact.worldManifold  # keep it referenced while reading: SWIG frees a temporary's data
+        wm = self._wm  # ``contact.worldManifold`` without building a new SWIG object per call
+        contact._b2Contact__GetWorldManifold_internal(wm)
         nx, ny = wm.normal  # the tangent is (ny, -nx)
         count = contact.manifold.pointCount
         sn, st = sum(impulse.normalImpulses[:count]), sum(impulse.tangentImpulses[:count])
@@ -142,7 +145,7 @@ class PhysicsWorld:
 
     def step(self, dt: float) -> None:
         """Advance by ``dt`` seconds in sub-steps of at most ``substep``."""
-        n = max(1, int(np.ceil(dt / self.substep - 1e-9)))
+        n = max(1, math.ceil(dt / self.substep - 1e-9))
         h = dt / n
         for _ in range(n):
             self.world.Step(h, 10, 4)
@@ -185,11 +188,13 @@ def impact_delta_v(
     w = PhysicsWorld(mu=mu)
     w.add("a", pose_a, vel_a, omega_a, *size_a)
     w.add("b", pose_b, vel_b, omega_b, *size_b)
-    while w.time < max_time:
-        w.step(SUBSTEP_S)
-        ep = w.episodes.get(pair_key("a", "b"))
+    key, world_step, episodes = pair_key("a", "b"), w.world.Step, w.episodes
+    while w.time < max_time:  # ``w.step(SUBSTEP_S)``: one sub-step each
+        world_step(SUBSTEP_S, 10, 4)
+        w.time += SUBSTEP_S
+        ep = episodes.get(key)
         if ep is not None and ep.ended:
             break
     dv = w.delta_v("a", "b")
-    ep = w.episodes.get(pair_key("a", "b"))
+    ep = w.episodes.get(key)
     return dv["a"], dv["b"], ep.point if ep is not None else (float("nan"), float("nan"))

@@ -232,11 +232,37 @@ def _resample_paths(
             out[b, :n] = (px[0], py[0])
     last = out[np.arange(B), n_base - 1]
     direction = np.column_stack([np.cos(end_heading), np.sin(end_heading)])
-    m = np.arange(out.shape[1])[None, :] - n_base[:, None] + 1  # 1.. along each extension
-    ext = (m >= 1) & (m <= n_ext[:, None])
-    steps = (np.where(ext, m, 0) * PATH_DS_M)[..., None]
-    np.copyto(out, last[:, None, :] + steps * direction[:, None, :], where=ext[..., None])
+    _continue_straight(out, n_base - 1, n_ext, last, direction)
     return out, lengths
+
+
+def _continue_straight(
+    paths: np.ndarray, end: np.ndarray, count: np.ndarray, origin: np.ndarray, step: np.ndarray
+) -> None:
+    """Write ``paths[b, end[b] + m] = origin[b] + (m * PATH_DS_M) * step[b]`` for m = 1..count[b], in place.
+
+    ``paths`` (B, P, 2); only the written tail is computed (not the whole (B, P) padding).
+    """
+    n = int(count.max()) if len(count) else 0
+    if n <= 0:
+        return
+    m = np.arange(1, n + 1)
+    rows, k = np.nonzero(m[None, :] <= count[:, None])
+    steps = (m[k] * PATH_DS_M)[:, None]
+    paths[rows, end[rows] + m[k]] = origin[rows] + steps * step[rows]
+
+
+def _continue_straight_units(
+    paths: np.ndarray, end: np.ndarray, count: np.ndarray, origin: np.ndarray, step: np.ndarray
+) -> None:
+    """Write ``paths[b, end[b] + m] = origin[b] + m * step[b]`` for m = 1..count[b], in place (``step`` in metres
+    per point)."""
+    n = int(count.max()) if len(count) else 0
+    if n <= 0:
+        return
+    m = np.arange(1, n + 1)
+    rows, k = np.nonzero(m[None, :] <= count[:, None])
+    paths[rows, end[rows] + m[k]] = origin[rows] + m[k][:, None] * step[rows]
 
 
 def _span(t: np.ndarray, times: np.ndarray, dt: float) -> tuple[int, int, np.ndarray]:
@@ -331,20 +357,22 @@ class PathSet:
             p1, p2 = paths[q, lengths - 1], paths[q, np.maximum(lengths - 2, 0)]
             d = p1 - p2
             d = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None] * PATH_DS_M
-            m = np.arange(P)[None, :] - lengths[:, None] + 1
-            pad = m >= 1
-            np.copyto(paths, p1[:, None, :] + np.where(pad, m, 0)[..., None] * d[:, None, :], where=pad[..., None])
+            _continue_straight_units(paths, lengths - 1, P - lengths, p1, d)
         heads, curvs = path_heading_curvature(paths)
         a_ref = np.gradient(v_ref, dt, axis=1) if v_ref.shape[1] > 1 else np.zeros_like(v_ref)
         return cls(paths, heads, curvs, s_ref, v_ref, a_ref)
 
     def pose_at(self, k: int) -> np.ndarray:
         """(Q, 4) x, y, heading, speed of every reference at grid step ``k`` (position at ``s_ref``)."""
+        return self.poses(np.array([k]))[0]
+
+    def poses(self, ks: np.ndarray) -> np.ndarray:
+        """(K, Q, 4) :meth:`pose_at` at each grid step of ``ks`` (K,), element for element the same arithmetic."""
         P = self.path.shape[1]
-        u = np.clip(self.s_ref[:, k] / PATH_DS_M, 0.0, P - 1.0)
-        i = np.minimum(u.astype(np.intp), P - 2) if P > 1 else np.zeros(len(u), np.intp)
-        f = (u - i)[:, None] if P > 1 else np.zeros((len(u), 1))
-        q = np.arange(len(u))
+        u = np.clip(self.s_ref[:, ks].T / PATH_DS_M, 0.0, P - 1.0)  # (K, Q)
+        i = np.minimum(u.astype(np.intp), P - 2) if P > 1 else np.zeros(u.shape, np.intp)
+        f = (u - i)[..., None] if P > 1 else np.zeros(u.shape + (1,))
+        q = np.arange(u.shape[1])[None, :]
         j = np.minimum(i + 1, P - 1)
         xy = self.path[q, i] * (1.0 - f) + self.path[q, j] * f
-        return np.column_stack([xy, self.heading[q, i], self.v_ref[:, k]])
+        return np.concatenate([xy, self.heading[q, i][..., None], self.v_ref[:, ks].T[..., None]], axis=-1)

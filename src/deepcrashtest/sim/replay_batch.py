@@ -28,16 +28,20 @@ import numpy as np
 
 from deepcrashtest.sim.agents import agent_timeline
 from deepcrashtest.sim.boxes import contact_fraction, sat_gap, signed_distance, time_to_collision
-from deepcrashtest.sim.follow import Follower
 from deepcrashtest.sim.loop import NEAR_M, TTC_EVERY, LoopOutput, PreContact, batch_delta_v
 from deepcrashtest.sim.reference import PathSet
-from deepcrashtest.sim.vehicle import VehicleLimits, bicycle_step, limit_commands, velocity_xy, yaw_rate
+from deepcrashtest.sim.rollout import rollout
+from deepcrashtest.sim.vehicle import VehicleLimits, velocity_xy, yaw_rate
 from deepcrashtest.sim.world import World
 
 #: Variants whose (steps x agents) geometry is handled together (bounds the memory: ~10 arrays of
 #: steps x ROWS x agents doubles).
 ROWS = 256
 _EPS = 1e-6  # metres / seconds of slack on the pruning bounds (they are exact up to rounding)
+#: Pairs (index, agent) farther than this from every row's ego (m) are left out of the distance
+#: geometry (TTC evaluation indices excepted); the bound this gives (~5.5 m for cars) must exceed each
+#: row's distance bound, else the rows are evaluated with every pair (see ``_Rows._prune_far_pairs``).
+FAR_M = 15.0
 
 
 def replay_batch_available(world: World, limits: VehicleLimits | None = None) -> bool:
@@ -68,7 +72,11 @@ def run_replay_batch(
     pre_contact: dict[int, PreContact] = {}
     for lo in range(0, B, ROWS):
         rows = slice(lo, min(lo + ROWS, B))
-        _Rows(world, ego[:, rows], steer[:, rows], ag, pres, ag_vel).evaluate(seg, out, rows, pre_contact)
+        for prune in (True, False):  # pairs far from every row left out, unless that could change a minimum
+            if _Rows(world, ego[:, rows], steer[:, rows], ag, pres, ag_vel, prune).evaluate(
+                seg, out, rows, pre_contact
+            ):
+                break
     batch_delta_v(world, pre_contact, out)
     return out
 
@@ -77,29 +85,29 @@ def _rollout(
     world: World, paths: PathSet, q: np.ndarray, offset: np.ndarray, init: np.ndarray, lim: VehicleLimits
 ) -> tuple[np.ndarray, np.ndarray]:
     """Ego states (T, B, 4: x, y, yaw, speed) and steering angles (T, B) over the whole grid."""
-    T, B, dt = len(world.times), len(init), world.dt
-    wb = np.full(B, world.wheelbase[0])
-    states, steers = np.empty((T, B, 4)), np.empty((T, B))
-    state, steer = np.array(init, float), np.zeros(B)
-    states[0], steers[0] = state, steer
-    follow = Follower(paths, q, offset, wb)
-    for k in range(T - 1):
-        acc_cmd, steer_cmd = follow.command(state, k, dt)
-        acc, steer = limit_commands(acc_cmd, steer_cmd, steer, dt, lim)
-        state = bicycle_step(state, acc, steer, wb, dt)
-        states[k + 1], steers[k + 1] = state, steer
-    return states, steers
+    run = rollout(paths, q, offset, init, float(world.wheelbase[0]), world.dt, len(world.times) - 1, lim)
+    return np.stack([run.x, run.y, run.yaw, run.v], axis=-1), run.steer
 
 
 class _Rows:
     """The contacts and metrics of ``R`` variants over the present (index, agent) pairs ``N`` (arrays (N, R))."""
 
     def __init__(
-        self, world: World, ego: np.ndarray, steer: np.ndarray, ag: np.ndarray, pres: np.ndarray, ag_vel: np.ndarray
+        self,
+        world: World,
+        ego: np.ndarray,
+        steer: np.ndarray,
+        ag: np.ndarray,
+        pres: np.ndarray,
+        ag_vel: np.ndarray,
+        prune: bool = False,
     ) -> None:
         self.world, self.ego, self.steer, self.ag, self.pres, self.ag_vel = world, ego, steer, ag, pres, ag_vel
         self.eh, self.ah = world.half[0], world.half[1:]
         self.pi, self.pj = np.nonzero(pres)  # the present pairs: evaluation index, agent
+        self.far_bound = np.inf  # every pair left out has ``lower`` above this (m)
+        if prune and len(self.pi):
+            self._prune_far_pairs()
         a = ag[self.pi, self.pj]  # (N, 4)
         dx = a[:, None, 0] - ego[:, :, 0][self.pi]
         dy = a[:, None, 1] - ego[:, :, 1][self.pi]
@@ -111,12 +119,39 @@ class _Rows:
         # the separating-axis gap is the largest of four, two of them on the ego's axes, each at least this
         self.lower = np.maximum(along, across) - self.r_a - _EPS
 
+    def _prune_far_pairs(self) -> None:
+        """Leave out pairs (index, agent) whose agent is over ``FAR_M`` from every row's ego centre (the rows'
+        bounding box at that index), except at the TTC evaluation indices (a far pair may still close fast).
+
+        They cannot touch (``FAR_M`` exceeds any two circumradii), and their separating-axis lower bound
+        exceeds ``far_bound``: :meth:`evaluate` checks that every row's distance bound is below it, else the
+        rows are evaluated again with every pair.
+        """
+        x, y = self.ego[:, :, 0], self.ego[:, :, 1]
+        a = self.ag[self.pi, self.pj]
+        lo_x, hi_x, lo_y, hi_y = (
+            x.min(axis=1)[self.pi],
+            x.max(axis=1)[self.pi],
+            y.min(axis=1)[self.pi],
+            y.max(axis=1)[self.pi],
+        )
+        gx = np.maximum(np.maximum(lo_x - a[:, 0], a[:, 0] - hi_x), 0.0)
+        gy = np.maximum(np.maximum(lo_y - a[:, 1], a[:, 1] - hi_y), 0.0)
+        r_max = float(np.hypot(self.ah[:, 0], self.ah[:, 1]).max())
+        far_m = max(FAR_M, 2.0 * (float(np.hypot(*self.eh)) + r_max))
+        keep = (self.pi % TTC_EVERY == 0) | (np.hypot(gx, gy) <= far_m)
+        self.pi, self.pj = self.pi[keep], self.pj[keep]
+        # lower = max(along, across) - r_a - eps >= |centre offset| / sqrt(2) - max half extent - r_a - eps
+        self.far_bound = far_m / np.sqrt(2.0) - float(self.eh.max()) - r_max - 1e-3
+
     def gap(self, n: np.ndarray, r: np.ndarray) -> np.ndarray:
         """Separating-axis gaps of the entries (pair n, row r), as the loop computes them."""
         e, a, eh, ah = self.ego[self.pi[n], r], self.ag[self.pi[n], self.pj[n]], self.eh, self.ah[self.pj[n]]
         return sat_gap(e[:, 0], e[:, 1], e[:, 2], eh[0], eh[1], a[:, 0], a[:, 1], a[:, 2], ah[:, 0], ah[:, 1])
 
-    def evaluate(self, seg: Any, out: LoopOutput, rows: slice, pre_contact: dict[int, PreContact]) -> None:
+    def evaluate(self, seg: Any, out: LoopOutput, rows: slice, pre_contact: dict[int, PreContact]) -> bool:
+        """Write the rows' outcomes; False when pairs left out could hold a row's minimum (evaluate again
+        with every pair)."""
         T, R = self.ego.shape[:2]
         # ---- contacts: boxes can touch only where their circumcircles do
         cn, cr = np.nonzero(self.dist <= np.hypot(*self.eh) + self.r_a + _EPS)
@@ -129,8 +164,10 @@ class _Rows:
         valid = self.pi[:, None] <= last[None, :]  # (N, R) the row still drives at the pair's index
         gap_known = np.full(self.dist.shape, np.nan)
         gap_known[cn, cr] = cg
-        self._min_distance(out, rows, valid, gap_known)
+        if not self._min_distance(out, rows, valid, gap_known):
+            return False
         self._min_ttc(out, rows, valid, gap_known)
+        return True
 
     def _first_contacts(
         self, cn: np.ndarray, cr: np.ndarray, cg: np.ndarray
@@ -205,7 +242,7 @@ class _Rows:
         g[refine] = signed_distance(e[:, :3], a[:, :3], self.eh[None, :], self.ah[self.pj[n[refine]]])
         return g
 
-    def _min_distance(self, out: LoopOutput, rows: slice, valid: np.ndarray, gap_known: np.ndarray) -> None:
+    def _min_distance(self, out: LoopOutput, rows: slice, valid: np.ndarray, gap_known: np.ndarray) -> bool:
         """Minimum over driven indices of the loop's distance.
 
         Bounds first: the exact distance at each row's closest centres (no box distance exceeds the
@@ -216,12 +253,16 @@ class _Rows:
         dist = np.where(valid, self.dist, np.inf)
         upper = np.full(R, np.inf)
         has = np.isfinite(dist).any(axis=0)
+        if np.isfinite(self.far_bound) and not has.all():
+            return False
         if not has.any():
             out.min_distance[rows] = upper
-            return
+            return True
         r0 = np.nonzero(has)[0]
         n0 = np.argmin(dist[:, r0], axis=0)
         upper[r0] = self._distance(n0, r0, self._gap(n0, r0, gap_known))
+        if (upper >= self.far_bound).any():
+            return False
         n, r = np.nonzero(valid & (self.lower <= upper[None, :]))
         g = self._gap(n, r, gap_known)
         order = np.lexsort((g, r))  # by row, smallest gap first
@@ -231,6 +272,19 @@ class _Rows:
             sel = (rank >= lo) & (rank < hi) & (g <= upper[r])
             np.minimum.at(upper, r[sel], self._distance(n[sel], r[sel], g[sel]))
         out.min_distance[rows] = upper
+        return True
+
+    def _never_close(self, sel: np.ndarray, w: np.ndarray, speed: np.ndarray) -> np.ndarray:
+        """(n, R) True where the boxes of pairs ``sel`` can never touch moving at their relative velocity ``w``
+        (m/s): their circumcircles stay apart for all t >= 0, so the swept test gives infinity."""
+        a = self.ag[self.pi[sel], self.pj[sel]]
+        i = self.pi[sel]
+        dx = a[:, None, 0] - self.ego[i, :, 0]
+        dy = a[:, None, 1] - self.ego[i, :, 1]
+        reach = np.hypot(*self.eh) + self.r_a[sel] + _EPS  # (n, 1)
+        closing = dx * w[..., 0] + dy * w[..., 1] < 0.0
+        miss = np.abs(dx * w[..., 1] - dy * w[..., 0])  # closest approach of the centres times the speed
+        return np.where(closing, miss > reach * speed, self.dist[sel] > reach)
 
     def _min_ttc(self, out: LoopOutput, rows: slice, valid: np.ndarray, gap_known: np.ndarray) -> None:
         """Minimum time to collision at the loop's evaluation indices (0, TTC_EVERY, ...), apart pairs only."""
@@ -243,6 +297,7 @@ class _Rows:
         ev = velocity_xy(self.ego[at, :, 2], self.ego[at, :, 3], self.steer[at])[inv]
         w = self.ag_vel[pi, pj][:, None, :] - ev
         speed = np.hypot(w[..., 0], w[..., 1])
+        ok &= ~self._never_close(sel, w, speed)
         with np.errstate(divide="ignore", invalid="ignore"):
             # no contact before the gap closes at the closing speed
             t_lower = np.nan_to_num(np.where(ok, np.maximum(self.lower[sel], 0.0) / speed, np.inf), nan=0.0)

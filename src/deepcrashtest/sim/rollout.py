@@ -1,0 +1,235 @@
+"""The replayed ego's whole run for many variants at once: path following + bicycle model, in place.
+
+The same arithmetic as one :meth:`~deepcrashtest.sim.follow.Follower.command`,
+:func:`~deepcrashtest.sim.vehicle.limit_commands` and :func:`~deepcrashtest.sim.vehicle.bicycle_step`
+per grid step (every operation on the same operands in the same order, so the states are bit for bit
+the loop's), rearranged for speed: the states are separate contiguous arrays (x, y, yaw, speed,
+steering: (T, B) each, metres, radians, m/s; world frame), every step writes into preallocated
+buffers (no temporary arrays), the path tables the follower reads are packed per point (x, y, cos
+and sin of the heading, the heading, ``atan(wheelbase * curvature)``: looked up instead of computed
+per step, the ego's wheelbase being one number) and gathered once per step instead of three times
+(the first index update reads the previous step's row; the final row is fetched again only where
+the second update moved the index), and ``tan(steer)`` is computed once per step instead of twice.
+What remains is bound by ~9 transcendental functions per variant and step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from deepcrashtest.sim.follow import K_E, K_I, K_P, K_S, V_CORR, V_SOFT
+from deepcrashtest.sim.reference import PATH_DS_M, PathSet
+from deepcrashtest.sim.vehicle import VehicleLimits
+
+
+@dataclass
+class EgoRun:
+    """Ego states on the whole grid, (T, B) each: x, y (m), yaw (rad), speed (m/s), road-wheel steer (rad)."""
+
+    x: np.ndarray
+    y: np.ndarray
+    yaw: np.ndarray
+    v: np.ndarray
+    steer: np.ndarray
+
+    def state(self, i: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """(n, 4) x, y, yaw, speed at grid indices ``i`` of rows ``r``."""
+        return np.column_stack([self.x[i, r], self.y[i, r], self.yaw[i, r], self.v[i, r]])
+
+
+def rollout(
+    paths: PathSet,
+    q: np.ndarray,
+    offset: np.ndarray,
+    init: np.ndarray,
+    wheelbase: float,
+    dt: float,
+    steps: int,
+    limits: VehicleLimits,
+) -> EgoRun:
+    """Drive ``B`` egos (initial states ``init`` (B, 4), zero steering) along ``paths[q]`` (translated by
+    ``offset`` (B, 2), m) for ``steps`` grid steps; the grid has ``steps + 1`` indices."""
+    B = len(init)
+    T = steps + 1
+    run = EgoRun(*(np.empty((T, B)) for _ in range(5)))
+    X, Y, YAW, V, STEER = run.x, run.y, run.yaw, run.v, run.steer
+    X[0], Y[0], YAW[0], V[0] = (np.asarray(init[:, c], float) for c in range(4))
+    STEER[0] = 0.0
+    q = np.asarray(q, np.intp)
+    P = paths.path.shape[1]
+    # path tables, flat over (reference, point), packed per point: x, y, cos and sin of the heading, the
+    # heading, atan(wheelbase * curvature)
+    table = np.empty((paths.path.shape[0] * P, 6))
+    table[:, 0] = paths.path[..., 0].ravel()
+    table[:, 1] = paths.path[..., 1].ravel()
+    h = paths.heading.ravel()
+    table[:, 2], table[:, 3], table[:, 4] = np.cos(h), np.sin(h), h
+    table[:, 5] = np.arctan(wheelbase * paths.curvature.ravel())
+    identity = len(q) == paths.s_ref.shape[0] and bool((q == np.arange(len(q))).all())
+    profiles = (paths.s_ref, paths.v_ref, paths.a_ref)
+    s_tab, v_tab, a_tab = (np.ascontiguousarray(a.T if identity else a[q].T) for a in profiles)
+    base = q * P
+    last = P - 2
+    half = 0.5 * wheelbase
+    off = np.asarray(offset, float)
+    shifted = bool(np.any(off != 0.0))
+    ox, oy = np.ascontiguousarray(off[:, 0]), np.ascontiguousarray(off[:, 1])
+    idx = np.zeros(B, np.intp)
+    integral = np.zeros(B)
+    # buffers
+    f = np.empty(B, np.intp)
+    di = np.empty(B, np.intp)
+    moved = np.empty(B, np.intp)
+    g = np.empty((B, 6))
+    gx, gy, gc, gs, gh, gk = (g[:, c] for c in range(6))
+    np.take(table, base, axis=0, out=g)  # index 0 of every path
+    fx, fy, t1, t2, t3 = (np.empty(B) for _ in range(5))
+    steer_c, acc, tan_s, beta, tau = (np.empty(B) for _ in range(5))
+    braking = np.empty(B, bool)
+    nan = np.empty(B, bool)
+    two_pi = 2 * np.pi
+    rate = limits.max_steer_rate * dt
+    for k in range(steps):
+        x, y, yaw, v, steer = X[k], Y[k], YAW[k], V[k], STEER[k]
+        # ---- Follower.command: front axle, projection onto the path
+        np.cos(yaw, out=t1)
+        np.multiply(t1, half, out=t1)
+        np.add(x, t1, out=fx)
+        np.sin(yaw, out=t1)
+        np.multiply(t1, half, out=t1)
+        np.add(y, t1, out=fy)
+        if shifted:
+            np.subtract(fx, ox, out=fx)
+            np.subtract(fy, oy, out=fy)
+        # two updates of the path index from the along-track offset; ``g`` holds the table row at the index
+        _index_update(fx, fy, g, idx, last, di, t1, t2)  # first: at the previous step's index, already gathered
+        np.add(base, idx, out=f)
+        np.take(table, f, axis=0, out=g)
+        np.copyto(moved, idx)
+        _index_update(fx, fy, g, idx, last, di, t1, t2)
+        np.not_equal(idx, moved, out=nan)
+        if nan.any():  # rare: the second update moved the index; fetch those rows again
+            rows = np.flatnonzero(nan)
+            g[rows] = table[base[rows] + idx[rows]]
+        np.subtract(fx, gx, out=t1)  # dx
+        np.subtract(fy, gy, out=t2)  # dy
+        # lateral = -dx * s + dy * c (``dy * c - dx * s`` bit for bit)
+        np.multiply(t2, gc, out=t3)
+        np.multiply(t1, gs, out=steer_c)
+        np.subtract(t3, steer_c, out=t3)  # lateral
+        # along = dx * c + dy * s
+        np.multiply(t1, gc, out=t1)
+        np.multiply(t2, gs, out=t2)
+        np.add(t1, t2, out=t1)  # along
+        # heading error and Stanley steering
+        np.subtract(gh, yaw, out=t2)
+        np.add(t2, np.pi, out=t2)
+        np.remainder(t2, two_pi, out=t2)
+        np.subtract(t2, np.pi, out=t2)  # head_err
+        np.multiply(t3, K_E, out=t3)
+        np.add(v, V_SOFT, out=steer_c)
+        np.divide(t3, steer_c, out=t3)
+        np.arctan(t3, out=t3)
+        np.add(gk, t2, out=steer_c)
+        np.subtract(steer_c, t3, out=steer_c)  # steering command
+        # station and speed: s_centre = i * ds + along - half
+        np.multiply(idx, PATH_DS_M, out=t2)
+        np.add(t2, t1, out=t2)
+        np.subtract(t2, half, out=t2)
+        np.subtract(s_tab[k], t2, out=t2)
+        if K_S != 1.0:
+            np.multiply(t2, K_S, out=t2)
+        np.maximum(t2, -V_CORR, out=t2)
+        np.minimum(t2, V_CORR, out=t2)
+        np.add(v_tab[k], t2, out=t2)  # v_cmd
+        np.maximum(t2, 0.0, out=t2)
+        np.subtract(t2, v, out=t2)  # err
+        np.multiply(t2, dt, out=t1)
+        np.add(integral, t1, out=integral)
+        np.maximum(integral, -2.0, out=integral)
+        np.minimum(integral, 2.0, out=integral)
+        np.multiply(t2, K_P, out=t2)
+        np.add(a_tab[k], t2, out=acc)
+        np.multiply(integral, K_I, out=t1)
+        np.add(acc, t1, out=acc)  # acceleration command
+        # ---- limit_commands
+        _clip_nan_zero(acc, -limits.max_brake, limits.max_accel, nan)
+        _clip_nan_zero(steer_c, -limits.max_steer, limits.max_steer, nan)
+        np.subtract(steer_c, steer, out=steer_c)
+        np.maximum(steer_c, -rate, out=steer_c)
+        np.minimum(steer_c, rate, out=steer_c)
+        st = STEER[k + 1]
+        np.add(steer, steer_c, out=st)
+        # ---- bicycle_step
+        np.less(acc, 0.0, out=braking)
+        tau.fill(dt)
+        if braking.any():
+            np.negative(acc, out=t1)
+            np.divide(v, t1, out=t1, where=braking)
+            np.minimum(t1, dt, out=tau, where=braking)
+        np.multiply(v, tau, out=t1)
+        np.multiply(acc, 0.5, out=t2)
+        np.multiply(t2, tau, out=t2)
+        np.multiply(t2, tau, out=t2)
+        np.add(t1, t2, out=t1)  # dist
+        vn = V[k + 1]
+        np.multiply(acc, tau, out=t2)
+        np.add(v, t2, out=vn)
+        np.maximum(vn, 0.0, out=vn)
+        np.tan(st, out=tan_s)
+        np.multiply(tan_s, 0.5, out=beta)
+        np.arctan(beta, out=beta)
+        np.divide(t1, dt, out=t2)  # v_mean
+        np.cos(beta, out=t3)
+        np.multiply(t2, t3, out=t2)
+        np.multiply(t2, tan_s, out=t2)
+        np.divide(t2, wheelbase, out=t2)
+        np.multiply(t2, dt, out=t2)
+        yn = YAW[k + 1]
+        np.add(yaw, t2, out=yn)
+        np.add(yaw, yn, out=t2)
+        np.multiply(t2, 0.5, out=t2)
+        np.add(t2, beta, out=t2)  # course
+        np.cos(t2, out=t3)
+        np.multiply(t1, t3, out=t3)
+        np.add(x, t3, out=X[k + 1])
+        np.sin(t2, out=t3)
+        np.multiply(t1, t3, out=t3)
+        np.add(y, t3, out=Y[k + 1])
+    return run
+
+
+def _clip_nan_zero(a: np.ndarray, lo: float, hi: float, nan: np.ndarray) -> None:
+    """``vehicle._clip_nan_zero`` in place: ``a`` clipped to [lo, hi], NaN -> 0 (``nan``: a bool buffer)."""
+    np.maximum(a, lo, out=a)
+    np.minimum(a, hi, out=a)
+    np.isnan(a, out=nan)
+    if nan.any():
+        a[nan] = 0.0
+
+
+def _index_update(
+    fx: np.ndarray,
+    fy: np.ndarray,
+    g: np.ndarray,
+    idx: np.ndarray,
+    last: int,
+    di: np.ndarray,
+    t1: np.ndarray,
+    t2: np.ndarray,
+) -> None:
+    """``idx = clip(idx + rint(along / ds), 0, last)`` in place, ``along`` the front axle's offset along the path
+    at the gathered rows ``g`` (x, y, cos, sin of the heading, ...); ``di``, ``t1``, ``t2``: buffers."""
+    np.subtract(fx, g[:, 0], out=t1)
+    np.multiply(t1, g[:, 2], out=t1)
+    np.subtract(fy, g[:, 1], out=t2)
+    np.multiply(t2, g[:, 3], out=t2)
+    np.add(t1, t2, out=t1)
+    np.divide(t1, PATH_DS_M, out=t1)
+    np.rint(t1, out=t1)
+    np.copyto(di, t1, casting="unsafe")  # ``.astype(np.intp)``
+    np.add(idx, di, out=di)
+    np.maximum(di, 0, out=di)
+    np.minimum(di, last, out=idx)
