@@ -37,11 +37,22 @@ def smooth_series(t: np.ndarray, v: np.ndarray, window_s: float) -> np.ndarray:
     return np.asarray(savgol_filter(v, win, 2), dtype=float)
 
 
+MOUNT_SPEED_MPS = 2.0
+"""Steps faster than this (m/s) measure the camera's constant yaw relative to the car's travel (its mount)."""
+
+
 def along_heading(t: np.ndarray, xy: np.ndarray, yaw: np.ndarray) -> np.ndarray:
-    """Path (N, 2) whose every step is the step of ``xy`` projected on the heading ``yaw`` (N,) at its middle."""
+    """Path (N, 2) whose every step is the step of ``xy`` projected on the heading ``yaw`` (N,) at its middle,
+    plus the camera's constant mount yaw (the median offset of the travel from ``yaw`` over steps faster than
+    ``MOUNT_SPEED_MPS``: KITTI 0008's ORB-SLAM path runs 0.24 deg off the camera's yaw, 2.4 m over the clip)."""
     if len(t) < 2:
         return xy.copy()
     mid = 0.5 * (yaw[1:] + yaw[:-1])
+    d = np.diff(xy, axis=0)
+    fast = np.hypot(*d.T) / np.maximum(np.diff(t), EPS_T) > MOUNT_SPEED_MPS
+    if fast.sum() >= 5:
+        off = (np.arctan2(d[fast, 1], d[fast, 0]) - mid[fast] + np.pi) % (2 * np.pi) - np.pi
+        mid = mid + float(np.median(off))
     u = np.column_stack([np.cos(mid), np.sin(mid)])
     along = (np.diff(xy, axis=0) * u).sum(axis=1)
     return xy[0] + np.vstack([np.zeros((1, 2)), np.cumsum(along[:, None] * u, axis=0)])
