@@ -56,8 +56,11 @@ def run_clip(name: str, label_file: Path, label: CrashLabel, work: Path, args: a
         run_extract(video, out, max_frames=max_frames, force=True, report=False, annotate=False)
     t_extract = time.perf_counter() - t0
     crash_given = None
+    cpu0, wall0 = time.process_time(), time.perf_counter()
     if restage_only:
         crash_given = restage(out, label, args.labelled_crash)
+    stage2_cpu_s = time.process_time() - cpu0 if restage_only else None
+    stage2_wall_s = time.perf_counter() - wall0 if restage_only else None
     if not (out / "scenario.json").is_file():
         return {"clip": name, "error": "extraction produced no processed scenario"}
     res, summary = run_fidelity(
@@ -89,6 +92,8 @@ def run_clip(name: str, label_file: Path, label: CrashLabel, work: Path, args: a
         "scenario_collision_same_pair": (crash.get("scenario_collision") or {}).get("same_pair"),
         "notes": summary["notes"],
         "extract_s": round(t_extract, 1),
+        "stage2_cpu_s": None if stage2_cpu_s is None else round(stage2_cpu_s, 2),
+        "stage2_wall_s": None if stage2_wall_s is None else round(stage2_wall_s, 2),
         "crash_given": crash_given,
         "correction": correction_record(out / "scenario.json"),
     }

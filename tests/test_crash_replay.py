@@ -81,3 +81,18 @@ def test_agents_replay_their_processed_trajectories(kitti_root):
         )
         worst = max(worst, float(err.max()))
     assert worst < 0.1
+
+
+def test_detected_crash_of_two_road_users_standing_still_is_dropped(kitti_root):
+    """Two cars parked side by side (KITTI 0002, tracks 17 and 18, 8-23 s) cannot crash: a detected
+    (video-auto) crash between them is dropped with a warning, not forced by moving a parked car, and the
+    scenario keeps the whole video."""
+    from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
+
+    raw = scenario_from_kitti(kitti_root, 2, road_users=True)
+    raw = raw.evolve(collision=Collision(time_s=20.0, other_id=17, agent_id=18, source="video-auto", confidence=0.5))
+    sc = process_scenario(raw)
+    assert sc.collision is None
+    assert any("neither moves" in w for w in sc.warnings), sc.warnings
+    # the scenario does not end at the dropped crash: every observed second is kept
+    assert sc.video_time(sc.ego.trajectory.t[-1]) >= raw.video_time(raw.ego.trajectory.t[-1]) - 0.2

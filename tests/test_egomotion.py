@@ -83,3 +83,19 @@ def test_moving_dashcam_with_date_overlay_is_not_stopped():
     res = est.result()
     assert not res.static and not any(s.raw_speed == 0.0 for s in est._states)
     assert float(np.median(res.speed[1:])) > 3.0
+
+
+def test_25fps_video_is_measured_at_most_20_times_a_second_and_interpolated():
+    """highway_project_video (25 fps): every other frame is measured (MAX_RATE_HZ = 20), the frames
+    between lie on the straight line between their measured neighbours, and every frame has a state."""
+    imgs = _frames(DATA / "dashcam_udacity" / "highway_project_video.mp4", 21)
+    h, w = imgs[0].shape[:2]
+    est = EgoMotionEstimator(default_camera(w, h), mask_bottom_rows=detect_dashboard_rows(imgs[::5]))
+    for i, img in enumerate(imgs):
+        est.update(img, i / 25.0)
+    res = est.result()
+    assert len(res) == 21 and list(res.frame) == list(range(21))
+    assert not res.static and float(np.median(res.speed)) > 5.0  # driving on the highway
+    odd = np.arange(1, 20, 2)
+    for arr in (res.x, res.y, res.yaw, res.speed):
+        assert np.allclose(arr[odd], 0.5 * (arr[odd - 1] + arr[odd + 1]), atol=1e-9)

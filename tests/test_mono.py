@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from deepcrashtest.datasets.kitti.files import KittiSequence, read_calib, read_labels, read_poses
@@ -180,3 +181,36 @@ def test_pitch_bounce_calibrates_the_focal_where_parked_cars_mislead(kitti_root)
     echo = self_calibrate(tracks, start, p4.size, image_ego, ego_scaled_by_height=True)
     assert echo.camera.fy == start.fy and any("cannot calibrate" in n for n in echo.notes)
     assert echo.ego_scale == pytest.approx(echo.height_m / start.height_m)
+
+
+#: Held-out MOTA floors (KITTI camera, PointRCNN 2D boxes): about 2 points under what the tuned
+#: defaults measure (77.25 / 67.76 / 85.17, README), above the numbers before (74.55 / 61.41
+#: / 78.62), so a return to that state fails. The path is deterministic (no random choice).
+HELD_OUT_FLOOR = {"0003": 75.0, "0008": 65.5, "0010": 83.0}
+
+
+def test_held_out_mota_does_not_regress(kitti_root):
+    """The held-out sequences 3, 8, 10 (never used to choose a setting) through the monocular path."""
+    rows = evaluate_mono(kitti_root, [3, 8, 10])["sequences"]
+    for name, floor in HELD_OUT_FLOOR.items():
+        assert rows[name]["MOTA"] >= floor, (name, rows[name]["MOTA"])
+
+
+def test_far_receding_tracks_are_carried_past_their_end(kitti_root):
+    """Extension rows are undetected, beyond the minimum range, and only on tracks that recede."""
+    from deepcrashtest.eval.kitti_mono import ego_of
+    from deepcrashtest.geometry.mono3d import localize_tracks
+
+    prep = prepare_mono(kitti_root, 2)  # highway: cars drive away beyond the detector's reach
+    tracks = image_tracks(prep, DEFAULT_MONO)
+    ego = ego_of(prep.world)
+    cfg = DEFAULT_MONO.mono
+    on = localize_tracks(tracks, prep.camera, ego, prep.size, 10.0, cfg)
+    off = localize_tracks(tracks, prep.camera, ego, prep.size, 10.0, dataclasses.replace(cfg, extend_s=0.0))
+    extra = on.merge(off[["track_id", "frame"]], how="left", indicator=True)
+    extra = extra[extra["_merge"] == "left_only"]
+    assert len(extra) > 20 and not extra["detected"].any() and extra["x1"].isna().all()
+    assert len(on) - len(extra) == len(off)
+    ex = extra.merge(pd.DataFrame({"frame": ego.frame, "ex": ego.x, "ey": ego.y}), on="frame")
+    assert len(ex) == len(extra)
+    assert (np.hypot(ex["x"] - ex["ex"], ex["y"] - ex["ey"]) >= cfg.extend_min_range_m - 1.0).all()

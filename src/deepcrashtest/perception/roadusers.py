@@ -13,11 +13,27 @@ head to the wheels, which is what the size prior of ``motorcycle``/``bicycle`` i
 
 Thresholds were chosen by looking at DAD clips 000478/000487 (scooters with riders, annotated frames).
 Each person joins at most one two-wheeler (the best overlap); a two-wheeler may carry two (a passenger).
+Two more cases, chosen on DAD clips 000487 and 000512 (frames 85-90, the contact frames' boxes):
+
+* **Two two-wheelers in one box** (:func:`split_two_wheelers`): the detector sometimes reports two
+  scooters side by side as one box. A two-wheeler seen side-on is at most ~2x as wide as tall (1.7-2.2 m
+  long, ~1.1 m tall); a box wider than ``SPLIT_ASPECT`` x its height whose riders sit side by side
+  (centres more than ``SPLIT_RIDER_GAP`` of their mean width apart) is cut between the riders: one
+  two-wheeler per rider (dad_000512: 424x148 px over the two colliding scooters).
+* **Riders whose two-wheeler is hidden** (:func:`rider_groups`): a scooter with two riders seen from
+  behind at the ego's bumper is two person boxes and no two-wheeler (the riders hide it). Two persons
+  standing at the same distance (bottoms within ``GROUP_BOTTOM`` of their height, heights within
+  ``GROUP_HEIGHT_RATIO``) whose boxes overlap horizontally (``GROUP_X_OVERLAP`` of the narrower) and
+  whose union is no taller than ``GROUP_MAX_ASPECT`` x its width (two walkers side by side are taller:
+  a walker's box is ~3x as tall as wide) are riders of one two-wheeler: one ``motorcycle``.
+
 People inside cars (drivers seen through a windscreen) are not road users of their own
-(:func:`occupants`); :func:`road_users` applies both.
+(:func:`occupants`); :func:`road_users` applies all of these.
 """
 
 from __future__ import annotations
+
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -29,6 +45,29 @@ MOTOR_VEHICLES = ("car", "van", "truck", "bus")
 OCCUPANT_INSIDE = 0.9
 RIDER_X_OVERLAP = 0.5
 RIDER_BOTTOM_BELOW = 0.25
+SPLIT_ASPECT = 2.5
+SPLIT_RIDER_GAP = 0.5
+GROUP_BOTTOM = 0.1
+GROUP_HEIGHT_RATIO = 1.3
+GROUP_X_OVERLAP = 0.3
+GROUP_MAX_ASPECT = 1.6
+#: A track seen as a two-wheeler in at least this share of its two-wheeler + person frames (or votes) is a
+#: two-wheeler: a rider whose scooter is hidden is detected as a person, a walker is never a two-wheeler.
+#: dad_000487: the two riders at the ego's bumper are a two-wheeler in 2 of their 7 detection rounds.
+RIDER_TRACK_SHARE = 0.25
+
+
+def track_category(votes: Mapping[str, float]) -> str:
+    """A track's category from its class ``votes`` (class -> summed scores, or frame counts): the class with
+    most votes, except that a two-wheeler wins over ``pedestrian`` with ``RIDER_TRACK_SHARE`` of their votes
+    (one road user: the two-wheeler and its riders)."""
+    best = min(votes, key=lambda k: (-votes[k], k))  # ties: the first name, as pandas' mode
+    wheels = {k: v for k, v in votes.items() if k in TWO_WHEELERS and v > 0}
+    if best == "pedestrian" and wheels:
+        wheel = max(wheels, key=lambda k: wheels[k])
+        if sum(wheels.values()) >= RIDER_TRACK_SHARE * (sum(wheels.values()) + votes[best]):
+            return wheel
+    return best
 
 
 def rider_pairs(det: Detections) -> list[tuple[int, int]]:
@@ -81,7 +120,7 @@ def road_users(det: Detections) -> Detections:
     if len(gone):
         det = det.subset(np.setdiff1d(np.arange(len(det)), gone))
     n_before = len(det)
-    det = merge_riders(det)
+    det = rider_groups(merge_riders(split_two_wheelers(det)))
     if len(det) == n_before:
         return det
     wheels = np.flatnonzero(np.isin(det.categories, TWO_WHEELERS))
@@ -108,3 +147,88 @@ def merge_riders(det: Detections) -> Detections:
     riders = {person for person, _ in pairs}
     keep = np.array([i for i in range(len(det)) if i not in riders], dtype=np.int64)
     return Detections(boxes, scores, det.categories, masks).subset(keep)
+
+
+def split_two_wheelers(det: Detections) -> Detections:
+    """``det`` with every too-wide two-wheeler box that carries riders side by side cut into one box per rider.
+
+    The cut lies halfway between neighbouring riders' centres; each part keeps the two-wheeler's rows,
+    score and category (masks are cut the same way)."""
+    pairs = rider_pairs(det)
+    by_wheel: dict[int, list[int]] = {}
+    for person, wheel in pairs:
+        by_wheel.setdefault(wheel, []).append(person)
+    boxes, scores, cats = list(det.boxes), list(det.scores), list(det.categories)
+    masks = None if det.masks is None else list(det.masks)
+    drop = []
+    for wheel, persons in by_wheel.items():
+        b = det.boxes[wheel].astype(float)
+        if len(persons) < 2 or (b[2] - b[0]) <= SPLIT_ASPECT * (b[3] - b[1]):
+            continue
+        p = det.boxes[persons].astype(float)
+        inside = intersection_over_smaller(p, p) >= OCCUPANT_INSIDE
+        area = (p[:, 2] - p[:, 0]) * (p[:, 3] - p[:, 1])
+        part = (inside & (area[:, None] < area[None, :])).any(axis=1)  # a part-box of a rider: not a rider
+        p = p[~part]
+        if len(p) < 2:
+            continue
+        centres = np.sort(0.5 * (p[:, 0] + p[:, 2]))
+        if np.diff(centres).min() < SPLIT_RIDER_GAP * float(np.mean(p[:, 2] - p[:, 0])):
+            continue  # a rider and a passenger, one behind the other
+        cuts = np.r_[b[0], 0.5 * (centres[1:] + centres[:-1]), b[2]]
+        drop.append(wheel)
+        for x0, x1 in zip(cuts[:-1], cuts[1:], strict=True):
+            boxes.append(np.array([x0, b[1], x1, b[3]], dtype=det.boxes.dtype))
+            scores.append(det.scores[wheel])
+            cats.append(det.categories[wheel])
+            if masks is not None:
+                m = np.zeros_like(det.masks[wheel])  # type: ignore[index]
+                m[:, int(round(x0)) : int(round(x1))] = det.masks[wheel][:, int(round(x0)) : int(round(x1))]  # type: ignore[index]
+                masks.append(m)
+    if not drop:
+        return det
+    keep = np.array([i for i in range(len(boxes)) if i not in drop], dtype=np.int64)
+    out = Detections(
+        np.asarray(boxes, dtype=det.boxes.dtype), np.asarray(scores, dtype=det.scores.dtype),
+        np.asarray(cats, dtype=det.categories.dtype), None if masks is None else np.asarray(masks),
+    )  # fmt: skip
+    return out.subset(keep)
+
+
+def rider_groups(det: Detections) -> Detections:
+    """``det`` with every group of persons riding one hidden two-wheeler (see the module docstring) joined
+    into one ``motorcycle`` box (the union, the highest score). Call after :func:`merge_riders`."""
+    persons = np.flatnonzero(np.asarray(det.categories).astype(str) == "pedestrian")
+    if len(persons) < 2:
+        return det
+    p = det.boxes[persons].astype(float)
+    h = np.maximum(p[:, 3] - p[:, 1], 1.0)
+    w = np.maximum(p[:, 2] - p[:, 0], 1.0)
+    ix = np.clip(np.minimum(p[:, None, 2], p[None, :, 2]) - np.maximum(p[:, None, 0], p[None, :, 0]), 0, None)
+    hmin = np.minimum(h[:, None], h[None, :])
+    lo, hi = np.minimum(p[:, None, :2], p[None, :, :2]), np.maximum(p[:, None, 2:], p[None, :, 2:])
+    union = np.concatenate([lo, hi], axis=-1)
+    ok = (
+        (np.abs(p[:, None, 3] - p[None, :, 3]) <= GROUP_BOTTOM * hmin)
+        & (np.maximum(h[:, None], h[None, :]) <= GROUP_HEIGHT_RATIO * hmin)
+        & (ix >= GROUP_X_OVERLAP * np.minimum(w[:, None], w[None, :]))
+        & (union[..., 3] - union[..., 1] <= GROUP_MAX_ASPECT * (union[..., 2] - union[..., 0]))
+    )
+    np.fill_diagonal(ok, False)
+    boxes, scores, cats = det.boxes.copy(), det.scores.copy(), np.asarray(det.categories).copy()
+    masks = None if det.masks is None else det.masks.copy()
+    gone: set[int] = set()
+    for i, j in zip(*np.nonzero(np.triu(ok)), strict=True):
+        a, b = int(persons[i]), int(persons[j])
+        if a in gone or b in gone:
+            continue
+        keep, other = (a, b) if det.scores[a] >= det.scores[b] else (b, a)
+        boxes[keep] = union[i, j]
+        cats[keep] = "motorcycle"
+        if masks is not None:
+            masks[keep] |= det.masks[other]  # type: ignore[index]
+        gone.add(other)
+    if not gone:
+        return det
+    idx = np.array([k for k in range(len(det)) if k not in gone], dtype=np.int64)
+    return Detections(boxes, scores, cats, masks).subset(idx)

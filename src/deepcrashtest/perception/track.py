@@ -41,7 +41,7 @@ from deepcrashtest.perception.lifecycle import (
     TrackState,
     assign,
 )
-from deepcrashtest.perception.roadusers import road_users
+from deepcrashtest.perception.roadusers import TWO_WHEELERS, road_users, track_category
 from deepcrashtest.video.source import Frame, VideoSource
 
 __all__ = [
@@ -66,6 +66,11 @@ TRACK_COLUMNS = ["frame", "time", "track_id", "category", "x1", "y1", "x2", "y2"
 #: Classes a track may switch between: motor vehicles; vulnerable road users (a rider seen without
 #: the two-wheeler is detected as a pedestrian for a frame or two, the votes keep the track's class).
 _GROUP = {"car": 0, "van": 0, "truck": 0, "bus": 0, "motorcycle": 1, "bicycle": 1, "pedestrian": 1}
+#: A detection more than this many times taller (or shorter) than a track's last detected box is another road
+#: user (its distance does not halve in the <= 1 s a track is carried without detection). Against the last
+#: *detected* box: a carried box drifts with whatever passes in front of it. dad_000487: walkers on the
+#: pavement (154-161 px) hidden by a passing scooter took over its riders' box (350 px), one track for both.
+MAX_HEIGHT_RATIO = 2.0
 
 
 @dataclass
@@ -80,10 +85,19 @@ class ImageTrack(TrackBase):
     detected_box: np.ndarray = field(default_factory=lambda: np.zeros(4))
     detected_now: bool = False
     tentative_rows: list[tuple[int, float, TrackedBox]] = field(default_factory=list)
+    wheel: str = ""  # the two-wheeler class once the track was one
 
     @property
     def category(self) -> str:
-        return max(self.votes.items(), key=lambda kv: kv[1])[0]
+        """The class of most votes (:func:`~deepcrashtest.perception.roadusers.track_category`); once a two-wheeler,
+        always one (its riders are seen without it, a walker is never seen as one)."""
+        return self.wheel or track_category(self.votes)
+
+    def vote(self, category: str, score: float) -> None:
+        """Add a detection's class vote (its score)."""
+        self.votes[category] = self.votes.get(category, 0.0) + score
+        if not self.wheel and (cat := track_category(self.votes)) in TWO_WHEELERS:
+            self.wheel = cat
 
 
 @dataclass(frozen=True)
@@ -222,6 +236,7 @@ class BoxTracker:
             tg = np.array([_GROUP.get(t.category, 0) for t in tracks])
             dg = np.array([_GROUP.get(str(c), 0) for c in dets.categories])
             cost[tg[:, None] != dg[None, :]] = np.inf
+            cost[_height_jumps(tracks, dets.boxes)] = np.inf
         result = self.core.step(cost, max_cost=1.0 - self.min_iou)
         for t, j in result.matched:
             self._absorb(t, dets, j)
@@ -236,7 +251,7 @@ class BoxTracker:
             t.detected_box = t.box.copy()
             t.last_detected = self._n
             t.score = float(dets.scores[j])
-            t.votes = {str(dets.categories[j]): float(dets.scores[j])}
+            t.vote(str(dets.categories[j]), float(dets.scores[j]))
             t.detected_now = True
             existing.append(t.box)
 
@@ -249,9 +264,16 @@ class BoxTracker:
         t.detected_box = box.copy()
         t.last_detected = self._n
         t.score = float(dets.scores[j])
-        cat = str(dets.categories[j])
-        t.votes[cat] = t.votes.get(cat, 0.0) + float(dets.scores[j])
+        t.vote(str(dets.categories[j]), float(dets.scores[j]))
         t.detected_now = True
+
+
+def _height_jumps(tracks: list[ImageTrack], boxes: np.ndarray) -> np.ndarray:
+    """(tracks, detections) True where the detection's height is off the track's last detected box's by more
+    than :data:`MAX_HEIGHT_RATIO` (a track is carried for at most ``max_age_s``, ~1 s)."""
+    last = np.array([max(t.detected_box[3] - t.detected_box[1], 1.0) for t in tracks])
+    ratio = np.abs(np.log(np.maximum(boxes[:, 3] - boxes[:, 1], 1.0)[None, :] / last[:, None]))
+    return ratio > math.log(MAX_HEIGHT_RATIO)
 
 
 def _visible_fraction(box: np.ndarray, w: int, h: int) -> float:

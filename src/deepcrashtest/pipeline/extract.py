@@ -38,7 +38,7 @@ from deepcrashtest.perception.detections import Detector
 from deepcrashtest.perception.lanes import LaneState, draw_lanes
 from deepcrashtest.perception.track import FrameTracks, frame_records, iter_tracks, records_table
 from deepcrashtest.pipeline.crash import CrashSpec, crash_for_raw, parse_crash
-from deepcrashtest.pipeline.geometry_pass import GeometryResult, extract_geometry
+from deepcrashtest.pipeline.geometry_pass import GeometryResult, TrackRows, extract_geometry
 from deepcrashtest.pipeline.threads import Worker, prefetch
 from deepcrashtest.scenario import Camera, VideoSource
 from deepcrashtest.trajectory.params import Stage2Params
@@ -341,14 +341,14 @@ class _Pass:
         """Ego-motion, lanes and localisation over the tracked frames (:mod:`.geometry_pass`)."""
         pending: dict[int, FrameTracks] = {}
 
-        def pairs() -> Iterator[tuple[Any, pd.DataFrame]]:
+        def pairs() -> Iterator[tuple[Any, TrackRows]]:
             for ft in tracked:
                 rows = frame_records(ft)
                 records.extend(rows)
                 pending[ft.frame.index] = ft
-                yield ft.frame, records_table(rows)
+                yield ft.frame, rows
 
-        def on_frame(frame: Any, _trk: pd.DataFrame, lane_state: LaneState | None) -> None:
+        def on_frame(frame: Any, _trk: TrackRows, lane_state: LaneState | None) -> None:
             self.motion.update(int(frame.index), frame.image)
             draw(pending.pop(int(frame.index)), lane_state)
 

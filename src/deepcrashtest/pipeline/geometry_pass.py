@@ -5,18 +5,20 @@ libraries; the stages themselves stay libraries).
 :func:`extract_geometry` consumes ``(frame, tracks_at_that_frame)`` pairs, where ``frame`` has
 ``index`` (int), ``time`` (s) and ``image`` (BGR array, full resolution) - the ``Frame`` of
 ``deepcrashtest.video.source`` - and ``tracks_at_that_frame`` is the tracks table's rows of that
-frame (columns of :data:`deepcrashtest.geometry.world_tracks.TRACK_COLUMNS`; may be empty).
+frame (columns of :data:`deepcrashtest.geometry.world_tracks.TRACK_COLUMNS`; may be empty), as a
+DataFrame or as the list of row tuples (:func:`~deepcrashtest.perception.track.frame_records`: no
+per-frame DataFrame to build; the whole table is built once at the end).
 
-The first ``calib_seconds`` of frames are buffered to estimate what the stream needs before it
-starts: the dashboard/bonnet rows (below a persistent edge with a still image beneath, unless
-given), and the horizon (vanishing point of the lane lines, else the focus of expansion of the flow, else the camera's
-own pitch). Then every buffered and later frame goes through the ego-motion estimator and the
-lane detector once; frames are never decoded twice. Lanes run in a second thread beside the
-ego-motion estimator (both spend their time in OpenCV / NumPy, which release the GIL). When no
-calibration was given (the camera's intrinsics are the unknown-dashcam default), the whole video's
-tracks then calibrate the camera (:func:`~deepcrashtest.geometry.selfcalib.self_calibrate`: horizon,
-camera height, focal length, each with its uncertainty and source) and the ego path is rescaled to
-the measured camera height.
+The first ``calib_seconds`` of frames are buffered to estimate what the stream needs before it starts: the
+dashboard/bonnet rows (below a persistent edge with a still image beneath, unless given), and the horizon
+(vanishing point of the lane lines, else the focus of expansion of the flow, else the camera's own pitch).
+Then every buffered and later frame goes through the ego-motion estimator and the lane detector once (both
+measure at most ``MAX_RATE_HZ`` frames a second: a 25 fps video at 12.5 fps, the frames between interpolated
+or showing the last lanes); frames are never decoded twice. Lanes run in a second thread beside the ego-motion
+estimator (both spend their time in OpenCV / NumPy, which release the GIL). When no calibration was given (the
+camera's intrinsics are the unknown-dashcam default), the whole video's tracks then calibrate the camera
+(:func:`~deepcrashtest.geometry.selfcalib.self_calibrate`: horizon, camera height, focal length, each with its
+uncertainty and source) and the ego path is rescaled to the measured camera height.
 """
 
 from __future__ import annotations
@@ -38,11 +40,11 @@ from deepcrashtest.geometry.camera import (
     vanishing_point_from_lines,
     with_horizon,
 )
-from deepcrashtest.geometry.egomotion import EgoMotion, EgoMotionEstimator
+from deepcrashtest.geometry.egomotion import MAX_RATE_HZ, EgoMotion, EgoMotionEstimator
 from deepcrashtest.geometry.localize import Localizer
 from deepcrashtest.geometry.selfcalib import SelfCalibration, self_calibrate
 from deepcrashtest.perception.lanes import ClassicalLaneDetector, LaneDetector, LaneState, LaneTimelineResult
-from deepcrashtest.perception.track import TRACK_COLUMNS
+from deepcrashtest.perception.track import TRACK_COLUMNS, records_table
 from deepcrashtest.scenario import Camera, Scenario, VideoSource
 
 
@@ -90,8 +92,12 @@ def estimate_camera(
     return camera, rows, camera.pitch_source
 
 
+#: One frame's tracks: a tracks-table DataFrame or its rows as tuples (columns of ``TRACK_COLUMNS``).
+TrackRows = pd.DataFrame | list[tuple[object, ...]]
+
+
 def extract_geometry(
-    frames: Iterable[tuple[FrameLike, pd.DataFrame]],
+    frames: Iterable[tuple[FrameLike, TrackRows]],
     meta: VideoSource | Mapping[str, Any],
     camera: Camera,
     dashboard_rows: int | None = None,
@@ -102,7 +108,7 @@ def extract_geometry(
     max_width: int = 960,
     name: str = "scenario",
     seed: int = 0,
-    on_frame: Callable[[FrameLike, pd.DataFrame, LaneState | None], None] | None = None,
+    on_frame: Callable[[FrameLike, TrackRows, LaneState | None], None] | None = None,
 ) -> GeometryResult:
     """Run the geometry stage over one pass of frames (see the module docstring).
 
@@ -119,24 +125,33 @@ def extract_geometry(
     lane_states: dict[int, LaneState] = {}
     indices: list[int] = []
     all_tracks: list[pd.DataFrame] = []
+    all_rows: list[tuple[object, ...]] = []
+    lane_rate = _RateGate(MAX_RATE_HZ)  # lanes on as many frames a second as ego-motion measures
+    last_lanes: LaneState | None = None
 
     with ThreadPoolExecutor(1, thread_name_prefix="lanes") as pool:
         for frame, trk in chain(_drain(buffer), rest):
-            boxes = trk[["x1", "y1", "x2", "y2"]].to_numpy(float) if len(trk) else np.zeros((0, 4))
+            boxes = _boxes(trk)
             indices.append(int(frame.index))
             lanes_job: Future[LaneState] | None = None
-            if lane_det is not None:
+            if lane_det is not None and lane_rate.take(float(frame.time)):
                 lanes_job = pool.submit(lane_det.update, frame.image, float(frame.time), boxes)
             ego_est.update(frame.image, float(frame.time), boxes)
             if lanes_job is not None:
-                lane_states[int(frame.index)] = lanes_job.result()
-            if len(trk):
+                last_lanes = lanes_job.result()
+            if last_lanes is not None:  # a frame between two lane updates shows the last lanes
+                lane_states[int(frame.index)] = last_lanes
+            if isinstance(trk, list):
+                all_rows.extend(trk)
+            elif len(trk):
                 all_tracks.append(trk)
             if on_frame is not None:
                 on_frame(frame, trk, lane_states.get(int(frame.index)))
     ego = ego_est.result()
     ego.frame = np.array(indices, dtype=int)  # the estimator counts 0..n-1: use the video's indices
     lane_tl = lane_det.timeline() if lane_det is not None else None
+    if all_rows:
+        all_tracks.append(records_table(all_rows))
     tracks = pd.concat(all_tracks, ignore_index=True) if all_tracks else pd.DataFrame(columns=list(TRACK_COLUMNS))
     calibration = None
     if cam.intrinsics_source == "default" and len(tracks):  # no calibration given: the video calibrates it
@@ -155,7 +170,30 @@ def extract_geometry(
     return GeometryResult(sc, cam, ego, lane_tl, lane_states, rows, horizon_source, calibration)
 
 
-def _drain(buffer: list[tuple[FrameLike, pd.DataFrame]]) -> Iterator[tuple[FrameLike, pd.DataFrame]]:
+class _RateGate:
+    """``take(time)``: True for the first frame and for each frame at least ~1 / ``max_hz`` s after the
+    last taken one (the rule of ``EgoMotionEstimator(max_rate_hz)``: a 25 fps video at 12.5 fps, 10
+    and 20 fps videos at every frame)."""
+
+    def __init__(self, max_hz: float | None) -> None:
+        self.min_gap_s = 0.9 / max_hz if max_hz else 0.0
+        self.last: float | None = None
+
+    def take(self, time: float) -> bool:
+        if self.last is not None and time - self.last < self.min_gap_s:
+            return False
+        self.last = time
+        return True
+
+
+def _boxes(trk: TrackRows) -> np.ndarray:
+    """(N, 4) x1, y1, x2, y2 px of one frame's tracks."""
+    if isinstance(trk, list):
+        return np.array([r[4:8] for r in trk], dtype=float).reshape(-1, 4)
+    return trk[["x1", "y1", "x2", "y2"]].to_numpy(float) if len(trk) else np.zeros((0, 4))
+
+
+def _drain(buffer: list[tuple[FrameLike, TrackRows]]) -> Iterator[tuple[FrameLike, TrackRows]]:
     """The buffered pairs in order, each let go as it is taken (2 s of full frames are ~150 MB)."""
     buffer.reverse()
     while buffer:
@@ -163,10 +201,10 @@ def _drain(buffer: list[tuple[FrameLike, pd.DataFrame]]) -> Iterator[tuple[Frame
 
 
 def _calibration_frames(
-    frames: Iterable[tuple[FrameLike, pd.DataFrame]], calib_seconds: float
-) -> tuple[list[tuple[FrameLike, pd.DataFrame]], Iterable[tuple[FrameLike, pd.DataFrame]]]:
+    frames: Iterable[tuple[FrameLike, TrackRows]], calib_seconds: float
+) -> tuple[list[tuple[FrameLike, TrackRows]], Iterable[tuple[FrameLike, TrackRows]]]:
     """The first ``calib_seconds`` of (frame, tracks) pairs (at least 3 frames) and the rest."""
-    buffer: list[tuple[FrameLike, pd.DataFrame]] = []
+    buffer: list[tuple[FrameLike, TrackRows]] = []
     it = iter(frames)
     for item in it:
         buffer.append(item)

@@ -10,7 +10,9 @@ A vehicle's trajectory (box centre samples, world frame) becomes
 Raw (label-derived) trajectories are noisy, so positions are smoothed with a cubic smoothing spline
 (SciPy ``make_smoothing_spline``) whose cut-off is ``SMOOTH_CUTOFF_HZ``; speeds come from the
 derivative of that spline, so path and speed profile are consistent. A vehicle that moves less
-than ``STATIC_PATH_M`` in total is static: it holds its mean position and median label heading.
+than ``STATIC_PATH_M`` in total is static: it holds its mean position and median label heading. Exact
+(``smooth=False``, already smooth) waypoints are static only below ``STATIC_EXACT_PATH_M``: a processed ego
+creeping 0.9 m into its crash was held still and missed it (ccd_000080).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from deepcrashtest.scenario import Trajectory
 PATH_DS_M = 0.25
 SMOOTH_CUTOFF_HZ = 0.8
 STATIC_PATH_M = 1.5
+STATIC_EXACT_PATH_M = 0.05
 EXTENSION_M = 60.0
 
 
@@ -123,7 +126,8 @@ def build_reference(
     xy = np.asarray(xy, float)
     start, end, tq = _span(t, times, dt)
     pos_f, vel_f = _smooth_positions(t, xy[:, 0], xy[:, 1], smooth)
-    return _reference(pos_f(tq), vel_f(tq), xy, np.asarray(yaw_label, float), times, start, end)
+    static_m = STATIC_PATH_M if smooth else STATIC_EXACT_PATH_M
+    return _reference(pos_f(tq), vel_f(tq), xy, np.asarray(yaw_label, float), times, start, end, static_m)
 
 
 def build_references(
@@ -281,12 +285,14 @@ def _reference(
     times: np.ndarray,
     start: int,
     end: int,
+    static_m: float = STATIC_PATH_M,
 ) -> Reference:
-    """Reference from positions ``pos`` and velocities ``vel`` (m, m/s) at grid steps ``start..end``."""
+    """Reference from positions ``pos`` and velocities ``vel`` (m, m/s) at grid steps ``start..end``; static
+    (held at its mean position) when its path is shorter than ``static_m``."""
     T = len(times)
     seg = np.hypot(*np.diff(pos, axis=0).T) if len(pos) > 1 else np.zeros(0)
     s_span = np.concatenate([[0.0], np.cumsum(seg)])
-    static = bool(s_span[-1] < STATIC_PATH_M)
+    static = bool(s_span[-1] < static_m)
     if static:
         centre = xy.mean(axis=0)
         yaw0 = float(np.median(yaw_label))

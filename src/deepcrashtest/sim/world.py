@@ -81,9 +81,7 @@ def build_world(scenario: Scenario, dt: float = 0.02, duration: float | None = N
         raise UserError(f"duration {dur} s is shorter than one time step ({dt} s)")
     vehicles = scenario.vehicles()
     exact = exact_agents(scenario)
-    refs = [
-        reference_from_trajectory(v.trajectory, times, dt, smooth=not (exact and i > 0)) for i, v in enumerate(vehicles)
-    ]
+    refs = [reference_from_trajectory(v.trajectory, times, dt, smooth=not exact) for v in vehicles]
     length = np.array([v.length for v in vehicles], float)
     return World(
         scenario=scenario,

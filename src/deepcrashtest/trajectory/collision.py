@@ -21,16 +21,26 @@ def headings(t: np.ndarray, xy: np.ndarray, fallback: float, vel: np.ndarray | N
     heading (``fallback`` if it never moves)."""
     if vel is None:
         vel = np.column_stack([np.gradient(xy[:, 0], t), np.gradient(xy[:, 1], t)]) if len(t) > 1 else np.zeros((1, 2))
+    pick = heading_sources(vel)
+    if pick is None:
+        return np.full(len(t), fallback)
+    moving = np.hypot(vel[:, 0], vel[:, 1]) > MOVING_MPS
+    yaw = np.unwrap(np.arctan2(vel[moving, 1], vel[moving, 0]))
+    out = yaw[np.searchsorted(np.nonzero(moving)[0], pick)]
+    return np.unwrap(out)
+
+
+def heading_sources(vel: np.ndarray) -> np.ndarray | None:
+    """For each sample of velocities ``vel`` (N, 2) m/s, the index of the sample whose direction of motion
+    is its heading (itself where faster than :data:`MOVING_MPS`, else the nearest such); None if none is."""
     moving = np.hypot(vel[:, 0], vel[:, 1]) > MOVING_MPS
     if not moving.any():
-        return np.full(len(t), fallback)
-    yaw = np.unwrap(np.arctan2(vel[moving, 1], vel[moving, 0]))
+        return None
+    n = len(vel)
     idx = np.nonzero(moving)[0]
-    nearest = idx[np.clip(np.searchsorted(idx, np.arange(len(t))), 0, len(idx) - 1)]
-    prev = idx[np.clip(np.searchsorted(idx, np.arange(len(t))) - 1, 0, len(idx) - 1)]
-    pick = np.where(np.abs(prev - np.arange(len(t))) < np.abs(nearest - np.arange(len(t))), prev, nearest)
-    out = yaw[np.searchsorted(idx, pick)]
-    return np.unwrap(out)
+    nearest = idx[np.clip(np.searchsorted(idx, np.arange(n)), 0, len(idx) - 1)]
+    prev = idx[np.clip(np.searchsorted(idx, np.arange(n)) - 1, 0, len(idx) - 1)]
+    return np.where(np.abs(prev - np.arange(n)) < np.abs(nearest - np.arange(n)), prev, nearest)
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,11 @@ constraints solved with SciPy's SLSQP:
   follower, so that a replay follows it (no further outside them than the uncorrected path);
 * a participant's correction starts at zero value, speed and acceleration ``window_s`` before the
   crash (only its last seconds move); a bystander's may shift its whole track (``nudge_apart``).
+
+SLSQP is given the analytic derivative of every function (the cost is quadratic in the coefficients,
+the acceleration bound linear; the separation's is that of its active separating axis through the
+boxes' interpolated positions and headings; the kinematic rows' through the corrected velocity and
+acceleration), so an iteration costs one evaluation of the corrected paths, not one per coefficient.
 """
 
 from __future__ import annotations
@@ -28,7 +33,7 @@ from scipy.interpolate import BSpline, make_interp_spline
 from scipy.optimize import minimize
 
 from deepcrashtest.scenario import VEHICLE_KINEMATICS, Kinematics
-from deepcrashtest.trajectory.collision import BoxTrack, headings
+from deepcrashtest.trajectory.collision import BoxTrack, heading_sources, headings
 
 
 def separation(a: BoxTrack, b: BoxTrack, t: np.ndarray) -> np.ndarray:
@@ -37,6 +42,13 @@ def separation(a: BoxTrack, b: BoxTrack, t: np.ndarray) -> np.ndarray:
     > 0: apart (the largest gap along the four box axes, a lower bound of the distance);
     < 0: overlapping (minus the penetration depth). Each track is linearly interpolated.
     """
+    return _separation(a, b, t)[0]
+
+
+def _separation(a: BoxTrack, b: BoxTrack, t: np.ndarray, partials: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`separation` and, ``partials``, its derivatives (len(t), 6) with respect to the two boxes'
+    interpolated states (xa, ya, ha, xb, yb, hb) (m, rad): those of the axis whose gap is the largest
+    (the separation is piecewise smooth; elsewhere the derivative of the active piece)."""
     t = np.atleast_1d(np.asarray(t, float))
     xa, ya, ha = a.at(t)
     xb, yb, hb = b.at(t)
@@ -50,7 +62,26 @@ def separation(a: BoxTrack, b: BoxTrack, t: np.ndarray) -> np.ndarray:
         ra = 0.5 * a.length * np.abs(np.sum(ua * n, -1)) + 0.5 * a.width * np.abs(np.sum(va * n, -1))
         rb = 0.5 * b.length * np.abs(np.sum(ub * n, -1)) + 0.5 * b.width * np.abs(np.sum(vb * n, -1))
         gaps.append(np.abs(np.sum(d * n, -1)) - ra - rb)
-    return np.max(np.stack(gaps), axis=0)
+    stacked = np.stack(gaps)
+    value = np.max(stacked, axis=0)
+    if not partials:
+        return value, np.zeros((len(t), 0))
+    # axis n = (cos th, sin th) turns with its owner's heading th: dn/dth = perp(n); likewise each box edge e
+    perp = {id(ua): va, id(va): -ua, id(ub): vb, id(vb): -ub}
+    boxes = ((2, ((ua, 0.5 * a.length), (va, 0.5 * a.width))), (5, ((ub, 0.5 * b.length), (vb, 0.5 * b.width))))
+    out = np.zeros((4, len(t), 6))
+    for k, (n, own) in enumerate(((ua, 2), (va, 2), (ub, 5), (vb, 5))):
+        n_perp = perp[id(n)]
+        s = np.sign(np.sum(d * n, -1))
+        out[k, :, 0:2] = -s[:, None] * n
+        out[k, :, 3:5] = s[:, None] * n
+        out[k, :, own] += s * np.sum(d * n_perp, -1)
+        for col, edges in boxes:
+            for e, half in edges:
+                se = half * np.sign(np.sum(e * n, -1))
+                out[k, :, col] -= se * np.sum(perp[id(e)] * n, -1)
+                out[k, :, own] -= se * np.sum(e * n_perp, -1)
+    return value, out[np.argmax(stacked, axis=0), np.arange(len(t))]
 
 
 @dataclass(frozen=True)
@@ -168,7 +199,8 @@ KIN_TOL = 0.02  # share of a limit a solution may exceed it by (SLSQP stops just
 MAX_ITER = 80  # SLSQP iterations per round: a correction that needs more is not found (stage 2 stays seconds)
 # Box-track evaluations (~1 ms each) one make_contact / nudge_apart call may spend over all its windows and
 # rounds: bounds stage 2's time on pathological tracks (a wrong pair once ran > 10 min). Measured on the 19
-# labelled crash clips (2026-12-01): at most 64,186 box tracks built for a correction that was found, so none is cut.
+# labelled crash clips (2026-12-01): at most 64,186 box tracks built for a correction that was found, so none is cut;
+# with analytic derivatives (one build per iterate) at most 1,177 (bench/contact_speed.py): MAX_ITER bounds the time.
 MAX_EVALS = 100_000
 
 
@@ -238,6 +270,198 @@ class _Kin:
             ]
         )
 
+    def jac(self, c: np.ndarray) -> np.ndarray:
+        """Derivatives (rows, 2K) of :meth:`rows` with respect to ``c`` (x coefficients first)."""
+        v = self.v0 + (self.b1 @ c.T)
+        a = self.a0 + (self.b2 @ c.T)
+        b1, b2 = self.b1, self.b2
+        kin, g = self.kin, self.cp.kin_margin
+
+        def d(cx: np.ndarray, cy: np.ndarray) -> np.ndarray:
+            """(n, 2K) from per-sample coefficients of the x and y bases' rows."""
+            return np.hstack([cx, cy])
+
+        if kin.holonomic:
+            s = -2.0 / (g * kin.max_accel_mps2) ** 2
+            return d(s * a[:, :1] * b2, s * a[:, 1:] * b2)
+        vx, vy, ax, ay = v[:, :1], v[:, 1:], a[:, :1], a[:, 1:]
+        soft2 = vx * vx + vy * vy + self.cp.v_soft_mps**2
+        cross = vx * ay - vy * ax
+        d_soft2 = d(2 * vx * b1, 2 * vy * b1)
+        d_kappa = d(ay * b1 - vy * b2, -ax * b1 + vx * b2) / soft2**1.5 - 1.5 * cross / soft2**2.5 * d_soft2
+        kappa = cross / soft2**1.5
+        k_max = np.tan(g * kin.max_steer_rad) / self.wb
+        d_steer = self.wb / (1.0 + (self.wb * kappa) ** 2) * d_kappa
+        d_rate = np.diff(d_steer, axis=0) / np.diff(self.t)[:, None] / (g * kin.max_steer_rate_rps)
+        dot = vx * ax + vy * ay
+        d_along = d(ax * b1 + vx * b2, ay * b1 + vy * b2) / np.sqrt(soft2) - 0.5 * dot / soft2**1.5 * d_soft2
+        return np.vstack(
+            [
+                -d_kappa / k_max,
+                d_kappa / k_max,
+                -d_rate,
+                d_rate,
+                -d_along / (g * kin.max_accel_mps2),
+                d_along / kin.max_brake_mps2,
+            ]
+        )
+
+
+class _Paths:
+    """The movers' corrected paths as functions of the coefficient vector ``z`` (mover i's x then y
+    coefficients in ``z[offs[i]:offs[i + 1]]``): their box tracks (for the last ``z``, cached; each
+    new ``z`` spends one evaluation of ``budget``) and the tracks' derivatives with respect to ``z``."""
+
+    def __init__(
+        self,
+        movers: list[Movable],
+        fixed: list[Movable],
+        mats: list[np.ndarray],
+        offs: np.ndarray,
+        budget: _Budget | None,
+    ) -> None:
+        self.movers, self.mats, self.offs, self.budget = movers, mats, offs, budget
+        self.fixed = [box_track(m) for m in fixed]
+        # d(velocity at the samples)/d(coefficients): np.gradient is linear in the positions
+        self.grad_b = [_gradient_matrix(m.t) @ b for m, b in zip(movers, mats, strict=True)]
+        self._z: np.ndarray | None = None
+        self._tracks: list[BoxTrack] = []
+        self._vel: list[np.ndarray] = []
+        self._yaw_jac: dict[int, np.ndarray] = {}
+
+    def deltas(self, z: np.ndarray) -> list[np.ndarray]:
+        return [b @ self.coefs(z, i).T for i, b in enumerate(self.mats)]
+
+    def coefs(self, z: np.ndarray, i: int) -> np.ndarray:
+        return z[self.offs[i] : self.offs[i + 1]].reshape(2, -1)
+
+    def tracks(self, z: np.ndarray) -> list[BoxTrack]:
+        """Box tracks of the corrected paths (headings of the corrected motion: a turn turns the box),
+        then the fixed ones'."""
+        if self._z is None or not np.array_equal(z, self._z):
+            if self.budget is not None:
+                self.budget.spend()
+            self._tracks, self._vel, self._yaw_jac = [], [], {}
+            for m, d in zip(self.movers, self.deltas(z), strict=True):
+                p = m.xy + d
+                vel = np.column_stack([np.gradient(p[:, 0], m.t), np.gradient(p[:, 1], m.t)]) if len(m.t) > 1 else None
+                self._vel.append(np.zeros((len(m.t), 2)) if vel is None else vel)
+                self._tracks.append(
+                    BoxTrack(m.t, p[:, 0], p[:, 1], headings(m.t, p, m.heading, vel), m.length, m.width)
+                )
+            self._z = np.array(z, float)
+        return self._tracks + self.fixed
+
+    def yaw_jac(self, z: np.ndarray, i: int) -> np.ndarray:
+        """(N, 2K): derivatives of mover ``i``'s headings at its samples with respect to its coefficients."""
+        self.tracks(z)
+        if i not in self._yaw_jac:
+            vel, gb = self._vel[i], self.grad_b[i]
+            src = heading_sources(vel)
+            if src is None:
+                jac = np.zeros((len(vel), 2 * gb.shape[1]))
+            else:
+                v = vel[src]
+                r2 = np.sum(v * v, 1)[:, None]
+                jac = np.hstack([-v[:, 1:] / r2 * gb[src], v[:, :1] / r2 * gb[src]])
+            self._yaw_jac[i] = jac
+        return self._yaw_jac[i]
+
+
+def _gradient_matrix(t: np.ndarray) -> np.ndarray:
+    """(N, N) matrix G with ``G @ x == np.gradient(x, t)`` (zeros for a single sample)."""
+    n = len(t)
+    return np.asarray(np.gradient(np.eye(n), t, axis=0)) if n > 1 else np.zeros((n, n))
+
+
+def _interp_matrix(t: np.ndarray, ts: np.ndarray) -> np.ndarray:
+    """(len(ts), len(t)) matrix W with ``W @ x == np.interp(ts, t, x)`` (held constant outside ``t``)."""
+    n = len(t)
+    out = np.zeros((len(ts), n))
+    if n == 1:
+        out[:, 0] = 1.0
+        return out
+    j = np.clip(np.searchsorted(t, ts, side="right") - 1, 0, n - 2)
+    span = t[j + 1] - t[j]
+    w = np.clip(np.divide(ts - t[j], span, out=np.zeros_like(ts), where=span > 0), 0.0, 1.0)
+    rows = np.arange(len(ts))
+    out[rows, j] = 1.0 - w
+    out[rows, j + 1] += w
+    return out
+
+
+class _Gap:
+    """One pair's separation at times ``ts`` (s) minus ``target`` (m), and its derivative in ``z``."""
+
+    def __init__(self, paths: _Paths, i: int, j: int, ts: np.ndarray, target: float) -> None:
+        self.paths, self.i, self.j, self.ts, self.target = paths, i, j, ts, target
+        n = len(paths.movers)
+        self.interp = {
+            k: (w, w @ paths.mats[k]) for k in (i, j) if k < n for w in [_interp_matrix(paths.movers[k].t, ts)]
+        }
+
+    def fun(self, z: np.ndarray) -> np.ndarray:
+        return separation(*_pick(self.paths.tracks(z), self.i, self.j), self.ts) - self.target
+
+    def jac(self, z: np.ndarray) -> np.ndarray:
+        _, part = _separation(*_pick(self.paths.tracks(z), self.i, self.j), self.ts, partials=True)
+        out = np.zeros((len(self.ts), len(z)))
+        for side, k in ((0, self.i), (1, self.j)):
+            if k not in self.interp:
+                continue
+            w, wb = self.interp[k]
+            lo, size = int(self.paths.offs[k]), wb.shape[1]
+            px, py, ph = (part[:, 3 * side + c, None] for c in range(3))
+            out[:, lo : lo + size] += px * wb
+            out[:, lo + size : lo + 2 * size] += py * wb
+            out[:, lo : lo + 2 * size] += ph * (w @ self.paths.yaw_jac(z, k))
+        return out
+
+
+@dataclass
+class _Problem:
+    """One SLSQP problem: the cost and its gradient, the constraints (each with its ``jac``), the paths."""
+
+    paths: _Paths
+    cost: Callable[[np.ndarray], float]
+    cost_jac: Callable[[np.ndarray], np.ndarray]
+    cons: list[dict[str, Any]]
+    kins: list[tuple[dict[str, Any], _Kin]]
+
+
+def _problem(
+    movers: list[Movable],
+    fixed: list[Movable],
+    bases: list[_Basis],
+    eq: list[tuple[int, int, float, float]],
+    ineq: list[tuple[int, int, np.ndarray, float]],
+    cp: ContactParams,
+    strict_kin: bool = False,
+    budget: _Budget | None = None,
+) -> _Problem:
+    """The least-squares problem of :func:`_solve`, every function with its analytic derivative."""
+    sizes = [b.size for b in bases]
+    offs = np.concatenate([[0], np.cumsum([2 * k for k in sizes])]).astype(int)
+    mats = [(b.at(m.t), b.at(m.t, 2)) for m, b in zip(movers, bases, strict=True)]
+    paths = _Paths(movers, fixed, [b for b, _ in mats], offs, budget)
+    hess = _cost_hessian(movers, mats, offs, cp.smooth_s4)
+
+    def cost(z: np.ndarray) -> float:
+        total = 0.0
+        for i, (b, b2) in enumerate(mats):
+            c = paths.coefs(z, i)
+            total += movers[i].weight * (np.mean((b @ c.T) ** 2) + cp.smooth_s4 * np.mean((b2 @ c.T) ** 2))
+        return float(total)
+
+    gaps = [_Gap(paths, i, j, np.array([tc]), g) for i, j, tc, g in eq]
+    cons: list[dict[str, Any]] = [{"type": "eq", "fun": c.fun, "jac": c.jac} for c in gaps]
+    gaps = [_Gap(paths, i, j, ts, g) for i, j, ts, g in ineq if len(ts)]
+    cons += [{"type": "ineq", "fun": c.fun, "jac": c.jac} for c in gaps]
+    cons += _accel_limits(mats, offs, cp.accel_limit_mps2)
+    kins = _kin_constraints(movers, bases, offs, cp, strict_kin)
+    cons += [k[0] for k in kins]
+    return _Problem(paths, cost, lambda z: 2.0 * (hess @ z), cons, kins)
+
 
 def _solve(
     movers: list[Movable],
@@ -255,56 +479,41 @@ def _solve(
     ``eq``: (i, j, time, target separation); ``ineq``: (i, j, times, minimum separation); indices >=
     len(movers) refer to ``fixed``. Each mover's corrected path keeps its kinematics (``Movable.kin``):
     within the limits (``strict_kin``) or, else, no further outside them than its uncorrected path.
+    Every function SLSQP sees comes with its analytic derivative (no finite differences).
     Returns the displacements, success and the optimiser's message; stops, unsuccessful, when
     ``budget`` is spent.
     """
-    sizes = [b.size for b in bases]
-    offs = np.concatenate([[0], np.cumsum([2 * k for k in sizes])]).astype(int)
-    mats = [(b.at(m.t), b.at(m.t, 2)) for m, b in zip(movers, bases, strict=True)]
-
-    def coefs(z: np.ndarray, i: int) -> np.ndarray:
-        return z[offs[i] : offs[i + 1]].reshape(2, -1)
-
-    def deltas(z: np.ndarray) -> list[np.ndarray]:
-        return [mats[i][0] @ coefs(z, i).T for i in range(len(movers))]
-
-    def cost(z: np.ndarray) -> float:
-        total = 0.0
-        for i, (b, b2) in enumerate(mats):
-            c = coefs(z, i)
-            total += movers[i].weight * (np.mean((b @ c.T) ** 2) + cp.smooth_s4 * np.mean((b2 @ c.T) ** 2))
-        return float(total)
-
-    fixed_tracks = [box_track(m) for m in fixed]
-
-    def all_tracks(z: np.ndarray) -> list[BoxTrack]:
-        """Box tracks of the corrected paths (headings of the corrected motion: a turn turns the box)."""
-        if budget is not None:
-            budget.spend()
-        ds = deltas(z)
-        return [box_track(m, m.xy + ds[i]) for i, m in enumerate(movers)] + fixed_tracks
-
-    def gap(i: int, j: int, ts: np.ndarray, target: float) -> Callable[[np.ndarray], np.ndarray]:
-        return lambda z: separation(*_pick(all_tracks(z), i, j), ts) - target
-
-    cons: list[dict[str, Any]] = [{"type": "eq", "fun": gap(i, j, np.array([tc]), g)} for i, j, tc, g in eq]
-    cons += [{"type": "ineq", "fun": gap(i, j, ts, g)} for i, j, ts, g in ineq if len(ts)]
-    cons += _accel_limits(mats, offs, cp.accel_limit_mps2)
-    kins = _kin_constraints(movers, bases, offs, cp, strict_kin)
-    cons += [k[0] for k in kins]
-    z = np.zeros(offs[-1])
+    pb = _problem(movers, fixed, bases, eq, ineq, cp, strict_kin, budget)
+    paths = pb.paths
+    z = np.zeros(int(paths.offs[-1]))
     res = None
     for _ in range(rounds):
         try:
-            res = minimize(cost, z, method="SLSQP", constraints=cons, options={"maxiter": MAX_ITER, "ftol": 1e-8})
+            options = {"maxiter": MAX_ITER, "ftol": 1e-8}
+            res = minimize(pb.cost, z, jac=pb.cost_jac, method="SLSQP", constraints=pb.cons, options=options)
         except _OutOfBudget:
-            return deltas(z), False, f"evaluation budget ({MAX_EVALS}) spent"
+            return paths.deltas(z), False, f"evaluation budget ({MAX_EVALS}) spent"
         z = np.asarray(res.x)
-        ok = bool(res.success) and _satisfied(all_tracks(z), eq, ineq)
-        ok &= all(bool(np.all(k[0]["fun"](z) >= -KIN_TOL)) for k in kins)
+        ok = bool(res.success) and _satisfied(paths.tracks(z), eq, ineq)
+        ok &= all(bool(np.all(k[0]["fun"](z) >= -KIN_TOL)) for k in pb.kins)
         if ok:
             break
-    return deltas(z), ok, "" if res is None else str(res.message)
+    return paths.deltas(z), ok, "" if res is None else str(res.message)
+
+
+def _cost_hessian(
+    movers: list[Movable], mats: list[tuple[np.ndarray, np.ndarray]], offs: np.ndarray, smooth_s4: float
+) -> np.ndarray:
+    """H with the least-squares cost (mean squared correction + ``smooth_s4`` x mean squared
+    acceleration, weighted per mover) equal to ``z @ H @ z``."""
+    hess = np.zeros((int(offs[-1]), int(offs[-1])))
+    for i, (b, b2) in enumerate(mats):
+        block = movers[i].weight * (b.T @ b + smooth_s4 * (b2.T @ b2)) / (2 * len(b))
+        k = b.shape[1]
+        for axis in range(2):
+            lo = int(offs[i]) + axis * k
+            hess[lo : lo + k, lo : lo + k] = block
+    return hess
 
 
 def _kin_constraints(
@@ -323,7 +532,13 @@ def _kin_constraints(
         def fun(z: np.ndarray, kin: _Kin = kin, lo: int = lo, hi: int = hi, floor: np.ndarray = floor) -> np.ndarray:
             return kin.rows(z[lo:hi].reshape(2, -1)) - floor
 
-        out.append(({"type": "ineq", "fun": fun}, kin))
+        def jac(z: np.ndarray, kin: _Kin = kin, lo: int = lo, hi: int = hi) -> np.ndarray:
+            part = kin.jac(z[lo:hi].reshape(2, -1))
+            out = np.zeros((len(part), len(z)))
+            out[:, lo:hi] = part
+            return out
+
+        out.append(({"type": "ineq", "fun": fun, "jac": jac}, kin))
     return out
 
 

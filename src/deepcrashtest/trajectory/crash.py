@@ -127,7 +127,14 @@ def _enforce_pair(
     """Correct the pair's last seconds so they first touch at the collision time; returns the record."""
     byid = {d.id: d for d in [ego, *agents]}
     a, b = byid[collision.other_id], byid[collision.agent_id]
-    corr = make_contact(_movable(a, a is ego), _movable(b, b is ego), collision.time_s, cp)
+    ma, mb = _movable(a, a is ego), _movable(b, b is ego)
+    # the ego's measured path is held and only the other road user (monocular depth: metres of error) moved,
+    # when that can make the crash: moving both slid a crawling ego sideways across the camera's yaw, and its
+    # replay, steering along the path, lagged (dad_000493: 0.2-0.6 m behind in an S-curve, no contact)
+    pinned = (a is not ego, b is not ego)
+    corr = make_contact(ma, mb, collision.time_s, cp, movable=pinned)
+    if not corr.ok and not all(pinned):  # the other alone cannot make it: both move (the ego weighted EGO_WEIGHT)
+        corr = make_contact(ma, mb, collision.time_s, cp)
     applied = corr.ok or corr.max_m <= MAX_FAILED_CORRECTION_M
     for d, delta in zip((a, b), corr.deltas if applied else [], strict=False):
         if len(delta):

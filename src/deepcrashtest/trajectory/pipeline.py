@@ -56,7 +56,7 @@ from deepcrashtest.scenario import (
 )
 from deepcrashtest.trajectory.collision import MOVING_MPS, first_contact, headings
 from deepcrashtest.trajectory.crash import CrashOutcome, resolve_crash
-from deepcrashtest.trajectory.dense import EPS_T, Dense, EgoFrame, agent_dense, span
+from deepcrashtest.trajectory.dense import EPS_T, Dense, EgoFrame, agent_dense, moves_in_video, span
 from deepcrashtest.trajectory.egoheading import ego_along_measured_yaw, smooth_series
 from deepcrashtest.trajectory.params import Stage2Params
 from deepcrashtest.trajectory.road import along_road, build_road, extend_head_on
@@ -116,8 +116,9 @@ def _process_scenario(raw: Scenario, seed: int, params: Stage2Params | None) -> 
     run = _Run(raw, params or Stage2Params(), float(raw.source.fps), float(raw.ego.trajectory.t[0]), list(raw.warnings))
     run.raw, run.ego_shift_m = ego_along_measured_yaw(raw, run.p.ego_yaw_window_s, run.warnings)
     run.raw = _collision_with_seen_participants(run)
+    run.raw = _collision_that_can_happen(run)
     ego_frame, ego = _ego_phase(run)
-    agents = [d for a in raw.agents if (d := agent_dense(a, run.t0, ego_frame, run.p, run.warnings)) is not None]
+    agents = [d for a in run.raw.agents if (d := agent_dense(a, run.t0, ego_frame, run.p, run.warnings)) is not None]
     t_max = _step_back_phase(run, ego, agents)
     crash = _crash_phase(run, ego, agents, t_max)
     vehicles = _final_phase(run, ego, crash)
@@ -147,6 +148,24 @@ def _collision_with_seen_participants(run: _Run) -> Scenario:
     run.warnings.append(
         f"the collision at {c.time_s - run.t0:.2f} s (video time) names agent(s) {unseen} seen for fewer than "
         f"{run.p.min_track_samples} samples before it: no collision, the whole video is kept"
+    )
+    return raw.evolve(collision=None)
+
+
+def _collision_that_can_happen(run: _Run) -> Scenario:
+    """The raw scenario, without its detected (``video-auto``) collision when neither participant moves over
+    the whole video (:func:`~deepcrashtest.trajectory.dense.moves_in_video`): a stopped ego and a parked car do
+    not crash (dad_000512: two standing boxes "touched"; forcing it moves a parked car or the stopped ego).
+    The whole video is kept, with a warning."""
+    raw, c = run.raw, run.raw.collision
+    if c is None or c.source != "video-auto":
+        return raw
+    byid = {v.id: v for v in raw.vehicles()}
+    if any(i not in byid or moves_in_video(byid[i], run.p) for i in c.participants):
+        return raw
+    run.warnings.append(
+        f"the detected crash of {c.other_id} and {c.agent_id} at {c.time_s - run.t0:.2f} s (video time) is dropped: "
+        "neither moves in the video (a crash needs one that does)"
     )
     return raw.evolve(collision=None)
 
