@@ -32,7 +32,7 @@ def test_a_standing_start_leads_in_forwards_and_the_replay_faces_forward(ccd882_
 
     raw = ccd882_raw
     r = raw.ego.trajectory.arrays()
-    assert r["x"][2] - r["x"][0] < 0.05 < r["x"][-1] - r["x"][0]  # the clip: standing, then moving
+    assert r["x"][-1] - r["x"][0] > 5.0  # the clip: the ego pulls away (it stood for 0.3 s at 72a17b1's stage 1)
     sc = process_scenario(raw)
     e = sc.ego.trajectory.arrays()
     t_max = float(sc.provenance.parameters["t_max_s"])
