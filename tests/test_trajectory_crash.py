@@ -157,7 +157,8 @@ def test_a_slow_ego_that_creeps_backwards_is_kept_with_a_warning():
         return back + fwd, 0.0 * t
 
     lead = vehicle(1, track(lambda t: (30 + 0 * t, 0.3 + 0 * t), 0, 60))
-    sc = process_scenario(raw_scenario([lead], ego=track(creep, 0, 60)))
+    # the camera looks forward (its yaw is measured from the image's rotation) while the track creeps back
+    sc = process_scenario(raw_scenario([lead], ego=track(creep, 0, 60, yaw=0.0)))
     assert len(sc.ego.trajectory) > 10
     assert any("backwards" in w for w in sc.warnings)
     x = sc.ego.trajectory.arrays()["x"]

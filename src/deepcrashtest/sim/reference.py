@@ -200,8 +200,7 @@ def build_pathset(
     v_ref[:, :start] = speed[:, :1]
     v_ref[:, start : end + 1] = speed
     v_ref[:, end:] = v_end[:, None]
-    d0 = paths[:, 1] - paths[:, 0]  # np.gradient's first-order edge of path[:3]
-    heading0 = np.arctan2(d0[:, 1], d0[:, 0])
+    heading0 = float(np.asarray(yaw_label, float)[0])  # at rest: the trajectory's own heading (as _reference)
     init = np.column_stack([pos[0, :, 0], pos[0, :, 1], np.where(moving[:, 0], head[:, 0], heading0), speed[:, 0]])
     return PathSet.from_padded(paths, lengths, s_ref, v_ref, dt), init
 
@@ -318,8 +317,9 @@ def _reference(
     v_ref[:start] = speed[0]
     v_ref[start : end + 1] = speed
     v_ref[end:] = v_end
-    heading0, _ = path_heading_curvature(path[:3])
-    init = np.array([pos[0, 0], pos[0, 1], float(head[0]) if moving[0] else float(heading0[0]), speed[0]])
+    # at rest: the trajectory's own heading (a processed ego's is the camera's measured yaw; the first
+    # direction of a path that starts at rest is noise: ccd_000882's replay started 2 deg off, 031's 16 deg)
+    init = np.array([pos[0, 0], pos[0, 1], float(head[0]) if moving[0] else float(yaw_label[0]), speed[0]])
     return Reference(path, s_ref, v_ref, start, end, init, False)
 
 

@@ -58,6 +58,7 @@ from deepcrashtest.scenario import (
 from deepcrashtest.trajectory.collision import MOVING_MPS, first_contact, headings
 from deepcrashtest.trajectory.crash import CrashOutcome, resolve_crash
 from deepcrashtest.trajectory.dense import EPS_T, Dense, EgoFrame, agent_dense, moves_in_video, span
+from deepcrashtest.trajectory.egoheading import ego_along_measured_yaw, smooth_series
 from deepcrashtest.trajectory.params import Stage2Params
 from deepcrashtest.trajectory.road import along_road, build_road, extend_head_on
 from deepcrashtest.trajectory.roadframe import RoadFrame
@@ -76,6 +77,7 @@ class _Run:
     fps: float
     t0: float
     warnings: list[str]
+    ego_shift_m: float = 0.0
 
     @property
     def no_crash_in_video(self) -> bool:
@@ -113,10 +115,11 @@ def process_scenario(raw: Scenario, seed: int = 0, params: Stage2Params | None =
 def _process_scenario(raw: Scenario, seed: int, params: Stage2Params | None) -> Scenario:
     _check_raw(raw)
     run = _Run(raw, params or Stage2Params(), float(raw.source.fps), float(raw.ego.trajectory.t[0]), list(raw.warnings))
+    run.raw, run.ego_shift_m = ego_along_measured_yaw(raw, run.p.ego_yaw_window_s, run.warnings)
     run.raw = _collision_with_seen_participants(run)
     run.raw = _collision_that_can_happen(run)
     ego_frame, ego = _ego_phase(run)
-    agents = [d for a in raw.agents if (d := agent_dense(a, run.t0, ego_frame, run.p, run.warnings)) is not None]
+    agents = [d for a in run.raw.agents if (d := agent_dense(a, run.t0, ego_frame, run.p, run.warnings)) is not None]
     t_max = _step_back_phase(run, ego, agents)
     crash = _crash_phase(run, ego, agents, t_max)
     vehicles = _final_phase(run, ego, crash)
@@ -188,16 +191,33 @@ def _ego_phase(run: _Run) -> tuple[EgoFrame, Dense]:
     ex, ey = _repair_start_jump(ego_t, e["x"], e["y"], run.warnings)
     ex, ey = _hold_backward_steps(ex, ey, run.warnings)
     sm = smooth_track(ego_t, ex, ey, run.fps, p)
-    xy, vel = sm.pos(grid), sm.vel(grid)
-    heading0 = headings(grid, xy, float(e["yaw"][0]), vel)[0]
-    if float(np.hypot(*vel[0])) < SLOW_EGO_MPS:  # a crawling start: the camera's yaw, not the noise's direction
-        heading0 = float(e["yaw"][0])
+    xy, vel = _forward_smoothed(grid, sm.pos(grid), sm.vel(grid))
+    yaw0 = float(e["yaw"][0])
+    heading0 = headings(grid, xy, yaw0, vel)[0]
+    if float(np.hypot(*vel[0])) < SLOW_EGO_MPS or math.cos(heading0 - yaw0) < 0:
+        heading0 = yaw0  # a crawling start: the camera's yaw, not the noise's direction (never backwards)
     frame = RoadFrame.from_path(xy, p.road_sigma_m, heading=heading0)
     s_ego = frame.project(xy)[0]
     v_road = np.gradient(s_ego, grid) if len(grid) > 1 else np.zeros(1)
     dense = Dense(raw.ego, grid, xy, np.ones(len(grid), bool), heading0)
     ego_frame = EgoFrame(grid, frame, s_ego, v_road, np.hypot(vel[:, 0], vel[:, 1]), dense.box_track(), run.fps)
     return ego_frame, dense
+
+
+def _forward_smoothed(grid: np.ndarray, xy: np.ndarray, vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The smoothed ego (m, m/s) with the backward steps its smoothing added held in place: a spline
+    through a car at rest that then pulls away swings back before it (ccd_000882: 0.14 m back at 1.1 m/s
+    while the raw track stood still); that start then pointed the lead-in backwards and the replay's
+    vehicle turned round. Velocities are recomputed where a position was held."""
+    held_x, held_y = _hold_backward_steps(xy[:, 0], xy[:, 1], [], min_m=0.0)
+    held = np.column_stack([held_x, held_y])
+    moved = np.hypot(*(held - xy).T) > 1e-9
+    if not moved.any() or len(grid) < 2:
+        return xy, vel
+    near = np.convolve(moved, np.ones(3), mode="same") > 0  # a held sample and its neighbours
+    vel = vel.copy()
+    vel[near] = np.gradient(held, grid, axis=0)[near]
+    return held, vel
 
 
 def _hold_backward_steps(
@@ -348,7 +368,7 @@ def _measured_yaw(run: _Run, t_max: float) -> tuple[np.ndarray, np.ndarray] | No
     yaw_raw = np.unwrap(e["yaw"])
     if len(t_video) < 2 or not np.all(np.isfinite(yaw_raw)):
         return None
-    return t_video + t_max, _smooth_series(t_video, yaw_raw, run.p.ego_yaw_window_s)
+    return t_video + t_max, smooth_series(t_video, yaw_raw, run.p.ego_yaw_window_s)
 
 
 def _with_measured_yaw(ego: Vehicle, run: _Run, t_max: float) -> Vehicle:
@@ -366,18 +386,6 @@ def _with_measured_yaw(ego: Vehicle, run: _Run, t_max: float) -> Vehicle:
     yaw = np.interp(a["t"], *measured)
     traj = ego.trajectory.model_copy(update={"yaw": [float(v) for v in yaw]})
     return ego.model_copy(update={"trajectory": traj})
-
-
-def _smooth_series(t: np.ndarray, v: np.ndarray, window_s: float) -> np.ndarray:
-    """Savitzky-Golay (quadratic) over about ``window_s`` seconds; short series or windows unchanged."""
-    from scipy.signal import savgol_filter
-
-    dt = float(np.median(np.diff(t)))
-    win = int(round(window_s / max(dt, EPS_T))) | 1
-    win = min(win, len(v) if len(v) % 2 else len(v) - 1)
-    if win < 5:
-        return v.astype(float)
-    return np.asarray(savgol_filter(v, win, 2), dtype=float)
 
 
 def _collision_record(crash: CrashOutcome, vehicles: list[Vehicle]) -> Collision | None:
@@ -457,6 +465,7 @@ def _assemble(
             "t_max_s": t_max,
             "stepback_accel_mps2": p.stepback_accel_mps2,
             "video_time_offset_s": t_max - run.t0,
+            "ego_heading_shift_m": round(run.ego_shift_m, 3),
             "stage2": p.as_dict(),
         }
     )
