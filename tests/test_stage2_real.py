@@ -40,6 +40,8 @@ def test_a_standing_start_leads_in_forwards_and_the_replay_faces_forward(ccd882_
     assert (np.maximum.accumulate(e["x"]) - e["x"]).max() < 0.05  # never backwards (was 2.0 m)
     assert e["x"][0] <= np.interp(t_max, e["t"], e["x"]) + 0.01  # the lead-in ends where the video starts
     sim = simulate(sc)
-    seen = sim.times <= e["t"][-1]
+    # up to the crash correction's last second (which may bend the path: checked by the fidelity bench)
+    assert sc.collision is not None
+    seen = sim.times <= sc.collision.time_s - 1.0
     yaw = np.asarray(sim.states)[seen, 0, 2]
     assert np.abs(yaw - np.interp(sim.times[seen], e["t"], e["yaw"])).max() < 0.15  # it looks where the video did
