@@ -99,3 +99,15 @@ def test_25fps_video_is_measured_at_most_20_times_a_second_and_interpolated():
     odd = np.arange(1, 20, 2)
     for arr in (res.x, res.y, res.yaw, res.speed):
         assert np.allclose(arr[odd], 0.5 * (arr[odd - 1] + arr[odd + 1]), atol=1e-9)
+
+
+def test_road_crop_box_stays_inside_the_image_when_the_road_warps_off_it():
+    """The road points warped by the last homography can all land beyond an image edge (a real DAD clip
+    raised a broadcast ValueError there): the crop box is still a non-empty box inside the image."""
+    from deepcrashtest.geometry.egomotion import _crop_box
+
+    w, h = 640, 360
+    for pts in ([[10.0, 900.0], [200.0, 950.0]], [[2000.0, 10.0], [2100.0, 20.0]], [[-50.0, -60.0], [-10.0, -5.0]]):
+        x0, y0, x1, y1 = _crop_box(np.array(pts), w, h, margin=8, align=4)
+        assert 0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h
+    assert _crop_box(np.array([[100.0, 100.0], [300.0, 200.0]]), w, h, margin=8, align=4) == (92, 92, 308, 208)

@@ -813,11 +813,12 @@ _ROAD_CROP_MARGIN_PX = 48
 def _crop_box(pts: np.ndarray, w: int, h: int, margin: int, align: int) -> tuple[int, int, int, int]:
     """(x0, y0, x1, y1) px: the box around ``pts`` (N, 2) widened by ``margin``, its top-left corner on a
     multiple of ``align``, clipped to a ``w`` x ``h`` image."""
-    x0 = max(0, int(np.floor((float(pts[:, 0].min()) - margin) / align)) * align)
-    y0 = max(0, int(np.floor((float(pts[:, 1].min()) - margin) / align)) * align)
-    x1 = min(w, int(np.ceil(float(pts[:, 0].max()) + margin)))
-    y1 = min(h, int(np.ceil(float(pts[:, 1].max()) + margin)))
-    return x0, y0, max(x1, x0 + align), max(y1, y0 + align)
+    x0 = min(max(0, int(np.floor((float(pts[:, 0].min()) - margin) / align)) * align), (w - align) // align * align)
+    y0 = min(max(0, int(np.floor((float(pts[:, 1].min()) - margin) / align)) * align), (h - align) // align * align)
+    x1 = int(np.ceil(float(pts[:, 0].max()) + margin))
+    y1 = int(np.ceil(float(pts[:, 1].max()) + margin))
+    # points all beyond an edge (the road warped off the frame) still give a box inside the image
+    return x0, y0, min(w, max(x1, x0 + align)), min(h, max(y1, y0 + align))
 
 
 def _tilted_towards(n_ref: np.ndarray, n_new: np.ndarray, rate: float) -> np.ndarray:
