@@ -60,6 +60,19 @@ def test_coarse_pass_detects_the_car_at_the_bumper(yolo_ok):
     assert _best_iou(box, both.boxes) >= 0.5
 
 
+def _tracks_to_contact(video, contact_frame: int):
+    """Track a clip up to 6 frames past its labelled contact as extract does (10 fps, the detector every
+    other frame): (tracks table, the camera's global motion)."""
+    motion = GlobalMotion()
+    rows: list[tuple[object, ...]] = []
+    with open_video(video) as src:
+        frames = (f for f in src if f.index <= contact_frame + 6)
+        for ft in iter_tracks(frames, make_detector(DEFAULT_DETECTOR), detect_every=2, fps=src.meta.fps):
+            motion.update(ft.frame.index, ft.frame.image)
+            rows.extend(frame_records(ft))
+    return records_table(rows), motion
+
+
 def test_ego_crash_found_from_tracks_of_a_real_clip(yolo_ok):
     """ccd_000340 (a minivan turns across the ego's path, contact frame 26): tracked at 10 fps with the
     detector every other frame (as extract does), the crash is the ego and the minivan's track within
@@ -67,14 +80,7 @@ def test_ego_crash_found_from_tracks_of_a_real_clip(yolo_ok):
     video, label = _label("ccd_000340")
     box = label.participants[1].box
     assert box is not None and label.contact_frame is not None
-    motion = GlobalMotion()
-    rows: list[tuple[object, ...]] = []
-    with open_video(video) as src:
-        frames = (f for f in src if f.index <= label.contact_frame + 6)
-        for ft in iter_tracks(frames, make_detector(DEFAULT_DETECTOR), detect_every=2, fps=src.meta.fps):
-            motion.update(ft.frame.index, ft.frame.image)
-            rows.extend(frame_records(ft))
-    tracks = records_table(rows)
+    tracks, motion = _tracks_to_contact(video, label.contact_frame)
     at = tracks[tracks["frame"] == label.contact_frame]
     ious = iou_matrix(np.asarray(box, float), at[["x1", "y1", "x2", "y2"]].to_numpy(float))[0]
     assert ious.max() >= 0.3, "the minivan is not a track at the contact frame"
@@ -91,14 +97,7 @@ def test_a_box_jumping_onto_the_image_border_is_not_the_contact(yolo_ok):
     video, label = _label("ccd_001143")
     box = label.participants[1].box
     assert box is not None and label.contact_frame is not None
-    motion = GlobalMotion()
-    rows: list[tuple[object, ...]] = []
-    with open_video(video) as src:
-        frames = (f for f in src if f.index <= label.contact_frame + 6)
-        for ft in iter_tracks(frames, make_detector(DEFAULT_DETECTOR), detect_every=2, fps=src.meta.fps):
-            motion.update(ft.frame.index, ft.frame.image)
-            rows.extend(frame_records(ft))
-    tracks = records_table(rows)
+    tracks, motion = _tracks_to_contact(video, label.contact_frame)
     at = tracks[tracks["frame"] == label.contact_frame]
     ious = iou_matrix(np.asarray(box, float), at[["x1", "y1", "x2", "y2"]].to_numpy(float))[0]
     bus = int(at["track_id"].iloc[int(ious.argmax())])
