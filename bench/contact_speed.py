@@ -11,7 +11,7 @@ provenance and the largest difference of any vehicle's position (m). Nothing is 
 
 Usage::
 
-    python bench/contact_speed.py [--work /work/cache/fid_s3] [--clips a,b] [--ref main] [--no-ref] [--json]
+    python bench/contact_speed.py [--work /tmp/deepcrashtest_fidelity] [--clips a,b] [--ref main] [--no-ref] [--json]
 """
 
 from __future__ import annotations
@@ -135,7 +135,7 @@ def _fmt(v: Any) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--work", type=Path, default=Path("/work/cache/fid_s3"), help="Clips' extraction outputs.")
+    ap.add_argument("--work", type=Path, default=Path("/tmp/deepcrashtest_fidelity"), help="Clips' extraction outputs.")
     ap.add_argument("--clips", default=None, help="Comma-separated clip names (default: every clip in --work).")
     ap.add_argument("--ref", default="main", help="Git revision of the reference contact.py.")
     ap.add_argument("--no-ref", action="store_true", help="Time this tree's solver only.")

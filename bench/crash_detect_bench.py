@@ -14,9 +14,10 @@ Usage::
 
     python bench/crash_detect_bench.py [--work DIR ...] [--clips a,b] [--json FILE]
 
-Each clip's extraction is taken from the first ``--work`` folder that has it (default: the cached
-extractions of main in /work/cache/fid_final). The camera's global motion (for the jolt) needs the video
-decoded once; it is cached as ``motion_<clip>.npz`` in ``--motion-cache`` (default /tmp/crashdet_motion).
+Each clip's extraction is taken from the first ``--work`` folder that has it (default: the
+extractions of ``bench/fidelity_crashes.py`` in /tmp/deepcrashtest_fidelity). The camera's global motion (for
+the jolt) needs the video decoded once; it is cached as ``motion_<clip>.npz`` in ``--motion-cache``
+(default /tmp/crashdet_motion).
 """
 
 from __future__ import annotations
@@ -146,7 +147,7 @@ def main() -> None:
     ap.add_argument("--motion-cache", type=Path, default=Path("/tmp/crashdet_motion"))
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
-    dirs = list(args.work or []) + [Path("/work/cache/fid_final")]
+    dirs = list(args.work or []) + [Path("/tmp/deepcrashtest_fidelity")]
     labels: dict[str, CrashLabel] = {}
     for f in LABELS:
         labels.update(load_crash_labels(f))
