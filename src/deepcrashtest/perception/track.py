@@ -86,6 +86,7 @@ class ImageTrack(TrackBase):
     detected_now: bool = False
     tentative_rows: list[tuple[int, float, TrackedBox]] = field(default_factory=list)
     wheel: str = ""  # the two-wheeler class once the track was one
+    flow_carried: bool = False  # moved by optical flow since its last detection (the height gate applies)
 
     @property
     def category(self) -> str:
@@ -227,6 +228,7 @@ class BoxTracker:
             moved, ok = boxes, np.zeros(len(tracks), bool)
         for t, b, good in zip(tracks, moved, ok, strict=True):
             t.box = b if good else t.box + t.velocity
+            t.flow_carried = t.flow_carried or bool(good)
 
     def _associate(self, dets: Detections) -> None:
         tracks = self.core.tracks
@@ -261,6 +263,7 @@ class BoxTracker:
         v = (box - t.detected_box) / gap
         t.velocity = 0.5 * t.velocity + 0.5 * v if t.hits > 2 else v
         t.box = box
+        t.flow_carried = False
         t.detected_box = box.copy()
         t.last_detected = self._n
         t.score = float(dets.scores[j])
@@ -270,10 +273,14 @@ class BoxTracker:
 
 def _height_jumps(tracks: list[ImageTrack], boxes: np.ndarray) -> np.ndarray:
     """(tracks, detections) True where the detection's height is off the track's last detected box's by more
-    than :data:`MAX_HEIGHT_RATIO` (a track is carried for at most ``max_age_s``, ~1 s)."""
+    than :data:`MAX_HEIGHT_RATIO` (a track is carried for at most ``max_age_s``, ~1 s), for tracks whose box
+    optical flow moved since that detection: the gate guards against a box dragged by whatever passes in
+    front of it. Boxes without pixels (constant image velocity) are not gated: on the 18 KITTI training
+    sequences through the monocular path the gate cost 3.9 MOTA (60.68 -> 56.75) there."""
     last = np.array([max(t.detected_box[3] - t.detected_box[1], 1.0) for t in tracks])
     ratio = np.abs(np.log(np.maximum(boxes[:, 3] - boxes[:, 1], 1.0)[None, :] / last[:, None]))
-    return ratio > math.log(MAX_HEIGHT_RATIO)
+    carried = np.array([t.flow_carried for t in tracks])
+    return (ratio > math.log(MAX_HEIGHT_RATIO)) & carried[:, None]
 
 
 def _visible_fraction(box: np.ndarray, w: int, h: int) -> float:
