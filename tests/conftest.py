@@ -19,6 +19,18 @@ def need(path: Path) -> Path:
 
 
 @pytest.fixture(scope="session")
+def yolo_ok() -> None:
+    """Skip (with the reason) when the YOLO26n ONNX model has not been built (``make test`` builds it)."""
+    from deepcrashtest.errors import UserError
+    from deepcrashtest.perception.models import yolo26n_path
+
+    try:
+        yolo26n_path()
+    except UserError as exc:
+        pytest.skip(f"{exc} (make test builds it)")
+
+
+@pytest.fixture(scope="session")
 def kitti_root() -> Path:
     return need(KITTI_TRACKING)
 

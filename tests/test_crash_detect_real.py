@@ -7,27 +7,16 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import pytest
 
 from conftest import DATA, ROOT, need
 from deepcrashtest.datasets.crash_labels import CrashLabel, load_crash_labels
-from deepcrashtest.errors import UserError
 from deepcrashtest.perception.boxes import iou_matrix
 from deepcrashtest.perception.crash_detect import EGO, GlobalMotion, WorldTrack, close_3d, detect_crash
 from deepcrashtest.perception.detect import DEFAULT_DETECTOR, make_detector
-from deepcrashtest.perception.models import yolo26n_path
 from deepcrashtest.perception.track import frame_records, iter_tracks, records_table
 from deepcrashtest.video.source import open_video
 
 CCD_LABELS = ROOT / "bench" / "labels" / "ccd_crashes.json"
-
-
-@pytest.fixture(scope="module")
-def yolo_ok() -> None:
-    try:
-        yolo26n_path()
-    except UserError as exc:
-        pytest.skip(f"{exc} (make test builds it)")
 
 
 def _label(clip: str) -> tuple[Path, CrashLabel]:
@@ -73,6 +62,13 @@ def _tracks_to_contact(video, contact_frame: int):
     return records_table(rows), motion
 
 
+def _track_at(tracks, frame: int, box) -> tuple[int, float]:
+    """(track id, IoU) of the track whose box at ``frame`` overlaps the labelled ``box`` (px) most."""
+    at = tracks[tracks["frame"] == frame]
+    ious = iou_matrix(np.asarray(box, float), at[["x1", "y1", "x2", "y2"]].to_numpy(float))[0]
+    return int(at["track_id"].iloc[int(ious.argmax())]), float(ious.max())
+
+
 def test_ego_crash_found_from_tracks_of_a_real_clip(yolo_ok):
     """ccd_000340 (a minivan turns across the ego's path, contact frame 26): tracked at 10 fps with the
     detector every other frame (as extract does), the crash is the ego and the minivan's track within
@@ -81,10 +77,8 @@ def test_ego_crash_found_from_tracks_of_a_real_clip(yolo_ok):
     box = label.participants[1].box
     assert box is not None and label.contact_frame is not None
     tracks, motion = _tracks_to_contact(video, label.contact_frame)
-    at = tracks[tracks["frame"] == label.contact_frame]
-    ious = iou_matrix(np.asarray(box, float), at[["x1", "y1", "x2", "y2"]].to_numpy(float))[0]
-    assert ious.max() >= 0.3, "the minivan is not a track at the contact frame"
-    minivan = int(at["track_id"].iloc[int(ious.argmax())])
+    minivan, iou = _track_at(tracks, label.contact_frame, box)
+    assert iou >= 0.3, "the minivan is not a track at the contact frame"
     found = detect_crash(tracks, 1280, 720, 10.0, motion.arrays())
     assert found is not None and found.pair == (EGO, minivan)
     assert abs(found.frame - label.contact_frame) <= 2 and found.confidence >= 0.5
@@ -98,9 +92,7 @@ def test_a_box_jumping_onto_the_image_border_is_not_the_contact(yolo_ok):
     box = label.participants[1].box
     assert box is not None and label.contact_frame is not None
     tracks, motion = _tracks_to_contact(video, label.contact_frame)
-    at = tracks[tracks["frame"] == label.contact_frame]
-    ious = iou_matrix(np.asarray(box, float), at[["x1", "y1", "x2", "y2"]].to_numpy(float))[0]
-    bus = int(at["track_id"].iloc[int(ious.argmax())])
+    bus, _ = _track_at(tracks, label.contact_frame, box)
     found = detect_crash(tracks, 1280, 720, 10.0, motion.arrays())
     assert found is not None and found.pair == (EGO, bus)
     assert abs(found.frame - label.contact_frame) <= 2, found

@@ -16,15 +16,11 @@ from deepcrashtest.datasets.kitti.detection_eval import MatchCounts, match_frame
 from deepcrashtest.datasets.kitti.files import read_labels
 from deepcrashtest.errors import UserError
 from deepcrashtest.perception.detect import DEFAULT_DETECTOR, make_detector
-from deepcrashtest.perception.models import model_dir, yolo26n_path
+from deepcrashtest.perception.models import model_dir
 
 
 @pytest.fixture(scope="module")
-def yolo():
-    try:
-        yolo26n_path()
-    except UserError as exc:
-        pytest.skip(f"{exc} (make test builds it)")
+def yolo(yolo_ok):
     return make_detector(DEFAULT_DETECTOR)
 
 

@@ -181,15 +181,9 @@ def test_compilation_gives_one_scenario_per_shot(tmp_path):
 
 
 @pytest.fixture(scope="module")
-def yolo():
-    from deepcrashtest.errors import UserError
+def yolo(yolo_ok):
     from deepcrashtest.perception.detect import make_detector
-    from deepcrashtest.perception.models import yolo26n_path
 
-    try:
-        yolo26n_path()
-    except UserError as exc:
-        pytest.skip(f"{exc} (make test builds it)")
     return make_detector("yolo26n")
 
 
