@@ -580,10 +580,6 @@ def _pick(tracks: list[BoxTrack], i: int, j: int) -> tuple[BoxTrack, BoxTrack]:
     return tracks[i], tracks[j]
 
 
-def _before(m: Movable, t_end: float) -> np.ndarray:
-    return m.t[m.t <= t_end + 1e-9]
-
-
 def make_contact(
     a: Movable,
     b: Movable,
