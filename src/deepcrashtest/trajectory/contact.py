@@ -655,13 +655,14 @@ def _full(ds: list[np.ndarray], movable: tuple[bool, ...]) -> list[np.ndarray]:
 
 
 def nudge_apart(m: Movable, others: list[Movable], t_end: float, cp: ContactParams | None = None) -> Correction:
-    """Smallest smooth displacement of ``m`` (its whole track may shift) that keeps it at least
-    ``clearance_m`` from every vehicle of ``others`` up to ``t_end`` (s)."""
+    """Smallest smooth displacement of ``m`` (its whole track may shift; ``rigid``: only that, a parked
+    car's depth error, never a motion that would turn its box) that keeps it at least ``clearance_m``
+    from every vehicle of ``others`` up to ``t_end`` (s)."""
     cp = cp or ContactParams()
     lo, hi = float(m.t[0]), float(min(m.t[-1], t_end))
     if hi - lo < 1e-6:
         return Correction([np.zeros_like(m.xy)], 0.0, 0.0, 0.0, False, "too short to move")
-    bases = [_basis(lo, hi, max(cp.knot_step_s, (hi - lo) / 12), anchored=False)]
+    bases = [_rigid(m) if m.rigid else _basis(lo, hi, max(cp.knot_step_s, (hi - lo) / 12), anchored=False)]
     ineq = []
     for j, o in enumerate(others):
         ts = m.t[(m.t >= max(lo, o.t[0])) & (m.t <= min(hi, o.t[-1]))]

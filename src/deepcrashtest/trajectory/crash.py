@@ -51,7 +51,7 @@ def _movable(d: Dense, is_ego: bool) -> Movable:
     weight = EGO_WEIGHT if is_ego else (STATIC_WEIGHT if d.static else 1.0)
     rigid = d.static and not is_ego
     kin = None if rigid else kinematics(d.vehicle.category)
-    yaw = None if d.box_yaw is None else d.box_headings()
+    yaw = None if d.box_yaw is None and not d.static else d.box_headings()
     return Movable(d.t, d.xy, d.vehicle.length, d.vehicle.width, d.heading, weight, rigid=rigid, kin=kin, yaw=yaw)
 
 

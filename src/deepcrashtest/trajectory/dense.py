@@ -57,9 +57,12 @@ class Dense:
         return BoxTrack(self.t, self.xy[:, 0], self.xy[:, 1], self.box_headings(), v.length, v.width)
 
     def box_headings(self) -> np.ndarray:
-        """The box's heading (rad) per sample: ``box_yaw`` where set, else the motion's direction."""
+        """The box's heading (rad) per sample: ``box_yaw`` where set, a parked road user's box heading
+        (``heading``: a shift that keeps it apart must not turn it), else the motion's direction."""
         if self.box_yaw is not None:
             return np.interp(self.t, *self.box_yaw)
+        if self.static:
+            return np.full(len(self.t), self.heading)
         return headings(self.t, self.xy, self.heading)
 
     def keep(self, mask: np.ndarray) -> None:

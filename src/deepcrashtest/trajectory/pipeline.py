@@ -516,7 +516,7 @@ def _final_vehicle(d: Dense, p: Stage2Params, cls: str | None, allow_reverse: bo
         speed = np.zeros(len(d.t)) if d.static else np.hypot(vel[:, 0], vel[:, 1])
         if speed.max(initial=0.0) > MAX_SPEED_MPS or (not allow_reverse and _reverses(d, vel)):
             continue
-        yaw = headings(d.t, xy, d.heading, vel)
+        yaw = np.full(len(d.t), d.heading) if d.static else headings(d.t, xy, d.heading, vel)
         traj = Trajectory.from_arrays(d.t, xy[:, 0], xy[:, 1], yaw, speed, observed=d.observed)
         amax, i = traj.max_abs_accel()
         if amax <= MAX_ACCEL_MPS2:
