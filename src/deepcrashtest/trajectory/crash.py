@@ -26,6 +26,7 @@ from deepcrashtest.trajectory.dense import EPS_T, Dense
 from deepcrashtest.trajectory.params import Stage2Params
 
 EGO_WEIGHT = 3.0  # the ego's path (visual odometry) is trusted more than a monocular agent track
+EGO_LATERAL_WEIGHT = 10.0  # ... and its heading (the camera's yaw) more than its speed scale: moved along its path first
 STATIC_WEIGHT = 10.0  # a parked car moves last
 MAX_NUDGE_M = 3.0  # a bystander that must move farther than this is dropped instead
 MAX_FAILED_CORRECTION_M = 5.0  # a crash correction that failed and is larger than this is not applied
@@ -52,7 +53,11 @@ def _movable(d: Dense, is_ego: bool) -> Movable:
     rigid = d.static and not is_ego
     kin = None if rigid else kinematics(d.vehicle.category)
     yaw = None if d.box_yaw is None and not d.static else d.box_headings()
-    return Movable(d.t, d.xy, d.vehicle.length, d.vehicle.width, d.heading, weight, rigid=rigid, kin=kin, yaw=yaw)
+    lateral = EGO_LATERAL_WEIGHT if is_ego else 1.0
+    return Movable(
+        d.t, d.xy, d.vehicle.length, d.vehicle.width, d.heading, weight, rigid=rigid, kin=kin, lateral_weight=lateral,
+        yaw=yaw,
+    )  # fmt: skip
 
 
 def resolve_crash(
