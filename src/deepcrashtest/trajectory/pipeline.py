@@ -56,7 +56,7 @@ from deepcrashtest.scenario import (
     format_validation_error,
 )
 from deepcrashtest.trajectory.collision import MOVING_MPS, first_contact, headings
-from deepcrashtest.trajectory.crash import CrashOutcome, resolve_crash
+from deepcrashtest.trajectory.crash import CrashOutcome, earlier_touch, resolve_crash
 from deepcrashtest.trajectory.dense import EPS_T, Dense, EgoFrame, agent_dense, moves_in_video, span
 from deepcrashtest.trajectory.egoheading import ego_along_measured_yaw, smooth_series
 from deepcrashtest.trajectory.params import Stage2Params
@@ -78,6 +78,13 @@ class _Run:
     t0: float
     warnings: list[str]
     ego_shift_m: float = 0.0
+
+    @property
+    def jolt_at_crash(self) -> bool:
+        """Whether the detected crash's frame had camera-jolt evidence (else: a box stopped growing there)."""
+        det = self.raw.provenance.parameters.get("crash_detection")
+        ev = det.get("evidence") if isinstance(det, dict) else None
+        return not isinstance(ev, dict) or float(ev.get("jolt", 1.0)) > 0.0
 
     @property
     def no_crash_in_video(self) -> bool:
@@ -320,6 +327,8 @@ def _crash_phase(run: _Run, ego: Dense, agents: list[Dense], t_max: float) -> Cr
     known = run.raw.collision
     if known is not None:
         known = known.model_copy(update={"time_s": known.time_s - run.t0 + t_max})
+        if known.source == "video-auto" and not run.jolt_at_crash:
+            known = earlier_touch(known, ego, agents, t_max, run.warnings)
         if _crawling(ego, known.time_s):  # its box faces where the camera faces, not its noisy path's way
             ego.box_yaw = _measured_yaw(run, t_max)
     out = resolve_crash(
