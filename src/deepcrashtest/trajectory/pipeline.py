@@ -171,7 +171,7 @@ def _collision_that_can_happen(run: _Run) -> Scenario:
     byid = {v.id: v for v in raw.vehicles()}
     if any(i not in byid or moves_in_video(byid[i], run.p) for i in c.participants):
         return raw
-    if _closing_m(*(byid[i] for i in c.participants), c.time_s) > run.p.static_min_displacement_m:
+    if _closing_m(byid[c.other_id], byid[c.agent_id], c.time_s) > run.p.static_min_displacement_m:
         return raw  # one creeps towards the other (ccd_000031: ego-motion lost in snow, the minivan's 1.7 m close)
     run.warnings.append(
         f"the detected crash of {c.other_id} and {c.agent_id} at {c.time_s - run.t0:.2f} s (video time) is dropped: "
