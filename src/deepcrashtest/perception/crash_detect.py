@@ -168,18 +168,36 @@ def observed(g: pd.DataFrame, det_frames: np.ndarray | None, fps: float) -> pd.S
     if not len(seen):
         return pd.Series(0.0, index=g.index)
     gap = np.abs(frames[:, None] - seen[None, :]).min(axis=1) / fps  # to the nearest detection, s
-    allowed = max(SEEN_GAP_S, float(np.median(np.diff(det_frames))) / fps)
+    allowed = _seen_gap(det_frames, fps)
     return pd.Series(np.clip(1 - (gap - allowed) / SEEN_FADE_S, 0, 1), index=g.index)
 
 
+def _seen_gap(det_frames: np.ndarray, fps: float) -> float:
+    """``SEEN_GAP_S`` or the detector's interval (s), whichever is longer."""
+    return max(SEEN_GAP_S, float(np.median(np.diff(det_frames))) / fps) if len(det_frames) >= 2 else SEEN_GAP_S
+
+
+def reacquired(g: pd.DataFrame, det_frames: np.ndarray | None, fps: float) -> pd.Series:
+    """True at the frames where a track that coasted on the tracker's prediction for longer than
+    ``SEEN_GAP_S`` (or the detector's interval) is detected again: its box jumps there."""
+    if det_frames is None or "state" not in g.columns:
+        return pd.Series(False, index=g.index)
+    det = (g["state"] == "detected").to_numpy()
+    frames = g.index.to_numpy(float)
+    seen = frames[det]
+    out = np.zeros(len(g), bool)
+    out[np.flatnonzero(det)[1:]] = np.diff(seen) / fps > _seen_gap(det_frames, fps)
+    return pd.Series(out, index=g.index)
+
+
 def _per_track(tracks: pd.DataFrame, fps: float) -> dict[int, pd.DataFrame]:
-    """Each track (>= 3 frames) indexed by frame, with its ``seen`` share (:func:`observed`)."""
+    """Each track (>= 3 frames) indexed by frame, with ``seen`` (:func:`observed`) and ``reacquired``."""
     det_frames = _detector_frames(tracks)
     out = {}
     for tid, g in tracks.sort_values("frame").groupby("track_id"):
         g = g.drop_duplicates("frame").set_index("frame")
         if len(g) >= 3:
-            out[int(str(tid))] = g.assign(seen=observed(g, det_frames, fps))
+            out[int(str(tid))] = g.assign(seen=observed(g, det_frames, fps), reacquired=reacquired(g, det_frames, fps))
     return out
 
 
@@ -193,13 +211,17 @@ def _growth(g: pd.DataFrame, fps: float) -> pd.Series:
 
 
 def _motion_change(g: pd.DataFrame, width: int) -> pd.Series:
-    """0..1 per frame: a sudden change of the box centre's velocity or of its size (fraction of width)."""
+    """0..1 per frame: a sudden change of the box centre's velocity or of its size (fraction of width);
+    none where a track coasting on its prediction is detected again (``reacquired``)."""
     cx = ((g["x1"] + g["x2"]) / 2).to_numpy(float)
     cy = ((g["y1"] + g["y2"]) / 2).to_numpy(float)
     w = (g["x2"] - g["x1"]).to_numpy(float)
     a = np.zeros(len(g))
     if len(g) >= 3:
         a[1:-1] = np.hypot(cx[2:] - 2 * cx[1:-1] + cx[:-2], cy[2:] - 2 * cy[1:-1] + cy[:-2]) / np.maximum(w[1:-1], 20)
+    if "reacquired" in g.columns:  # the tracker correcting its prediction, not the road user's motion
+        r = g["reacquired"].to_numpy(bool)
+        a[r | np.r_[r[1:], False] | np.r_[False, r[:-1]]] = 0.0
     s = pd.Series(np.clip(a / 0.25, 0, 1), index=g.index)
     return s.rolling(5, center=True, min_periods=1).max()
 
@@ -224,7 +246,6 @@ def ego_scores(g: pd.DataFrame, width: int, height: int, fps: float, jolt: dict[
             "reaches_border": edge,
             "exits": _exits(g, width, fps),
             "ahead": (g["x1"] <= width / 2) & (g["x2"] >= width / 2),
-            "seen": _seen(g),
         }
     )
 
@@ -300,8 +321,6 @@ def ego_best(s: pd.DataFrame, fps: float) -> tuple[float, int, dict[str, float]]
     score *= min(1.0, (closing + jolt) / EGO_MIN_EVIDENCE)  # near all along (the bonnet, a queue): no crash
     if "exits" in s and bool(s.loc[frame, "exits"]) and not (near_enough & s["ahead"])[before.index].any():
         score *= jolt  # it drove on out of the view past the ego: only a jolt says it touched on the way
-    if "seen" in s:
-        score *= float(s.loc[frame, "seen"])
     ev = {"near": round(peak, 3), "closing": round(closing, 3), "jolt": round(jolt, 3), "score": round(score, 3)}
     if "reaches_border" in s and bool(s.loc[frame, "reaches_border"]):
         frame += 1  # the box jumped onto the image border there: the road user fills the view, not yet touching
