@@ -72,12 +72,18 @@ BORDER_JUMP = 0.15
 #: detected 0.2 s before the contact, keeps its score).
 SEEN_GAP_S = 0.3
 SEEN_FADE_S = 0.3
+#: A pair whose boxes lie inside a nearer road user's box (its bottom lower in the image) is hidden behind
+#: it or part of it (a rider, a passenger): no discount while less than HIDDEN_FROM of the pair's joint box
+#: lies inside, none of its score left from HIDDEN_FULL on (chosen on dad_000487: a rider and a car behind
+#: the ego's scooter, both inside its box, their boxes jittering as it passes).
+HIDDEN_FROM = 0.5
+HIDDEN_FULL = 0.9
 #: A road user leaving the view at the image's side within EXIT_WINDOW_S (s) after an ego "contact"
 #: (its visible width at the border falling below EXIT_WIDTH_SHARE of the width at that frame) without
 #: having been ahead (its box over the image's centre column while near, in the second before) drove past
 #: the ego; without a camera jolt it is no ego crash (chosen on dad_000487: an oncoming car passing close;
 #: dad_000493's scooter, hit while ahead, leaves the view at the side as the ego turns).
-EXIT_WINDOW_S = 0.5
+EXIT_WINDOW_S = 1.0
 EXIT_WIDTH_SHARE = 0.5
 
 
@@ -226,8 +232,12 @@ def _motion_change(g: pd.DataFrame, width: int) -> pd.Series:
     return s.rolling(5, center=True, min_periods=1).max()
 
 
-def ego_scores(g: pd.DataFrame, width: int, height: int, fps: float, jolt: dict[int, float]) -> pd.DataFrame:
-    """Per frame of one track: near (wide box reaching the image bottom), closing (box growth), jolt."""
+def ego_scores(
+    g: pd.DataFrame, width: int, height: int, fps: float, jolt: dict[int, float], clip_end: int | None = None
+) -> pd.DataFrame:
+    """Per frame of one track: near (wide box reaching the image bottom), closing (box growth), jolt,
+    and whether it is ahead (its box over the image's centre column) or leaves the view at the side
+    (:func:`_exits`; ``clip_end``: the clip's last frame)."""
     x1, y1, x2, y2 = (g[c].to_numpy(float) for c in ("x1", "y1", "x2", "y2"))
     size = np.log(np.sqrt(np.maximum((x2 - x1) * (y2 - y1), 1.0)))
     wide = np.clip(((x2 - x1) / width - 0.12) / 0.3, 0, 1)
@@ -244,24 +254,26 @@ def ego_scores(g: pd.DataFrame, width: int, height: int, fps: float, jolt: dict[
             "jolt": j,
             "log_size": size,
             "reaches_border": edge,
-            "exits": _exits(g, width, fps),
+            "exits": _exits(g, width, fps, clip_end),
             "ahead": (g["x1"] <= width / 2) & (g["x2"] >= width / 2),
         }
     )
 
 
-def _exits(g: pd.DataFrame, width: int, fps: float) -> pd.Series:
+def _exits(g: pd.DataFrame, width: int, fps: float, clip_end: int | None = None) -> pd.Series:
     """True at the frames after which the road user leaves the view at the image's left or right side
     within ``EXIT_WINDOW_S``: its box is on that border with a visible width under ``EXIT_WIDTH_SHARE`` of
-    its width at the frame (it drove past the ego, out of the view)."""
+    its width at the frame, or its track ends there before the clip does (``clip_end``: the clip's last
+    frame): it drove past the ego, out of the view."""
     f = g.index.to_numpy(int)
     w = (g["x2"] - g["x1"]).to_numpy(float)
     side = ((g["x1"] <= BORDER_PX) | (g["x2"] >= width - BORDER_PX)).to_numpy()
     n = EXIT_WINDOW_S * fps
+    gone = bool(side[-1]) and clip_end is not None and f[-1] < clip_end  # the track ends on a side border
     out = np.zeros(len(f), bool)
     for k in range(len(f)):
         later = (f > f[k]) & (f <= f[k] + n) & side
-        out[k] = bool(np.any(w[later] < EXIT_WIDTH_SHARE * w[k]))
+        out[k] = bool(np.any(w[later] < EXIT_WIDTH_SHARE * w[k])) or (gone and f[-1] <= f[k] + n)
     return pd.Series(out, index=g.index)
 
 
@@ -377,11 +389,13 @@ def pair_scores(
     world: tuple[WorldTrack, WorldTrack] | None = None,
     fps: float = 10.0,
     entered: bool = False,
+    scene: dict[int, pd.DataFrame] | None = None,
 ) -> pd.DataFrame:
     """Per common frame of two tracks: contact in the image, close in 3D (or a similar ground row),
     motion change, onset (apart before; ``entered``: one of them came into the view during the clip at
     its border, :func:`entered_view`), both seen by the detector (a track's ``seen`` column, 0..1, from
-    :func:`observed`; 1 without it)."""
+    :func:`observed`; 1 without it), not hidden behind a nearer road user (``scene``: every box per frame,
+    :func:`hidden_behind`)."""
     common = a.index.intersection(b.index)
     if not len(common):
         return pd.DataFrame(columns=["touch", "depth", "change", "onset", "seen", "score"])
@@ -398,9 +412,46 @@ def pair_scores(
     change = pd.Series(np.maximum(_motion_change(a, width).to_numpy(), _motion_change(b, width).to_numpy()), common)
     onset = _onset(pd.Series(np.asarray(touch, float), index=common), fps, entered)
     score = touch * depth * (0.2 + 0.8 * change) * onset * seen
+    hidden = hidden_behind(a, b, scene, np.asarray(score, float) > 0) if scene is not None else np.zeros(len(common))
+    score = score * (1 - hidden)
     return pd.DataFrame(
-        {"touch": touch, "depth": depth, "change": change, "onset": onset, "seen": seen, "score": score}
+        {
+            "touch": touch,
+            "depth": depth,
+            "change": change,
+            "onset": onset,
+            "seen": seen,
+            "hidden": hidden,
+            "score": score,
+        }
     )
+
+
+def scene_boxes(tracks: pd.DataFrame) -> dict[int, pd.DataFrame]:
+    """Every track's box per frame (frame -> rows with ``track_id, x1, y1, x2, y2``)."""
+    cols = ["track_id", "x1", "y1", "x2", "y2"]
+    return {int(f): g[cols] for f, g in tracks.groupby("frame")}
+
+
+def hidden_behind(a: pd.DataFrame, b: pd.DataFrame, scene: dict[int, pd.DataFrame], where: np.ndarray) -> np.ndarray:
+    """0..1 per frame of ``a`` and ``b`` (same frames): how much the pair's joint box lies inside the box
+    of a third, nearer road user (its bottom lower in the image), ``HIDDEN_FROM`` -> 0, ``HIDDEN_FULL``
+    -> 1; only at the frames in ``where`` (else 0)."""
+    out = np.zeros(len(a))
+    ida, idb = int(a["track_id"].iloc[0]), int(b["track_id"].iloc[0])
+    for k in np.flatnonzero(where):
+        f = int(a.index[k])
+        ux1, uy1 = min(a["x1"].iloc[k], b["x1"].iloc[k]), min(a["y1"].iloc[k], b["y1"].iloc[k])
+        ux2, uy2 = max(a["x2"].iloc[k], b["x2"].iloc[k]), max(a["y2"].iloc[k], b["y2"].iloc[k])
+        o = scene.get(f)
+        if o is None:
+            continue
+        o = o[~o["track_id"].isin((ida, idb)) & (o["y2"] > uy2)]
+        iw = np.clip(np.minimum(o["x2"], ux2) - np.maximum(o["x1"], ux1), 0, None)
+        ih = np.clip(np.minimum(o["y2"], uy2) - np.maximum(o["y1"], uy1), 0, None)
+        share = float((iw * ih).max()) / max((ux2 - ux1) * (uy2 - uy1), 1.0) if len(o) else 0.0
+        out[k] = np.clip((share - HIDDEN_FROM) / (HIDDEN_FULL - HIDDEN_FROM), 0, 1)
+    return out
 
 
 def _seen(g: pd.DataFrame) -> pd.Series:
@@ -466,11 +517,13 @@ def crash_candidates(
     """Every candidate crash (each ego + track and each pair of tracks at its best frame), best first
     (arguments as :func:`detect_crash`)."""
     per = {k: g for k, g in _per_track(tracks, fps).items() if allowed is None or k in allowed}
+    clip_end = int(tracks["frame"].max()) if len(tracks) else None
+    scene = scene_boxes(tracks)
     jolt = jolt_score(*motion, fps) if motion is not None else {}
     lo, hi = frames if frames is not None else (-(10**9), 10**9)
     cands: list[Candidate] = []
     for tid, g in per.items():
-        s = ego_scores(g, width, height, fps, jolt)
+        s = ego_scores(g, width, height, fps, jolt, clip_end)
         s = s[(s.index >= lo) & (s.index <= hi)]
         if len(s):
             score, frame, ev = ego_best(s, fps)
@@ -486,7 +539,7 @@ def crash_candidates(
                 continue
             wpair = (world[ta], world[tb]) if ta in world and tb in world else None
             entered = entered_view(per[ta], width, height, first) or entered_view(per[tb], width, height, first)
-            s = pair_scores(per[ta], per[tb], width, height, wpair, fps, entered)
+            s = pair_scores(per[ta], per[tb], width, height, wpair, fps, entered, scene)
             s = s[(s.index >= lo) & (s.index <= hi)]
             if len(s):  # something at the ego's bumper makes an ego crash the likelier one
                 score, frame, pair, ev = _best(s, (ta, tb))
