@@ -18,6 +18,13 @@ Evidence, per candidate pair and frame (each scored 0..1):
   motion suddenly (a spike of the box centre's acceleration); discounted when a road user is at the
   ego's bumper in the clip. Two pedestrians are never a crash pair.
 
+Only what the detector saw counts (with a ``state`` column, detected or predicted): a pair's evidence
+fades where a track coasts on the tracker's prediction (``SEEN_GAP_S``), the box jump where a coasting
+track is detected again is no change of motion, and a pair inside a nearer road user's box (a rider, a
+road user behind it: ``HIDDEN_FROM``) is hidden. A pair must be seen apart before it touches, unless one
+of them entered the view at the image border. A road user that leaves the view at the side soon after
+its ego "contact" without having been ahead (``EXIT_WINDOW_S``) drove past: no ego crash without a jolt.
+
 "Near" for an ego crash is the box's width or, for narrow road users (a person, a two-wheeler), its
 height as a share of the image, with its bottom in the lower part of the image.
 
@@ -430,7 +437,7 @@ def pair_scores(
 def scene_boxes(tracks: pd.DataFrame) -> dict[int, pd.DataFrame]:
     """Every track's box per frame (frame -> rows with ``track_id, x1, y1, x2, y2``)."""
     cols = ["track_id", "x1", "y1", "x2", "y2"]
-    return {int(f): g[cols] for f, g in tracks.groupby("frame")}
+    return {int(str(f)): g[cols] for f, g in tracks.groupby("frame")}
 
 
 def hidden_behind(a: pd.DataFrame, b: pd.DataFrame, scene: dict[int, pd.DataFrame], where: np.ndarray) -> np.ndarray:
@@ -439,11 +446,12 @@ def hidden_behind(a: pd.DataFrame, b: pd.DataFrame, scene: dict[int, pd.DataFram
     -> 1; only at the frames in ``where`` (else 0)."""
     out = np.zeros(len(a))
     ida, idb = int(a["track_id"].iloc[0]), int(b["track_id"].iloc[0])
+    frames = a.index.to_numpy(int)
+    ba, bb = (t[["x1", "y1", "x2", "y2"]].to_numpy(float) for t in (a, b))
     for k in np.flatnonzero(where):
-        f = int(a.index[k])
-        ux1, uy1 = min(a["x1"].iloc[k], b["x1"].iloc[k]), min(a["y1"].iloc[k], b["y1"].iloc[k])
-        ux2, uy2 = max(a["x2"].iloc[k], b["x2"].iloc[k]), max(a["y2"].iloc[k], b["y2"].iloc[k])
-        o = scene.get(f)
+        ux1, uy1 = np.minimum(ba[k, :2], bb[k, :2])
+        ux2, uy2 = np.maximum(ba[k, 2:], bb[k, 2:])
+        o = scene.get(int(frames[k]))
         if o is None:
             continue
         o = o[~o["track_id"].isin((ida, idb)) & (o["y2"] > uy2)]
