@@ -396,7 +396,7 @@ def pair_scores(
     world: tuple[WorldTrack, WorldTrack] | None = None,
     fps: float = 10.0,
     entered: bool = False,
-    scene: dict[int, pd.DataFrame] | None = None,
+    scene: dict[int, tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> pd.DataFrame:
     """Per common frame of two tracks: contact in the image, close in 3D (or a similar ground row),
     motion change, onset (apart before; ``entered``: one of them came into the view during the clip at
@@ -434,30 +434,36 @@ def pair_scores(
     )
 
 
-def scene_boxes(tracks: pd.DataFrame) -> dict[int, pd.DataFrame]:
-    """Every track's box per frame (frame -> rows with ``track_id, x1, y1, x2, y2``)."""
-    cols = ["track_id", "x1", "y1", "x2", "y2"]
-    return {int(str(f)): g[cols] for f, g in tracks.groupby("frame")}
+def scene_boxes(tracks: pd.DataFrame) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Every track's box per frame: frame -> (track ids (N,), boxes (N, 4) px ``x1, y1, x2, y2``)."""
+    f = tracks["frame"].to_numpy(int)
+    ids = tracks["track_id"].to_numpy(int)
+    boxes = tracks[["x1", "y1", "x2", "y2"]].to_numpy(float)
+    order = np.argsort(f, kind="stable")
+    cuts = np.flatnonzero(np.diff(f[order])) + 1
+    return {int(f[k[0]]): (ids[k], boxes[k]) for k in np.split(order, cuts) if len(k)}
 
 
-def hidden_behind(a: pd.DataFrame, b: pd.DataFrame, scene: dict[int, pd.DataFrame], where: np.ndarray) -> np.ndarray:
+def hidden_behind(
+    a: pd.DataFrame, b: pd.DataFrame, scene: dict[int, tuple[np.ndarray, np.ndarray]], where: np.ndarray
+) -> np.ndarray:
     """0..1 per frame of ``a`` and ``b`` (same frames): how much the pair's joint box lies inside the box
     of a third, nearer road user (its bottom lower in the image), ``HIDDEN_FROM`` -> 0, ``HIDDEN_FULL``
     -> 1; only at the frames in ``where`` (else 0)."""
     out = np.zeros(len(a))
-    ida, idb = int(a["track_id"].iloc[0]), int(b["track_id"].iloc[0])
+    pair = (int(a["track_id"].iloc[0]), int(b["track_id"].iloc[0]))
     frames = a.index.to_numpy(int)
     ba, bb = (t[["x1", "y1", "x2", "y2"]].to_numpy(float) for t in (a, b))
     for k in np.flatnonzero(where):
+        ids, o = scene.get(int(frames[k]), (np.zeros(0, int), np.zeros((0, 4))))
         ux1, uy1 = np.minimum(ba[k, :2], bb[k, :2])
         ux2, uy2 = np.maximum(ba[k, 2:], bb[k, 2:])
-        o = scene.get(int(frames[k]))
-        if o is None:
+        o = o[(ids != pair[0]) & (ids != pair[1]) & (o[:, 3] > uy2)]
+        if not len(o):
             continue
-        o = o[~o["track_id"].isin((ida, idb)) & (o["y2"] > uy2)]
-        iw = np.clip(np.minimum(o["x2"], ux2) - np.maximum(o["x1"], ux1), 0, None)
-        ih = np.clip(np.minimum(o["y2"], uy2) - np.maximum(o["y1"], uy1), 0, None)
-        share = float((iw * ih).max()) / max((ux2 - ux1) * (uy2 - uy1), 1.0) if len(o) else 0.0
+        iw = np.clip(np.minimum(o[:, 2], ux2) - np.maximum(o[:, 0], ux1), 0, None)
+        ih = np.clip(np.minimum(o[:, 3], uy2) - np.maximum(o[:, 1], uy1), 0, None)
+        share = float((iw * ih).max()) / max((ux2 - ux1) * (uy2 - uy1), 1.0)
         out[k] = np.clip((share - HIDDEN_FROM) / (HIDDEN_FULL - HIDDEN_FROM), 0, 1)
     return out
 
