@@ -16,7 +16,8 @@ Evidence, per candidate pair and frame (each scored 0..1):
   ground positions, metres, less than ``CLOSE_3D_M`` apart beyond their half widths within
   ``CLOSE_3D_WINDOW_S``; without ``world``, bottoms at a similar image row), and one of them changes
   motion suddenly (a spike of the box centre's acceleration); discounted when a road user is at the
-  ego's bumper in the clip. Two pedestrians are never a crash pair.
+  ego's bumper in the clip (near, approaching or with a jolt: not the ego's own bonnet). Two
+  pedestrians are never a crash pair.
 
 Only what the detector saw counts (with a ``state`` column, detected or predicted): a pair's evidence
 fades where a track coasts on the tracker's prediction (``SEEN_GAP_S``), the box jump where a coasting
@@ -542,7 +543,7 @@ def crash_candidates(
         if len(s):
             score, frame, ev = ego_best(s, fps)
             cands.append((score, frame, (EGO, tid), ev))
-    ego_near = max((c[3].get("near", 0.0) for c in cands), default=0.0)
+    ego_near = max((_at_bumper(c[3]) for c in cands), default=0.0)
     ids = sorted(per)
     cats = _categories(tracks)
     first = int(tracks["frame"].min()) if len(tracks) else 0
@@ -559,6 +560,12 @@ def crash_candidates(
                 score, frame, pair, ev = _best(s, (ta, tb))
                 cands.append((score * (1 - 0.5 * ego_near), frame, pair, ev))
     return sorted(cands, key=lambda c: -c[0])
+
+
+def _at_bumper(ev: dict[str, float]) -> float:
+    """How surely a road user is at the ego's bumper (0..1): near, with approach or jolt evidence (a box
+    near all along without either is the ego's bonnet or a queue: ``EGO_MIN_EVIDENCE``)."""
+    return ev.get("near", 0.0) * min(1.0, (ev.get("closing", 0.0) + ev.get("jolt", 0.0)) / EGO_MIN_EVIDENCE)
 
 
 def _categories(tracks: pd.DataFrame) -> dict[int, str]:
