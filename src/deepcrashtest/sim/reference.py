@@ -18,12 +18,21 @@ creeping 0.9 m into its crash was held still and missed it (ccd_000080).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 
 from deepcrashtest.scenario import Trajectory
-from deepcrashtest.sim.splines import BSpline, NaturalCubic, interp_spline, smoothing_spline
+from deepcrashtest.sim.splines import (
+    BSpline,
+    NaturalCubic,
+    interp_inverse,
+    interp_spline,
+    not_a_knot,
+    one_thread,
+    smoothing_spline,
+)
 
 PATH_DS_M = 0.25
 SMOOTH_CUTOFF_HZ = 0.8
@@ -139,7 +148,7 @@ def build_references(
     """References of ``B`` paths ``xys`` (B, n, 2) sampled at the same times ``t`` (n,), interpolated exactly.
 
     The same as ``[build_reference(t, xy, yaw_label, times, dt, smooth=False) for xy in xys]``, with
-    one cubic-spline solve for all paths (each column is solved alike; bit-identical).
+    one interpolation matrix for all paths (equal to the per-path splines to rounding).
     """
     t = np.asarray(t, float)
     xys = np.asarray(xys, float)
@@ -153,16 +162,27 @@ def build_references(
 def _interp_paths(
     t: np.ndarray, xys: np.ndarray, times: np.ndarray, dt: float
 ) -> tuple[int, int, np.ndarray, np.ndarray]:
-    """Grid span and cubic-interpolated positions and velocities (L, B, 2) of ``B`` paths sampled at ``t``."""
+    """Grid span and cubic-interpolated positions and velocities (L, B, 2) of ``B`` paths sampled at ``t``.
+
+    One spline for all paths (their coefficients from one cached inverse of the collocation matrix).
+    """
     B, n = xys.shape[:2]
     start, end, tq = _span(t, times, dt)
-    pos, vel = np.empty((len(tq), B, 2)), np.empty((len(tq), B, 2))
-    for lo in range(0, B, 256):  # blocks of columns stay in cache (each column is solved alike)
-        blk = xys[lo : lo + 256]
-        spline = interp_spline(t, blk.transpose(1, 0, 2).reshape(n, 2 * len(blk)), 3)
-        pos[:, lo : lo + len(blk)] = spline(tq).reshape(len(tq), len(blk), 2)
-        vel[:, lo : lo + len(blk)] = spline.derivative()(tq).reshape(len(tq), len(blk), 2)
+    ys = xys.transpose(1, 0, 2).reshape(n, 2 * B)
+    knots, inverse = _interp_inverse(t.tobytes())
+    with one_thread():
+        spline = BSpline(knots, inverse @ ys, 3)
+        pos = spline(tq).reshape(len(tq), B, 2)
+        vel = spline.derivative()(tq).reshape(len(tq), B, 2)
     return start, end, pos, vel
+
+
+@functools.lru_cache(maxsize=4)
+def _interp_inverse(t_b: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """Knots and inverse collocation matrix of the not-a-knot cubic spline through samples at ``t`` (kept: every
+    batch of a search asks the same)."""
+    t = np.frombuffer(t_b)
+    return not_a_knot(t, 3), interp_inverse(t)
 
 
 def build_pathset(

@@ -31,7 +31,7 @@ def _controller() -> Any:
     return ThreadpoolController()
 
 
-def _one_thread() -> Any:
+def one_thread() -> Any:
     """A context in which the BLAS/LAPACK libraries run on one thread."""
     return _controller().limit(limits=1, user_api="blas")
 
@@ -84,13 +84,16 @@ class BSpline:
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         """Values at ``x`` (clamped to the base interval): (len(x), ...)."""
-        span, values = local_basis(self.t, self.k, np.atleast_1d(x))
+        x = np.atleast_1d(np.asarray(x, float))
+        span, values = local_basis(self.t, self.k, x)
         c = np.asarray(self.c, float)
-        out = np.zeros((len(span), *c.shape[1:]))
-        extra = (slice(None),) + (None,) * (c.ndim - 1)
+        c2 = c.reshape(len(c), -1)
+        if c2.shape[1] >= 64 and len(x) > 1 and bool((np.diff(span) >= 0).all()):
+            return _grouped(span, values, c2, self.k).reshape(len(x), *c.shape[1:])
+        out = np.zeros((len(span), c2.shape[1]))
         for a in range(self.k + 1):
-            out += values[:, a][extra] * c[span - self.k + a]
-        return out
+            out += values[:, a, None] * c2[span - self.k + a]
+        return out.reshape(len(x), *c.shape[1:])
 
     def derivative(self, nu: int = 1) -> BSpline:
         """The ``nu``-th derivative, a spline of degree ``k - nu`` on ``t[nu:-nu]``."""
@@ -110,6 +113,20 @@ class BSpline:
         return BSpline(t[1:-1], dc, k - 1)
 
 
+def _grouped(span: np.ndarray, values: np.ndarray, c: np.ndarray, k: int) -> np.ndarray:
+    """``sum_a values[:, a] * c[span - k + a]`` for many columns of ``c`` (m, C) at increasing ``span``: the
+    points of each knot interval as one small matrix product with the interval's ``k + 1`` coefficient rows."""
+    spans, first, count = np.unique(span, return_index=True, return_counts=True)
+    g = int(count.max())
+    slot = np.arange(len(span)) - np.repeat(first, count)  # position within its interval
+    group = np.repeat(np.arange(len(spans)), count)
+    v = np.zeros((len(spans), g, k + 1))
+    v[group, slot] = values
+    window = np.lib.stride_tricks.sliding_window_view(c, k + 1, axis=0)  # (m - k, C, k + 1), no copy
+    out = np.matmul(v, window[spans - k].transpose(0, 2, 1))  # (intervals, g, C)
+    return out.reshape(len(spans) * g, -1)[group * g + slot]
+
+
 def not_a_knot(x: np.ndarray, k: int = 3) -> np.ndarray:
     """Knots of the not-a-knot interpolating spline of odd degree ``k`` through abscissae ``x`` (SciPy's)."""
     h = (k + 1) // 2
@@ -125,16 +142,24 @@ def interp_spline(x: np.ndarray, y: np.ndarray, k: int = 3) -> BSpline:
         raise ValueError(f"interp_spline: degree {k} with {len(x)} samples (needs k = 1, or k = 3 and >= 4)")
     t = not_a_knot(x, 3)
     a = basis_matrix(t, 3, x)
-    with _one_thread():
+    with one_thread():
         c = np.linalg.solve(a, y.reshape(len(x), -1)).reshape(y.shape)
     return BSpline(t, c, 3)
+
+
+def interp_inverse(x: np.ndarray) -> np.ndarray:
+    """(n, n) inverse of the collocation matrix of the not-a-knot cubic spline at ``x`` (n,): its coefficients on
+    knots ``not_a_knot(x)`` are ``inverse @ y`` (one matrix product for thousands of curves sampled at ``x``)."""
+    x = np.asarray(x, float)
+    with one_thread():
+        return np.linalg.solve(basis_matrix(not_a_knot(x, 3), 3, x), np.eye(len(x)))
 
 
 def lsq_spline(x: np.ndarray, y: np.ndarray, t: np.ndarray, k: int = 3) -> BSpline:
     """The least-squares spline of degree ``k`` on knots ``t`` through samples ``y`` (n, ...) at ``x`` (n,)."""
     x, y = np.asarray(x, float), np.asarray(y, float)
     a = basis_matrix(t, k, x)
-    with _one_thread():
+    with one_thread():
         c = np.linalg.lstsq(a, y.reshape(len(x), -1), rcond=None)[0]
     return BSpline(np.asarray(t, float), c.reshape((a.shape[1], *y.shape[1:])), k)
 
@@ -188,7 +213,7 @@ def smoothing_spline(x: np.ndarray, y: np.ndarray, lam: float) -> NaturalCubic:
     r[j, j] = (h[:-1] + h[1:]) / 3.0
     r[j[:-1], j[:-1] + 1] = r[j[:-1] + 1, j[:-1]] = h[1:-1] / 6.0
     y2 = y.reshape(n, -1)
-    with _one_thread():
+    with one_thread():
         gamma_in = np.linalg.solve(r + lam * (q.T @ q), q.T @ y2)
         g = y2 - lam * (q @ gamma_in)
     gamma = np.zeros_like(g)
