@@ -149,25 +149,30 @@ def write_variants(
 
     A variant that breaks the Scenario's physical limits (the simulator drove it, but its path asks e.g. an
     acceleration no vehicle has) is a result, not an error: it is recorded in the problems and skipped.
-    Returns (paths written, {variant: problem}, the first valid variant's Scenario or None).
+    Returns (paths written, {variant: problem}, the first valid variant's Scenario or None). The files are
+    written by a few threads while the next variants are built (each write waits ~10 ms for its fsync).
     """
+    from concurrent.futures import ThreadPoolExecutor
+
     safe = np.flatnonzero(column(table, "safe"))
     variant, method = column(table, "variant")[safe], column(table, "method")[safe]
     order = np.lexsort((variant, column(table, "change_m")[safe]))  # least change first, then the lowest id
-    paths: list[str] = []
+    saved: list[Any] = []
     problems: dict[int, str] = {}
     best: Scenario | None = None
-    for vid, m in zip(variant[order].tolist(), method[order].tolist(), strict=True):
-        if len(paths) >= limit and best is not None:
-            break
-        try:
-            sc = variant_scenario(scenario, space, theta[int(vid)], int(vid), {**meta, "method": m})
-        except ScenarioError as exc:
-            problems[int(vid)] = str(exc)
-            continue
-        best = best or sc
-        if len(paths) < limit:
-            paths.append(str(sc.save(folder / f"variant_{int(vid):04d}.json", force=force)))
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        for vid, m in zip(variant[order].tolist(), method[order].tolist(), strict=True):
+            if len(saved) >= limit and best is not None:
+                break
+            try:
+                sc = variant_scenario(scenario, space, theta[int(vid)], int(vid), {**meta, "method": m})
+            except ScenarioError as exc:
+                problems[int(vid)] = str(exc)
+                continue
+            best = best or sc
+            if len(saved) < limit:
+                saved.append(pool.submit(sc.save, folder / f"variant_{int(vid):04d}.json", force))
+        paths = [str(f.result()) for f in saved]
     return paths, problems, best
 
 
