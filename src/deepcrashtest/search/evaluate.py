@@ -98,8 +98,6 @@ class Evaluator:
     chunk: int | None = None  # variants per simulator call (None: CHUNK; with the replay controller REPLAY_CHUNK)
     simulations: int = 0
     on_progress: Callable[[int], None] | None = field(default=None, repr=False)  # simulations just run
-    #: called once, when the worker processes have been forked and the parent starts waiting for them
-    while_waiting: Callable[[], None] | None = field(default=None, repr=False)
     _json: str = field(default="", repr=False)
     _pool: Any = field(default=None, repr=False)
 
@@ -135,9 +133,6 @@ class Evaluator:
             if self._pool is None:
                 self._pool = ProcessPoolExecutor(max_workers=self.workers)
             results = self._pool.map(simulate_variants, *zip(*args, strict=True))
-            if self.while_waiting is not None:
-                self.while_waiting()
-                self.while_waiting = None
         parts = []
         for th, part in zip(chunks, results, strict=True):  # as each chunk finishes: the progress bar
             parts.append(part)
