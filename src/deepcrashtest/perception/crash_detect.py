@@ -21,7 +21,9 @@ Evidence, per candidate pair and frame (each scored 0..1):
 "Near" for an ego crash is the box's width or, for narrow road users (a person, a two-wheeler), its
 height as a share of the image, with its bottom in the lower part of the image.
 
-The contact frame of an ego crash is the first camera jolt while the road user is near, else the
+The contact frame of an ego crash is the first camera jolt while the road user is near (or, when its
+box had already stopped growing at the bumper ``STILL_BEFORE_JOLT_S`` before that jolt, the frame it
+stopped: the jolt is the same crash going on), else the
 "knee" where its approaching box stops growing, else the first frame at which it is nearest; one
 frame later when that frame is where the box jumps onto the image border (the road user filling the
 view: its box stops growing and it moves the image the jolt is measured on).
@@ -65,6 +67,11 @@ BORDER_PX = 4
 #: ... and a box growing more than this (log size) in the frame it reaches the border jumped onto it
 #: (chosen on the tune clips: ccd_000014 0.33, ccd_001143 0.26 jumped; ccd_000132 0.07 grew).
 BORDER_JUMP = 0.15
+#: A jolt that comes after the road user's box has stayed this long (s) at the bumper without growing
+#: (by less than ``KNEE_MAX_LATER_GROWTH`` in log size over the next 0.5 s) belongs to a crash that began
+#: when the box stopped growing (chosen between ccd_000053, a jolt 0.4 s after the box stops: the
+#: contact, and ccd_000755, a jolt 1.0 s after the car is at the bumper as it is pushed on).
+STILL_BEFORE_JOLT_S = 0.7
 
 
 @dataclass(frozen=True)
@@ -211,6 +218,26 @@ def knee_frame(s: pd.DataFrame, fps: float) -> int | None:
     return None
 
 
+def _still_since(s: pd.DataFrame, jolt_frame: int, fps: float) -> int | None:
+    """The frame from which the road user's box has been at the bumper without growing (near, and growing
+    by less than ``KNEE_MAX_LATER_GROWTH`` in log size over the next 0.5 s) up to the jolt at
+    ``jolt_frame``, when that lasted at least ``STILL_BEFORE_JOLT_S``; else None. The jolt then is the
+    road user pushed on or spun after the contact (ccd_000755: the car struck at frame 21, at the bumper
+    from 23, the camera jolts at 33), and the contact is where the box stopped growing."""
+    idx = s.index.to_numpy()
+    ls = s["log_size"].to_numpy(float)
+    near = (s["near"] >= 0.5 * float(s["near"].max())).to_numpy()
+    n = max(2, int(round(0.5 * fps)))
+    k = int(np.searchsorted(idx, jolt_frame)) - 1
+    start = None
+    while k >= 0 and near[k] and ls[k + 1 : k + 1 + n].max(initial=ls[k]) - ls[k] < KNEE_MAX_LATER_GROWTH:
+        start = k
+        k -= 1
+    if start is None or (jolt_frame - idx[start]) / fps < STILL_BEFORE_JOLT_S:
+        return None
+    return int(idx[start])
+
+
 def ego_best(s: pd.DataFrame, fps: float) -> tuple[float, int, dict[str, float]]:
     """The ego-crash score of one track and its contact frame: the first camera jolt while the track is
     near, else the first frame at which the track is nearest (its box stops growing at contact)."""
@@ -234,6 +261,9 @@ def ego_best(s: pd.DataFrame, fps: float) -> tuple[float, int, dict[str, float]]
     )
     score *= min(1.0, (closing + jolt) / EGO_MIN_EVIDENCE)  # near all along (the bonnet, a queue): no crash
     ev = {"near": round(peak, 3), "closing": round(closing, 3), "jolt": round(jolt, 3), "score": round(score, 3)}
+    still = _still_since(s, frame, fps) if len(jolted) else None
+    if still is not None:  # the jolt is the crash going on: scored as it is, the contact is earlier
+        ev["jolt_frame"], frame = frame, still
     if "reaches_border" in s and bool(s.loc[frame, "reaches_border"]):
         frame += 1  # the box jumped onto the image border there: the road user fills the view, not yet touching
     return score, frame, ev
