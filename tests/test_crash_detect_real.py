@@ -131,6 +131,21 @@ def test_a_jolt_after_the_car_stood_at_the_bumper_is_the_same_crash(yolo_ok):
     assert found.evidence.get("jolt_frame", 0) > found.frame + 5, "the later jolt should be on record"
 
 
+def test_a_pedestrian_knocked_off_her_feet_is_the_contact(yolo_ok):
+    """ccd_000882: the ego hits a woman crossing at frame 30; her box turns from upright (height/width 2.1)
+    to squat (1.25) there, and grows on as she is thrown onto the bonnet: no camera jolt, and the knee
+    where the box stops growing comes 0.8 s late."""
+    video, label = _label("ccd_000882")
+    box = label.participants[1].box
+    assert box is not None and label.contact_frame is not None
+    tracks, motion = _tracks_to_contact(video, label.contact_frame, past=10)
+    woman, iou = _track_at(tracks, label.contact_frame, box)
+    assert iou >= 0.3
+    found = detect_crash(tracks, 1280, 720, 10.0, motion.arrays())
+    assert found is not None and found.pair == (EGO, woman)
+    assert abs(found.frame - label.contact_frame) <= 1, found
+
+
 def _line(x0: float, vx: float, y: float, half_width: float = 0.9) -> WorldTrack:
     f = np.arange(0, 40, dtype=float)
     return WorldTrack(f, x0 + vx * f / 10, np.full(40, y), half_width)

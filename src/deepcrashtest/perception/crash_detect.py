@@ -72,6 +72,10 @@ BORDER_JUMP = 0.15
 #: when the box stopped growing (chosen between ccd_000053, a jolt 0.4 s after the box stops: the
 #: contact, and ccd_000755, a jolt 1.0 s after the car is at the bumper as it is pushed on).
 STILL_BEFORE_JOLT_S = 0.7
+#: A pedestrian's box is upright at a median height/width of at least UPRIGHT_ASPECT and knocked over below
+#: FALLEN_ASPECT (walkers 2-3.5; ccd_000882's struck woman 2.1 -> 1.25 at the contact frame).
+UPRIGHT_ASPECT = 1.8
+FALLEN_ASPECT = 1.5
 
 
 @dataclass(frozen=True)
@@ -183,7 +187,29 @@ def ego_scores(g: pd.DataFrame, width: int, height: int, fps: float, jolt: dict[
     closing = np.clip(_growth(g, fps).to_numpy(), 0, 1.5) / 1.5  # d ln(size)/dt = 1.5/s (TTC 0.67 s) -> 1
     j = pd.Series([jolt.get(int(f), 0.0) for f in g.index.to_numpy(int)], index=g.index)
     edge = _reaches_border(g, width)
-    return pd.DataFrame({"near": near, "closing": closing, "jolt": j, "log_size": size, "reaches_border": edge})
+    fell = _knocked_over(g, width, height)
+    return pd.DataFrame(
+        {"near": near, "closing": closing, "jolt": j, "log_size": size, "reaches_border": edge, "knocked_over": fell}
+    )
+
+
+def _knocked_over(g: pd.DataFrame, width: int, height: int) -> pd.Series:
+    """True at the first frame where a pedestrian's box, upright until then (median height/width at least
+    ``UPRIGHT_ASPECT``), turns squat (under ``FALLEN_ASPECT``) while no image border cuts it: the person
+    is struck off their feet (ccd_000882: 2.1 -> 1.25 at the contact frame, then on the bonnet). Nothing for
+    other road users (a pedestrian hit at the bumper does not jolt the camera)."""
+    out = pd.Series(False, index=g.index)
+    if "category" not in g.columns or not len(g) or g["category"].value_counts().index[0] != "pedestrian":
+        return out
+    w = np.maximum((g["x2"] - g["x1"]).to_numpy(float), 1.0)
+    aspect = (g["y2"] - g["y1"]).to_numpy(float) / w
+    m = BORDER_PX
+    cut = ((g["x1"] <= m) | (g["x2"] >= width - m) | (g["y1"] <= m) | (g["y2"] >= height - m)).to_numpy()
+    for k in range(2, len(g)):
+        if aspect[k] < FALLEN_ASPECT and not cut[k] and np.median(aspect[:k]) >= UPRIGHT_ASPECT:
+            out.iloc[k] = True
+            break
+    return out
 
 
 def _reaches_border(g: pd.DataFrame, width: int) -> pd.Series:
@@ -264,6 +290,9 @@ def ego_best(s: pd.DataFrame, fps: float) -> tuple[float, int, dict[str, float]]
     still = _still_since(s, frame, fps) if len(jolted) else None
     if still is not None:  # the jolt is the crash going on: scored as it is, the contact is earlier
         ev["jolt_frame"], frame = frame, still
+    fell = s.index.to_numpy()[(s["knocked_over"] & near_enough).to_numpy()] if "knocked_over" in s else []
+    if len(fell) and int(fell[0]) < frame:  # a pedestrian struck off their feet: contact before knee or jolt
+        ev["knee_frame"], frame = frame, int(fell[0])
     if "reaches_border" in s and bool(s.loc[frame, "reaches_border"]):
         frame += 1  # the box jumped onto the image border there: the road user fills the view, not yet touching
     return score, frame, ev
