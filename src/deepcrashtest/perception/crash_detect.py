@@ -290,9 +290,10 @@ def ego_best(s: pd.DataFrame, fps: float) -> tuple[float, int, dict[str, float]]
     still = _still_since(s, frame, fps) if len(jolted) else None
     if still is not None:  # the jolt is the crash going on: scored as it is, the contact is earlier
         ev["jolt_frame"], frame = frame, still
-    fell = s.index.to_numpy()[(s["knocked_over"] & near_enough).to_numpy()] if "knocked_over" in s else []
+    fallen = s["knocked_over"] if "knocked_over" in s else pd.Series(False, index=s.index)
+    fell = s.index.to_numpy()[(fallen & near_enough).to_numpy()]
     if len(fell) and int(fell[0]) < frame:  # a pedestrian struck off their feet: contact before knee or jolt
-        ev["knee_frame"], frame = frame, int(fell[0])
+        ev["later_frame"], frame = frame, int(fell[0])
     if "reaches_border" in s and bool(s.loc[frame, "reaches_border"]):
         frame += 1  # the box jumped onto the image border there: the road user fills the view, not yet touching
     return score, frame, ev
