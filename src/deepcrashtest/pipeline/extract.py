@@ -112,13 +112,14 @@ def run_extract(
     _check_options(detect_every, max_frames)
     src_path, out = Path(video), Path(output)
     paths = _output_paths(src_path, out, annotate, geometry, report, force)
-    _warm_imports(PASS_IMPORTS + (WARM_IMPORTS + REPORT_IMPORTS * report if geometry else ()))
+    imports = _warm_imports(PASS_IMPORTS + (WARM_IMPORTS + REPORT_IMPORTS * report if geometry else ()))
     det = make_detector(detector)
     watch = shots and frame_range is None  # cuts are looked for in the same decoding pass
     try:
         with output_set(out, OUTPUT_NAMES, force) as stage:  # the whole set of one run, or nothing
             staged = {key: stage / path.name for key, path in paths.items()}
             plan = _Pass(src_path, out, staged, det, detect_every, max_frames, fps, False, frame_range, seed, watch)
+            plan.imports = imports
             result = _run_pass(plan, camera, dashboard_rows, geometry, lanes, report, crash_spec, stage2)
     except _Compilation as comp:  # nothing was written: one extraction per shot instead
         from deepcrashtest.video.shots import detect_shots
@@ -197,13 +198,15 @@ def _global_motion() -> GlobalMotion:
     return GlobalMotion()
 
 
-def _warm_imports(modules: tuple[str, ...]) -> None:
+def _warm_imports(modules: tuple[str, ...]) -> threading.Thread:
     """Import what the later phases need in a background thread while the frames flow.
 
     The frame loop spends most of its time in OpenCV / onnxruntime / PyAV with the GIL released, so the
     ~2 s of CPU these imports cost (SciPy, pandas, filterpy's scipy.stats, matplotlib) overlap it, and the
     pass starts with the few modules its first frames need. Python's import lock makes a phase that gets
-    there first wait for the module instead of importing it twice.
+    there first wait for the module instead of importing it twice. The modules come in the order the pass
+    needs them (a thread that imports one lazily waits for this one's lock holding none itself); the pass
+    joins the returned thread after its last frame, before the later phases import anything.
     """
 
     def load() -> None:
@@ -211,7 +214,9 @@ def _warm_imports(modules: tuple[str, ...]) -> None:
             with contextlib.suppress(ImportError):
                 importlib.import_module(name)
 
-    threading.Thread(target=load, name="imports", daemon=True).start()
+    thread = threading.Thread(target=load, name="imports", daemon=True)
+    thread.start()
+    return thread
 
 
 @contextlib.contextmanager
@@ -298,6 +303,8 @@ class _Pass:
     motion: GlobalMotion = field(default_factory=lambda: _global_motion())
     """The camera's global image motion per frame (the ego's jolt, for crash detection)."""
     shot_watch: ShotWatch | None = field(default=None, init=False)
+    imports: threading.Thread | None = field(default=None, init=False)
+    """The background imports (:func:`_warm_imports`), joined after the last frame."""
 
     def run(
         self,
@@ -325,10 +332,15 @@ class _Pass:
                 for ft in tracked:
                     records.extend(frame_records(ft))
                     draw(ft, None)
+                self._imported()
                 return records, None, meta
             cam = camera(meta.width, meta.height) if callable(camera) else camera
             cam = cam or default_camera(meta.width, meta.height)
             return records, self._geometry(tracked, records, meta, cam, dashboard_rows, lanes, draw), meta
+
+    def _imported(self) -> None:
+        if self.imports is not None:
+            self.imports.join()
 
     def _shot_watch(self, meta: VideoMeta) -> ShotWatch:
         self.shot_watch = ShotWatch(meta.fps)
@@ -375,6 +387,7 @@ class _Pass:
                 records.extend(rows)
                 pending[ft.frame.index] = ft
                 yield ft.frame, rows
+            self._imported()  # before the geometry's last steps import the self-calibration and world tracks
 
         def on_frame(frame: Any, _trk: TrackRows, lane_state: LaneState | None) -> None:
             self.motion.update(int(frame.index), frame.image)
