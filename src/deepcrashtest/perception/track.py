@@ -23,12 +23,13 @@ pass; ``track_video`` collects everything into the ``tracks.csv`` DataFrame.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from deepcrashtest.perception.boxes import iou_matrix
 from deepcrashtest.perception.detections import Detections, Detector
@@ -44,6 +45,9 @@ from deepcrashtest.perception.lifecycle import (
 from deepcrashtest.perception.roadusers import TWO_WHEELERS, road_users, track_category
 from deepcrashtest.video.source import Frame, VideoSource
 
+if TYPE_CHECKING:  # pandas is needed at the end of a pass only (the tables)
+    import pandas as pd
+
 __all__ = [
     "TRACK_COLUMNS",
     "Assignment",
@@ -56,6 +60,8 @@ __all__ = [
     "TrackedBox",
     "assign",
     "iter_tracks",
+    "detect_ahead",
+    "track_detected",
     "track_boxes",
     "track_video",
     "tracks_dataframe",
@@ -352,11 +358,34 @@ def iter_tracks(
     rate = fps if fps is not None else getattr(getattr(source, "meta", None), "fps", None)
     if rate is None:
         raise ValueError("fps unknown: pass fps= for a plain iterable of frames")
-    tracker = BoxTracker(detector, fps=rate, detect_every=detect_every, **tracker_options)  # type: ignore[arg-type]
-    for k, frame in enumerate(source):
-        if max_frames is not None and k >= max_frames:
-            break
-        yield tracker.update(frame)
+    frames = itertools.islice(source, max_frames)
+    yield from track_detected(detect_ahead(frames, detector, detect_every), rate, detect_every, **tracker_options)
+
+
+def detect_ahead(
+    frames: Iterable[Frame], detector: Detector, detect_every: int = 1
+) -> Iterator[tuple[Frame, Detections | None]]:
+    """Each frame with the detector's boxes on detection frames (the first and every ``detect_every``-th
+    after it: :meth:`BoxTracker.update`'s schedule), None between.
+
+    The schedule does not depend on the tracks, so a pipeline can run this in its own thread, ahead of
+    :func:`track_detected` (the detector is most of the tracker's CPU; onnxruntime releases the GIL).
+    """
+    if detect_every < 1:
+        raise ValueError(f"detect_every must be >= 1 (got {detect_every})")
+    for k, frame in enumerate(frames):
+        yield frame, detector(frame.image) if k % detect_every == 0 else None
+
+
+def track_detected(
+    detected: Iterable[tuple[Frame, Detections | None]], fps: float, detect_every: int = 1, **tracker_options: float
+) -> Iterator[FrameTracks]:
+    """Track frames whose detections were made already (:func:`detect_ahead`): the same tracks as
+    :func:`iter_tracks` with the same ``detect_every``."""
+    tracker = BoxTracker(None, fps=fps, detect_every=detect_every, **tracker_options)  # type: ignore[arg-type]
+    for frame, dets in detected:
+        h, w = frame.image.shape[:2]
+        yield tracker.update_boxes(dets, frame.index, frame.time, (w, h), frame.image)
 
 
 def frame_records(ft: FrameTracks) -> list[tuple[object, ...]]:
@@ -396,6 +425,8 @@ def records_table(records: list[tuple[object, ...]]) -> pd.DataFrame:
         name: np.array(values, dtype=kind) if kind else np.array([str(v) for v in values], dtype=object)
         for name, values, kind in zip(TRACK_COLUMNS, cols, _COLUMN_TYPES, strict=True)
     }
+    import pandas as pd
+
     return pd.DataFrame(data)
 
 
