@@ -94,6 +94,10 @@ class ContactParams:
     """Spacing of the correction spline's knots."""
     smooth_s4: float = 0.1
     """Weight of the correction's squared acceleration against its squared size (s^4)."""
+    sight_across: float = 10.0
+    """Cost of moving a road user the camera placed across its line of sight, per m^2, against 1 along it
+    (:func:`sight_metric`): a crash correction lengthens or shortens the monocular depth rather than
+    sliding the road user sideways off its box in the image."""
     accel_limit_mps2: float = 4.0
     """Largest acceleration the correction may add on each axis (driver braking/steering)."""
     penetration_s: float = 0.1
@@ -133,6 +137,23 @@ class Movable:
     yaw: np.ndarray | None = None
     """Box headings (rad) per sample that a correction does not turn (a crawling ego: the camera's
     measured yaw, its path's direction being noise); None: the heading of the (corrected) motion."""
+    metric: np.ndarray | None = None
+    """(N, 2, 2) per-sample cost of a displacement ``d`` (m): ``d @ metric[k] @ d`` (symmetric, the
+    identity = isotropic; None: isotropic). A road user localised by one camera is placed far better
+    across the camera's line of sight than along it (:func:`sight_metric`)."""
+
+
+def sight_metric(xy: np.ndarray, camera_xy: np.ndarray, across: float, min_range_m: float = 1.0) -> np.ndarray:
+    """(N, 2, 2) :attr:`Movable.metric` of a road user at ``xy`` (N, 2) seen from ``camera_xy`` (N, 2),
+    metres: a displacement along the line of sight costs 1 per m^2 (the monocular depth error), one
+    across it ``across`` (its bearing is measured to a few pixels). Within ``min_range_m``: isotropic."""
+    d = np.asarray(xy, float) - np.asarray(camera_xy, float)
+    r = np.hypot(d[:, 0], d[:, 1])
+    n = d / np.maximum(r, 1e-9)[:, None]
+    along = n[:, :, None] * n[:, None, :]
+    out = along + across * (np.eye(2) - along)
+    out[r < min_range_m] = np.eye(2)
+    return out
 
 
 @dataclass(frozen=True)
@@ -454,7 +475,8 @@ def _problem(
         total = 0.0
         for i, (b, b2) in enumerate(mats):
             c = paths.coefs(z, i)
-            total += movers[i].weight * (np.mean((b @ c.T) ** 2) + cp.smooth_s4 * np.mean((b2 @ c.T) ** 2))
+            size = _size_cost(b @ c.T, movers[i].metric)
+            total += movers[i].weight * (size + cp.smooth_s4 * np.mean((b2 @ c.T) ** 2))
         return float(total)
 
     gaps = [_Gap(paths, i, j, np.array([tc]), g) for i, j, tc, g in eq]
@@ -512,12 +534,21 @@ def _cost_hessian(
     acceleration, weighted per mover) equal to ``z @ H @ z``."""
     hess = np.zeros((int(offs[-1]), int(offs[-1])))
     for i, (b, b2) in enumerate(mats):
-        block = movers[i].weight * (b.T @ b + smooth_s4 * (b2.T @ b2)) / (2 * len(b))
+        metric = movers[i].metric if movers[i].metric is not None else np.broadcast_to(np.eye(2), (len(b), 2, 2))
         k = b.shape[1]
-        for axis in range(2):
-            lo = int(offs[i]) + axis * k
-            hess[lo : lo + k, lo : lo + k] = block
+        for r in range(2):
+            for c in range(2):
+                block = b.T @ (metric[:, r, c][:, None] * b) + (smooth_s4 * (b2.T @ b2) if r == c else 0.0)
+                lo_r, lo_c = int(offs[i]) + r * k, int(offs[i]) + c * k
+                hess[lo_r : lo_r + k, lo_c : lo_c + k] = movers[i].weight * block / (2 * len(b))
     return hess
+
+
+def _size_cost(d: np.ndarray, metric: np.ndarray | None) -> float:
+    """Mean squared displacement ``d`` (N, 2), m^2 per axis, under the per-sample ``metric`` (None: isotropic)."""
+    if metric is None:
+        return float(np.mean(d**2))
+    return float(np.mean(np.einsum("ki,kij,kj->k", d, metric, d))) / 2.0
 
 
 def _kin_constraints(
