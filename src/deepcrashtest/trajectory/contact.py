@@ -530,11 +530,12 @@ def _solve(
 def _cost_hessian(
     movers: list[Movable], mats: list[tuple[np.ndarray, np.ndarray]], offs: np.ndarray, smooth_s4: float
 ) -> np.ndarray:
-    """H with the least-squares cost (mean squared correction + ``smooth_s4`` x mean squared
+    """H with the least-squares cost (mean squared correction under the mover's metric + ``smooth_s4`` x mean squared
     acceleration, weighted per mover) equal to ``z @ H @ z``."""
     hess = np.zeros((int(offs[-1]), int(offs[-1])))
     for i, (b, b2) in enumerate(mats):
-        metric = movers[i].metric if movers[i].metric is not None else np.broadcast_to(np.eye(2), (len(b), 2, 2))
+        own = movers[i].metric
+        metric = own if own is not None else np.broadcast_to(np.eye(2), (len(b), 2, 2))
         k = b.shape[1]
         for r in range(2):
             for c in range(2):
