@@ -8,11 +8,14 @@ of the replay against the tracked boxes, and the contacts the replay has before 
 Usage::
 
     python bench/fidelity_crashes.py [--clips dad_000478,ccd_000014] [--max-frames N] [--work DIR]
-                                     [--reuse] [--video] [--json]
+                                     [--reuse] [--stage2 [--redetect]] [--video] [--json]
 
 Extraction is the slow part (~2-4 min per DAD clip on a loaded 2-core machine): ``--reuse`` keeps the
 extraction outputs already in ``--work`` (default ``/tmp/deepcrashtest_fidelity``); ``--max-frames``
 caps the frames of every clip (the highway clip is capped at 300 frames, 12 s, unless given).
+``--stage2`` reruns stage 2 from the extraction's ``scenario_raw.json`` (with the crash stage 1 found);
+``--redetect`` also reruns the automatic crash detection on its ``tracks.csv`` first (the camera's
+global motion decoded once and cached as in ``bench/crash_detect_bench.py``).
 """
 
 from __future__ import annotations
@@ -50,7 +53,7 @@ def run_clip(name: str, label_file: Path, label: CrashLabel, work: Path, args: a
     out = work / name
     max_frames = args.max_frames or (HIGHWAY_FRAMES if name.startswith("highway") else None)
     t0 = time.perf_counter()
-    restage_only = args.stage2 or args.labelled_crash
+    restage_only = args.stage2 or args.labelled_crash or args.redetect
     done = out / ("scenario_raw.json" if restage_only else "scenario.json")
     if not (args.reuse and done.is_file()):
         run_extract(video, out, max_frames=max_frames, force=True, report=False, annotate=False)
@@ -58,7 +61,8 @@ def run_clip(name: str, label_file: Path, label: CrashLabel, work: Path, args: a
     crash_given = None
     cpu0, wall0 = time.process_time(), time.perf_counter()
     if restage_only:
-        crash_given = restage(out, label, args.labelled_crash)
+        motion = redetect_motion(name, video, max_frames) if args.redetect and not args.labelled_crash else None
+        crash_given = restage(out, label, args.labelled_crash, motion)
     stage2_cpu_s = time.process_time() - cpu0 if restage_only else None
     stage2_wall_s = time.perf_counter() - wall0 if restage_only else None
     if not (out / "scenario.json").is_file():
@@ -99,9 +103,17 @@ def run_clip(name: str, label_file: Path, label: CrashLabel, work: Path, args: a
     }
 
 
-def restage(out: Path, label: CrashLabel, labelled: bool) -> str | None:
+def redetect_motion(name: str, video: Path, max_frames: int | None) -> tuple[Any, Any]:
+    """The camera's global motion of ``video`` for the automatic crash detection (cached)."""
+    from crash_detect_bench import global_motion  # the same cache as the crash detection bench
+
+    return global_motion(video, Path("/tmp/crashdet_motion"), max_frames)
+
+
+def restage(out: Path, label: CrashLabel, labelled: bool, motion: tuple[Any, Any] | None = None) -> str | None:
     """Rerun stage 2 from ``out/scenario_raw.json``; ``labelled``: with the labelled crash given as the
-    user's ``--crash FRAME:ID,ID`` (label boxes -> track ids at the contact frame). Returns that spec."""
+    user's ``--crash FRAME:ID,ID`` (label boxes -> track ids at the contact frame). Returns that spec.
+    ``motion`` (the camera's global motion): rerun the automatic crash detection first."""
     from deepcrashtest.eval.fidelity import read_tracks, resolve_participants
     from deepcrashtest.pipeline.crash import CrashSpec, crash_for_raw
     from deepcrashtest.scenario import Scenario
@@ -116,6 +128,9 @@ def restage(out: Path, label: CrashLabel, labelled: bool) -> str | None:
             text = f"{label.contact_frame}:{pair[0] or 'ego'},{pair[1] or 'ego'}"
             spec = CrashSpec(int(label.contact_frame), pair, text)
             raw, _rec = crash_for_raw(raw, read_tracks(out / "tracks.csv"), None, spec)
+    elif motion is not None:
+        raw, _rec = crash_for_raw(raw, read_tracks(out / "tracks.csv"), motion)
+        raw.save(out / "scenario_raw.json", force=True)
     process_scenario(raw).save(out / "scenario.json", force=True)
     return None if spec is None else spec.text
 
@@ -166,6 +181,11 @@ def main() -> None:
         "--labelled-crash",
         action="store_true",
         help="Rerun stage 2 with the labelled crash given as the user's --crash.",
+    )
+    ap.add_argument(
+        "--redetect",
+        action="store_true",
+        help="With --stage2: rerun the automatic crash detection on tracks.csv first (rewrites scenario_raw.json).",
     )
     ap.add_argument("--video", action="store_true", help="Also write fidelity.mp4 per clip.")
     ap.add_argument("--json", action="store_true", help="Print one JSON object instead of the table.")

@@ -182,3 +182,18 @@ def test_a_crawling_egos_crash_is_made_with_the_cameras_heading():
     pair = [c for c in _contacts(sc) if set(c[:2]) == {0, 1}]
     assert pair and abs(pair[0][2] - (5.0 + t_max)) <= 0.05, (pair, 5.0 + t_max)
     assert abs(sc.provenance.parameters["crash"]["contact_time_s"] - (5.0 + t_max)) <= 0.05
+
+
+def test_a_parked_car_in_the_egos_way_is_shifted_whole_and_keeps_its_heading():
+    """A parked car whose monocular depth puts it 0.2 m into the ego's lane (no crash in the video): it is
+    moved apart as a whole (its depth error), never along a bent path whose direction turned its box
+    (ccd_000340: such a nudge swung a parked car's heading by 4 rad and the replay's first contact was it)."""
+    parked = vehicle(1, track(lambda t: (50 + 0 * t, 1.6 + 0 * t), 0, 100, yaw=0.0))
+    raw = raw_scenario([parked])
+    params = dict(raw.provenance.parameters, crash_detection={"found": False})
+    sc = process_scenario(raw.evolve(provenance=raw.provenance.model_copy(update={"parameters": params})))
+    assert sc.collision is None and _contacts(sc) == []
+    p = sc.vehicle(1).trajectory.arrays()
+    assert np.ptp(p["x"]) < 0.01 and np.ptp(p["y"]) < 0.01  # one shift of the whole track
+    assert np.abs(p["yaw"]).max() < 1e-6  # it faces where it was seen facing
+    assert p["y"][0] > 1.6 + 0.2  # moved out of the ego's way

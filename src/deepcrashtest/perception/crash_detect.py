@@ -16,7 +16,15 @@ Evidence, per candidate pair and frame (each scored 0..1):
   ground positions, metres, less than ``CLOSE_3D_M`` apart beyond their half widths within
   ``CLOSE_3D_WINDOW_S``; without ``world``, bottoms at a similar image row), and one of them changes
   motion suddenly (a spike of the box centre's acceleration); discounted when a road user is at the
-  ego's bumper in the clip. Two pedestrians are never a crash pair.
+  ego's bumper in the clip (near, approaching or with a jolt: not the ego's own bonnet). Two
+  pedestrians are never a crash pair.
+
+Only what the detector saw counts (with a ``state`` column, detected or predicted): a pair's evidence
+fades where a track coasts on the tracker's prediction (``SEEN_GAP_S``), the box jump where a coasting
+track is detected again is no change of motion, and a pair inside a nearer road user's box (a rider, a
+road user behind it: ``HIDDEN_FROM``) is hidden. A pair must be seen apart before it touches, unless one
+of them entered the view at the image border. A road user that leaves the view at the side soon after
+its ego "contact" without having been ahead (``EXIT_WINDOW_S``) drove past: no ego crash without a jolt.
 
 "Near" for an ego crash is the box's width or, for narrow road users (a person, a two-wheeler), its
 height as a share of the image, with its bottom in the lower part of the image.
@@ -65,6 +73,26 @@ BORDER_PX = 4
 #: ... and a box growing more than this (log size) in the frame it reaches the border jumped onto it
 #: (chosen on the tune clips: ccd_000014 0.33, ccd_001143 0.26 jumped; ccd_000132 0.07 grew).
 BORDER_JUMP = 0.15
+#: A road user's evidence counts where the detector saw it: fully within SEEN_GAP_S (s; at least the
+#: detector's own interval) of a frame in which its track was detected (not carried on by the tracker's
+#: prediction), fading to nothing over SEEN_FADE_S more (chosen on dad_000487: the wrong pairs were tracks
+#: coasting on their prediction for 0.5-1 s behind the nearer scooter; dad_000478's fallen scooter, last
+#: detected 0.2 s before the contact, keeps its score).
+SEEN_GAP_S = 0.3
+SEEN_FADE_S = 0.3
+#: A pair whose boxes lie inside a nearer road user's box (its bottom lower in the image) is hidden behind
+#: it or part of it (a rider, a passenger): no discount while less than HIDDEN_FROM of the pair's joint box
+#: lies inside, none of its score left from HIDDEN_FULL on (chosen on dad_000487: a rider and a car behind
+#: the ego's scooter, both inside its box, their boxes jittering as it passes).
+HIDDEN_FROM = 0.5
+HIDDEN_FULL = 0.9
+#: A road user leaving the view at the image's side within EXIT_WINDOW_S (s) after an ego "contact"
+#: (its visible width at the border falling below EXIT_WIDTH_SHARE of the width at that frame) without
+#: having been ahead (its box over the image's centre column while near, in the second before) drove past
+#: the ego; without a camera jolt it is no ego crash (chosen on dad_000487: an oncoming car passing close;
+#: dad_000493's scooter, hit while ahead, leaves the view at the side as the ego turns).
+EXIT_WINDOW_S = 1.0
+EXIT_WIDTH_SHARE = 0.5
 
 
 @dataclass(frozen=True)
@@ -135,12 +163,55 @@ def jolt_score(frames: np.ndarray, shifts: np.ndarray, fps: float) -> dict[int, 
     return {int(f): float(np.clip((zz - 3) / 5, 0, 1)) for f, zz in zip(frames, z, strict=True)}
 
 
-def _per_track(tracks: pd.DataFrame) -> dict[int, pd.DataFrame]:
+def _detector_frames(tracks: pd.DataFrame) -> np.ndarray | None:
+    """The frames in which the detector ran (a track row with ``state`` == detected); None without a
+    ``state`` column (every box then counts as seen)."""
+    if "state" not in tracks.columns:
+        return None
+    return np.unique(tracks.loc[tracks["state"] == "detected", "frame"].to_numpy(int))
+
+
+def observed(g: pd.DataFrame, det_frames: np.ndarray | None, fps: float) -> pd.Series:
+    """0..1 per frame of one track: 1 within ``SEEN_GAP_S`` (or the detector's interval, if longer) of a
+    frame where the detector saw it, 0 from ``SEEN_FADE_S`` beyond; 1 where nothing says how the box was
+    made (no ``state`` column)."""
+    if det_frames is None or "state" not in g.columns or len(det_frames) < 2:
+        return pd.Series(1.0, index=g.index)
+    frames = g.index.to_numpy(float)
+    seen = frames[(g["state"] == "detected").to_numpy()]
+    if not len(seen):
+        return pd.Series(0.0, index=g.index)
+    gap = np.abs(frames[:, None] - seen[None, :]).min(axis=1) / fps  # to the nearest detection, s
+    allowed = _seen_gap(det_frames, fps)
+    return pd.Series(np.clip(1 - (gap - allowed) / SEEN_FADE_S, 0, 1), index=g.index)
+
+
+def _seen_gap(det_frames: np.ndarray, fps: float) -> float:
+    """``SEEN_GAP_S`` or the detector's interval (s), whichever is longer."""
+    return max(SEEN_GAP_S, float(np.median(np.diff(det_frames))) / fps) if len(det_frames) >= 2 else SEEN_GAP_S
+
+
+def reacquired(g: pd.DataFrame, det_frames: np.ndarray | None, fps: float) -> pd.Series:
+    """True at the frames where a track that coasted on the tracker's prediction for longer than
+    ``SEEN_GAP_S`` (or the detector's interval) is detected again: its box jumps there."""
+    if det_frames is None or "state" not in g.columns:
+        return pd.Series(False, index=g.index)
+    det = (g["state"] == "detected").to_numpy()
+    frames = g.index.to_numpy(float)
+    seen = frames[det]
+    out = np.zeros(len(g), bool)
+    out[np.flatnonzero(det)[1:]] = np.diff(seen) / fps > _seen_gap(det_frames, fps)
+    return pd.Series(out, index=g.index)
+
+
+def _per_track(tracks: pd.DataFrame, fps: float) -> dict[int, pd.DataFrame]:
+    """Each track (>= 3 frames) indexed by frame, with ``seen`` (:func:`observed`) and ``reacquired``."""
+    det_frames = _detector_frames(tracks)
     out = {}
     for tid, g in tracks.sort_values("frame").groupby("track_id"):
         g = g.drop_duplicates("frame").set_index("frame")
         if len(g) >= 3:
-            out[int(str(tid))] = g
+            out[int(str(tid))] = g.assign(seen=observed(g, det_frames, fps), reacquired=reacquired(g, det_frames, fps))
     return out
 
 
@@ -154,19 +225,27 @@ def _growth(g: pd.DataFrame, fps: float) -> pd.Series:
 
 
 def _motion_change(g: pd.DataFrame, width: int) -> pd.Series:
-    """0..1 per frame: a sudden change of the box centre's velocity or of its size (fraction of width)."""
+    """0..1 per frame: a sudden change of the box centre's velocity or of its size (fraction of width);
+    none where a track coasting on its prediction is detected again (``reacquired``)."""
     cx = ((g["x1"] + g["x2"]) / 2).to_numpy(float)
     cy = ((g["y1"] + g["y2"]) / 2).to_numpy(float)
     w = (g["x2"] - g["x1"]).to_numpy(float)
     a = np.zeros(len(g))
     if len(g) >= 3:
         a[1:-1] = np.hypot(cx[2:] - 2 * cx[1:-1] + cx[:-2], cy[2:] - 2 * cy[1:-1] + cy[:-2]) / np.maximum(w[1:-1], 20)
+    if "reacquired" in g.columns:  # the tracker correcting its prediction, not the road user's motion
+        r = g["reacquired"].to_numpy(bool)
+        a[r | np.r_[r[1:], False] | np.r_[False, r[:-1]]] = 0.0
     s = pd.Series(np.clip(a / 0.25, 0, 1), index=g.index)
     return s.rolling(5, center=True, min_periods=1).max()
 
 
-def ego_scores(g: pd.DataFrame, width: int, height: int, fps: float, jolt: dict[int, float]) -> pd.DataFrame:
-    """Per frame of one track: near (wide box reaching the image bottom), closing (box growth), jolt."""
+def ego_scores(
+    g: pd.DataFrame, width: int, height: int, fps: float, jolt: dict[int, float], clip_end: int | None = None
+) -> pd.DataFrame:
+    """Per frame of one track: near (wide box reaching the image bottom), closing (box growth), jolt,
+    and whether it is ahead (its box over the image's centre column) or leaves the view at the side
+    (:func:`_exits`; ``clip_end``: the clip's last frame)."""
     x1, y1, x2, y2 = (g[c].to_numpy(float) for c in ("x1", "y1", "x2", "y2"))
     size = np.log(np.sqrt(np.maximum((x2 - x1) * (y2 - y1), 1.0)))
     wide = np.clip(((x2 - x1) / width - 0.12) / 0.3, 0, 1)
@@ -176,7 +255,34 @@ def ego_scores(g: pd.DataFrame, width: int, height: int, fps: float, jolt: dict[
     closing = np.clip(_growth(g, fps).to_numpy(), 0, 1.5) / 1.5  # d ln(size)/dt = 1.5/s (TTC 0.67 s) -> 1
     j = pd.Series([jolt.get(int(f), 0.0) for f in g.index.to_numpy(int)], index=g.index)
     edge = _reaches_border(g, width)
-    return pd.DataFrame({"near": near, "closing": closing, "jolt": j, "log_size": size, "reaches_border": edge})
+    return pd.DataFrame(
+        {
+            "near": near,
+            "closing": closing,
+            "jolt": j,
+            "log_size": size,
+            "reaches_border": edge,
+            "exits": _exits(g, width, fps, clip_end),
+            "ahead": (g["x1"] <= width / 2) & (g["x2"] >= width / 2),
+        }
+    )
+
+
+def _exits(g: pd.DataFrame, width: int, fps: float, clip_end: int | None = None) -> pd.Series:
+    """True at the frames after which the road user leaves the view at the image's left or right side
+    within ``EXIT_WINDOW_S``: its box is on that border with a visible width under ``EXIT_WIDTH_SHARE`` of
+    its width at the frame, or its track ends there before the clip does (``clip_end``: the clip's last
+    frame): it drove past the ego, out of the view."""
+    f = g.index.to_numpy(int)
+    w = (g["x2"] - g["x1"]).to_numpy(float)
+    side = ((g["x1"] <= BORDER_PX) | (g["x2"] >= width - BORDER_PX)).to_numpy()
+    n = EXIT_WINDOW_S * fps
+    gone = bool(side[-1]) and clip_end is not None and f[-1] < clip_end  # the track ends on a side border
+    out = np.zeros(len(f), bool)
+    for k in range(len(f)):
+        later = (f > f[k]) & (f <= f[k] + n) & side
+        out[k] = bool(np.any(w[later] < EXIT_WIDTH_SHARE * w[k])) or (gone and f[-1] <= f[k] + n)
+    return pd.Series(out, index=g.index)
 
 
 def _reaches_border(g: pd.DataFrame, width: int) -> pd.Series:
@@ -233,6 +339,8 @@ def ego_best(s: pd.DataFrame, fps: float) -> tuple[float, int, dict[str, float]]
         peak * (0.45 + 0.3 * closing + 0.25 * jolt) if not len(jolted) else peak * (0.5 + 0.35 * jolt + 0.15 * closing)
     )
     score *= min(1.0, (closing + jolt) / EGO_MIN_EVIDENCE)  # near all along (the bonnet, a queue): no crash
+    if "exits" in s and bool(s.loc[frame, "exits"]) and not (near_enough & s["ahead"])[before.index].any():
+        score *= jolt  # it drove on out of the view past the ego: only a jolt says it touched on the way
     ev = {"near": round(peak, 3), "closing": round(closing, 3), "jolt": round(jolt, 3), "score": round(score, 3)}
     if "reaches_border" in s and bool(s.loc[frame, "reaches_border"]):
         frame += 1  # the box jumped onto the image border there: the road user fills the view, not yet touching
@@ -288,12 +396,18 @@ def pair_scores(
     height: int,
     world: tuple[WorldTrack, WorldTrack] | None = None,
     fps: float = 10.0,
+    entered: bool = False,
+    scene: dict[int, tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> pd.DataFrame:
     """Per common frame of two tracks: contact in the image, close in 3D (or a similar ground row),
-    motion change."""
+    motion change, onset (apart before; ``entered``: one of them came into the view during the clip at
+    its border, :func:`entered_view`), both seen by the detector (a track's ``seen`` column, 0..1, from
+    :func:`observed`; 1 without it), not hidden behind a nearer road user (``scene``: every box per frame,
+    :func:`hidden_behind`)."""
     common = a.index.intersection(b.index)
     if not len(common):
-        return pd.DataFrame(columns=["touch", "depth", "change", "score"])
+        return pd.DataFrame(columns=["touch", "depth", "change", "onset", "seen", "score"])
+    seen = np.minimum(_seen(a).loc[common].to_numpy(), _seen(b).loc[common].to_numpy())
     a, b = a.loc[common], b.loc[common]
     ix = np.minimum(a["x2"], b["x2"]) - np.maximum(a["x1"], b["x1"])
     iy = np.minimum(a["y2"], b["y2"]) - np.maximum(a["y1"], b["y1"])
@@ -304,21 +418,82 @@ def pair_scores(
     near3 = close_3d(*world, common.to_numpy(), fps) if world is not None else np.full(len(common), np.nan)
     depth = pd.Series(np.where(np.isfinite(near3), near3, rows), index=common)
     change = pd.Series(np.maximum(_motion_change(a, width).to_numpy(), _motion_change(b, width).to_numpy()), common)
-    onset = _onset(pd.Series(np.asarray(touch, float), index=common), fps)
-    score = touch * depth * (0.2 + 0.8 * change) * onset
-    return pd.DataFrame({"touch": touch, "depth": depth, "change": change, "onset": onset, "score": score})
+    onset = _onset(pd.Series(np.asarray(touch, float), index=common), fps, entered)
+    score = touch * depth * (0.2 + 0.8 * change) * onset * seen
+    hidden = hidden_behind(a, b, scene, np.asarray(score, float) > 0) if scene is not None else np.zeros(len(common))
+    score = score * (1 - hidden)
+    return pd.DataFrame(
+        {
+            "touch": touch,
+            "depth": depth,
+            "change": change,
+            "onset": onset,
+            "seen": seen,
+            "hidden": hidden,
+            "score": score,
+        }
+    )
 
 
-def _onset(touch: pd.Series, fps: float) -> pd.Series:
+def scene_boxes(tracks: pd.DataFrame) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Every track's box per frame: frame -> (track ids (N,), boxes (N, 4) px ``x1, y1, x2, y2``)."""
+    f = tracks["frame"].to_numpy(int)
+    ids = tracks["track_id"].to_numpy(int)
+    boxes = tracks[["x1", "y1", "x2", "y2"]].to_numpy(float)
+    order = np.argsort(f, kind="stable")
+    cuts = np.flatnonzero(np.diff(f[order])) + 1
+    return {int(f[k[0]]): (ids[k], boxes[k]) for k in np.split(order, cuts) if len(k)}
+
+
+def hidden_behind(
+    a: pd.DataFrame, b: pd.DataFrame, scene: dict[int, tuple[np.ndarray, np.ndarray]], where: np.ndarray
+) -> np.ndarray:
+    """0..1 per frame of ``a`` and ``b`` (same frames): how much the pair's joint box lies inside the box
+    of a third, nearer road user (its bottom lower in the image), ``HIDDEN_FROM`` -> 0, ``HIDDEN_FULL``
+    -> 1; only at the frames in ``where`` (else 0)."""
+    out = np.zeros(len(a))
+    pair = (int(a["track_id"].iloc[0]), int(b["track_id"].iloc[0]))
+    frames = a.index.to_numpy(int)
+    ba, bb = (t[["x1", "y1", "x2", "y2"]].to_numpy(float) for t in (a, b))
+    for k in np.flatnonzero(where):
+        ids, o = scene.get(int(frames[k]), (np.zeros(0, int), np.zeros((0, 4))))
+        ux1, uy1 = np.minimum(ba[k, :2], bb[k, :2])
+        ux2, uy2 = np.maximum(ba[k, 2:], bb[k, 2:])
+        o = o[(ids != pair[0]) & (ids != pair[1]) & (o[:, 3] > uy2)]
+        if not len(o):
+            continue
+        iw = np.clip(np.minimum(o[:, 2], ux2) - np.maximum(o[:, 0], ux1), 0, None)
+        ih = np.clip(np.minimum(o[:, 3], uy2) - np.maximum(o[:, 1], uy1), 0, None)
+        share = float((iw * ih).max()) / max((ux2 - ux1) * (uy2 - uy1), 1.0)
+        out[k] = np.clip((share - HIDDEN_FROM) / (HIDDEN_FULL - HIDDEN_FROM), 0, 1)
+    return out
+
+
+def _seen(g: pd.DataFrame) -> pd.Series:
+    return g["seen"] if "seen" in g.columns else pd.Series(1.0, index=g.index)
+
+
+def entered_view(g: pd.DataFrame, width: int, height: int, first_frame: int) -> bool:
+    """Whether the track came into the view during the clip (it starts after ``first_frame``) with its
+    first box on the left, right or bottom image border: before, it was apart from everything in view."""
+    x1, x2, y2 = (float(g[c].iloc[0]) for c in ("x1", "x2", "y2"))
+    at_border = x1 <= BORDER_PX or x2 >= width - BORDER_PX or y2 >= height - BORDER_PX
+    return bool(int(g.index[0]) > first_frame and at_border)
+
+
+def _onset(touch: pd.Series, fps: float, entered: bool = False) -> pd.Series:
     """0..1 per frame: how much of the previous ``ONSET_WINDOW_S`` the two boxes were apart (touch < 0.5;
-    frames without both tracks do not count as apart: the pair must be seen apart first), saturating at
-    ``ONSET_APART``: a contact starts at a moment; boxes overlapping all along are one road user seen
-    behind the other."""
+    frames without both tracks do not count as apart: the pair must be seen apart first, unless one of
+    them ``entered`` the view at its border), saturating at ``ONSET_APART``: a contact starts at a moment;
+    boxes overlapping all along are one road user seen behind the other."""
     frames = touch.index.to_numpy(int)
     n = max(2, int(round(ONSET_WINDOW_S * fps)))
-    full = touch.reindex(np.arange(frames.min() - n, frames.max() + 1)).fillna(1.0)
+    full = touch.reindex(np.arange(frames.min() - n, frames.max() + 1)).fillna(0.0 if entered else 1.0)
     apart = (full < 0.5).astype(float).rolling(n, min_periods=1).mean().shift(1).fillna(0.0)
     return pd.Series(np.clip(apart.reindex(frames).to_numpy() / ONSET_APART, 0, 1), index=touch.index)
+
+
+Candidate = tuple[float, int, tuple[int, int], dict[str, float]]  # (score, contact frame, pair, evidence)
 
 
 def detect_crash(
@@ -335,36 +510,62 @@ def detect_crash(
     """The most likely crash (module docstring), or None. ``motion`` = (frames, shifts) of
     :class:`GlobalMotion`; only tracks in ``allowed`` (if given) and frames in ``frames`` (inclusive);
     ``world``: ground positions per track id (close in 3D; a pair without them uses the image rows)."""
-    per = {k: g for k, g in _per_track(tracks).items() if allowed is None or k in allowed}
+    cands = crash_candidates(tracks, width, height, fps, motion, allowed, frames, world)
+    if not cands:
+        return None
+    score, frame, pair, ev = cands[0]
+    if score < min_score:
+        return None
+    return CrashFinding(frame, frame / fps, pair, float(np.clip(score, 0, 1)), ev)
+
+
+def crash_candidates(
+    tracks: pd.DataFrame,
+    width: int,
+    height: int,
+    fps: float,
+    motion: tuple[np.ndarray, np.ndarray] | None = None,
+    allowed: set[int] | None = None,
+    frames: tuple[int, int] | None = None,
+    world: dict[int, WorldTrack] | None = None,
+) -> list[Candidate]:
+    """Every candidate crash (each ego + track and each pair of tracks at its best frame), best first
+    (arguments as :func:`detect_crash`)."""
+    per = {k: g for k, g in _per_track(tracks, fps).items() if allowed is None or k in allowed}
+    clip_end = int(tracks["frame"].max()) if len(tracks) else None
+    scene = scene_boxes(tracks)
     jolt = jolt_score(*motion, fps) if motion is not None else {}
     lo, hi = frames if frames is not None else (-(10**9), 10**9)
-    cands: list[tuple[float, int, tuple[int, int], dict[str, float]]] = []
+    cands: list[Candidate] = []
     for tid, g in per.items():
-        s = ego_scores(g, width, height, fps, jolt)
+        s = ego_scores(g, width, height, fps, jolt, clip_end)
         s = s[(s.index >= lo) & (s.index <= hi)]
         if len(s):
             score, frame, ev = ego_best(s, fps)
             cands.append((score, frame, (EGO, tid), ev))
-    ego_near = max((c[3].get("near", 0.0) for c in cands), default=0.0)
+    ego_near = max((_at_bumper(c[3]) for c in cands), default=0.0)
     ids = sorted(per)
     cats = _categories(tracks)
+    first = int(tracks["frame"].min()) if len(tracks) else 0
     world = world or {}
     for i, ta in enumerate(ids):
         for tb in ids[i + 1 :]:
             if cats.get(ta) == cats.get(tb) == "pedestrian":
                 continue
             wpair = (world[ta], world[tb]) if ta in world and tb in world else None
-            s = pair_scores(per[ta], per[tb], width, height, wpair, fps)
+            entered = entered_view(per[ta], width, height, first) or entered_view(per[tb], width, height, first)
+            s = pair_scores(per[ta], per[tb], width, height, wpair, fps, entered, scene)
             s = s[(s.index >= lo) & (s.index <= hi)]
             if len(s):  # something at the ego's bumper makes an ego crash the likelier one
                 score, frame, pair, ev = _best(s, (ta, tb))
                 cands.append((score * (1 - 0.5 * ego_near), frame, pair, ev))
-    if not cands:
-        return None
-    score, frame, pair, ev = max(cands, key=lambda c: c[0])
-    if score < min_score:
-        return None
-    return CrashFinding(frame, frame / fps, pair, float(np.clip(score, 0, 1)), ev)
+    return sorted(cands, key=lambda c: -c[0])
+
+
+def _at_bumper(ev: dict[str, float]) -> float:
+    """How surely a road user is at the ego's bumper (0..1): near, with approach or jolt evidence (a box
+    near all along without either is the ego's bonnet or a queue: ``EGO_MIN_EVIDENCE``)."""
+    return ev.get("near", 0.0) * min(1.0, (ev.get("closing", 0.0) + ev.get("jolt", 0.0)) / EGO_MIN_EVIDENCE)
 
 
 def _categories(tracks: pd.DataFrame) -> dict[int, str]:

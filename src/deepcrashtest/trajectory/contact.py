@@ -134,6 +134,10 @@ class Movable:
     """Only a constant shift of the whole track (a parked car's depth error), never a motion."""
     kin: Kinematics | None = VEHICLE_KINEMATICS
     """Limits a corrected path must keep (None: none, e.g. a parked car that only shifts)."""
+    lateral_weight: float = 1.0
+    """Cost factor of the part of the correction across the vehicle's heading (the ego: its heading is the
+    camera's measured yaw, its speed scale the weak part of monocular ego-motion, so it is moved along its
+    path before sideways)."""
     yaw: np.ndarray | None = None
     """Box headings (rad) per sample that a correction does not turn (a crawling ego: the camera's
     measured yaw, its path's direction being noise); None: the heading of the (corrected) motion."""
@@ -472,12 +476,7 @@ def _problem(
     hess = _cost_hessian(movers, mats, offs, cp.smooth_s4)
 
     def cost(z: np.ndarray) -> float:
-        total = 0.0
-        for i, (b, b2) in enumerate(mats):
-            c = paths.coefs(z, i)
-            size = _size_cost(b @ c.T, movers[i].metric)
-            total += movers[i].weight * (size + cp.smooth_s4 * np.mean((b2 @ c.T) ** 2))
-        return float(total)
+        return float(z @ hess @ z)
 
     gaps = [_Gap(paths, i, j, np.array([tc]), g) for i, j, tc, g in eq]
     cons: list[dict[str, Any]] = [{"type": "eq", "fun": c.fun, "jac": c.jac} for c in gaps]
@@ -530,26 +529,28 @@ def _solve(
 def _cost_hessian(
     movers: list[Movable], mats: list[tuple[np.ndarray, np.ndarray]], offs: np.ndarray, smooth_s4: float
 ) -> np.ndarray:
-    """H with the least-squares cost (mean squared correction under the mover's metric + ``smooth_s4`` x mean squared
-    acceleration, weighted per mover) equal to ``z @ H @ z``."""
+    """H with the least-squares cost equal to ``z @ H @ z``: per mover, ``weight`` x (the mean squared
+    correction, its part across the mover's heading ``lateral_weight`` times and, with a ``metric``, under
+    that per-sample metric too (:func:`sight_metric`), + ``smooth_s4`` x the mean squared acceleration),
+    the mean taken over samples and both axes."""
     hess = np.zeros((int(offs[-1]), int(offs[-1])))
     for i, (b, b2) in enumerate(mats):
-        own = movers[i].metric
-        metric = own if own is not None else np.broadcast_to(np.eye(2), (len(b), 2, 2))
+        m = movers[i]
         k = b.shape[1]
-        for r in range(2):
-            for c in range(2):
-                block = b.T @ (metric[:, r, c][:, None] * b) + (smooth_s4 * (b2.T @ b2) if r == c else 0.0)
-                lo_r, lo_c = int(offs[i]) + r * k, int(offs[i]) + c * k
-                hess[lo_r : lo_r + k, lo_c : lo_c + k] = movers[i].weight * block / (2 * len(b))
+        # per-sample metric u u^T + L n n^T of the displacement (u: heading, n: its normal; L = 1: identity)
+        yaw = box_track(m).yaw if m.lateral_weight != 1.0 else np.zeros(len(b))
+        c, s = np.cos(yaw), np.sin(yaw)
+        lat = m.lateral_weight
+        metric = {(0, 0): c * c + lat * s * s, (1, 1): s * s + lat * c * c, (0, 1): (1.0 - lat) * c * s}
+        if m.metric is not None:  # the line of sight's anisotropy on top (its identity part counted once)
+            metric = {(r, q): w + m.metric[:, r, q] - float(r == q) for (r, q), w in metric.items()}
+        smooth = smooth_s4 * (b2.T @ b2)
+        for (r, q), w in metric.items():
+            block = m.weight * (b.T @ (w[:, None] * b) + (smooth if r == q else 0.0)) / (2 * len(b))
+            lo_r, lo_q = int(offs[i]) + r * k, int(offs[i]) + q * k
+            hess[lo_r : lo_r + k, lo_q : lo_q + k] = block
+            hess[lo_q : lo_q + k, lo_r : lo_r + k] = block.T
     return hess
-
-
-def _size_cost(d: np.ndarray, metric: np.ndarray | None) -> float:
-    """Mean squared displacement ``d`` (N, 2), m^2 per axis, under the per-sample ``metric`` (None: isotropic)."""
-    if metric is None:
-        return float(np.mean(d**2))
-    return float(np.mean(np.einsum("ki,kij,kj->k", d, metric, d))) / 2.0
 
 
 def _kin_constraints(
@@ -687,13 +688,14 @@ def _full(ds: list[np.ndarray], movable: tuple[bool, ...]) -> list[np.ndarray]:
 
 
 def nudge_apart(m: Movable, others: list[Movable], t_end: float, cp: ContactParams | None = None) -> Correction:
-    """Smallest smooth displacement of ``m`` (its whole track may shift) that keeps it at least
-    ``clearance_m`` from every vehicle of ``others`` up to ``t_end`` (s)."""
+    """Smallest smooth displacement of ``m`` (its whole track may shift; ``rigid``: only that, a parked
+    car's depth error, never a motion that would turn its box) that keeps it at least ``clearance_m``
+    from every vehicle of ``others`` up to ``t_end`` (s)."""
     cp = cp or ContactParams()
     lo, hi = float(m.t[0]), float(min(m.t[-1], t_end))
     if hi - lo < 1e-6:
         return Correction([np.zeros_like(m.xy)], 0.0, 0.0, 0.0, False, "too short to move")
-    bases = [_basis(lo, hi, max(cp.knot_step_s, (hi - lo) / 12), anchored=False)]
+    bases = [_rigid(m) if m.rigid else _basis(lo, hi, max(cp.knot_step_s, (hi - lo) / 12), anchored=False)]
     ineq = []
     for j, o in enumerate(others):
         ts = m.t[(m.t >= max(lo, o.t[0])) & (m.t <= min(hi, o.t[-1]))]

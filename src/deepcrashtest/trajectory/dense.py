@@ -57,9 +57,12 @@ class Dense:
         return BoxTrack(self.t, self.xy[:, 0], self.xy[:, 1], self.box_headings(), v.length, v.width)
 
     def box_headings(self) -> np.ndarray:
-        """The box's heading (rad) per sample: ``box_yaw`` where set, else the motion's direction."""
+        """The box's heading (rad) per sample: ``box_yaw`` where set, a parked road user's box heading
+        (``heading``: a shift that keeps it apart must not turn it), else the motion's direction."""
         if self.box_yaw is not None:
             return np.interp(self.t, *self.box_yaw)
+        if self.static:
+            return np.full(len(self.t), self.heading)
         return headings(self.t, self.xy, self.heading)
 
     def keep(self, mask: np.ndarray) -> None:
@@ -129,7 +132,8 @@ def agent_dense(agent: Vehicle, t0: float, ego: EgoFrame, p: Stage2Params, warni
     obs = _observe(agent, t0, ego, p, warnings)
     if obs is None:
         return None
-    if is_static(obs.t, obs.xy, p.static_speed_mps, p.static_min_displacement_m) and not moves_in_video(agent, p):
+    still = is_static(obs.t, obs.xy, p.static_speed(agent.category), p.static_min_displacement_m)
+    if still and not moves_in_video(agent, p):
         return _static_dense(agent, obs, ego, p)
     d = _moving_dense(agent, obs, ego, p)
     _extend_after(d, obs, ego, p, warnings)
@@ -144,7 +148,7 @@ def moves_in_video(v: Vehicle, p: Stage2Params) -> bool:
     a = v.trajectory.arrays()
     xy = np.column_stack([a["x"], a["y"]])
     ends = np.stack([np.median(xy[:5], axis=0), np.median(xy[-5:], axis=0)])
-    return not is_static(a["t"][[0, -1]], ends, p.static_speed_mps, p.static_min_displacement_m)
+    return not is_static(a["t"][[0, -1]], ends, p.static_speed(v.category), p.static_min_displacement_m)
 
 
 def _observe(agent: Vehicle, t0: float, ego: EgoFrame, p: Stage2Params, warnings: list[str]) -> _Observed | None:

@@ -43,6 +43,9 @@ class Stage2Params:
     """An agent whose net displacement / observed duration is below this is parked/static ..."""
     static_min_displacement_m: float = 1.0
     """... or whose net displacement is below this (label noise on a parked car), metres."""
+    static_speed_pedestrian_mps: float = 0.4
+    """``static_speed_mps`` for a pedestrian: people walk at 0.7-1.5 m/s (ccd_000882: a woman crossing at
+    0.8 m/s for 1.4 s was held standing, and the crash correction swung the ego's rear into her)."""
     overtake_entry_gap_m: float = 20.0
     """A same-direction agent appearing later closer than this ahead and faster than the ego is D0T2."""
     # --- extrapolation (trajectory.extrapolate)
@@ -91,6 +94,10 @@ class Stage2Params:
             raise UserError(f"Stage2Params.ongoing_speed_ratio must be <= 1 (got {self.ongoing_speed_ratio})")
         if self.min_track_samples < 2:
             raise UserError(f"Stage2Params.min_track_samples must be >= 2 (got {self.min_track_samples})")
+
+    def static_speed(self, category: str) -> float:
+        """``static_speed_mps`` for a road user of ``category`` (m/s)."""
+        return self.static_speed_pedestrian_mps if category == "pedestrian" else self.static_speed_mps
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
