@@ -108,6 +108,8 @@ def test_exact_replay_reprojects_like_the_scenario(kitti8_raw, kitti_root):
     assert proc["mean_iou"] >= 0.45 and proc["share_iou_ge_0_5"] >= 0.5
     assert abs(proc["median_du_px"]) < 3.0 and proc["median_dv_px"] < -5.0  # right bearing, ground too high
     assert sim["pairs"] == proc["pairs"] and sim["coverage"] == 1.0
+    # label tracks are all observed: the figure over every tracked box is the same one
+    assert res.reprojection["all_tracked_boxes"] == {"processed": proc["mean_iou"], "simulated": sim["mean_iou"]}
     assert abs(sim["mean_iou"] - proc["mean_iou"]) < 0.02
     assert abs(sim["median_centre_px"] - proc["median_centre_px"]) < 2.0
     # a time shift of 0.3 s (3 KITTI frames) in the mapping must show: the metric sees timing

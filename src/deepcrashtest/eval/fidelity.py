@@ -113,10 +113,12 @@ def _centre_error(a: np.ndarray, b: np.ndarray) -> float:
 
 
 # --------------------------------------------------------------------------- reprojection
-def reprojection_pairs(scenario: Scenario, tracks: pd.DataFrame, sim: Any | None = None) -> pd.DataFrame:
-    """One row per detection-anchored tracked box (:func:`detection_anchored`) of an agent of
-    ``scenario``: the tracked box, the projected boxes (processed, simulated) and their IoU / centre
-    error (NaN where the agent does not exist then).
+def reprojection_pairs(
+    scenario: Scenario, tracks: pd.DataFrame, sim: Any | None = None, anchored: bool = True
+) -> pd.DataFrame:
+    """One row per detection-anchored tracked box (:func:`detection_anchored`; every tracked box when
+    ``anchored`` is False) of an agent of ``scenario``: the tracked box, the projected boxes
+    (processed, simulated) and their IoU / centre error (NaN where the agent does not exist then).
 
     Columns: frame, video_time, scenario_time, agent_id, category, x1..y2 (tracked), and per source
     ``{src}_box`` (array or None), ``{src}_iou``, ``{src}_centre_px``.
@@ -127,7 +129,7 @@ def reprojection_pairs(scenario: Scenario, tracks: pd.DataFrame, sim: Any | None
     rows: list[dict[str, Any]] = []
     ego = scenario.ego
     pose_at = scenario_poses(scenario)
-    for r in detection_anchored(tracks).itertuples(index=False):
+    for r in (detection_anchored(tracks) if anchored else tracks).itertuples(index=False):
         agent = agents.get(int(r.track_id))  # type: ignore[arg-type]
         if agent is None:
             continue
@@ -333,6 +335,8 @@ def evaluate_fidelity(
     overall["tracks_in_scenario"] = len(track_ids & agent_ids)
     overall["tracked_boxes_total"] = len(tracks)
     overall["coasting_boxes_excluded"] = len(tracks) - len(detection_anchored(tracks))
+    every = reprojection_pairs(scenario, tracks, sim, anchored=False)
+    overall["all_tracked_boxes"] = {src: _stats(every, src)["mean_iou"] for src in SOURCES}
     crash, notes = compare_crash(scenario, sim, label, tracks)
     mapping = {
         "fps": scenario.source.fps,
