@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import functools
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -119,15 +120,8 @@ def test_a_jolt_after_the_car_stood_at_the_bumper_is_the_same_crash(yolo_ok):
     """ccd_000755: the ego strikes a car turning across its path at frame 21; the car's box stops growing
     at the bumper from frame 23 and the camera jolts only at frame 33, as the car is pushed on. The contact
     is where the box stopped growing, not the later jolt (it was taken at 33, 1.2 s late)."""
-    video, label = _label("ccd_000755")
-    box = label.participants[1].box
-    assert box is not None and label.contact_frame is not None
-    tracks, motion = _tracks_to_contact(video, label.contact_frame, past=15)
-    car, iou = _track_at(tracks, label.contact_frame, box)
-    assert iou >= 0.3
-    found = detect_crash(tracks, 1280, 720, 10.0, motion.arrays())
-    assert found is not None and found.pair == (EGO, car)
-    assert abs(found.frame - label.contact_frame) <= 2, found
+    found, contact_frame = _ego_crash_found("ccd_000755", past=15)
+    assert abs(found.frame - contact_frame) <= 2, found
     assert found.evidence.get("jolt_frame", 0) > found.frame + 5, "the later jolt should be on record"
 
 
@@ -135,15 +129,23 @@ def test_a_pedestrian_knocked_off_her_feet_is_the_contact(yolo_ok):
     """ccd_000882: the ego hits a woman crossing at frame 30; her box turns from upright (height/width 2.1)
     to squat (1.25) there, and grows on as she is thrown onto the bonnet: no camera jolt, and the knee
     where the box stops growing comes 0.8 s late."""
-    video, label = _label("ccd_000882")
+    found, contact_frame = _ego_crash_found("ccd_000882", past=10)
+    assert abs(found.frame - contact_frame) <= 1, found
+
+
+def _ego_crash_found(clip: str, past: int) -> tuple[Any, int]:
+    """The crash detected on ``clip`` (a 1280x720 CCD ego crash at 10 fps) tracked up to ``past``
+    frames beyond its labelled contact, checked to name the ego and the labelled road user; with the
+    labelled contact frame."""
+    video, label = _label(clip)
     box = label.participants[1].box
     assert box is not None and label.contact_frame is not None
-    tracks, motion = _tracks_to_contact(video, label.contact_frame, past=10)
-    woman, iou = _track_at(tracks, label.contact_frame, box)
+    tracks, motion = _tracks_to_contact(video, label.contact_frame, past=past)
+    other, iou = _track_at(tracks, label.contact_frame, box)
     assert iou >= 0.3
     found = detect_crash(tracks, 1280, 720, 10.0, motion.arrays())
-    assert found is not None and found.pair == (EGO, woman)
-    assert abs(found.frame - label.contact_frame) <= 1, found
+    assert found is not None and found.pair == (EGO, other)
+    return found, label.contact_frame
 
 
 def _line(x0: float, vx: float, y: float, half_width: float = 0.9) -> WorldTrack:
