@@ -1,0 +1,56 @@
+"""The video pipeline on realistic variants of the shared crash clips (re-encoded at another frame
+rate, frozen stretches, ...), made inside each test from the real clips."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import av
+import numpy as np
+
+from conftest import DATA, need
+
+CCD = DATA / "crash_ccd"
+
+
+def _frames(clip: Path, count: int, start: int = 0, width: int = 640) -> list[np.ndarray]:
+    """``count`` frames of ``clip`` from frame ``start`` (BGR), resized to ``width`` columns."""
+    import cv2
+
+    out = []
+    with av.open(str(clip)) as c:
+        for k, f in enumerate(c.decode(video=0)):
+            if k < start:
+                continue
+            img = f.to_ndarray(format="bgr24")
+            out.append(cv2.resize(img, (width, width * img.shape[0] // img.shape[1]), interpolation=cv2.INTER_AREA))
+            if len(out) == count:
+                break
+    return out
+
+
+def _write(path: Path, frames: list[np.ndarray], fps: int, crf: int = 23) -> Path:
+    with av.open(str(path), "w") as c:
+        s = c.add_stream("libx264", rate=fps)
+        s.height, s.width = frames[0].shape[:2]
+        s.pix_fmt, s.options = "yuv420p", {"crf": str(crf), "preset": "veryfast"}
+        for img in frames:
+            c.mux(s.encode(av.VideoFrame.from_ndarray(img, format="bgr24")))
+        c.mux(s.encode())
+    return path
+
+
+def test_clip_reencoded_at_a_higher_frame_rate_or_with_a_frozen_stretch_is_one_shot(tmp_path):
+    """A 10 fps CCD clip re-encoded at 30 fps repeats every frame 3 times: no cut at its crash (the
+    adaptive cut detector once cut it there into shots), nor at a frozen stretch; a real cut is still
+    found."""
+    from deepcrashtest.video.shots import detect_shots
+
+    src = _frames(need(CCD / "ccd_000053.mp4"), 20, start=22)  # the crash (labelled frame 33) in the middle
+    up = _write(tmp_path / "fps30.mp4", [f for f in src for _ in range(3)], 30, crf=30)
+    assert len(detect_shots(up)) == 1
+    frozen = _write(tmp_path / "frozen.mp4", src[:12] + [src[12]] * 8 + src[12:], 10)
+    assert len(detect_shots(frozen)) == 1
+    other = _frames(need(CCD / "ccd_000330.mp4"), 15)
+    comp = _write(tmp_path / "comp.mp4", [f for f in other + src for _ in range(3)], 30)
+    assert [s.first_frame for s in detect_shots(comp)] == [0, 45]  # the join
