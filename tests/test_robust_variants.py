@@ -54,3 +54,25 @@ def test_clip_reencoded_at_a_higher_frame_rate_or_with_a_frozen_stretch_is_one_s
     other = _frames(need(CCD / "ccd_000330.mp4"), 15)
     comp = _write(tmp_path / "comp.mp4", [f for f in other + src for _ in range(3)], 30)
     assert [s.first_frame for s in detect_shots(comp)] == [0, 45]  # the join
+
+
+def test_black_bars_are_found_and_the_default_camera_spans_the_picture(tmp_path):
+    """A CCD clip pillarboxed and letterboxed (as online compilations re-frame them): the picture
+    inside the bars is found (within 2 px), the default camera's field of view spans that picture and
+    is centred on it; the clip itself (a snowy, dim day) has no bars."""
+    import cv2
+
+    from deepcrashtest.geometry.camera import default_camera
+    from deepcrashtest.video.bars import video_picture_area
+
+    clip = need(CCD / "ccd_000053.mp4")
+    src = _frames(clip, 8)  # 640x360
+    pillar = [cv2.copyMakeBorder(f, 0, 0, 80, 80, cv2.BORDER_CONSTANT) for f in src]
+    letter = [cv2.copyMakeBorder(f, 60, 60, 0, 0, cv2.BORDER_CONSTANT) for f in src]
+    # within 2 px: the encoder's 4:2:0 chroma bleeds a pixel into the bar
+    assert np.allclose(video_picture_area(_write(tmp_path / "p.mp4", pillar, 10, crf=35)), (80, 0, 720, 360), atol=2)
+    assert np.allclose(video_picture_area(_write(tmp_path / "l.mp4", letter, 10, crf=35)), (0, 60, 640, 420), atol=2)
+    assert video_picture_area(clip) == (0, 0, 1280, 720)
+    cam = default_camera(800, 360, area=(80, 0, 720, 360))
+    plain = default_camera(640, 360)
+    assert (cam.fx, cam.cx - 80, cam.cy) == (plain.fx, plain.cx, plain.cy)

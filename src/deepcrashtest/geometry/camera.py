@@ -44,9 +44,16 @@ def camera_from_fov(width: int, height: int, hfov_deg: float, **kw: Any) -> Came
     return Camera(fx=f, fy=f, cx=width / 2.0, cy=height / 2.0, **kw)
 
 
-def default_camera(width: int, height: int, height_m: float = DASHCAM_HEIGHT_M) -> Camera:
-    """The unknown-dashcam default (90 deg horizontal field of view, 1.3 m above the road)."""
-    return camera_from_fov(width, height, DEFAULT_HFOV_DEG, height_m=height_m, intrinsics_source="default")
+def default_camera(
+    width: int, height: int, height_m: float = DASHCAM_HEIGHT_M, area: tuple[int, int, int, int] | None = None
+) -> Camera:
+    """The unknown-dashcam default (90 deg horizontal field of view, 1.3 m above the road). ``area``: the
+    picture ``(x0, y0, x1, y1)`` (px) inside black bars: the field of view spans it, centred on it."""
+    if area is None:
+        return camera_from_fov(width, height, DEFAULT_HFOV_DEG, height_m=height_m, intrinsics_source="default")
+    x0, y0, x1, y1 = area
+    cam = camera_from_fov(x1 - x0, y1 - y0, DEFAULT_HFOV_DEG, height_m=height_m, intrinsics_source="default")
+    return cam.model_copy(update={"cx": (x0 + x1) / 2.0, "cy": (y0 + y1) / 2.0})
 
 
 def camera_from_yaml(path: str | Path, width: int | None = None, height: int | None = None) -> Camera:

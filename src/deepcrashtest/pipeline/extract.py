@@ -43,6 +43,7 @@ from deepcrashtest.pipeline.threads import Worker, prefetch
 from deepcrashtest.scenario import Camera, VideoSource
 from deepcrashtest.trajectory.params import Stage2Params
 from deepcrashtest.ui import track as progress
+from deepcrashtest.video.bars import video_picture_area
 from deepcrashtest.video.shots import Shot, ShotWatch
 from deepcrashtest.video.source import Frame, VideoMeta, open_video
 from deepcrashtest.video.writer import VideoWriter
@@ -299,7 +300,7 @@ class _Pass:
                     draw(ft, None)
                 return records, None, meta
             cam = camera(meta.width, meta.height) if callable(camera) else camera
-            cam = cam or default_camera(meta.width, meta.height)
+            cam = cam or default_camera(meta.width, meta.height, area=video_picture_area(self.src_path, self.fps))
             return records, self._geometry(tracked, records, meta, cam, dashboard_rows, lanes, draw), meta
 
     def _shot_watch(self, meta: VideoMeta) -> ShotWatch:
