@@ -62,7 +62,7 @@ def test_black_bars_are_found_and_the_default_camera_spans_the_picture(tmp_path)
     is centred on it; the clip itself (a snowy, dim day) has no bars."""
     import cv2
 
-    from deepcrashtest.geometry.camera import default_camera
+    from deepcrashtest.geometry.camera import camera_for_video, default_camera
     from deepcrashtest.video.bars import video_picture_area
 
     clip = need(CCD / "ccd_000053.mp4")
@@ -76,3 +76,5 @@ def test_black_bars_are_found_and_the_default_camera_spans_the_picture(tmp_path)
     cam = default_camera(800, 360, area=(80, 0, 720, 360))
     plain = default_camera(640, 360)
     assert (cam.fx, cam.cx - 80, cam.cy) == (plain.fx, plain.cx, plain.cy)
+    assert camera_for_video(800, 360, area=(80, 0, 720, 360)) == cam  # what `extract` uses
+    assert camera_for_video(800, 360, hfov_deg=60.0, area=(80, 0, 720, 360)).cx == 400.0

@@ -45,12 +45,13 @@ def picture_area(images: list[np.ndarray]) -> tuple[int, int, int, int]:
     return left, top, w - right, h - bottom
 
 
-def video_picture_area(path: str | Path, fps: float | None = None) -> tuple[int, int, int, int]:
-    """:func:`picture_area` of the first ``SAMPLE_FRAMES`` frames of a video (or image folder)."""
+def video_picture_area(path: str | Path, fps: float | None = None) -> tuple[int, int, int, int] | None:
+    """:func:`picture_area` of the first ``SAMPLE_FRAMES`` frames of a video (or image folder); None
+    when it has no frame."""
     images = []
     with open_video(Path(path), fps) as source:
         for frame in source:
             images.append(frame.image)
             if len(images) == SAMPLE_FRAMES:
                 break
-    return picture_area(images)
+    return picture_area(images) if images else None
