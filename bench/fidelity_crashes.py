@@ -90,6 +90,7 @@ def run_clip(name: str, label_file: Path, label: CrashLabel, work: Path, args: a
         "contacts_before_crash": crash.get("contacts_before_crash"),
         "iou_processed": rep["processed"]["mean_iou"],
         "iou_simulated": rep["simulated"]["mean_iou"],
+        "iou_all_boxes": rep.get("all_tracked_boxes"),
         "share50_processed": rep["processed"]["share_iou_ge_0_5"],
         "centre_px_processed": rep["processed"]["median_centre_px"],
         "tracks_in_scenario": f"{rep['tracks_in_scenario']}/{rep['tracks']}",
@@ -167,7 +168,20 @@ def markdown(rows: list[dict[str, Any]]) -> str:
     labelled = [r for r in rows if r.get("reproduced") is not None]
     ok = sum(bool(r["reproduced"]) for r in labelled)
     lines.append(f"\nreproduced {ok}/{len(labelled)} labelled outcomes")
+    lines.append("mean IoU processed / replay: " + " / ".join(_mean_of(rows, k) for k in ("processed", "simulated")))
+    lines.append(
+        "the same over every tracked box (coasting ones included): "
+        + " / ".join(_mean_of(rows, k, every=True) for k in ("processed", "simulated"))
+    )
     return "\n".join(lines)
+
+
+def _mean_of(rows: list[dict[str, Any]], source: str, every: bool = False) -> str:
+    """Mean over the clips of one IoU column (``every``: over all tracked boxes), as text."""
+    key = "iou_processed" if source == "processed" else "iou_simulated"
+    vals = [(r.get("iou_all_boxes") or {}).get(source) if every else r.get(key) for r in rows]
+    vals = [v for v in vals if v is not None]
+    return f"{sum(vals) / len(vals):.3f}" if vals else "-"
 
 
 def main() -> None:

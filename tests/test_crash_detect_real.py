@@ -3,6 +3,7 @@ detected, tracked and named with the contact frame), and the 3D closeness of a t
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -49,13 +50,14 @@ def test_coarse_pass_detects_the_car_at_the_bumper(yolo_ok):
     assert _best_iou(box, both.boxes) >= 0.5
 
 
-def _tracks_to_contact(video, contact_frame: int):
-    """Track a clip up to 6 frames past its labelled contact as extract does (10 fps, the detector every
-    other frame): (tracks table, the camera's global motion)."""
+@functools.cache
+def _tracks_to_contact(video, contact_frame: int, past: int = 6):
+    """Track a clip up to ``past`` frames past its labelled contact as extract does (10 fps, the detector
+    every other frame): (tracks table, the camera's global motion). Cached: do not modify them."""
     motion = GlobalMotion()
     rows: list[tuple[object, ...]] = []
     with open_video(video) as src:
-        frames = (f for f in src if f.index <= contact_frame + 6)
+        frames = (f for f in src if f.index <= contact_frame + past)
         for ft in iter_tracks(frames, make_detector(DEFAULT_DETECTOR), detect_every=2, fps=src.meta.fps):
             motion.update(ft.frame.index, ft.frame.image)
             rows.extend(frame_records(ft))
@@ -96,6 +98,52 @@ def test_a_box_jumping_onto_the_image_border_is_not_the_contact(yolo_ok):
     found = detect_crash(tracks, 1280, 720, 10.0, motion.arrays())
     assert found is not None and found.pair == (EGO, bus)
     assert abs(found.frame - label.contact_frame) <= 2, found
+
+
+def test_a_bus_leaving_the_view_does_not_hand_its_track_to_the_next_bus(yolo_ok):
+    """ccd_001143: a bus passing on the right leaves the view across the right border (its box 871-1280 px
+    at frame 18, moving out); at frame 20 the next bus, further inside (699-1280 px), comes into view
+    there. They are two tracks (the tracker had matched the second to the first's track)."""
+    video, label = _label("ccd_001143")
+    assert label.contact_frame is not None
+    tracks, _motion = _tracks_to_contact(video, label.contact_frame)
+    leaving, iou_a = _track_at(tracks, 18, (871, 2, 1280, 572))
+    arriving, iou_b = _track_at(tracks, 22, (736, 0, 1278, 617))
+    assert iou_a >= 0.9 and iou_b >= 0.9
+    assert leaving != arriving
+    later = tracks[(tracks["track_id"] == leaving) & (tracks["frame"] >= 20)]
+    assert (later["x1"] > 900).all(), "the leaving bus's track took the next bus's box"
+
+
+def test_a_jolt_after_the_car_stood_at_the_bumper_is_the_same_crash(yolo_ok):
+    """ccd_000755: the ego strikes a car turning across its path at frame 21; the car's box stops growing
+    at the bumper from frame 23 and the camera jolts only at frame 33, as the car is pushed on. The contact
+    is where the box stopped growing, not the later jolt (it was taken at 33, 1.2 s late)."""
+    video, label = _label("ccd_000755")
+    box = label.participants[1].box
+    assert box is not None and label.contact_frame is not None
+    tracks, motion = _tracks_to_contact(video, label.contact_frame, past=15)
+    car, iou = _track_at(tracks, label.contact_frame, box)
+    assert iou >= 0.3
+    found = detect_crash(tracks, 1280, 720, 10.0, motion.arrays())
+    assert found is not None and found.pair == (EGO, car)
+    assert abs(found.frame - label.contact_frame) <= 2, found
+    assert found.evidence.get("jolt_frame", 0) > found.frame + 5, "the later jolt should be on record"
+
+
+def test_a_pedestrian_knocked_off_her_feet_is_the_contact(yolo_ok):
+    """ccd_000882: the ego hits a woman crossing at frame 30; her box turns from upright (height/width 2.1)
+    to squat (1.25) there, and grows on as she is thrown onto the bonnet: no camera jolt, and the knee
+    where the box stops growing comes 0.8 s late."""
+    video, label = _label("ccd_000882")
+    box = label.participants[1].box
+    assert box is not None and label.contact_frame is not None
+    tracks, motion = _tracks_to_contact(video, label.contact_frame, past=10)
+    woman, iou = _track_at(tracks, label.contact_frame, box)
+    assert iou >= 0.3
+    found = detect_crash(tracks, 1280, 720, 10.0, motion.arrays())
+    assert found is not None and found.pair == (EGO, woman)
+    assert abs(found.frame - label.contact_frame) <= 1, found
 
 
 def _line(x0: float, vx: float, y: float, half_width: float = 0.9) -> WorldTrack:

@@ -50,3 +50,15 @@ def test_missing_model_and_bad_options_are_user_errors(tmp_path, monkeypatch):
     with pytest.raises(UserError, match="unknown yolo26n option"):
         make_detector("yolo26n:colour=1")
     assert make_detector("ssd:tiles=0").name.startswith("ssd-mobilenet")
+
+
+def test_letterbox_blob_is_the_plain_rgb_float_formula(yolo):
+    """The one-pass blob (rows, channel order, scaling) equals the plain formula bit for bit, on a real frame."""
+    img = cv2.imread(str(sorted((need(KITTI_TRACKING) / "image_02" / "0001").glob("*.png"))[0]))
+    for hw in (yolo.input_size(*img.shape[:2]), (192, 320)):
+        blob, r, px, py = yolo._letterbox(img, hw)
+        assert blob.shape == (1, 3, *hw) and blob.dtype == np.float32 and blob.flags.c_contiguous
+        nw, nh = int(round(img.shape[1] * r)), int(round(img.shape[0] * r))
+        canvas = np.full((*hw, 3), 114, np.uint8)
+        canvas[int(py) : int(py) + nh, int(px) : int(px) + nw] = cv2.resize(img, (nw, nh))
+        assert np.array_equal(blob, canvas[:, :, ::-1].transpose(2, 0, 1)[None].astype(np.float32) / 255.0)

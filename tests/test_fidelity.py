@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from tests.conftest import DATA, need
 from tests.conftest import KITTI_TRACKING as KITTI
-from tests.conftest import need
 
 from deepcrashtest.datasets.kitti.files import read_calib, read_labels
 from deepcrashtest.geometry.project import project_box
@@ -108,6 +108,8 @@ def test_exact_replay_reprojects_like_the_scenario(kitti8_raw, kitti_root):
     assert proc["mean_iou"] >= 0.45 and proc["share_iou_ge_0_5"] >= 0.5
     assert abs(proc["median_du_px"]) < 3.0 and proc["median_dv_px"] < -5.0  # right bearing, ground too high
     assert sim["pairs"] == proc["pairs"] and sim["coverage"] == 1.0
+    # label tracks are all observed: the figure over every tracked box is the same one
+    assert res.reprojection["all_tracked_boxes"] == {"processed": proc["mean_iou"], "simulated": sim["mean_iou"]}
     assert abs(sim["mean_iou"] - proc["mean_iou"]) < 0.02
     assert abs(sim["median_centre_px"] - proc["median_centre_px"]) < 2.0
     # a time shift of 0.3 s (3 KITTI frames) in the mapping must show: the metric sees timing
@@ -237,3 +239,37 @@ def test_overlay_video_draws_the_replay_over_the_frames(kitti_root, tmp_path):
         x1, y1, x2, y2 = (int(v) for v in (r.x1, r.y1, r.x2, r.y2))
         assert changed[max(y1 - 5, 0) : y2 + 5, max(x1 - 5, 0) : x2 + 5].any()
     assert changed.mean() < 0.2  # the video is still the video
+
+
+def test_the_trackers_coasting_after_a_lost_road_user_is_not_counted(yolo_ok):
+    """ccd_000340, tracked as extract tracks a 10 fps clip (the detector every other frame): a car far
+    ahead is hidden by the minivan that turns into the ego; its track coasts on for frames after its last
+    detection, and those boxes lie on the minivan, not on the hidden car. The reprojection counts a
+    track's boxes from its first to its last detection only; every detected box stays."""
+    from deepcrashtest.eval.fidelity import detection_anchored
+    from deepcrashtest.perception.detect import DEFAULT_DETECTOR, make_detector
+    from deepcrashtest.perception.track import frame_records, iter_tracks, records_table
+    from deepcrashtest.video.source import open_video
+
+    rows: list[tuple[object, ...]] = []
+    with open_video(need(DATA / "crash_ccd" / "ccd_000340.mp4")) as src:
+        frames = (f for f in src if f.index <= 27)
+        for ft in iter_tracks(frames, make_detector(DEFAULT_DETECTOR), detect_every=2, fps=src.meta.fps):
+            rows.extend(frame_records(ft))
+    tracks = records_table(rows)
+    kept = detection_anchored(tracks)
+    dropped = tracks.loc[tracks.index.difference(kept.index)]
+    assert (kept["state"] == "detected").sum() == (tracks["state"] == "detected").sum()
+    assert len(dropped) and (dropped["state"] == "predicted").all()
+    last = tracks[tracks["state"] == "detected"].groupby("track_id")["frame"].max()
+    assert (dropped["frame"].to_numpy() > dropped["track_id"].map(last).to_numpy()).all()  # only trailing coasts
+    inside = []  # share of each coasted box inside another road user's box of that frame
+    for r in dropped.itertuples(index=False):
+        others = tracks[(tracks["frame"] == r.frame) & (tracks["track_id"] != r.track_id)]
+        b = np.array([r.x1, r.y1, r.x2, r.y2])
+        o = others[["x1", "y1", "x2", "y2"]].to_numpy(float)
+        w = np.clip(np.minimum(o[:, 2], b[2]) - np.maximum(o[:, 0], b[0]), 0, None)
+        h = np.clip(np.minimum(o[:, 3], b[3]) - np.maximum(o[:, 1], b[1]), 0, None)
+        inside.append(float((w * h).max() / ((b[2] - b[0]) * (b[3] - b[1]))) if len(o) else 0.0)
+    print("coasted boxes:", len(dropped), "inside another road user's box:", np.round(inside, 2))
+    assert max(inside) >= 0.9  # the hidden car's coasting box sits on the car that hid it

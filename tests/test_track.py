@@ -117,3 +117,28 @@ def test_car_ahead_keeps_one_id(clip_tracks):
 def test_iter_tracks_needs_fps_for_plain_frames():
     with pytest.raises(ValueError, match="fps"):
         next(iter_tracks(iter([]), make_detector("ssd-mobilenet:tiles=0")))
+
+
+def test_detection_stage_ahead_gives_the_trackers_own_tracks():
+    """detect_ahead | track_detected (extract runs them in two threads) = BoxTracker.update with its detector,
+    on the first 16 frames of a real crash clip, detecting every 3rd frame."""
+    from deepcrashtest.perception.track import BoxTracker, detect_ahead, track_detected
+
+    with open_video(need(CLIP)) as src:
+        frames = list(itertools.islice(src, 16))
+    det = make_detector("ssd-mobilenet:tiles=0")
+    calls: list[int] = []
+
+    def counted(image):
+        calls.append(1)
+        return det(image)
+
+    tracker = BoxTracker(det, fps=20.0, detect_every=3)
+    direct = [tracker.update(f) for f in frames]
+    ahead = list(track_detected(detect_ahead(frames, counted, 3), 20.0, 3))
+    assert len(calls) == 6  # frames 0, 3, ..., 15
+    assert [ft.detections is not None for ft in ahead] == [k % 3 == 0 for k in range(16)]
+    assert [(ft.frame.index, ft.tracks, ft.backfill) for ft in ahead] == [
+        (ft.frame.index, ft.tracks, ft.backfill) for ft in direct
+    ]
+    assert any(ft.tracks for ft in ahead)

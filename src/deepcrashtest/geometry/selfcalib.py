@@ -29,6 +29,7 @@ import pandas as pd
 
 from deepcrashtest.geometry.egomotion import EgoMotion
 from deepcrashtest.geometry.mono3d import class_size
+from deepcrashtest.geometry.selfcalib_axis import axis_column_from_path
 from deepcrashtest.scenario import Camera
 
 MIN_BOXES = 30
@@ -366,6 +367,39 @@ def combine_focal(
     return math.exp(float(np.sum(w * v) / np.sum(w))), float(1.0 / np.sqrt(np.sum(w))), support
 
 
+#: 1-sigma (fraction of the image width) of the principal point's column about the image centre
+#: (KITTI: 11-19 px of 1242 off), and the factor inflating the bootstrap sigma of the path estimate
+#: (:mod:`deepcrashtest.geometry.selfcalib_axis`; on the 18 KITTI tracking training sequences other
+#: than 3, 8, 10 its errors reach 3-4 bootstrap sigmas; x 4 chosen there, see its MAX_DEPTH_M), with
+#: a floor (px).
+AXIS_PRIOR_REL = 0.02
+AXIS_SIGMA_INFLATION = 4.0
+AXIS_MIN_SIGMA_PX = 3.0
+
+
+def _calibrate_axis(
+    tracks: pd.DataFrame, size: tuple[int, int], cam: Camera, ego: EgoMotion, notes: list[str]
+) -> Camera:
+    """The camera with ``cx`` (and ``fx`` unchanged) moved to the column of the ego's heading measured
+    from the road users beside its path, combined with the image-centre prior by inverse variance."""
+    boxes = _usable(tracks, size)
+    est = axis_column_from_path(boxes, cam.fy, cam.cx, ego, BOX_HEIGHT_EXCESS)
+    if est is not None:
+        est = axis_column_from_path(boxes, cam.fy, est[0], ego, BOX_HEIGHT_EXCESS)
+    if est is None:
+        notes.append("forward axis column not measurable (too few road users beside the ego path): image centre kept")
+        return cam
+    cx, sig, n = est
+    sig = max(AXIS_SIGMA_INFLATION * sig, AXIS_MIN_SIGMA_PX)
+    sig0 = AXIS_PRIOR_REL * size[0]
+    w, w0 = 1.0 / sig**2, 1.0 / sig0**2
+    cx_post = (w * cx + w0 * cam.cx) / (w + w0)
+    notes.append(
+        f"forward axis column {cx_post:.1f} px (road users beside the ego path: {cx:.1f} +- {sig:.1f} px, {n} tracks)"
+    )
+    return cam.model_copy(update={"cx": cx_post})
+
+
 def self_calibrate(
     tracks: pd.DataFrame,
     camera: Camera,
@@ -430,6 +464,8 @@ def self_calibrate(
     if focal is not None:
         update |= {"fx": cam.fx * scale, "fy": fy, "intrinsics_source": "self_calibration", "focal_sigma_px": sig_f}
     cam = cam.model_copy(update=update)
+    if ego is not None:  # external poses only: not yet checked on image ego-motion (dashcam clips)
+        cam = _calibrate_axis(tracks, size, cam, ego, notes)
     cam = cam.model_copy(update={"pitch_rad": math.atan2(cam.cy - vh, cam.fy)})
     if focal is None and abs(cam.pitch_rad) > STEEP_PITCH_RAD:
         notes.append(

@@ -29,7 +29,9 @@ its ego "contact" without having been ahead (``EXIT_WINDOW_S``) drove past: no e
 "Near" for an ego crash is the box's width or, for narrow road users (a person, a two-wheeler), its
 height as a share of the image, with its bottom in the lower part of the image.
 
-The contact frame of an ego crash is the first camera jolt while the road user is near, else the
+The contact frame of an ego crash is the first camera jolt while the road user is near (or, when its
+box had already stopped growing at the bumper ``STILL_BEFORE_JOLT_S`` before that jolt, the frame it
+stopped: the jolt is the same crash going on), else the
 "knee" where its approaching box stops growing, else the first frame at which it is nearest; one
 frame later when that frame is where the box jumps onto the image border (the road user filling the
 view: its box stops growing and it moves the image the jolt is measured on).
@@ -46,6 +48,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 import pandas as pd
+
+from deepcrashtest.perception.roadusers import track_category
 
 EGO = 0  # the ego's id in a crash pair
 #: A knee (the box stops growing) is one when the box grows less than this (log size) in the next 0.5 s
@@ -73,6 +77,15 @@ BORDER_PX = 4
 #: ... and a box growing more than this (log size) in the frame it reaches the border jumped onto it
 #: (chosen on the tune clips: ccd_000014 0.33, ccd_001143 0.26 jumped; ccd_000132 0.07 grew).
 BORDER_JUMP = 0.15
+#: A jolt that comes after the road user's box has stayed this long (s) at the bumper without growing
+#: (by less than ``KNEE_MAX_LATER_GROWTH`` in log size over the next 0.5 s) belongs to a crash that began
+#: when the box stopped growing (chosen between ccd_000053, a jolt 0.4 s after the box stops: the
+#: contact, and ccd_000755, a jolt 1.0 s after the car is at the bumper as it is pushed on).
+STILL_BEFORE_JOLT_S = 0.7
+#: A pedestrian's box is upright at a median height/width of at least UPRIGHT_ASPECT and knocked over below
+#: FALLEN_ASPECT (walkers 2-3.5; ccd_000882's struck woman 2.1 -> 1.25 at the contact frame).
+UPRIGHT_ASPECT = 1.8
+FALLEN_ASPECT = 1.5
 #: A road user's evidence counts where the detector saw it: fully within SEEN_GAP_S (s; at least the
 #: detector's own interval) of a frame in which its track was detected (not carried on by the tracker's
 #: prediction), fading to nothing over SEEN_FADE_S more (chosen on dad_000487: the wrong pairs were tracks
@@ -264,8 +277,30 @@ def ego_scores(
             "reaches_border": edge,
             "exits": _exits(g, width, fps, clip_end),
             "ahead": (g["x1"] <= width / 2) & (g["x2"] >= width / 2),
+            "knocked_over": _knocked_over(g, width, height),
         }
     )
+
+
+def _knocked_over(g: pd.DataFrame, width: int, height: int) -> pd.Series:
+    """True at the first frame where a pedestrian's box, upright until then (median height/width at least
+    ``UPRIGHT_ASPECT``), turns squat (under ``FALLEN_ASPECT``) while no image border cuts it: the person
+    is struck off their feet (ccd_000882: 2.1 -> 1.25 at the contact frame, then on the bonnet). Nothing for
+    other road users (a pedestrian hit at the bumper does not jolt the camera)."""
+    out = pd.Series(False, index=g.index)
+    if "category" not in g.columns or not len(g):
+        return out
+    if track_category({str(k): float(v) for k, v in g["category"].value_counts().items()}) != "pedestrian":
+        return out  # a two-wheeler's riders are detected as people (dad_000487), not knocked over
+    w = np.maximum((g["x2"] - g["x1"]).to_numpy(float), 1.0)
+    aspect = (g["y2"] - g["y1"]).to_numpy(float) / w
+    m = BORDER_PX
+    cut = ((g["x1"] <= m) | (g["x2"] >= width - m) | (g["y1"] <= m) | (g["y2"] >= height - m)).to_numpy()
+    for k in range(2, len(g)):
+        if aspect[k] < FALLEN_ASPECT and not cut[k] and np.median(aspect[:k]) >= UPRIGHT_ASPECT:
+            out.iloc[k] = True
+            break
+    return out
 
 
 def _exits(g: pd.DataFrame, width: int, fps: float, clip_end: int | None = None) -> pd.Series:
@@ -317,6 +352,26 @@ def knee_frame(s: pd.DataFrame, fps: float) -> int | None:
     return None
 
 
+def _still_since(s: pd.DataFrame, jolt_frame: int, fps: float) -> int | None:
+    """The frame from which the road user's box has been at the bumper without growing (near, and growing
+    by less than ``KNEE_MAX_LATER_GROWTH`` in log size over the next 0.5 s) up to the jolt at
+    ``jolt_frame``, when that lasted at least ``STILL_BEFORE_JOLT_S``; else None. The jolt then is the
+    road user pushed on or spun after the contact (ccd_000755: the car struck at frame 21, at the bumper
+    from 23, the camera jolts at 33), and the contact is where the box stopped growing."""
+    idx = s.index.to_numpy()
+    ls = s["log_size"].to_numpy(float)
+    near = (s["near"] >= 0.5 * float(s["near"].max())).to_numpy()
+    n = max(2, int(round(0.5 * fps)))
+    k = int(np.searchsorted(idx, jolt_frame)) - 1
+    start = None
+    while k >= 0 and near[k] and ls[k + 1 : k + 1 + n].max(initial=ls[k]) - ls[k] < KNEE_MAX_LATER_GROWTH:
+        start = k
+        k -= 1
+    if start is None or (jolt_frame - idx[start]) / fps < STILL_BEFORE_JOLT_S:
+        return None
+    return int(idx[start])
+
+
 def ego_best(s: pd.DataFrame, fps: float) -> tuple[float, int, dict[str, float]]:
     """The ego-crash score of one track and its contact frame: the first camera jolt while the track is
     near, else the first frame at which the track is nearest (its box stops growing at contact)."""
@@ -342,6 +397,13 @@ def ego_best(s: pd.DataFrame, fps: float) -> tuple[float, int, dict[str, float]]
     if "exits" in s and bool(s.loc[frame, "exits"]) and not (near_enough & s["ahead"])[before.index].any():
         score *= jolt  # it drove on out of the view past the ego: only a jolt says it touched on the way
     ev = {"near": round(peak, 3), "closing": round(closing, 3), "jolt": round(jolt, 3), "score": round(score, 3)}
+    still = _still_since(s, frame, fps) if len(jolted) else None
+    if still is not None:  # the jolt is the crash going on: scored as it is, the contact is earlier
+        ev["jolt_frame"], frame = frame, still
+    fallen = s["knocked_over"] if "knocked_over" in s else pd.Series(False, index=s.index)
+    fell = s.index.to_numpy()[(fallen & near_enough).to_numpy()]
+    if len(fell) and int(fell[0]) < frame:  # a pedestrian struck off their feet: contact before knee or jolt
+        ev["later_frame"], frame = frame, int(fell[0])
     if "reaches_border" in s and bool(s.loc[frame, "reaches_border"]):
         frame += 1  # the box jumped onto the image border there: the road user fills the view, not yet touching
     return score, frame, ev

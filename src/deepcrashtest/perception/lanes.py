@@ -32,10 +32,6 @@ from typing import Protocol
 
 import cv2
 import numpy as np
-from scipy.optimize import linear_sum_assignment
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from deepcrashtest.scenario import Camera
 
@@ -245,6 +241,8 @@ class ClassicalLaneDetector:
                 np.stack([tr.line.samples(top, bottom) for tr in self.tracks]),
                 np.stack([ln.samples(top, bottom) for ln in lines]),
             )
+            from scipy.optimize import linear_sum_assignment  # SciPy loads while the first frames decode
+
             rows, cols = linear_sum_assignment(cost)
             gate = self.gate_px * (self._size[0] / 1280.0 if self._size else 1.0)
             pairs = [(r, c) for r, c in zip(rows, cols, strict=True) if cost[r, c] < gate]
@@ -346,6 +344,10 @@ def dbscan(points: np.ndarray, eps: float, min_samples: int) -> np.ndarray:
     n = len(points)
     if n == 0:
         return np.zeros(0, np.int64)
+    from scipy.sparse import coo_matrix  # SciPy loads while the first frames decode
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
     pairs = cKDTree(points).query_pairs(eps, output_type="ndarray")
     i, j = pairs[:, 0], pairs[:, 1]
     core = np.bincount(np.concatenate([i, j]), minlength=n) + 1 >= min_samples

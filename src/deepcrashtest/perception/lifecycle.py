@@ -28,7 +28,6 @@ from enum import Enum
 from typing import Generic, TypeVar
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 
 class TrackState(str, Enum):
@@ -75,6 +74,8 @@ def assign(cost: np.ndarray, max_cost: float) -> Assignment:
     if n_rows and n_cols:
         big = max_cost + 1.0 + (np.nanmax(np.abs(cost[np.isfinite(cost)])) if np.isfinite(cost).any() else 0.0)
         safe = np.where(np.isfinite(cost), cost, big)
+        from scipy.optimize import linear_sum_assignment  # SciPy loads while the first frames decode
+
         rows, cols = linear_sum_assignment(safe)
         pairs = [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if safe[r, c] <= max_cost]
     used_r = {r for r, _ in pairs}

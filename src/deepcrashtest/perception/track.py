@@ -23,12 +23,13 @@ pass; ``track_video`` collects everything into the ``tracks.csv`` DataFrame.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from deepcrashtest.perception.boxes import iou_matrix
 from deepcrashtest.perception.detections import Detections, Detector
@@ -44,6 +45,9 @@ from deepcrashtest.perception.lifecycle import (
 from deepcrashtest.perception.roadusers import TWO_WHEELERS, road_users, track_category
 from deepcrashtest.video.source import Frame, VideoSource
 
+if TYPE_CHECKING:  # pandas is needed at the end of a pass only (the tables)
+    import pandas as pd
+
 __all__ = [
     "TRACK_COLUMNS",
     "Assignment",
@@ -56,6 +60,8 @@ __all__ = [
     "TrackedBox",
     "assign",
     "iter_tracks",
+    "detect_ahead",
+    "track_detected",
     "track_boxes",
     "track_video",
     "tracks_dataframe",
@@ -71,6 +77,16 @@ _GROUP = {"car": 0, "van": 0, "truck": 0, "bus": 0, "motorcycle": 1, "bicycle": 
 #: *detected* box: a carried box drifts with whatever passes in front of it. dad_000487: walkers on the
 #: pavement (154-161 px) hidden by a passing scooter took over its riders' box (350 px), one track for both.
 MAX_HEIGHT_RATIO = 2.0
+#: A track leaving the image across its left or right border (its last detected box cut by that border, its
+#: inner edge moving toward it) is not matched to a detection whose inner edge lies further inside the image
+#: than that box's by more than this share of the box's width: another road user coming into view there
+#: (ccd_001143: a bus leaving on the right, box 871-1280 px, inner edge moving out at 56 px/frame, took over
+#: the box 699-1280 px of the next bus two frames later).
+MAX_LEAVING_BACK = 0.25
+#: ... leaving: its inner edge moves toward the border by more than this share of the box's width per frame.
+LEAVING_RATE = 0.03
+#: A box edge within this many pixels of the image border is cut by it.
+BORDER_PX = 4
 
 
 @dataclass
@@ -158,6 +174,7 @@ class BoxTracker:
         self.core: TrackCore[ImageTrack] = TrackCore(min_hits=min_hits, max_misses=max_misses)
         self.flow = flow or BoxFlow()
         self._prev: GreyFrame | None = None
+        self._width = 0  # image width (px) of the current frame
         self._n = 0  # frames seen
 
     def update(self, frame: Frame) -> FrameTracks:
@@ -184,6 +201,7 @@ class BoxTracker:
         ``size``: (width, height) of the frame, pixels; ``image``: the frame (BGR) for optical flow,
         or None to carry boxes by their constant image velocity."""
         w, h = size
+        self._width = int(w)
         self._carry(self.flow.prepare(image) if image is not None else None)
         for t in self.core.tracks:
             t.detected_now = False
@@ -239,6 +257,7 @@ class BoxTracker:
             dg = np.array([_GROUP.get(str(c), 0) for c in dets.categories])
             cost[tg[:, None] != dg[None, :]] = np.inf
             cost[_height_jumps(tracks, dets.boxes)] = np.inf
+            cost[_comes_back(tracks, dets.boxes, self._width) & (cost <= 1.0 - self.min_iou)] = np.inf
         result = self.core.step(cost, max_cost=1.0 - self.min_iou)
         for t, j in result.matched:
             self._absorb(t, dets, j)
@@ -283,6 +302,28 @@ def _height_jumps(tracks: list[ImageTrack], boxes: np.ndarray) -> np.ndarray:
     return (ratio > math.log(MAX_HEIGHT_RATIO)) & carried[:, None]
 
 
+def _comes_back(tracks: list[ImageTrack], boxes: np.ndarray, width: int) -> np.ndarray:
+    """(tracks, detections) True where a track leaves the image across its left or right border (its last
+    detected box reaches that border, its inner edge moves toward it by more than ``LEAVING_RATE`` of the
+    box's width per frame) and the detection's inner edge lies more than ``MAX_LEAVING_BACK`` of that width
+    further inside the image: a road user leaving the view does not turn back within a detection round.
+    Only tracks whose velocity spans two detection rounds or more (``_absorb``): one round of a jittery box
+    cut by the border is no direction (ccd_000031: a van's box 1076 -> 1162 -> 1100 px, one road user)."""
+    out = np.zeros((len(tracks), len(boxes)), bool)
+    if width <= 0:
+        return out
+    for i, t in enumerate(tracks):
+        if t.hits < 3:
+            continue
+        d, v = t.detected_box, t.velocity
+        w = max(d[2] - d[0], 1.0)
+        if d[2] >= width - BORDER_PX and d[0] > BORDER_PX and v[0] > LEAVING_RATE * w:  # out to the right
+            out[i] = d[0] - boxes[:, 0] > MAX_LEAVING_BACK * w
+        elif d[0] <= BORDER_PX and d[2] < width - BORDER_PX and -v[2] > LEAVING_RATE * w:  # out to the left
+            out[i] = boxes[:, 2] - d[2] > MAX_LEAVING_BACK * w
+    return out
+
+
 def _visible_fraction(box: np.ndarray, w: int, h: int) -> float:
     area = max(box[2] - box[0], 0.0) * max(box[3] - box[1], 0.0)
     if area <= 0:
@@ -317,11 +358,34 @@ def iter_tracks(
     rate = fps if fps is not None else getattr(getattr(source, "meta", None), "fps", None)
     if rate is None:
         raise ValueError("fps unknown: pass fps= for a plain iterable of frames")
-    tracker = BoxTracker(detector, fps=rate, detect_every=detect_every, **tracker_options)  # type: ignore[arg-type]
-    for k, frame in enumerate(source):
-        if max_frames is not None and k >= max_frames:
-            break
-        yield tracker.update(frame)
+    frames = itertools.islice(source, max_frames)
+    yield from track_detected(detect_ahead(frames, detector, detect_every), rate, detect_every, **tracker_options)
+
+
+def detect_ahead(
+    frames: Iterable[Frame], detector: Detector, detect_every: int = 1
+) -> Iterator[tuple[Frame, Detections | None]]:
+    """Each frame with the detector's boxes on detection frames (the first and every ``detect_every``-th
+    after it: :meth:`BoxTracker.update`'s schedule), None between.
+
+    The schedule does not depend on the tracks, so a pipeline can run this in its own thread, ahead of
+    :func:`track_detected` (the detector is most of the tracker's CPU; onnxruntime releases the GIL).
+    """
+    if detect_every < 1:
+        raise ValueError(f"detect_every must be >= 1 (got {detect_every})")
+    for k, frame in enumerate(frames):
+        yield frame, detector(frame.image) if k % detect_every == 0 else None
+
+
+def track_detected(
+    detected: Iterable[tuple[Frame, Detections | None]], fps: float, detect_every: int = 1, **tracker_options: float
+) -> Iterator[FrameTracks]:
+    """Track frames whose detections were made already (:func:`detect_ahead`): the same tracks as
+    :func:`iter_tracks` with the same ``detect_every``."""
+    tracker = BoxTracker(None, fps=fps, detect_every=detect_every, **tracker_options)  # type: ignore[arg-type]
+    for frame, dets in detected:
+        h, w = frame.image.shape[:2]
+        yield tracker.update_boxes(dets, frame.index, frame.time, (w, h), frame.image)
 
 
 def frame_records(ft: FrameTracks) -> list[tuple[object, ...]]:
@@ -361,6 +425,8 @@ def records_table(records: list[tuple[object, ...]]) -> pd.DataFrame:
         name: np.array(values, dtype=kind) if kind else np.array([str(v) for v in values], dtype=object)
         for name, values, kind in zip(TRACK_COLUMNS, cols, _COLUMN_TYPES, strict=True)
     }
+    import pandas as pd
+
     return pd.DataFrame(data)
 
 

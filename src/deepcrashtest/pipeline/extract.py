@@ -6,7 +6,7 @@ each shot is extracted on its own.
 
 Phases of :func:`run_extract`: check the options and outputs, the one decoding pass (:class:`_Pass`,
 with the shot watch), tracks.csv, the summary, then stage 2 and the report (:func:`_finish_scenario`).
-The pass is pipelined, one thread per stage with bounded queues between: decode | detect + track |
+The pass is pipelined, one thread per stage with bounded queues between: decode | detect | track |
 ego-motion (+ lanes in a second thread, :mod:`.geometry_pass`) | draw + H.264 encode. Decoding,
 onnxruntime, OpenCV and the encoder release the GIL, so two cores stay busy; results are the same as
 a sequential run (each stage sees the frames in order).
@@ -17,27 +17,25 @@ from __future__ import annotations
 import contextlib
 import gc
 import importlib
+import itertools
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import closing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
 from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import atomic_path, check_writable, ensure_output_dir, output_set
 from deepcrashtest.geometry.camera import default_camera
 from deepcrashtest.perception.annotate import Annotator
-from deepcrashtest.perception.crash_detect import GlobalMotion
 from deepcrashtest.perception.detect import DEFAULT_DETECTOR, make_detector
 from deepcrashtest.perception.detections import Detector
 from deepcrashtest.perception.lanes import LaneState, draw_lanes
-from deepcrashtest.perception.track import FrameTracks, frame_records, iter_tracks, records_table
-from deepcrashtest.pipeline.crash import CrashSpec, crash_for_raw, parse_crash
+from deepcrashtest.perception.track import FrameTracks, detect_ahead, frame_records, records_table, track_detected
 from deepcrashtest.pipeline.geometry_pass import GeometryResult, TrackRows, extract_geometry
 from deepcrashtest.pipeline.threads import Worker, prefetch
 from deepcrashtest.scenario import Camera, VideoSource
@@ -48,14 +46,28 @@ from deepcrashtest.video.shots import Shot, ShotWatch
 from deepcrashtest.video.source import Frame, VideoMeta, open_video
 from deepcrashtest.video.writer import VideoWriter
 
+if TYPE_CHECKING:  # imported where used: pandas, SciPy and the crash modules load while the first frames decode
+    import pandas as pd
+
+    from deepcrashtest.perception.crash_detect import GlobalMotion
+    from deepcrashtest.pipeline.crash import CrashSpec
+
 DEFAULT_DETECT_EVERY = 5
 #: The detector runs at least this often (s) whatever ``detect_every`` says: at 10 fps (the CCD crash clips)
 #: every 5th frame left half a second between detections, and the road user the ego hits went untracked.
 MAX_DETECT_GAP_S = 0.25
 #: Every file ``extract`` may write into its output folder (one set per run: see fileio.output_set).
 OUTPUT_NAMES = ("tracks.csv", "annotated.mp4", "scenario_raw.json", "scenario.json", "report.html")
-#: Modules of the later phases imported in the background at the start (:func:`_warm_imports`).
-WARM_IMPORTS = ("deepcrashtest.geometry.world_tracks", "deepcrashtest.trajectory.pipeline")
+#: Modules the pass needs only after its first frames (the tracker's first association, the lanes after the
+#: calibration buffer, the crash's image motion), then those of the later phases (world tracks and
+#: self-calibration, stage 2, the report), imported in the background from the start (:func:`_warm_imports`).
+PASS_IMPORTS = ("scipy.optimize", "scipy.sparse.csgraph", "scipy.spatial", "pandas", "deepcrashtest.pipeline.crash")
+WARM_IMPORTS = (
+    "deepcrashtest.geometry.selfcalib",
+    "deepcrashtest.geometry.world_tracks",
+    "deepcrashtest.trajectory.pipeline",
+)
+REPORT_IMPORTS = ("deepcrashtest.viz.report", "matplotlib.figure")
 #: Shots of a compilation shorter than this (seconds) are not extracted.
 MIN_EXTRACT_SHOT_S = 1.0
 
@@ -97,18 +109,18 @@ def run_extract(
     or ``crash`` = ``"FRAME[:ID,ID]"`` (the user's, ids as in tracks.csv, ``ego`` allowed); it is the
     raw scenario's ``collision`` and stage 2 makes it happen.
     """
-    crash_spec = parse_crash(crash) if crash is not None else None
+    crash_spec = _parse_crash(crash) if crash is not None else None
     _check_options(detect_every, max_frames)
     src_path, out = Path(video), Path(output)
     paths = _output_paths(src_path, out, annotate, geometry, report, force)
+    imports = _warm_imports(PASS_IMPORTS + (WARM_IMPORTS + REPORT_IMPORTS * report if geometry else ()))
     det = make_detector(detector)
-    if geometry:
-        _warm_imports(WARM_IMPORTS + (("deepcrashtest.viz.report", "matplotlib.figure") if report else ()))
     watch = shots and frame_range is None  # cuts are looked for in the same decoding pass
     try:
         with output_set(out, OUTPUT_NAMES, force) as stage:  # the whole set of one run, or nothing
             staged = {key: stage / path.name for key, path in paths.items()}
             plan = _Pass(src_path, out, staged, det, detect_every, max_frames, fps, False, frame_range, seed, watch)
+            plan.imports = imports
             result = _run_pass(plan, camera, dashboard_rows, geometry, lanes, report, crash_spec, stage2)
     except _Compilation as comp:  # nothing was written: one extraction per shot instead
         from deepcrashtest.video.shots import detect_shots
@@ -163,6 +175,8 @@ def _run_pass(
     df = records_table(records).sort_values(["frame", "track_id"], ignore_index=True)
     crash_info: dict[str, Any] | None = None
     if geo is not None:  # before anything is written: a bad --crash id refuses the whole set
+        from deepcrashtest.pipeline.crash import crash_for_raw
+
         geo.scenario, crash_info = crash_for_raw(geo.scenario, df, plan.motion.arrays(), crash_spec)
     with atomic_path(paths["tracks_csv"], force=force) as tmp:
         df.to_csv(tmp, index=False, float_format="%.3f")
@@ -173,12 +187,27 @@ def _run_pass(
     return result
 
 
-def _warm_imports(modules: tuple[str, ...]) -> None:
+def _parse_crash(text: str) -> CrashSpec:
+    from deepcrashtest.pipeline.crash import parse_crash
+
+    return parse_crash(text)
+
+
+def _global_motion() -> GlobalMotion:
+    from deepcrashtest.perception.crash_detect import GlobalMotion
+
+    return GlobalMotion()
+
+
+def _warm_imports(modules: tuple[str, ...]) -> threading.Thread:
     """Import what the later phases need in a background thread while the frames flow.
 
     The frame loop spends most of its time in OpenCV / onnxruntime / PyAV with the GIL released, so the
-    ~2.5 s of CPU these imports cost (scikit-learn, SciPy's signal, matplotlib) overlap it. Python's
-    import lock makes a phase that gets there first wait for the module instead of importing it twice.
+    ~2 s of CPU these imports cost (SciPy, pandas, filterpy's scipy.stats, matplotlib) overlap it, and the
+    pass starts with the few modules its first frames need. Python's import lock makes a phase that gets
+    there first wait for the module instead of importing it twice. The modules come in the order the pass
+    needs them (a thread that imports one lazily waits for this one's lock holding none itself); the pass
+    joins the returned thread after its last frame, before the later phases import anything.
     """
 
     def load() -> None:
@@ -186,7 +215,9 @@ def _warm_imports(modules: tuple[str, ...]) -> None:
             with contextlib.suppress(ImportError):
                 importlib.import_module(name)
 
-    threading.Thread(target=load, name="imports", daemon=True).start()
+    thread = threading.Thread(target=load, name="imports", daemon=True)
+    thread.start()
+    return thread
 
 
 @contextlib.contextmanager
@@ -253,8 +284,9 @@ def _output_paths(
 
 @dataclass
 class _Pass:
-    """The one decoding pass, pipelined: decode | detect + track | geometry (ego-motion, lanes) | draw +
-    encode, each in its own thread with bounded queues between (:mod:`deepcrashtest.pipeline.threads`)."""
+    """The one decoding pass, pipelined: decode | detect | track (flow, association) | geometry (ego-motion,
+    lanes) | draw + encode, each in its own thread with bounded queues between
+    (:mod:`deepcrashtest.pipeline.threads`)."""
 
     src_path: Path
     out: Path
@@ -269,9 +301,11 @@ class _Pass:
     watch_shots: bool = False
     """Look for shot cuts in this pass (:class:`~deepcrashtest.video.shots.ShotWatch`); a cut raises
     :class:`_Compilation` (at the first cut found, or after the last frame)."""
-    motion: GlobalMotion = field(default_factory=GlobalMotion)
+    motion: GlobalMotion = field(default_factory=lambda: _global_motion())
     """The camera's global image motion per frame (the ego's jolt, for crash detection)."""
     shot_watch: ShotWatch | None = field(default=None, init=False)
+    imports: threading.Thread | None = field(default=None, init=False)
+    """The background imports (:func:`_warm_imports`), joined after the last frame."""
 
     def run(
         self,
@@ -290,18 +324,24 @@ class _Pass:
                 frames = _watched(frames, self._shot_watch(meta), self.max_frames)
             frames = stack.enter_context(closing(prefetch(frames, 8, "decode")))
             every = max(1, min(self.detect_every, int(meta.fps * MAX_DETECT_GAP_S + 1e-6)))
-            tracked = iter_tracks(frames, self.det, every, self.max_frames, fps=meta.fps)
-            tracked = stack.enter_context(closing(prefetch(tracked, 8, "track")))
-            tracked = progress(tracked, "extract", total=self._total(meta))
+            detected = detect_ahead(itertools.islice(frames, self.max_frames), self.det, every)
+            detected = stack.enter_context(closing(prefetch(detected, 8, "detect")))
+            tracking = stack.enter_context(closing(prefetch(track_detected(detected, meta.fps, every), 8, "track")))
+            tracked = progress(tracking, "extract", total=self._total(meta))
             draw = self._drawing(meta, stack)
             if not geometry:
                 for ft in tracked:
                     records.extend(frame_records(ft))
                     draw(ft, None)
+                self._imported()
                 return records, None, meta
             cam = camera(meta.width, meta.height) if callable(camera) else camera
             cam = cam or default_camera(meta.width, meta.height, area=video_picture_area(self.src_path, self.fps))
             return records, self._geometry(tracked, records, meta, cam, dashboard_rows, lanes, draw), meta
+
+    def _imported(self) -> None:
+        if self.imports is not None:
+            self.imports.join()
 
     def _shot_watch(self, meta: VideoMeta) -> ShotWatch:
         self.shot_watch = ShotWatch(meta.fps)
@@ -348,6 +388,7 @@ class _Pass:
                 records.extend(rows)
                 pending[ft.frame.index] = ft
                 yield ft.frame, rows
+            self._imported()  # before the geometry's last steps import the self-calibration and world tracks
 
         def on_frame(frame: Any, _trk: TrackRows, lane_state: LaneState | None) -> None:
             self.motion.update(int(frame.index), frame.image)

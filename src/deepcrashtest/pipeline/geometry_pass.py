@@ -28,10 +28,9 @@ from collections.abc import Callable, Iterable, Iterator, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from itertools import chain
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, TypeAlias
 
 import numpy as np
-import pandas as pd
 
 from deepcrashtest.errors import UserError
 from deepcrashtest.geometry.camera import (
@@ -42,10 +41,14 @@ from deepcrashtest.geometry.camera import (
 )
 from deepcrashtest.geometry.egomotion import MAX_RATE_HZ, EgoMotion, EgoMotionEstimator
 from deepcrashtest.geometry.localize import Localizer
-from deepcrashtest.geometry.selfcalib import SelfCalibration, self_calibrate
 from deepcrashtest.perception.lanes import ClassicalLaneDetector, LaneDetector, LaneState, LaneTimelineResult
 from deepcrashtest.perception.track import TRACK_COLUMNS, records_table
 from deepcrashtest.scenario import Camera, Scenario, VideoSource
+
+if TYPE_CHECKING:  # pandas and the self-calibration (filterpy -> scipy.stats) load in the background meanwhile
+    import pandas as pd
+
+    from deepcrashtest.geometry.selfcalib import SelfCalibration
 
 
 class FrameLike(Protocol):
@@ -93,7 +96,7 @@ def estimate_camera(
 
 
 #: One frame's tracks: a tracks-table DataFrame or its rows as tuples (columns of ``TRACK_COLUMNS``).
-TrackRows = pd.DataFrame | list[tuple[object, ...]]
+TrackRows: TypeAlias = "pd.DataFrame | list[tuple[object, ...]]"
 
 
 def extract_geometry(
@@ -152,9 +155,13 @@ def extract_geometry(
     lane_tl = lane_det.timeline() if lane_det is not None else None
     if all_rows:
         all_tracks.append(records_table(all_rows))
+    import pandas as pd
+
     tracks = pd.concat(all_tracks, ignore_index=True) if all_tracks else pd.DataFrame(columns=list(TRACK_COLUMNS))
     calibration = None
     if cam.intrinsics_source == "default" and len(tracks):  # no calibration given: the video calibrates it
+        from deepcrashtest.geometry.selfcalib import self_calibrate
+
         calibration = self_calibrate(tracks, cam, size, ego, ego_scaled_by_height=True)
         cam = calibration.camera
         s = calibration.ego_scale

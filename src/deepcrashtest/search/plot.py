@@ -26,7 +26,9 @@ def plot_starts(
 ) -> Path:
     """Start offsets (lateral, longitudinal) of every variant, safe green / unsafe red; random variants as
     discs, CEM samples as triangles; the search box dashed, the safe/unsafe boundary (no noise) as a line,
-    the original start a cross, the best safe variant a star. Writes a PNG to ``path`` (atomically)."""
+    the original start a cross, the best safe variant a star. Writes a PNG to ``path`` (atomically).
+
+    ``df``: the results table, any mapping of columns (``search.outputs.Table`` or a pandas DataFrame)."""
     import cv2
 
     img = np.full((H, W, 3), 255, np.uint8)
@@ -47,12 +49,13 @@ def plot_starts(
     _dashed_rect(cv2, img, px(hb[1], hb[0])[0], px(-hb[1], -hb[0])[0])
     styles = {"random": ("o", 5), "cem": ("^", 4)}
     legend: list[tuple[str, tuple[int, int, int], str]] = []
+    methods, safe = np.asarray(df["method"]), np.asarray(df["safe"], bool)
+    lat, lon = np.asarray(df["d_lat"], float), np.asarray(df["d_lon"], float)
     for method, (marker, size) in styles.items():
-        d = df[df["method"] == method]
-        for safe, colour, label in ((False, RED, "collision / unsafe"), (True, GREEN, "safe")):
-            e = d[d["safe"] == safe]
-            if len(e):
-                for p in px(e["d_lat"].to_numpy(), e["d_lon"].to_numpy()):
+        for ok, colour, label in ((False, RED, "collision / unsafe"), (True, GREEN, "safe")):
+            rows = (methods == method) & (safe == ok)
+            if rows.any():
+                for p in px(lat[rows], lon[rows]):
                     _marker(cv2, img, p, marker, size, colour)
                 legend.append((marker, colour, f"{method}: {label}"))
     if boundary is not None:
@@ -67,8 +70,8 @@ def plot_starts(
     _marker(cv2, img, px(0.0, 0.0)[0], "x", 7, BLACK)
     legend.append(("x", BLACK, "original start"))
     if best is not None:
-        row = df[df["variant"] == best].iloc[0]
-        _marker(cv2, img, px(row["d_lat"], row["d_lon"])[0], "*", 12, GOLD)
+        b = int(np.flatnonzero(np.asarray(df["variant"]) == best)[0])
+        _marker(cv2, img, px(lat[b], lon[b])[0], "*", 12, GOLD)
         legend.append(("*", GOLD, "best safe"))
     _axes(cv2, img, (left, top, right, bottom), lat_lim, lon_lim, px)
     _text(cv2, img, title, (W // 2, 22), 0.45, centre=True)

@@ -118,7 +118,6 @@ def _search_and_write(
             workers,
             cfg.duration,
             on_progress=advance,
-            while_waiting=outputs.preload_in_background,
         ) as ev,
     ):
         original = _original_and_random(ev, log, cfg)
@@ -240,12 +239,13 @@ def crash_question(scenario: Scenario, cfg: SearchConfig) -> dict[str, Any]:
     return out
 
 
-def _best_safe(df: Any, problems: dict[int, str]) -> int | None:
-    """The safe variant with the least change among those that make a valid Scenario."""
-    safe = df[df["safe"] & ~df["variant"].isin(list(problems))]
-    if safe.empty:
+def _best_safe(df: outputs.Table, problems: dict[int, str]) -> int | None:
+    """The safe variant with the least change among those that make a valid Scenario (ties: the lowest id)."""
+    ok = df["safe"] & ~np.isin(df["variant"], list(problems))
+    if not ok.any():
         return None
-    return int(safe.sort_values(["change_m", "variant"]).iloc[0]["variant"])
+    rows = np.flatnonzero(ok)
+    return int(df["variant"][rows[np.lexsort((df["variant"][rows], df["change_m"][rows]))[0]]])
 
 
 def _finite(v: Any) -> float | None:
@@ -258,44 +258,55 @@ def _metrics(res: dict[str, np.ndarray], i: int) -> dict[str, Any]:
     return {k: _finite(res[k][i]) for k in keys}
 
 
-def _row(df: Any, vid: int | None) -> dict[str, Any] | None:
+def _row(df: outputs.Table, vid: int | None) -> dict[str, Any] | None:
     if vid is None:
         return None
-    r = df[df["variant"] == vid].iloc[0]
+    i = int(np.flatnonzero(df["variant"] == vid)[0])
     return {
         "variant": int(vid),
-        "method": str(r["method"]),
-        "d_lon_m": _finite(r["d_lon"]),
-        "d_lat_m": _finite(r["d_lat"]),
-        "change_m": _finite(r["change_m"]),
-        "robustness": _finite(r["robustness"]),
-        "min_distance": _finite(r["min_distance"]),
+        "method": str(df["method"][i]),
+        "d_lon_m": _finite(df["d_lon"][i]),
+        "d_lat_m": _finite(df["d_lat"][i]),
+        "change_m": _finite(df["change_m"][i]),
+        "robustness": _finite(df["robustness"][i]),
+        "min_distance": _finite(df["min_distance"][i]),
     }
 
 
+def _nan_extreme(v: np.ndarray, largest: bool) -> float:
+    """The largest (or smallest) value of ``v`` ignoring NaN; NaN when there is none (pandas' ``max``/``min``)."""
+    v = v[~np.isnan(v)]
+    return float("nan") if not len(v) else float(v.max() if largest else v.min())
+
+
 def _method_summaries(
-    df: Any, res: dict[str, np.ndarray], methods: list[str], cfg: SearchConfig, cem_best: Any, space: SearchSpace
+    df: outputs.Table,
+    res: dict[str, np.ndarray],
+    methods: list[str],
+    cfg: SearchConfig,
+    cem_best: Any,
+    space: SearchSpace,
 ) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for m in ("random", "cem", "boundary"):
-        d = df[df["method"] == m]
-        if d.empty:
+        rows = df["method"] == m
+        if not rows.any():
             continue
-        s = d[d["safe"]]
+        safe = df["safe"] & rows
         out[m] = {
-            "simulations": len(d),
-            "safe": len(s),
-            "safe_fraction": round(len(s) / len(d), 4),
+            "simulations": int(rows.sum()),
+            "safe": int(safe.sum()),
+            "safe_fraction": round(int(safe.sum()) / int(rows.sum()), 4),
             "first_safe_at": first_safe(res, methods, m, cfg.margin),
-            "min_change_safe_m": _finite(s["change_m"].min()) if len(s) else None,
-            "max_robustness": _finite(d["robustness"].max()),
+            "min_change_safe_m": _finite(_nan_extreme(df["change_m"][safe], False)) if safe.any() else None,
+            "max_robustness": _finite(_nan_extreme(df["robustness"][rows], True)),
         }
     if "random" in out:
         out["random"]["starts"] = cfg.starts
         out["random"]["noise_variants"] = cfg.noise_variants
-        r = df[df["method"] == "random"]
-        start_index = (r["simulation"] - 1) // cfg.noise_variants
-        out["random"]["starts_with_a_safe_variant"] = int(r.groupby(start_index)["safe"].any().sum())
+        rows = df["method"] == "random"
+        start_index = (df["simulation"][rows] - 1) // cfg.noise_variants
+        out["random"]["starts_with_a_safe_variant"] = len(np.unique(start_index[df["safe"][rows]]))
     if "cem" in out and cem_best is not None:
         out["cem"]["best_change_m"] = _finite(space.change(cem_best)[0])
     return out

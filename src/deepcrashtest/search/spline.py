@@ -3,7 +3,8 @@
 Frames and units: world frame (x forward at t=0, y left), metres, seconds, radians. The spline is
 ``x(t), y(t) = BSpline(knots, cx | cy, degree)`` exactly as stored in ``Vehicle.spline``
 (``scenario.SplineParams``). Scenarios from stage 2 carry it; for raw scenarios (KITTI ground
-truth, ``Vehicle.spline is None``) a least-squares cubic B-spline is fitted here with SciPy.
+truth, ``Vehicle.spline is None``) a least-squares cubic B-spline is fitted here
+(:mod:`deepcrashtest.sim.splines`: SciPy's splines in NumPy, without SciPy's import time).
 """
 
 from __future__ import annotations
@@ -11,10 +12,10 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-from scipy.interpolate import BSpline, make_lsq_spline
 
 from deepcrashtest.errors import UserError
 from deepcrashtest.scenario import SplineParams, Trajectory, Vehicle
+from deepcrashtest.sim.splines import BSpline, lsq_spline
 
 #: Spacing of the interior knots of a fitted ego spline, seconds (one control point per ~second).
 DEFAULT_KNOT_SPACING_S = 1.0
@@ -34,9 +35,8 @@ def fit_spline(t: np.ndarray, xy: np.ndarray, knot_spacing_s: float = DEFAULT_KN
     n_interior = max(0, min(int(span / knot_spacing_s) - 1, len(t) - degree - 1))
     interior = np.linspace(t[0], t[-1], n_interior + 2)[1:-1]
     knots = np.concatenate([np.full(degree + 1, t[0]), interior, np.full(degree + 1, t[-1])])
-    sx = make_lsq_spline(t, xy[:, 0], knots, k=degree)
-    sy = make_lsq_spline(t, xy[:, 1], knots, k=degree)
-    return SplineParams(knots=knots.tolist(), cx=sx.c.tolist(), cy=sy.c.tolist(), degree=degree)
+    c = lsq_spline(t, xy, knots, degree).c
+    return SplineParams(knots=knots.tolist(), cx=c[:, 0].tolist(), cy=c[:, 1].tolist(), degree=degree)
 
 
 def ego_spline(ego: Vehicle, knot_spacing_s: float = DEFAULT_KNOT_SPACING_S) -> SplineParams:
@@ -81,10 +81,7 @@ def _basis_cached(knots_b: bytes, degree: int, t_b: bytes, nu: int) -> np.ndarra
 
 def _basis(knots: np.ndarray, degree: int, t: np.ndarray, nu: int) -> np.ndarray:
     m = len(knots) - degree - 1
-    eye = np.eye(m)
-    spl = BSpline(knots, eye, degree, extrapolate=False)
-    out = spl.derivative(nu)(t) if nu else spl(t)
-    return np.nan_to_num(np.asarray(out, dtype=float))
+    return BSpline(knots, np.eye(m), degree).derivative(nu)(t)
 
 
 def trajectory_from_path(sp: SplineParams, ctrl: np.ndarray, t: np.ndarray, min_speed_mps: float = 0.05) -> Trajectory:

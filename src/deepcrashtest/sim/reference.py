@@ -8,7 +8,8 @@ A vehicle's trajectory (box centre samples, world frame) becomes
   time grid (before the first sample: the initial values; after the last: constant speed).
 
 Raw (label-derived) trajectories are noisy, so positions are smoothed with a cubic smoothing spline
-(SciPy ``make_smoothing_spline``) whose cut-off is ``SMOOTH_CUTOFF_HZ``; speeds come from the
+(:func:`~deepcrashtest.sim.splines.smoothing_spline`, SciPy's ``make_smoothing_spline`` in NumPy) whose
+cut-off is ``SMOOTH_CUTOFF_HZ``; speeds come from the
 derivative of that spline, so path and speed profile are consistent. A vehicle that moves less
 than ``STATIC_PATH_M`` in total is static: it holds its mean position and median label heading. Exact
 (``smooth=False``, already smooth) waypoints are static only below ``STATIC_EXACT_PATH_M``: a processed ego
@@ -17,12 +18,21 @@ creeping 0.9 m into its crash was held still and missed it (ccd_000080).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.interpolate import make_interp_spline, make_smoothing_spline
 
 from deepcrashtest.scenario import Trajectory
+from deepcrashtest.sim.splines import (
+    BSpline,
+    NaturalCubic,
+    interp_inverse,
+    interp_spline,
+    not_a_knot,
+    one_thread,
+    smoothing_spline,
+)
 
 PATH_DS_M = 0.25
 SMOOTH_CUTOFF_HZ = 0.8
@@ -52,19 +62,21 @@ def grid_index(t: float, dt: float) -> int:
 def _smooth_positions(t: np.ndarray, x: np.ndarray, y: np.ndarray, smooth: bool):
     """Return callables (pos(tq) -> (n, 2), vel(tq) -> (n, 2)) fitted to the samples."""
     n = len(t)
+    sx: BSpline | NaturalCubic
+    sy: BSpline | NaturalCubic
     if n >= 5 and smooth:
         h = float(np.median(np.diff(t)))
         lam = h / (2.0 * np.pi * SMOOTH_CUTOFF_HZ) ** 4
-        sx, sy = make_smoothing_spline(t, x, lam=lam), make_smoothing_spline(t, y, lam=lam)
+        sx, sy = smoothing_spline(t, x, lam), smoothing_spline(t, y, lam)
     elif n >= 4:
-        sx, sy = make_interp_spline(t, x, k=3), make_interp_spline(t, y, k=3)
+        sx, sy = interp_spline(t, x, 3), interp_spline(t, y, 3)
     else:
         k = 1 if n >= 2 else 0
         if k == 0:
             return (lambda tq: np.tile([x[0], y[0]], (len(np.atleast_1d(tq)), 1))), (
                 lambda tq: np.zeros((len(np.atleast_1d(tq)), 2))
             )
-        sx, sy = make_interp_spline(t, x, k=1), make_interp_spline(t, y, k=1)
+        sx, sy = interp_spline(t, x, 1), interp_spline(t, y, 1)
     dx, dy = sx.derivative(), sy.derivative()
     return (lambda tq: np.column_stack([sx(tq), sy(tq)])), (lambda tq: np.column_stack([dx(tq), dy(tq)]))
 
@@ -136,7 +148,7 @@ def build_references(
     """References of ``B`` paths ``xys`` (B, n, 2) sampled at the same times ``t`` (n,), interpolated exactly.
 
     The same as ``[build_reference(t, xy, yaw_label, times, dt, smooth=False) for xy in xys]``, with
-    one cubic-spline solve for all paths (SciPy solves each column the same way; bit-identical).
+    one interpolation matrix for all paths (equal to the per-path splines to rounding).
     """
     t = np.asarray(t, float)
     xys = np.asarray(xys, float)
@@ -150,16 +162,27 @@ def build_references(
 def _interp_paths(
     t: np.ndarray, xys: np.ndarray, times: np.ndarray, dt: float
 ) -> tuple[int, int, np.ndarray, np.ndarray]:
-    """Grid span and cubic-interpolated positions and velocities (L, B, 2) of ``B`` paths sampled at ``t``."""
+    """Grid span and cubic-interpolated positions and velocities (L, B, 2) of ``B`` paths sampled at ``t``.
+
+    One spline for all paths (their coefficients from one cached inverse of the collocation matrix).
+    """
     B, n = xys.shape[:2]
     start, end, tq = _span(t, times, dt)
-    pos, vel = np.empty((len(tq), B, 2)), np.empty((len(tq), B, 2))
-    for lo in range(0, B, 256):  # blocks of columns stay in cache (SciPy solves each column alike)
-        blk = xys[lo : lo + 256]
-        spline = make_interp_spline(t, blk.transpose(1, 0, 2).reshape(n, 2 * len(blk)), k=3)
-        pos[:, lo : lo + len(blk)] = spline(tq).reshape(len(tq), len(blk), 2)
-        vel[:, lo : lo + len(blk)] = spline.derivative()(tq).reshape(len(tq), len(blk), 2)
+    ys = xys.transpose(1, 0, 2).reshape(n, 2 * B)
+    knots, inverse = _interp_inverse(t.tobytes())
+    with one_thread():
+        spline = BSpline(knots, inverse @ ys, 3)
+        pos = spline(tq).reshape(len(tq), B, 2)
+        vel = spline.derivative()(tq).reshape(len(tq), B, 2)
     return start, end, pos, vel
+
+
+@functools.lru_cache(maxsize=4)
+def _interp_inverse(t_b: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """Knots and inverse collocation matrix of the not-a-knot cubic spline through samples at ``t`` (kept: every
+    batch of a search asks the same)."""
+    t = np.frombuffer(t_b)
+    return not_a_knot(t, 3), interp_inverse(t)
 
 
 def build_pathset(

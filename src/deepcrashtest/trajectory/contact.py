@@ -94,6 +94,10 @@ class ContactParams:
     """Spacing of the correction spline's knots."""
     smooth_s4: float = 0.1
     """Weight of the correction's squared acceleration against its squared size (s^4)."""
+    sight_across: float = 10.0
+    """Cost of moving a road user the camera placed across its line of sight, per m^2, against 1 along it
+    (:func:`sight_metric`): a crash correction lengthens or shortens the monocular depth rather than
+    sliding the road user sideways off its box in the image."""
     accel_limit_mps2: float = 4.0
     """Largest acceleration the correction may add on each axis (driver braking/steering)."""
     penetration_s: float = 0.1
@@ -137,6 +141,23 @@ class Movable:
     yaw: np.ndarray | None = None
     """Box headings (rad) per sample that a correction does not turn (a crawling ego: the camera's
     measured yaw, its path's direction being noise); None: the heading of the (corrected) motion."""
+    metric: np.ndarray | None = None
+    """(N, 2, 2) per-sample cost of a displacement ``d`` (m): ``d @ metric[k] @ d`` (symmetric, the
+    identity = isotropic; None: isotropic). A road user localised by one camera is placed far better
+    across the camera's line of sight than along it (:func:`sight_metric`)."""
+
+
+def sight_metric(xy: np.ndarray, camera_xy: np.ndarray, across: float, min_range_m: float = 1.0) -> np.ndarray:
+    """(N, 2, 2) :attr:`Movable.metric` of a road user at ``xy`` (N, 2) seen from ``camera_xy`` (N, 2),
+    metres: a displacement along the line of sight costs 1 per m^2 (the monocular depth error), one
+    across it ``across`` (its bearing is measured to a few pixels). Within ``min_range_m``: isotropic."""
+    d = np.asarray(xy, float) - np.asarray(camera_xy, float)
+    r = np.hypot(d[:, 0], d[:, 1])
+    n = d / np.maximum(r, 1e-9)[:, None]
+    along = n[:, :, None] * n[:, None, :]
+    out = along + across * (np.eye(2) - along)
+    out[r < min_range_m] = np.eye(2)
+    return out
 
 
 @dataclass(frozen=True)
@@ -509,8 +530,9 @@ def _cost_hessian(
     movers: list[Movable], mats: list[tuple[np.ndarray, np.ndarray]], offs: np.ndarray, smooth_s4: float
 ) -> np.ndarray:
     """H with the least-squares cost equal to ``z @ H @ z``: per mover, ``weight`` x (the mean squared
-    correction, its part across the mover's heading ``lateral_weight`` times, + ``smooth_s4`` x the mean
-    squared acceleration), the mean taken over samples and both axes."""
+    correction, its part across the mover's heading ``lateral_weight`` times and, with a ``metric``, under
+    that per-sample metric too (:func:`sight_metric`), + ``smooth_s4`` x the mean squared acceleration),
+    the mean taken over samples and both axes."""
     hess = np.zeros((int(offs[-1]), int(offs[-1])))
     for i, (b, b2) in enumerate(mats):
         m = movers[i]
@@ -520,6 +542,8 @@ def _cost_hessian(
         c, s = np.cos(yaw), np.sin(yaw)
         lat = m.lateral_weight
         metric = {(0, 0): c * c + lat * s * s, (1, 1): s * s + lat * c * c, (0, 1): (1.0 - lat) * c * s}
+        if m.metric is not None:  # the line of sight's anisotropy on top (its identity part counted once)
+            metric = {(r, q): w + m.metric[:, r, q] - float(r == q) for (r, q), w in metric.items()}
         smooth = smooth_s4 * (b2.T @ b2)
         for (r, q), w in metric.items():
             block = m.weight * (b.T @ (w[:, None] * b) + (smooth if r == q else 0.0)) / (2 * len(b))

@@ -21,7 +21,14 @@ import numpy as np
 from deepcrashtest.errors import UserError
 from deepcrashtest.scenario import Collision, kinematics
 from deepcrashtest.trajectory.collision import BoxTrack, Contact, first_contact
-from deepcrashtest.trajectory.contact import ContactParams, Movable, make_contact, nudge_apart, separation
+from deepcrashtest.trajectory.contact import (
+    ContactParams,
+    Movable,
+    make_contact,
+    nudge_apart,
+    separation,
+    sight_metric,
+)
 from deepcrashtest.trajectory.dense import EPS_T, Dense
 from deepcrashtest.trajectory.params import Stage2Params
 
@@ -51,15 +58,22 @@ def contact_params(p: Stage2Params) -> ContactParams:
     )
 
 
-def _movable(d: Dense, is_ego: bool) -> Movable:
+def _movable(d: Dense, ego: Dense, cp: ContactParams) -> Movable:
+    """``d`` as a :class:`Movable`; an agent's displacements cost :func:`sight_metric` from the ego (the
+    camera that placed it), the ego's cost ``EGO_LATERAL_WEIGHT`` times more across its heading."""
+    is_ego = d is ego
     weight = EGO_WEIGHT if is_ego else (STATIC_WEIGHT if d.static else 1.0)
     rigid = d.static and not is_ego
     kin = None if rigid else kinematics(d.vehicle.category)
     yaw = None if d.box_yaw is None and not d.static else d.box_headings()
     lateral = EGO_LATERAL_WEIGHT if is_ego else 1.0
+    metric = None
+    if not is_ego:
+        cam = np.column_stack([np.interp(d.t, ego.t, ego.xy[:, 0]), np.interp(d.t, ego.t, ego.xy[:, 1])])
+        metric = sight_metric(d.xy, cam, cp.sight_across)
     return Movable(
         d.t, d.xy, d.vehicle.length, d.vehicle.width, d.heading, weight, rigid=rigid, kin=kin, lateral_weight=lateral,
-        yaw=yaw,
+        yaw=yaw, metric=metric,
     )  # fmt: skip
 
 
@@ -172,7 +186,7 @@ def _enforce_pair(
     """Correct the pair's last seconds so they first touch at the collision time; returns the record."""
     byid = {d.id: d for d in [ego, *agents]}
     a, b = byid[collision.other_id], byid[collision.agent_id]
-    ma, mb = _movable(a, a is ego), _movable(b, b is ego)
+    ma, mb = _movable(a, ego, cp), _movable(b, ego, cp)
     # the ego's measured path is held and only the other road user (monocular depth: metres of error) moved,
     # when that can make the crash: moving both slid a crawling ego sideways across the camera's yaw, and its
     # replay, steering along the path, lagged (dad_000493: 0.2-0.6 m behind in an S-curve, no contact)
@@ -232,7 +246,7 @@ def _separate_others(
             )
             continue
         others = [d for d in [ego, *agents] if d is not mover]
-        corr = nudge_apart(_movable(mover, False), [_movable(o, o is ego) for o in others], t_end, cp)
+        corr = nudge_apart(_movable(mover, ego, cp), [_movable(o, ego, cp) for o in others], t_end, cp)
         if corr.ok and corr.max_m <= MAX_NUDGE_M:
             mover.xy = mover.xy + corr.deltas[0]
             nudges.append({"agent": mover.id, "max_m": round(corr.max_m, 3)})

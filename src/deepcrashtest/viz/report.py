@@ -557,13 +557,17 @@ def scenario_sections(
     """Every section a scenario (+ optional annotated video, sim metrics, search table, fidelity result) gives."""
     from concurrent.futures import ThreadPoolExecutor
 
+    from deepcrashtest.forking import Forked
     from deepcrashtest.viz.fidelity_section import fidelity_section
 
+    marks = sheet_marks(sc, _frame_count(video)) if video is not None else []
+    # two plots drawn in forked children (matplotlib holds the GIL; forked before the sheet's thread starts)
+    birdseye, lanes = Forked(birdseye_section, sc), Forked(lane_offset_section, sc)
     with ThreadPoolExecutor(1, thread_name_prefix="contact-sheet") as pool:
         # the sheet decodes the video (PyAV and OpenCV release the GIL) while matplotlib draws the plots
         sheet = pool.submit(contact_sheet_section, video, sc=sc) if video is not None else None
-        marks = sheet_marks(sc, _frame_count(video)) if video is not None else []
-        plots = [birdseye_section(sc), motion_section(sc, marks), lane_offset_section(sc)]
+        motion = motion_section(sc, marks)  # here, while the children draw theirs
+        plots = [birdseye.result(), motion, lanes.result()]
     parts: list[Section | None] = [
         overview_section(sc),
         warnings_section(sc),
