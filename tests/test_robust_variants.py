@@ -78,3 +78,24 @@ def test_black_bars_are_found_and_the_default_camera_spans_the_picture(tmp_path)
     assert (cam.fx, cam.cx - 80, cam.cy) == (plain.fx, plain.cx, plain.cy)
     assert camera_for_video(800, 360, area=(80, 0, 720, 360)) == cam  # what `extract` uses
     assert camera_for_video(800, 360, hfov_deg=60.0, area=(80, 0, 720, 360)).cx == 400.0
+
+
+def test_camera_jolt_is_measured_inside_black_bars():
+    """The camera's global motion (the jolt evidence of an ego crash) of a letterboxed CCD clip, given
+    the picture inside the bars, equals that of the clip itself; over the whole frame the static bars
+    pull the vertical shift toward zero (ccd_000132: its crash then found 0.7 s late)."""
+    import cv2
+
+    from deepcrashtest.perception.crash_detect import GlobalMotion
+
+    src = _frames(need(CCD / "ccd_000132.mp4"), 12, start=24)  # around the labelled contact, frame 30
+    pad = 60
+    boxed = [cv2.copyMakeBorder(f, pad, pad, 0, 0, cv2.BORDER_CONSTANT) for f in src]
+    plain, full, inside = GlobalMotion(), GlobalMotion(), GlobalMotion(area=(0, pad, 640, 360 + pad))
+    for k, (a, b) in enumerate(zip(src, boxed, strict=True)):
+        plain.update(k, a)
+        full.update(k, b)
+        inside.update(k, b)
+    dy = [np.array(m.shift)[1:, 1] for m in (plain, full, inside)]
+    assert np.allclose(dy[2], dy[0], atol=0.05)
+    assert np.abs(dy[1]).mean() < 0.7 * np.abs(dy[0]).mean()  # what the bars did
