@@ -98,3 +98,24 @@ def test_unwrap_shortcut_is_numpy_unwrap():
     for p in (smooth, wrapped, np.array([[-0.0, -0.0, 0.1]]), np.zeros((2, 1))):
         got, want = _unwrap(p), np.unwrap(p, axis=-1)
         assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want))
+
+
+def test_remainder_shortcut_gives_the_loops_heading_error():
+    """The roll-out's heading error (``remainder(e + pi, 2 pi) - pi``, the remainder skipped when every element
+    is in range) equals the follower's, bit for bit, in range (with -0.0), across the wrap, and with NaN."""
+    from deepcrashtest.sim.rollout import _remainder_two_pi
+
+    two_pi = 2 * np.pi
+    rng = np.random.default_rng(1)
+    cases = (
+        rng.uniform(-1.0, 1.0, 1000) + np.pi,  # the usual case: small errors, the remainder skipped
+        np.array([-0.0, 0.0, np.nextafter(two_pi, 0.0), 1e-300]),
+        rng.uniform(-20.0, 20.0, 1000),  # out of range: the full remainder
+        np.array([np.nan, 1.0, np.inf]),
+    )
+    for t in cases:
+        got = t.copy()
+        with np.errstate(invalid="ignore"):  # inf: NaN, as numpy's remainder gives
+            _remainder_two_pi(got, two_pi)
+            want = np.remainder(t, two_pi) - np.pi
+        assert np.array_equal(got - np.pi, want, equal_nan=True)

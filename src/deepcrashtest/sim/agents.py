@@ -341,13 +341,27 @@ def _step_rows(
     follow = Follower(world.agent_paths, rows, np.zeros((len(rows), 2)), wb)
     state, steer = ag.state[rows].copy(), np.zeros(len(rows))
     for k in range(len(moving)):
+        idx = follow.idx
         a_acc, a_str = follow.command(state, k, dt)
         a_acc = np.where(static, -lim.max_brake, a_acc)
         mv = moving[k, rows]
         a_acc_l, steer_new = limit_commands(a_acc, a_str, steer, dt, lim)
-        state = np.where(mv[:, None], bicycle_step(state, a_acc_l, steer_new, wb, dt), state)
+        stepped = bicycle_step(state, a_acc_l, steer_new, wb, dt)
+        settled = static.all() and _same_bits(stepped, state) and _same_bits(steer_new, steer)
+        state = np.where(mv[:, None], stepped, state)
         steer = np.where(mv, steer_new, steer)
         states[k + 1, rows], steers[k + 1, rows] = state, steer
+        if settled and np.array_equal(follow.idx, idx):
+            # a fixed point: every later step has the same inputs (the step number and the follower's integral
+            # only change the acceleration command, which a static agent replaces by full braking), so the
+            # same outputs, moving or not: the rest of the run is this state and steering, bit for bit
+            states[k + 2 :, rows], steers[k + 2 :, rows] = state, steer
+            return
+
+
+def _same_bits(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two float arrays hold the same bits (``-0.0`` differs from ``0.0``, NaN equals itself)."""
+    return bool(np.array_equal(np.ascontiguousarray(a).view(np.int64), np.ascontiguousarray(b).view(np.int64)))
 
 
 def _agents_touch(ag: AgentSet, states: np.ndarray, pres: np.ndarray) -> bool:

@@ -64,7 +64,7 @@ def run_replay_batch(
         raise ValueError("the agents' run is not kept in memory (replay_batch_available is False)")
     B = len(ego_init)
     out = LoopOutput.empty(B)
-    ego, steer = _rollout(world, ego_paths, ego_q, ego_offset, ego_init, lim)
+    ego, steer, cos_sin = _rollout(world, ego_paths, ego_q, ego_offset, ego_init, lim)
     # agents at each evaluation index i: i = 0 the start, i = k + 1 the candidate states of step k
     ag = np.concatenate([seg.state[:1], seg.new])
     pres = np.concatenate([seg.pres[:1], seg.pres_next]).astype(bool)
@@ -73,9 +73,9 @@ def run_replay_batch(
     for lo in range(0, B, ROWS):
         rows = slice(lo, min(lo + ROWS, B))
         for prune in (True, False):  # pairs far from every row left out, unless that could change a minimum
-            if _Rows(world, ego[:, rows], steer[:, rows], ag, pres, ag_vel, prune).evaluate(
-                seg, out, rows, pre_contact
-            ):
+            if _Rows(
+                world, ego[:, rows], steer[:, rows], ag, pres, ag_vel, prune, (cos_sin[0][:, rows], cos_sin[1][:, rows])
+            ).evaluate(seg, out, rows, pre_contact):
                 break
     batch_delta_v(world, pre_contact, out)
     return out
@@ -83,10 +83,11 @@ def run_replay_batch(
 
 def _rollout(
     world: World, paths: PathSet, q: np.ndarray, offset: np.ndarray, init: np.ndarray, lim: VehicleLimits
-) -> tuple[np.ndarray, np.ndarray]:
-    """Ego states (T, B, 4: x, y, yaw, speed) and steering angles (T, B) over the whole grid."""
+) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """Ego states (T, B, 4: x, y, yaw, speed), steering angles (T, B) and the cosine and sine of the yaw (T, B)
+    over the whole grid."""
     run = rollout(paths, q, offset, init, float(world.wheelbase[0]), world.dt, len(world.times) - 1, lim)
-    return np.stack([run.x, run.y, run.yaw, run.v], axis=-1), run.steer
+    return np.stack([run.x, run.y, run.yaw, run.v], axis=-1), run.steer, (run.cos_yaw, run.sin_yaw)
 
 
 class _Rows:
@@ -101,6 +102,7 @@ class _Rows:
         pres: np.ndarray,
         ag_vel: np.ndarray,
         prune: bool = False,
+        cos_sin: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> None:
         self.world, self.ego, self.steer, self.ag, self.pres, self.ag_vel = world, ego, steer, ag, pres, ag_vel
         self.eh, self.ah = world.half[0], world.half[1:]
@@ -113,7 +115,9 @@ class _Rows:
         dy = a[:, None, 1] - ego[:, :, 1][self.pi]
         self.dist = np.sqrt(dx * dx + dy * dy)  # centre distances (N, R)
         self.r_a = np.hypot(self.ah[self.pj, 0], self.ah[self.pj, 1])[:, None]  # (N, 1) agents' circumradii
-        c, s = np.cos(ego[:, :, 2])[self.pi], np.sin(ego[:, :, 2])[self.pi]  # per (index, row), then gathered
+        if cos_sin is None:
+            cos_sin = np.cos(ego[:, :, 2]), np.sin(ego[:, :, 2])
+        c, s = cos_sin[0][self.pi], cos_sin[1][self.pi]  # per (index, row) (the roll-out's), then gathered
         along = np.abs(dx * c + dy * s) - self.eh[0]
         across = np.abs(dy * c - dx * s) - self.eh[1]
         # the separating-axis gap is the largest of four, two of them on the ego's axes, each at least this
