@@ -44,9 +44,21 @@ def camera_from_fov(width: int, height: int, hfov_deg: float, **kw: Any) -> Came
     return Camera(fx=f, fy=f, cx=width / 2.0, cy=height / 2.0, **kw)
 
 
-def default_camera(width: int, height: int, height_m: float = DASHCAM_HEIGHT_M) -> Camera:
-    """The unknown-dashcam default (90 deg horizontal field of view, 1.3 m above the road)."""
-    return camera_from_fov(width, height, DEFAULT_HFOV_DEG, height_m=height_m, intrinsics_source="default")
+def default_camera(
+    width: int, height: int, height_m: float = DASHCAM_HEIGHT_M, area: tuple[int, int, int, int] | None = None
+) -> Camera:
+    """The unknown-dashcam default (90 deg horizontal field of view, 1.3 m above the road). ``area``: the
+    picture ``(x0, y0, x1, y1)`` (px) inside black bars: the field of view spans it, centred on it."""
+    return _on_picture(width, height, DEFAULT_HFOV_DEG, area, height_m=height_m, intrinsics_source="default")
+
+
+def _on_picture(width: int, height: int, hfov_deg: float, area: tuple[int, int, int, int] | None, **kw: Any) -> Camera:
+    """:func:`camera_from_fov` over the picture ``area`` (x0, y0, x1, y1, px) when given, else the frame."""
+    if area is None:
+        return camera_from_fov(width, height, hfov_deg, **kw)
+    x0, y0, x1, y1 = area
+    cam = camera_from_fov(x1 - x0, y1 - y0, hfov_deg, **kw)
+    return cam.model_copy(update={"cx": (x0 + x1) / 2.0, "cy": (y0 + y1) / 2.0})
 
 
 def camera_from_yaml(path: str | Path, width: int | None = None, height: int | None = None) -> Camera:
@@ -336,12 +348,14 @@ def camera_for_video(
     hfov_deg: float | None = None,
     chessboard: str | Path | None = None,
     height_m: float | None = None,
+    area: tuple[int, int, int, int] | None = None,
 ) -> Camera:
     """The camera of a video of ``width`` x ``height`` pixels from whichever source the user gave.
 
     Priority: a camera YAML, then chessboard photos (scaled when the photos' size differs from the
     video's), then a horizontal field of view, else :func:`default_camera`. ``height_m`` (camera
-    height above the road) overrides the source's.
+    height above the road) overrides the source's. ``area``: the picture ``(x0, y0, x1, y1)`` (px) inside
+    black bars (:mod:`deepcrashtest.video.bars`): a field of view (given or default) spans it, centred on it.
     """
     if yaml_path is not None:
         cam = camera_from_yaml(yaml_path, width, height)
@@ -352,9 +366,9 @@ def camera_for_video(
         if photo is not None and photo.shape[1] != width:
             cam = scale_camera(cam, width / photo.shape[1], height / photo.shape[0])
     elif hfov_deg is not None:
-        cam = camera_from_fov(width, height, hfov_deg)
+        cam = _on_picture(width, height, hfov_deg, area)
     else:
-        cam = default_camera(width, height)
+        cam = default_camera(width, height, area=area)
     if height_m is not None:
         if not height_m > 0:
             raise UserError(f"camera height must be > 0 m (got {height_m})")

@@ -41,6 +41,7 @@ from deepcrashtest.pipeline.threads import Worker, prefetch
 from deepcrashtest.scenario import Camera, VideoSource
 from deepcrashtest.trajectory.params import Stage2Params
 from deepcrashtest.ui import track as progress
+from deepcrashtest.video.bars import video_picture_area
 from deepcrashtest.video.shots import Shot, ShotWatch
 from deepcrashtest.video.source import Frame, VideoMeta, open_video
 from deepcrashtest.video.writer import VideoWriter
@@ -317,6 +318,7 @@ class _Pass:
         records: list[tuple[object, ...]] = []
         with open_video(self.src_path, self.fps) as source, contextlib.ExitStack() as stack:
             meta = source.meta
+            self.motion.area = video_picture_area(self.src_path, self.fps)  # inside black bars, if any
             ensure_output_dir(self.paths["tracks_csv"].parent)
             frames = _in_range(source, self.frame_range)
             if self.watch_shots:
@@ -335,7 +337,7 @@ class _Pass:
                 self._imported()
                 return records, None, meta
             cam = camera(meta.width, meta.height) if callable(camera) else camera
-            cam = cam or default_camera(meta.width, meta.height)
+            cam = cam or default_camera(meta.width, meta.height, area=self.motion.area)
             return records, self._geometry(tracked, records, meta, cam, dashboard_rows, lanes, draw), meta
 
     def _imported(self) -> None:

@@ -11,7 +11,14 @@ threshold (the jolt, glass, a car filling the view). The adaptive detector compa
 change with its neighbours' and only keeps isolated peaks, i.e. cuts. ``MIN_SHOT_S`` keeps a flash
 or a few garbled frames from making a shot of their own. Chosen on the 6 DAD + 13 CCD crash clips
 (no cut found in any of them) and on compilations of two of them (the join found at the exact frame):
-tests/test_shots.py.
+tests/test_roadusers.py.
+
+Repeated frames (a video re-encoded at a higher frame rate repeats its frames; a frozen stretch) are
+not fed to the detector: between repeats the change is nil, so every real frame-to-frame change looks
+like an isolated peak over its neighbours and the adaptive detector cut a 10 fps clip re-encoded at
+25/30 fps into shots. A frame whose mean absolute grey change from the last frame fed is under
+``REPEAT_MAX_CHANGE`` is a repeat (measured at ``ANALYSIS_WIDTH``: repeats <= 0.1 grey levels after an
+H.264 re-encode at crf 20-35, consecutive distinct frames of the DAD/CCD clips >= 5.5; tests/test_robust_variants.py).
 """
 
 from __future__ import annotations
@@ -27,6 +34,7 @@ ANALYSIS_WIDTH = 320  # pixels: enough for cut detection, ~16x fewer pixels than
 MIN_SHOT_S = 0.5
 ADAPTIVE_THRESHOLD = 3.0  # PySceneDetect's default: the frame's change over its neighbours' mean
 MIN_CONTENT_VAL = 15.0  # PySceneDetect's default: least absolute change of a cut
+REPEAT_MAX_CHANGE = 1.0  # grey levels (0-255), mean absolute change: a repeated frame (module docstring)
 
 
 @dataclass(frozen=True)
@@ -68,6 +76,7 @@ class ShotWatch:
         self.cuts: list[int] = []
         self.first: int | None = None
         self.last: int | None = None
+        self._grey: np.ndarray | None = None  # the last frame fed to the detector, grey
 
     def feed(self, index: int, image: np.ndarray) -> bool:
         """Look at video frame ``index`` (BGR); True when a cut has been found so far."""
@@ -81,6 +90,11 @@ class ShotWatch:
         if self.first is None:
             self.first = index
         self.last = index
+        grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
+        if self._grey is not None and self._grey.shape == grey.shape:
+            if float(cv2.absdiff(grey, self._grey).mean()) < REPEAT_MAX_CHANGE:
+                return bool(self.cuts)  # a repeat of the last frame fed: no change to weigh
+        self._grey = grey
         found = self._detector.process_frame(FrameTimecode(int(index), fps=self.fps), np.ascontiguousarray(image))
         self.cuts.extend(int(c.frame_num) for c in found)
         return bool(self.cuts)
