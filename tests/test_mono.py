@@ -219,7 +219,8 @@ def test_far_receding_tracks_are_carried_past_their_end(kitti_root):
 def test_near_ground_contacts_size_the_track(kitti_root):
     """A track's height fused with its near ground contacts (bottom edge far below the horizon) is
     closer to the labelled car's than the class prior's posterior alone, and it lifts the MOTA of
-    training sequence 0006 (77.4 against 68.0 without; chosen on the 18 training sequences)."""
+    training sequence 0006 (77.4 against 68.0 without; chosen on the 18 training sequences). An option,
+    off by default: on the dashcam fidelity clips it loses two reproduced crashes."""
     from deepcrashtest.eval.boxes import iou_2d
     from deepcrashtest.eval.kitti_mono import ego_of, quick_mota
     from deepcrashtest.geometry.mono3d import localize_tracks
@@ -229,9 +230,10 @@ def test_near_ground_contacts_size_the_track(kitti_root):
     ego = ego_of(prep.world)
     labels = read_labels(KittiSequence(kitti_root, 6).labels)
     cars = labels[labels["type"] == "Car"]
-    off_cfg = dataclasses.replace(DEFAULT_MONO.mono, contact_min_below_px=np.inf)
+    on_cfg = dataclasses.replace(DEFAULT_MONO.mono, contact_min_below_px=150.0)
+    off_cfg = DEFAULT_MONO.mono  # the option is off by default (it costs two dashcam crashes)
     errors = []
-    for cfg in (DEFAULT_MONO.mono, off_cfg):
+    for cfg in (on_cfg, off_cfg):
         st = localize_tracks(tracks, prep.camera, ego, prep.size, 10.0, cfg)
         st = st[st["detected"]]
         label_h: dict[int, list[float]] = {}
@@ -248,8 +250,8 @@ def test_near_ground_contacts_size_the_track(kitti_root):
     changed = [t for t in on if abs(on[t] - off[t]) > 1e-6]
     assert len(changed) >= 5
     assert np.median([on[t] for t in changed]) < np.median([off[t] for t in changed]) - 0.003
-    mota_on = quick_mota([prep], DEFAULT_MONO)[0]
-    mota_off = quick_mota([prep], dataclasses.replace(DEFAULT_MONO, mono=off_cfg))[0]
+    mota_on = quick_mota([prep], dataclasses.replace(DEFAULT_MONO, mono=on_cfg))[0]
+    mota_off = quick_mota([prep], DEFAULT_MONO)[0]
     assert mota_on >= 75.0 and mota_off < 70.0, (mota_on, mota_off)
 
 
