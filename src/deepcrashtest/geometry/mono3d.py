@@ -110,10 +110,10 @@ class MonoConfig:
     extend_min_range_m: float = 45.0  # (40 m: 58.42, 50 m: 57.96, 30 m with 1 s: 55.05)
     # tuning MOTA 60.68 -> 62.52 (100 px: 62.22, 125: 62.35, 175: 61.92, 200: 60.67; row 0.1: 61.82, 0.3: 62.10;
     # floor 0.04: 62.53, 0.09: 62.38; at least 3 / 6 contacts: 61.99 / 61.22; not for the horizon: 62.33)
-    # near ground contacts (bottom edge this far below the horizon) ... Off by default (inf): 150 px lifts
+    # near ground contacts (bottom edge this far below the horizon) ... Off by default (None): 150 px lifts
     # KITTI training MOTA 60.68 -> 62.52 but lowers held-out 0010 by 2.2 and, on the dashcam fidelity clips,
     # loses two reproduced crashes (dad_000478's pair no longer close in 3D; ccd_000014's replay misses)
-    contact_min_below_px: float = float("inf")
+    contact_min_below_px: float | None = None
     contact_row_rel: float = 0.2  # ... each measure the track's height to this (1 sigma, relative) ...
     contact_floor_rel: float = 0.06  # ... and all of them together no better than this (road shape)
 
@@ -230,12 +230,14 @@ def _contact_height(
 ) -> tuple[float, float]:  # fmt: skip
     """The track's height (m) and relative sigma, fused with what its near ground contacts imply.
 
-    Boxes whose bottom edge lies at least ``contact_min_below_px`` below the horizon give the depth
+    Boxes whose bottom edge lies at least ``contact_min_below_px`` below the horizon (None: unused) give the depth
     of the vehicle's near face to a few per cent, hence its height ``box_h Z_bottom / fy /
     hull_factor`` (the roof's far edge removed); each such frame errs by ``contact_row_rel`` (road
     height under the car) and the bottom edge's and top edge's pixel errors, their inverse-variance
     mean no better than ``contact_floor_rel`` (the road's shape is shared by the frames). That mean
     and ``height`` (the class prior's posterior) are fused by inverse variance in log."""
+    if cfg.contact_min_below_px is None:
+        return height, rel
     below = camera.fy * camera.height_m / cues.z_bottom[use]
     near = use[below >= cfg.contact_min_below_px]
     if len(near) == 0:
