@@ -56,3 +56,20 @@ def test_schema_valid_raw_scenarios_process_and_simulate_or_refuse_clearly(data)
     sc = process_or_refuse(raw)
     if sc is not None:
         simulate_or_refuse(sc)
+
+
+def test_a_path_of_thousands_of_kilometres_is_refused_not_resampled():
+    """A schema-valid agent jumping ~100 km between samples (found by the property above, which then
+    asked for 24 GB): a clear refusal naming the vehicle, not millions of path points."""
+    import pytest
+
+    from deepcrashtest.errors import ScenarioError
+    from deepcrashtest.scenario import Scenario
+    from deepcrashtest.sim import simulate
+
+    data = json.loads(json.dumps(BASE))
+    traj = data["agents"][0]["trajectory"]
+    traj["x"] = [x + (95_000.0 if k % 2 else 0.0) for k, x in enumerate(traj["x"])]
+    sc = Scenario.from_dict(data, origin="test")
+    with pytest.raises(ScenarioError, match=f"vehicle {sc.agents[0].id}: a path of .* km"):
+        simulate(sc, duration=min(sc.duration(), 4.0))

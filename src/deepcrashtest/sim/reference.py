@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from deepcrashtest.errors import ScenarioError
 from deepcrashtest.scenario import Trajectory
 from deepcrashtest.sim.splines import (
     BSpline,
@@ -39,6 +40,9 @@ SMOOTH_CUTOFF_HZ = 0.8
 STATIC_PATH_M = 1.5
 STATIC_EXACT_PATH_M = 0.05
 EXTENSION_M = 60.0
+#: Longest path (m, with its straight continuation) a reference may have: 600 s (the longest run) at
+#: ~300 km/h. Longer ones are no road user's motion and would be resampled into millions of points.
+MAX_PATH_M = 50_000.0
 
 
 @dataclass
@@ -87,6 +91,11 @@ def resample_path(points: np.ndarray, end_heading: float, extension: float, ds: 
     s = np.concatenate([[0.0], np.cumsum(seg)])
     keep = np.r_[True, seg > 1e-9]
     s, pts = s[keep], points[keep]
+    if not s[-1] + extension <= MAX_PATH_M:
+        raise ScenarioError(
+            f"a path of {(s[-1] + extension) / 1000:.0f} km (with its continuation): longer than any road "
+            f"user drives in a scenario (at most {MAX_PATH_M / 1000:.0f} km)"
+        )
     grid = np.arange(0.0, s[-1] + 1e-9, ds)
     if len(s) > 1:
         base = np.column_stack([np.interp(grid, s, pts[:, 0]), np.interp(grid, s, pts[:, 1])])

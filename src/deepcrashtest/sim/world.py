@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from deepcrashtest.errors import UserError
+from deepcrashtest.errors import ScenarioError, UserError
 from deepcrashtest.scenario import Scenario
 from deepcrashtest.sim.reference import PathSet, Reference, reference_from_trajectory
 from deepcrashtest.sim.vehicle import CATEGORY_MASS_KG, HOLONOMIC_CATEGORIES, WHEELBASE_FRACTION, VehicleLimits
@@ -69,6 +69,14 @@ def exact_agents(scenario: Scenario) -> bool:
     return scenario.stage == "processed"
 
 
+def _reference(vid: int, traj: Any, times: np.ndarray, dt: float, smooth: bool) -> Reference:
+    """:func:`reference_from_trajectory`, a refusal naming the vehicle."""
+    try:
+        return reference_from_trajectory(traj, times, dt, smooth=smooth)
+    except ScenarioError as exc:
+        raise ScenarioError(f"vehicle {vid}: {exc}") from None
+
+
 def build_world(scenario: Scenario, dt: float = 0.02, duration: float | None = None) -> World:
     """Resample every vehicle's trajectory into references on a uniform grid of step ``dt``."""
     if not (np.isfinite(dt) and 0.001 <= dt <= 0.1):
@@ -81,7 +89,7 @@ def build_world(scenario: Scenario, dt: float = 0.02, duration: float | None = N
         raise UserError(f"duration {dur} s is shorter than one time step ({dt} s)")
     vehicles = scenario.vehicles()
     exact = exact_agents(scenario)
-    refs = [reference_from_trajectory(v.trajectory, times, dt, smooth=not exact) for v in vehicles]
+    refs = [_reference(v.id, v.trajectory, times, dt, not exact) for v in vehicles]
     length = np.array([v.length for v in vehicles], float)
     return World(
         scenario=scenario,
