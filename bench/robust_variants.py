@@ -81,24 +81,14 @@ def make(base, which):
     fr = read(base)
     fps = LAB[base]["fps"]
     H, W = fr[0].shape[:2]
-    base.split("_")[1][-3:]
     n = len(fr)
-    if "down" in which:
-        variant(
-            f"{base}_down640",
-            base,
-            [cv2.resize(f, (640, 360), interpolation=cv2.INTER_AREA) for f in fr],
-            fps,
-            lambda b: scale(b, 0.5),
-        )
-    if "up" in which:
-        variant(
-            f"{base}_up1080",
-            base,
-            [cv2.resize(f, (1920, 1080), interpolation=cv2.INTER_CUBIC) for f in fr],
-            fps,
-            lambda b: scale(b, 1.5),
-        )
+    for key, suffix, size, interp, factor in (
+        ("down", "down640", (640, 360), cv2.INTER_AREA, 0.5),
+        ("up", "up1080", (1920, 1080), cv2.INTER_CUBIC, 1.5),
+    ):
+        if key in which:
+            frames = [cv2.resize(f, size, interpolation=interp) for f in fr]
+            variant(f"{base}_{suffix}", base, frames, fps, lambda b, k=factor: scale(b, k))
     for r in (15, 25, 30):
         if f"fps{r}" in which:
             m = int(np.floor((n - 1) / fps * r)) + 1
