@@ -120,7 +120,7 @@ def reprojection_pairs(
     ``anchored`` is False) of an agent of ``scenario``: the tracked box, the projected boxes
     (processed, simulated) and their IoU / centre error (NaN where the agent does not exist then).
 
-    Columns: frame, video_time, scenario_time, agent_id, category, x1..y2 (tracked), and per source
+    Columns: frame, video_time, scenario_time, agent_id, category, anchored, x1..y2 (tracked), and per source
     ``{src}_box`` (array or None), ``{src}_iou``, ``{src}_centre_px``.
     """
     size = (scenario.source.width, scenario.source.height)
@@ -129,9 +129,10 @@ def reprojection_pairs(
     rows: list[dict[str, Any]] = []
     ego = scenario.ego
     pose_at = scenario_poses(scenario)
-    for r in (detection_anchored(tracks) if anchored else tracks).itertuples(index=False):
+    kept = set(detection_anchored(tracks).index)
+    for index, r in zip(tracks.index, tracks.itertuples(index=False), strict=True):
         agent = agents.get(int(r.track_id))  # type: ignore[arg-type]
-        if agent is None:
+        if agent is None or (anchored and index not in kept):
             continue
         frame = int(r.frame)  # type: ignore[arg-type]
         t = scenario.frame_time(frame)
@@ -142,6 +143,7 @@ def reprojection_pairs(
             "scenario_time": t,
             "agent_id": agent.id,
             "category": agent.category,
+            "anchored": index in kept,
             "x1": tracked[0],
             "y1": tracked[1],
             "x2": tracked[2],
@@ -327,7 +329,8 @@ def evaluate_fidelity(
 ) -> FidelityResult:
     """Reprojection and crash fidelity of ``scenario`` (and its replay ``sim``, a SimResult) against
     the video's ``tracks`` and an optional crash ``label``."""
-    pairs = reprojection_pairs(scenario, tracks, sim)
+    every = reprojection_pairs(scenario, tracks, sim, anchored=False)
+    pairs = every[every["anchored"]].reset_index(drop=True) if len(every) else every
     overall, per = summarise_reprojection(pairs)
     track_ids = set(int(v) for v in tracks["track_id"].unique()) if len(tracks) else set()
     agent_ids = {a.id for a in scenario.agents}
@@ -335,7 +338,6 @@ def evaluate_fidelity(
     overall["tracks_in_scenario"] = len(track_ids & agent_ids)
     overall["tracked_boxes_total"] = len(tracks)
     overall["coasting_boxes_excluded"] = len(tracks) - len(detection_anchored(tracks))
-    every = reprojection_pairs(scenario, tracks, sim, anchored=False)
     overall["all_tracked_boxes"] = {src: _stats(every, src)["mean_iou"] for src in SOURCES}
     crash, notes = compare_crash(scenario, sim, label, tracks)
     mapping = {
