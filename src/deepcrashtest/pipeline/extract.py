@@ -41,7 +41,7 @@ from deepcrashtest.pipeline.threads import Worker, prefetch
 from deepcrashtest.scenario import Camera, VideoSource
 from deepcrashtest.trajectory.params import Stage2Params
 from deepcrashtest.ui import track as progress
-from deepcrashtest.video.bars import video_picture_area
+from deepcrashtest.video.bars import SAMPLE_FRAMES, picture_area
 from deepcrashtest.video.shots import Shot, ShotWatch
 from deepcrashtest.video.source import Frame, VideoMeta, open_video
 from deepcrashtest.video.writer import VideoWriter
@@ -318,7 +318,6 @@ class _Pass:
         records: list[tuple[object, ...]] = []
         with open_video(self.src_path, self.fps) as source, contextlib.ExitStack() as stack:
             meta = source.meta
-            self.motion.area = video_picture_area(self.src_path, self.fps)  # inside black bars, if any
             ensure_output_dir(self.paths["tracks_csv"].parent)
             frames = _in_range(source, self.frame_range)
             if self.watch_shots:
@@ -336,6 +335,10 @@ class _Pass:
                     draw(ft, None)
                 self._imported()
                 return records, None, meta
+            # the picture inside black bars, if any, from the pass's own first frames (not a second decoding)
+            head = list(itertools.islice(tracked, SAMPLE_FRAMES))
+            self.motion.area = picture_area([ft.frame.image for ft in head]) if head else None
+            tracked = itertools.chain(head, tracked)
             cam = camera(meta.width, meta.height) if callable(camera) else camera
             cam = cam or default_camera(meta.width, meta.height, area=self.motion.area)
             return records, self._geometry(tracked, records, meta, cam, dashboard_rows, lanes, draw), meta
