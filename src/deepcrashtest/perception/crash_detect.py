@@ -13,11 +13,16 @@ Evidence, per candidate pair and frame (each scored 0..1):
   (a spike of the global image motion's second difference against its median: the impact shakes
   the camera);
 * two tracks: their boxes touch or overlap in the image, they are close in 3D (``world``: their
-  ground positions, metres, less than ``CLOSE_3D_M`` apart beyond their half widths within
+  ground positions, metres, less than ``CLOSE_3D_M`` apart beyond their half widths within the last
   ``CLOSE_3D_WINDOW_S``; without ``world``, bottoms at a similar image row), and one of them changes
-  motion suddenly (a spike of the box centre's acceleration); discounted when a road user is at the
-  ego's bumper in the clip (near, approaching or with a jolt: not the ego's own bonnet). Two
-  pedestrians are never a crash pair.
+  motion suddenly (its box centre's velocity over ``CHANGE_SPAN_S`` after against before); discounted
+  when a road user is at the ego's bumper in the clip (near, approaching or with a jolt: not the ego's
+  own bonnet; in full when that ego crash scores ``EGO_CREDIBLE``). Two pedestrians are never a crash
+  pair.
+
+Every time scale is in seconds, every size a share of the picture (the picture inside black bars,
+``picture``, when the video has them): users' clips are resampled (frames repeated or dropped),
+upscaled and letterboxed.
 
 Only what the detector saw counts (with a ``state`` column, detected or predicted): a pair's evidence
 fades where a track coasts on the tracker's prediction (``SEEN_GAP_S``), the box jump where a coasting
@@ -62,22 +67,32 @@ ONSET_APART = 0.3
 #: An ego crash needs this much approach (closing) or jolt evidence at full score: a box at the bumper
 #: from the start without either is the ego's own bonnet or a queue (dad_000512: the bonnet as a "car").
 EGO_MIN_EVIDENCE = 0.3
+#: A road user at the ego's bumper discounts the pairs of tracks (an ego crash is the likelier one) in full when
+#: its ego crash scores at least EGO_CREDIBLE (the default cut), less in proportion below: a two-wheeler that
+#: passed close beside the ego 3 s before a third-party crash is no rival ego crash (dad_000478).
+EGO_CREDIBLE = 0.35
 #: A pair's contact frame is the first frame whose score reaches this share of its peak (0.9 -> 0.97 on
 #: dad_000550: 0.35 s early -> on the label; dad_000478 unchanged).
 PAIR_PEAK_SHARE = 0.97
 #: Two road users count as close in 3D when their ground-plane gap (centre distance less their half
 #: widths, metres) is under this; chosen on the DAD clips (labelled pairs 0-1 m, others >= 2.5 m).
 CLOSE_3D_M = 2.5
-#: ... at some time within this (s) of the frame (mono 3D positions jump by metres from frame to frame).
+#: ... at some time in the last CLOSE_3D_WINDOW_S (s) up to the frame (mono 3D positions jump by metres from
+#: frame to frame). Only before it: a window either side made the pair close up to 0.3 s before they met, and
+#: the contact that early (dad_000550 upscaled: 0.35 s early; dad_000512 0.1 s -> on the label).
 CLOSE_3D_WINDOW_S = 0.3
 #: ... and the last gap is held this long (s) after a road user's 3D positions end.
 CLOSE_3D_HOLD_S = 0.6
 #: A road user's motion changes suddenly when its box centre's velocity over CHANGE_SPAN_S (s) after a
 #: frame differs from that before by CHANGE_FULL box widths per second (a box at least CHANGE_MIN_WIDTH of
-#: the image wide), and the change counts CHANGE_HOLD_S (s) either side. In seconds, not frames: the same
-#: clip at 30 fps (its frames repeated) or 15 fps (frames dropped) gave a change on every frame.
+#: the image wide), and the change counts CHANGE_HOLD_S (s) either side. In seconds, not frames: the second
+#: difference of the box centre from frame to frame (full at 0.25 box widths) saturated on every frame of a
+#: clip resampled to 30 fps (its frames repeated) and on the tracker's corrections (upscaled dad_000550: a
+#: stall of the optical flow 0.4 s before the contact). The span 0.1 s spans the 3-frame pattern of 20 ->
+#: 30 fps; CHANGE_FULL chosen on the tune clips (5 as the old per-frame threshold at 20 fps: dad_000478
+#: 0.29 under the cut; 3.5: 0.38; 3: 0.42, the wrong pair of dad_000512 0.41 -> 0.45 against its 0.75).
 CHANGE_SPAN_S = 0.1
-CHANGE_FULL = 5.0
+CHANGE_FULL = 3.0
 CHANGE_MIN_WIDTH = 20 / 1280
 CHANGE_HOLD_S = 0.1
 #: A box edge within this many pixels of the image border is cut off by it.
@@ -452,7 +467,7 @@ def _extended(w: WorldTrack, frames: float) -> WorldTrack:
 
 
 def close_3d(a: WorldTrack, b: WorldTrack, frames: np.ndarray, fps: float) -> np.ndarray:
-    """0..1 per frame: 1 when the two road users' ground gap (m) is 0 at some time within
+    """0..1 per frame: 1 when the two road users' ground gap (m) was 0 at some time in the last
     ``CLOSE_3D_WINDOW_S``, 0 from ``CLOSE_3D_M`` on. Each is carried at constant velocity for
     ``CLOSE_3D_HOLD_S`` beyond its 3D positions (a road user at the contact is often partly hidden
     and no longer placed in 3D); NaN where unknown."""
@@ -469,7 +484,7 @@ def close_3d(a: WorldTrack, b: WorldTrack, frames: np.ndarray, fps: float) -> np
     )
     gap = pd.Series(np.maximum(d - a.half_width - b.half_width, 0.0), index=grid.astype(int))
     k = max(1, int(round(CLOSE_3D_WINDOW_S * fps)))
-    gap = gap.rolling(2 * k + 1, center=True, min_periods=1).min()
+    gap = gap.rolling(k + 1, min_periods=1).min()
     g = gap.reindex(frames.astype(int)).to_numpy(float)
     return np.clip(1 - g / CLOSE_3D_M, 0, 1)
 
@@ -633,7 +648,7 @@ def crash_candidates(
         if len(s):
             score, frame, ev = ego_best(s, fps)
             cands.append((score, frame, (EGO, tid), ev))
-    ego_near = max((_at_bumper(c[3]) for c in cands), default=0.0)
+    ego_near = max((_at_bumper(c[3]) * min(1.0, c[0] / EGO_CREDIBLE) for c in cands), default=0.0)
     ids = sorted(per)
     cats = _categories(tracks)
     first = int(tracks["frame"].min()) if len(tracks) else 0
