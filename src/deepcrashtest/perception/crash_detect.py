@@ -95,8 +95,12 @@ CHANGE_SPAN_S = 0.1
 CHANGE_FULL = 3.0
 CHANGE_MIN_WIDTH = 20 / 1280
 CHANGE_HOLD_S = 0.1
-#: A box edge within this many pixels of the image border is cut off by it.
-BORDER_PX = 4
+#: A box edge within this share of the picture's width (4 px at 1280) of its border is cut off by it.
+BORDER_SHARE = 4 / 1280
+#: Box sizes (px) divided by are at least this share of the picture's width (10 px at 1280).
+MIN_BOX_SHARE = 10 / 1280
+#: Box growth (closing) and nearness are smoothed over at least this long (s; 3 frames at 10-20 fps).
+SMOOTH_S = 0.15
 #: ... and a box growing more than this (log size) in the frame it reaches the border jumped onto it
 #: (chosen on the tune clips: ccd_000014 0.33, ccd_001143 0.26 jumped; ccd_000132 0.07 grew).
 BORDER_JUMP = 0.15
@@ -260,12 +264,23 @@ def _per_track(tracks: pd.DataFrame, fps: float) -> dict[int, pd.DataFrame]:
 
 
 def _growth(g: pd.DataFrame, fps: float) -> pd.Series:
-    """d ln(box size)/dt (1/s), smoothed over 3 frames: 1/TTC when the track approaches."""
+    """d ln(box size)/dt (1/s), smoothed over :func:`_smooth_frames`: 1/TTC when the track approaches."""
     w = g["x2"].to_numpy(float) - g["x1"].to_numpy(float)
     h = g["y2"].to_numpy(float) - g["y1"].to_numpy(float)
     dt = np.maximum(np.diff(g.index.to_numpy(float)) / fps, 1e-6)
     r = np.r_[0.0, np.diff(np.log(np.sqrt(np.maximum(w * h, 1.0)))) / dt]
-    return pd.Series(r, index=g.index).rolling(3, center=True, min_periods=1).mean()
+    return pd.Series(r, index=g.index).rolling(_smooth_frames(fps), center=True, min_periods=1).mean()
+
+
+def _smooth_frames(fps: float) -> int:
+    """An odd number of frames, at least 3, spanning at least ``SMOOTH_S`` (3 at 10-20 fps, 5 at 30 fps: a
+    clip resampled to 30 fps repeats every third frame, its box growth 0 there and double the next)."""
+    return max(3, int(round(SMOOTH_S * fps)) | 1)
+
+
+def _border(width: int) -> float:
+    """The margin (px) within which a box edge is on the picture's border (``BORDER_SHARE``)."""
+    return BORDER_SHARE * width
 
 
 def _motion_change(g: pd.DataFrame, width: int, fps: float) -> pd.Series:
@@ -302,7 +317,7 @@ def ego_scores(
     wide = np.clip(((x2 - x1) / width - 0.12) / 0.3, 0, 1)
     tall = np.clip(((y2 - y1) / height - 0.35) / 0.4, 0, 1)  # a person or two-wheeler close in front
     raw_near = np.maximum(wide, tall) * np.clip((y2 / height - 0.55) / 0.3, 0, 1)
-    near = pd.Series(raw_near, index=g.index).rolling(3, center=True, min_periods=1).max()
+    near = pd.Series(raw_near, index=g.index).rolling(_smooth_frames(fps), center=True, min_periods=1).max()
     closing = np.clip(_growth(g, fps).to_numpy(), 0, 1.5) / 1.5  # d ln(size)/dt = 1.5/s (TTC 0.67 s) -> 1
     j = pd.Series([jolt.get(int(f), 0.0) for f in g.index.to_numpy(int)], index=g.index)
     edge = _reaches_border(g, width)
@@ -332,7 +347,7 @@ def _knocked_over(g: pd.DataFrame, width: int, height: int) -> pd.Series:
         return out  # a two-wheeler's riders are detected as people (dad_000487), not knocked over
     w = np.maximum((g["x2"] - g["x1"]).to_numpy(float), 1.0)
     aspect = (g["y2"] - g["y1"]).to_numpy(float) / w
-    m = BORDER_PX
+    m = _border(width)
     cut = ((g["x1"] <= m) | (g["x2"] >= width - m) | (g["y1"] <= m) | (g["y2"] >= height - m)).to_numpy()
     for k in range(2, len(g)):
         if aspect[k] < FALLEN_ASPECT and not cut[k] and np.median(aspect[:k]) >= UPRIGHT_ASPECT:
@@ -348,7 +363,8 @@ def _exits(g: pd.DataFrame, width: int, fps: float, clip_end: int | None = None)
     frame): it drove past the ego, out of the view."""
     f = g.index.to_numpy(int)
     w = (g["x2"] - g["x1"]).to_numpy(float)
-    side = ((g["x1"] <= BORDER_PX) | (g["x2"] >= width - BORDER_PX)).to_numpy()
+    m = _border(width)
+    side = ((g["x1"] <= m) | (g["x2"] >= width - m)).to_numpy()
     n = EXIT_WINDOW_S * fps
     gone = bool(side[-1]) and clip_end is not None and f[-1] < clip_end  # the track ends on a side border
     out = np.zeros(len(f), bool)
@@ -365,7 +381,7 @@ def _reaches_border(g: pd.DataFrame, width: int) -> pd.Series:
     growing there, and the road user fills the image on which the camera's motion is measured (a
     "jolt" that is its own motion): a knee or jolt in that frame marks the road user arriving, the
     contact comes a frame later at the earliest (ccd_000014, ccd_001143: 2-3 frames before the label)."""
-    m = BORDER_PX
+    m = _border(width)
     at = np.column_stack([g["x1"] <= m, g["x2"] >= width - m, g["y1"] <= m]).astype(bool)
     prev = np.vstack([np.zeros((1, 3), bool), at[:-1]])
     w, h = (g["x2"] - g["x1"]).to_numpy(float), (g["y2"] - g["y1"]).to_numpy(float)
@@ -512,8 +528,9 @@ def pair_scores(
     ix = np.minimum(a["x2"], b["x2"]) - np.maximum(a["x1"], b["x1"])
     iy = np.minimum(a["y2"], b["y2"]) - np.maximum(a["y1"], b["y1"])
     scale = np.minimum(a["x2"] - a["x1"], b["x2"] - b["x1"])
-    touch = np.clip(1 + np.minimum(ix, iy) / np.maximum(scale, 10) / 0.15, 0, 1) * (iy > 0)
-    hb = np.maximum(np.maximum(a["y2"] - a["y1"], b["y2"] - b["y1"]), 10)
+    least = MIN_BOX_SHARE * width
+    touch = np.clip(1 + np.minimum(ix, iy) / np.maximum(scale, least) / 0.15, 0, 1) * (iy > 0)
+    hb = np.maximum(np.maximum(a["y2"] - a["y1"], b["y2"] - b["y1"]), least)
     rows = np.clip(1 - np.abs(a["y2"].to_numpy(float) - b["y2"].to_numpy(float)) / np.asarray(hb, float) / 0.35, 0, 1)
     near3 = close_3d(*world, common.to_numpy(), fps) if world is not None else np.full(len(common), np.nan)
     depth = pd.Series(np.where(np.isfinite(near3), near3, rows), index=common)
@@ -578,7 +595,8 @@ def entered_view(g: pd.DataFrame, width: int, height: int, first_frame: int) -> 
     """Whether the track came into the view during the clip (it starts after ``first_frame``) with its
     first box on the left, right or bottom image border: before, it was apart from everything in view."""
     x1, x2, y2 = (float(g[c].iloc[0]) for c in ("x1", "x2", "y2"))
-    at_border = x1 <= BORDER_PX or x2 >= width - BORDER_PX or y2 >= height - BORDER_PX
+    m = _border(width)
+    at_border = x1 <= m or x2 >= width - m or y2 >= height - m
     return bool(int(g.index[0]) > first_frame and at_border)
 
 
