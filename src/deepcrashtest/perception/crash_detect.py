@@ -95,12 +95,12 @@ CHANGE_SPAN_S = 0.1
 CHANGE_FULL = 3.0
 CHANGE_MIN_WIDTH = 20 / 1280
 CHANGE_HOLD_S = 0.1
-#: A box edge within this share of the picture's width (4 px at 1280) of its border is cut off by it.
-BORDER_SHARE = 4 / 1280
 #: Box sizes (px) divided by are at least this share of the picture's width (10 px at 1280).
 MIN_BOX_SHARE = 10 / 1280
 #: Box growth (closing) and nearness are smoothed over at least this long (s; 3 frames at 10-20 fps).
 SMOOTH_S = 0.15
+#: A box edge within this share of the picture's width (4 px at 1280) of its border is cut off by it.
+BORDER_SHARE = 4 / 1280
 #: ... and a box growing more than this (log size) in the frame it reaches the border jumped onto it
 #: (chosen on the tune clips: ccd_000014 0.33, ccd_001143 0.26 jumped; ccd_000132 0.07 grew).
 BORDER_JUMP = 0.15
