@@ -439,25 +439,29 @@ def search(
     Defaults in brackets come from ``SearchConfig``; a ``--config`` file's ``search:`` section overrides them.
     """
     _quiet_if_json(as_json)
-    from deepcrashtest.config import load_config
-    from deepcrashtest.search.run import run_search
+    from deepcrashtest.search.plot import start_helper  # light: the helper forks before the search's imports
 
-    cfg = load_config(config).with_search(
-        starts=starts,
-        noise_variants=noise_variants,
-        box_lateral=box_lateral,
-        box_longitudinal=box_longitudinal,
-        noise_sigma=noise_sigma,
-        controller=controller,
-        method=method,
-        seed=seed,
-        boundary_directions=boundary_directions,
-        max_scenarios=max_scenarios,
-        video=False if no_video else None,
-        duration=duration,
-    )
-    sc = _load(scenario)
-    emit(run_search(sc, output, cfg, engine=engine, workers=_workers(workers), force=force), as_json, _search_human)
+    with start_helper() as helper:  # it loads OpenCV on the other core while this process loads the simulator
+        from deepcrashtest.config import load_config
+        from deepcrashtest.search.run import run_search
+
+        cfg = load_config(config).with_search(
+            starts=starts,
+            noise_variants=noise_variants,
+            box_lateral=box_lateral,
+            box_longitudinal=box_longitudinal,
+            noise_sigma=noise_sigma,
+            controller=controller,
+            method=method,
+            seed=seed,
+            boundary_directions=boundary_directions,
+            max_scenarios=max_scenarios,
+            video=False if no_video else None,
+            duration=duration,
+        )
+        sc = _load(scenario)
+        summary = run_search(sc, output, cfg, engine=engine, workers=_workers(workers), force=force, helper=helper)
+    emit(summary, as_json, _search_human)
 
 
 def _workers(workers: int | None) -> int:
