@@ -97,7 +97,10 @@ class Helper:
         """Run ``fn(*args)`` in the child (here, in :meth:`results`, without one)."""
         self._jobs.append((fn, args))
         if self._proc is not None:
-            self._conn.send((fn, args))
+            try:
+                self._conn.send((fn, args))
+            except OSError:  # the child died: every job runs here, in results()
+                self.close()
 
     def results(self) -> list[Any]:
         """Every submitted job's result, in order (waits for them); the first failure is raised here."""

@@ -132,7 +132,9 @@ def _search(
     df = outputs.results_table(space, theta, res, log.method, log.iteration, safe)
     meta = {**asdict(cfg), "engine": engine}
     meta.pop("video")
-    helper.submit(table.write_csv, df, out_dir / "results.csv", force)  # written by the helper meanwhile
+    # the helper writes these meanwhile; replacing allowed (this run's own staging folder: a job rerun here after
+    # the helper died replaces its partial file)
+    helper.submit(table.write_csv, df, out_dir / "results.csv", True)
     scen_paths, problems, best_sc = outputs.write_variants(
         scenario, space, df, theta, out_dir / "safe_variants", meta, cfg.max_scenarios, force
     )
@@ -145,7 +147,7 @@ def _search(
         boundary,
         best_id,
         out_dir / "starts.png",
-        force,
+        True,
         f"{scenario.name}: {int(safe[is_random].sum())} of {int(is_random.sum())} random variants safe",
     )
     summary: dict[str, Any] = {
