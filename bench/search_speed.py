@@ -47,7 +47,9 @@ KITTI = ROOT.parent / "shared" / "data" / "kitti_tracking"
 
 
 def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-c", "import sys; from deepcrashtest.cli import main; sys.exit(main())", *args]
+    """The console command (``cli.run``; ``cli.main`` in a checkout without it)."""
+    code = "import sys, deepcrashtest.cli as c; r = getattr(c, 'run', None); sys.exit(r() if r else c.main())"
+    return [sys.executable, "-c", code, *args]
 
 
 def _env(src: Path) -> dict[str, str]:
