@@ -9,7 +9,6 @@ for ever in the child), the function runs in this process instead, when the resu
 
 from __future__ import annotations
 
-import contextlib
 import os
 import pickle
 import threading
@@ -118,11 +117,11 @@ class Helper:
         return [value for _, value in replies]
 
     def close(self) -> None:
-        """Stop the child (its pending jobs are dropped)."""
+        """Stop the child now (jobs not collected by :meth:`results` are dropped; an early error does not wait for
+        its ``preload``)."""
         if self._proc is not None:
             if self._proc.is_alive():
-                with contextlib.suppress(OSError):
-                    self._conn.send(None)
+                self._proc.terminate()
             self._proc.join()
             self._conn.close()
             self._proc = None
