@@ -171,8 +171,6 @@ def _clip_segments(video: Path, boxes: np.ndarray | None) -> tuple[list[np.ndarr
 
 
 def main() -> None:
-    import math
-
     import pandas as pd
 
     ap = argparse.ArgumentParser()

@@ -106,7 +106,10 @@ def test_self_calibration_recovers_the_kitti_camera(prep):
     assert abs(cam.height_m - 1.65) < 0.25
     assert cam.focal_sigma_px and cam.height_sigma_m and cam.horizon_sigma_px is not None
     without_ego = self_calibrate(tracks, start, prep.size, None)
-    assert without_ego.camera.fy == start.fy and any("prior kept" in n for n in without_ego.notes)
+    assert without_ego.camera.fy == start.fy and any("default 621 px kept" in n for n in without_ego.notes)
+    # the unmeasured default focal length says how uncertain it is (the true one is 14 % longer)
+    assert without_ego.camera.focal_sigma_px == pytest.approx(0.35 * start.fy)
+    assert without_ego.summary()["fy_sigma"] == pytest.approx(0.35 * start.fy, abs=0.1)
 
 
 def test_noisy_label_boxes_are_seeded(kitti_root, prep):

@@ -331,8 +331,9 @@ PITCH_MIN_REL = 0.03
 #: was itself measured with the assumed focal length (not used there).
 ROTATION_MIN_REL = 0.07
 #: A dashcam is mounted near level: a horizon further from the image centre than this pitch (at the
-#: prior focal length) hints at a longer focal length (ccd_000014: 540 px against 360, 16 deg at 640 px,
-#: while the overlay speed needs ~2,000-3,000 px); said in the notes, not acted on.
+#: prior focal length) hints at a longer focal length or a principal point off the image centre
+#: (ccd_000014: 540 px against 360, 16 deg at 640 px, but its poles stay vertical where a 16 deg pitch
+#: would tilt them ~13 deg at the edges: a level camera, a cropped frame); said in the notes, not acted on.
 STEEP_PITCH_RAD = math.radians(8.0)
 #: A parked-vehicle estimate further than this (log) from a trusted pitch-bounce estimate (inflated
 #: relative sigma under PITCH_TRUSTED_REL) is a mode of moving vehicles and is dropped (training
@@ -461,6 +462,13 @@ def self_calibrate(
         fy, rel, used = focal
         sig_f = fy * rel
         notes.append(f"focal length from the ego's motion: {used} parked tracks / turn box pairs / bounce frames")
+    elif camera.intrinsics_source == "default":  # the unknown-dashcam default: its spread is the uncertainty
+        sig_f = FOCAL_PRIOR_REL * fy
+        notes.append(
+            f"focal length not measurable (no external ego motion, no parked vehicles, no turns): the default "
+            f"{fy:.0f} px kept, 1-sigma {100 * FOCAL_PRIOR_REL:.0f} % (dashcams span ~60-140 deg of view); "
+            "distances and the ego's speed scale with it"
+        )
     else:
         notes.append("focal length not measurable (no ego motion, no parked vehicles, no turns): prior kept")
     scale = fy / cam.fy
@@ -472,6 +480,8 @@ def self_calibrate(
     }  # fmt: skip
     if focal is not None:
         update |= {"fx": cam.fx * scale, "fy": fy, "intrinsics_source": "self_calibration", "focal_sigma_px": sig_f}
+    elif math.isfinite(sig_f):
+        update["focal_sigma_px"] = sig_f
     cam = cam.model_copy(update=update)
     if ego is not None:  # external poses only: not yet checked on image ego-motion (dashcam clips)
         cam = _calibrate_axis(tracks, size, cam, ego, notes)
@@ -479,7 +489,8 @@ def self_calibrate(
     if focal is None and abs(cam.pitch_rad) > STEEP_PITCH_RAD:
         notes.append(
             f"horizon {abs(vh - cam.cy):.0f} px from the image centre: {math.degrees(abs(cam.pitch_rad)):.0f} deg of "
-            f"pitch at the assumed focal length {cam.fy:.0f} px, or a longer focal length (a narrower or cropped "
-            "view): distances and the ego's speed scale with the focal length"
+            f"pitch at the assumed focal length {cam.fy:.0f} px, a longer focal length, or a level camera whose "
+            "principal point is off the image centre (a cropped frame: ccd_000014's verticals stay parallel, "
+            "bench/vertical_lines.py): distances and the ego's speed scale with the focal length"
         )
     return SelfCalibration(cam, vh, sig_v, hc, sig_h, fy, sig_f, n, used, notes, ego_scale)
