@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import atexit
 import contextlib
-import gc
 import json
 import os
 import sys
@@ -860,7 +859,6 @@ def run() -> NoReturn:
     """
     code = main()
     if threading.active_count() > 1:
-        gc.freeze()  # the exit's last collection would walk every object of the imports (~0.4 s after extract)
         sys.exit(code)
     atexit._run_exitfuncs()  # logging, multiprocessing, ... (what the interpreter's exit runs first)
     for stream in (sys.stdout, sys.stderr):
