@@ -77,18 +77,13 @@ def hull_boxes(
     level = np.concatenate(pts, axis=2)  # (N, K, 8, 3)
     cam = level @ camera_rotation(camera).T
     ok = (cam[..., 2] >= MIN_DEPTH_M).all(axis=(1, 2))
-    uv = project_camera_points(cam.reshape(-1, 3), camera).reshape(*cam.shape[:3], 2)
-    w, h = image_size
-    box = np.stack(
-        [
-            np.clip(np.nanmin(uv[..., 0], axis=2), 0, w),
-            np.clip(np.nanmin(uv[..., 1], axis=2), 0, h),
-            np.clip(np.nanmax(uv[..., 0], axis=2), 0, w),
-            np.clip(np.nanmax(uv[..., 1], axis=2), 0, h),
-        ],
-        -1,
-    )
-    return np.nan_to_num(box), ok
+    box = np.zeros((*cam.shape[:2], 4))
+    if ok.any():
+        uv = project_camera_points(cam[ok].reshape(-1, 3), camera).reshape(int(ok.sum()), *cam.shape[1:3], 2)
+        lo, hi = uv.min(axis=2), uv.max(axis=2)  # (n, K, 2)
+        w, h = image_size
+        box[ok] = np.clip(np.concatenate([lo, hi], axis=-1), 0, [w, h, w, h])
+    return box, ok
 
 
 def viterbi_headings(score: np.ndarray, dt: np.ndarray, grid: np.ndarray, turn_sigma: float) -> np.ndarray:
