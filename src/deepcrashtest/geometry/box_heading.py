@@ -8,13 +8,16 @@ tens of degrees. The box says more: at a known position and size, the width of a
 fidelity clips the projected boxes of the raw headings were 1.2-1.4x wider than the detector's.
 
 Per agent, each detected box (video frame) scores every heading of a grid (``GRID`` steps over 180 deg:
-a box's footprint is symmetric under a half turn) by the IoU of the projected 3D box with the tracked
-box; the heading track is the Viterbi path that maximises
+a box's footprint is symmetric under a half turn) by the IoU of the projected 3D box's horizontal span
+(columns) with the tracked box's (the rows depend on the camera pitch and the road, not on the heading);
+the heading track is the Viterbi path that maximises
 
-    sum_t IoU_t(psi_t) / IOU_SIGMA^2 - motion_t(psi_t) - sum_t turn(psi_t - psi_{t-1})
+    sum_t IoU_t(psi_t) / IOU_SIGMA^2 - motion_t(psi_t) - axis_t(psi_t) - sum_t turn(psi_t - psi_{t-1})
 
 where ``motion_t`` pulls towards the direction of motion with a weight growing with the speed (its
-direction is uncertain by ~``MOTION_NOISE_MPS`` / speed) and ``turn`` keeps the heading from turning
+direction is uncertain by ~``MOTION_NOISE_MPS`` / speed), ``axis_t`` weakly towards the road's axes
+(along or across the ego's heading: the box's width is the same for headings mirrored about the line
+of sight) and ``turn`` keeps the heading from turning
 faster than a road user does (``TURN_SIGMA_RAD_S`` per second, 1 sigma). The half-turn ambiguity is
 resolved towards the raw heading (the direction of motion, or the ego's for a parked one). Frames
 without a usable box (not detected, cut by the near plane) get the heading of the nearest fitted frame.
@@ -31,15 +34,18 @@ import numpy as np
 import pandas as pd
 
 from deepcrashtest.geometry.project import camera_rotation, project_camera_points, scenario_poses
-from deepcrashtest.perception.boxes import iou_matrix
 from deepcrashtest.scenario import Camera, Scenario, Vehicle
 
 #: Heading candidates over a half turn.
 GRID = 36
-#: IoU spread of one box's score (1 sigma): how much a heading's IoU must beat another's to count.
+#: Span-IoU spread of one box's score (1 sigma): how much a heading's IoU must beat another's to count.
 IOU_SIGMA = 0.1
 #: Speed noise of a monocular track (m/s): the direction of motion is uncertain by atan(noise / speed).
 MOTION_NOISE_MPS = 2.0
+#: Pull towards the road's axes (the ego's heading or across it, rad, 1 sigma): a box's width alone cannot
+#: tell a heading ``d`` right of the line of sight from one ``d`` left of it (a car parked along the road,
+#: seen 25 deg off-axis, fits as well turned 50 deg); road users mostly drive or park along or across the road.
+ROAD_AXIS_SIGMA_RAD = math.radians(20.0)
 #: How fast a road user's heading may change (rad/s, 1 sigma).
 TURN_SIGMA_RAD_S = 0.5
 #: Corners nearer than this in front of the camera (m): the box is not scored (clipped hulls mislead).
@@ -84,6 +90,15 @@ def hull_boxes(
         w, h = image_size
         box[ok] = np.clip(np.concatenate([lo, hi], axis=-1), 0, [w, h, w, h])
     return box, ok
+
+
+def span_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Element-wise IoU of the horizontal spans (``x1``, ``x2``: columns 0 and 2) of boxes ``a`` and ``b``
+    (broadcast); 0 for empty spans. Rows are left out: a road user's vertical place in the image is the
+    camera pitch's and the road's business, its heading shows in its width and horizontal place."""
+    inter = np.clip(np.minimum(a[..., 2], b[..., 2]) - np.maximum(a[..., 0], b[..., 0]), 0, None)
+    union = np.maximum(a[..., 2], b[..., 2]) - np.minimum(a[..., 0], b[..., 0])
+    return np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
 
 
 def viterbi_headings(score: np.ndarray, dt: np.ndarray, grid: np.ndarray, turn_sigma: float) -> np.ndarray:
@@ -133,12 +148,13 @@ def agent_headings(
         return None
     tracked = boxes[["x1", "y1", "x2", "y2"]].to_numpy(float)[ok]
     hull, t_box = hull[ok], t_box[ok]
-    iou = np.stack([iou_matrix(h, b)[:, 0] for h, b in zip(hull, tracked, strict=True)])  # (N, K)
+    iou = span_iou(hull, tracked[:, None, :])  # (N, K)
     yaw_m = np.interp(t_box, a["t"], np.unwrap(a["yaw"]))
     speed = np.interp(t_box, a["t"], a["speed"])
     sigma_m = np.arctan2(MOTION_NOISE_MPS, np.maximum(speed, 1e-3))  # rad
     dpsi = (grid[None, :] - yaw_m[:, None] + 0.5 * math.pi) % math.pi - 0.5 * math.pi
-    score = iou / IOU_SIGMA**2 - 0.5 * (dpsi / sigma_m[:, None]) ** 2
+    daxis = (grid[None, :] - ego_pose[ok, 2][:, None] + 0.25 * math.pi) % (0.5 * math.pi) - 0.25 * math.pi
+    score = iou / IOU_SIGMA**2 - 0.5 * (dpsi / sigma_m[:, None]) ** 2 - 0.5 * (daxis / ROAD_AXIS_SIGMA_RAD) ** 2
     path = viterbi_headings(score, np.diff(t_box), grid, TURN_SIGMA_RAD_S)
     psi = _half_turn_towards(grid[path], yaw_m)
     psi = np.unwrap(psi)
