@@ -133,23 +133,12 @@ def agent_dense(agent: Vehicle, t0: float, ego: EgoFrame, p: Stage2Params, warni
     if obs is None:
         return None
     still = is_static(obs.t, obs.xy, p.static_speed(agent.category), p.static_min_displacement_m)
-    still = still and across_sight_m(obs.t, obs.xy, ego) <= p.static_max_across_m
     if still and not moves_in_video(agent, p):
         return _static_dense(agent, obs, ego, p)
     d = _moving_dense(agent, obs, ego, p)
     _extend_after(d, obs, ego, p, warnings)
     _extend_before(d, obs, ego, p)
     return d
-
-
-def across_sight_m(t: np.ndarray, xy: np.ndarray, ego: EgoFrame) -> float:
-    """How far (m) a road user's positions ``xy`` (N, 2) at times ``t`` stray from their mean position across
-    the ego's line of sight to them (the direction a monocular camera measures well)."""
-    ex, ey, _ = ego.box.at(t)
-    sight = xy - np.column_stack([ex, ey])
-    n = sight / np.maximum(np.hypot(sight[:, 0], sight[:, 1]), 1e-9)[:, None]
-    dev = xy - xy.mean(axis=0)
-    return float(np.abs(dev[:, 0] * -n[:, 1] + dev[:, 1] * n[:, 0]).max(initial=0.0))
 
 
 def moves_in_video(v: Vehicle, p: Stage2Params) -> bool:

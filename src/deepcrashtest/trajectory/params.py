@@ -43,10 +43,6 @@ class Stage2Params:
     """An agent whose net displacement / observed duration is below this is parked/static ..."""
     static_min_displacement_m: float = 1.0
     """... or whose net displacement is below this (label noise on a parked car), metres."""
-    static_max_across_m: float = 1.0
-    """... unless its smoothed path strays further than this (m) from its mean position across the ego's line of
-    sight, which one camera measures well (its bearing): ccd_000014's van pulling out at ~1 m/s moved 2 m sideways
-    and was held parked 1.4 m off its boxes (set a priori: above an ego-yaw drift of ~1 deg at 20 m)."""
     static_speed_pedestrian_mps: float = 0.4
     """``static_speed_mps`` for a pedestrian: people walk at 0.7-1.5 m/s (ccd_000882: a woman crossing at
     0.8 m/s for 1.4 s was held standing, and the crash correction swung the ego's rear into her)."""
