@@ -158,9 +158,7 @@ def reprojection_pairs(
             box = None
             iou = err = float("nan")
             if ego_pose is not None and pose is not None:
-                pb = project_box(
-                    camera, ego_pose, *pose, agent.length, agent.width, agent.height, image_size=size
-                )
+                pb = project_box(camera, ego_pose, *pose, agent.length, agent.width, agent.height, image_size=size)
                 box = pb.box
                 iou = float(iou_matrix(box, tracked)[0, 0]) if box is not None else 0.0
                 err = _centre_error(box, tracked) if box is not None else float("nan")
