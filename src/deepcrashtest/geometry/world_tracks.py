@@ -162,6 +162,7 @@ def raw_scenario_from_tracks(
     if len(ego) < 2:
         raise UserError("ego motion has fewer than 2 frames: the video is too short")
     source = _video_source(meta).model_copy(update={"time_offset_s": -float(ego.t[0])})
+    params: dict[str, Any] = {}
     warnings = list(ego.warnings) + (list(lanes.warnings) if lanes is not None else [])
 
     # ego: camera path -> ego centre (camera forward_offset ahead of the centre)
@@ -187,13 +188,16 @@ def raw_scenario_from_tracks(
         camera = camera.model_copy(update={"attitude": frame_attitude(states, camera, ego, pitch_change, horizon_v)})
         agents = _mono_agents(states, t0, origin, min_detected, warnings, min_confidence)
         method = "mono3d"
+        if camera.attitude is not None:
+            extra = " + ego-motion pitch" if wobble is not None else ""
+            params["camera_attitude"] = "boxes' per-frame horizon" + extra
     else:
         agents = _localized_agents(tracks, camera, ego, cam_xy, origin, localizer, size, t0, warnings)
         method = type(localizer).__name__
     return Scenario(
         name=name, stage="raw", source=source, camera=camera, ego=ego_vehicle, agents=agents,
         road=_road(ego_xy, lanes), warnings=warnings,
-        provenance=Provenance(command="extract", parameters={"localizer": method}, seed=seed),
+        provenance=Provenance(command="extract", parameters={"localizer": method, **params}, seed=seed),
     )  # fmt: skip
 
 
