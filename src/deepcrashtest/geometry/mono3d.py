@@ -562,11 +562,14 @@ def localize_tracks(
     out: dict[str, list[np.ndarray]] = {c: [] for c in OUTPUT_COLUMNS}
     if len(r.df) == 0:
         return pd.DataFrame({c: [] for c in OUTPUT_COLUMNS})
-    vh_rows = np.full(len(r.df), vh)
-    if pitch_change is not None:  # horizon row of the pitch + change: cy - fy tan(pitch + change)
+    sizes, cues, vh_rows = _sizes_and_cues(r, camera, image_size, np.full(len(r.df), vh), cfg)
+    if pitch_change is not None:  # each frame's depth cues against the horizon of its pitch: cy - fy tan(pitch)
         base = math.atan2(camera.cy - vh, camera.fy)
-        vh_rows = camera.cy - camera.fy * np.tan(base + np.asarray(pitch_change, dtype=float)[r.ego_i])
-    sizes, cues, vh_rows = _sizes_and_cues(r, camera, image_size, vh_rows, cfg)
+        pitched = camera.cy - camera.fy * np.tan(base + np.asarray(pitch_change, dtype=float)[r.ego_i])
+        # the sizes (and classes) stay those of the clip's horizon: they pool a track's frames, and a class
+        # flip moves the whole track (ccd_000014's car with a roof box became a car, 4 m nearer, and its
+        # crash no longer replayed)
+        _, cues, vh_rows = _sizes_and_cues(r, camera, image_size, pitched, cfg)
     for (s0, s1), size in zip(r.spans, sizes, strict=True):
         rows = np.arange(s0, s1)
         meas, covs, rng = _measurements(rows, size, cues, r, ego, camera, cfg)
