@@ -40,7 +40,7 @@ from deepcrashtest import __version__
 from deepcrashtest.errors import ScenarioError
 from deepcrashtest.fileio import atomic_write_text, require_file
 
-SCHEMA_VERSION = "1.1"
+SCHEMA_VERSION = "1.2"
 """Major.minor. A file with another major, or a newer minor, is refused; older minors are migrated on load
 (:func:`migrate`)."""
 
@@ -184,6 +184,28 @@ class VideoSource(_Model):
     )
 
 
+class CameraAttitude(_Model):
+    """The camera's pitch and roll frame by frame (a car pitches when it brakes, rolls and bounces on the road;
+    a road's grade changes under the road users): changes added to ``Camera.pitch_rad`` / ``roll_rad`` at each
+    video time (seconds, ``frame / fps``: independent of the scenario's time offset), linear in between, the
+    ends held outside."""
+
+    video_t: list[FiniteFloat] = Field(description="Video times, seconds, increasing")
+    pitch_rad: list[FiniteFloat] = Field(description="Downward pitch added to Camera.pitch_rad, radians")
+    roll_rad: list[FiniteFloat] = Field(description="Roll added to Camera.roll_rad, radians")
+
+    @model_validator(mode="after")
+    def _same_length(self) -> CameraAttitude:
+        n = len(self.video_t)
+        if n == 0 or len(self.pitch_rad) != n or len(self.roll_rad) != n:
+            raise ValueError("video_t, pitch_rad and roll_rad need the same (non-zero) length")
+        if n > 1 and not bool(np.all(np.diff(self.video_t) > 0)):
+            raise ValueError("video_t must increase")
+        if max(map(abs, self.pitch_rad)) > 0.5 or max(map(abs, self.roll_rad)) > 0.5:
+            raise ValueError("pitch/roll changes above 0.5 rad")
+        return self
+
+
 class Camera(_Model):
     """Pinhole camera. Camera frame: x right, y down, z forward (metres); image u right, v down (pixels)."""
 
@@ -221,6 +243,9 @@ class Camera(_Model):
     height_sigma_m: NonNegFloat | None = Field(
         default=None, description="1-sigma uncertainty of height_m, metres (None: not estimated)"
     )
+    attitude: CameraAttitude | None = Field(
+        default=None, description="Per-frame pitch/roll changes (None: the camera keeps pitch_rad/roll_rad)"
+    )
 
     def matrix(self) -> np.ndarray:
         """3x3 intrinsic matrix K."""
@@ -229,6 +254,17 @@ class Camera(_Model):
     def horizon_v(self) -> float:
         """Image row of the horizon, pixels (downward pitch puts the horizon above ``cy``)."""
         return self.cy - self.fy * math.tan(self.pitch_rad)
+
+    def at_video_time(self, video_t: float) -> Camera:
+        """This camera with its pitch and roll at video time ``video_t`` (s) and no attitude series."""
+        if self.attitude is None:
+            return self
+        a = self.attitude
+        dp = float(np.interp(video_t, a.video_t, a.pitch_rad))
+        dr = float(np.interp(video_t, a.video_t, a.roll_rad))
+        return self.model_copy(
+            update={"pitch_rad": self.pitch_rad + dp, "roll_rad": self.roll_rad + dr, "attitude": None}
+        )
 
 
 class SplineParams(_Model):
@@ -627,11 +663,14 @@ def migrate(data: dict[str, Any]) -> dict[str, Any]:
 
     1.0 -> 1.1: the video/scenario time mapping moves from ``provenance.parameters.video_time_offset_s``
     (processed files) and the ego's first frame into ``source.time_offset_s``; collisions get
-    ``source="video-auto"`` (the default).
+    ``source="video-auto"`` (the default). 1.1 -> 1.2: ``camera.attitude`` (optional) is new; nothing moves.
     """
-    if str(data.get("schema_version")) != "1.0":
+    if str(data.get("schema_version")) not in ("1.0", "1.1"):
         return data
     out = dict(data)
+    if str(data.get("schema_version")) == "1.1":
+        out["schema_version"] = SCHEMA_VERSION
+        return out
     out["schema_version"] = SCHEMA_VERSION
     src = out.get("source")
     ego = out.get("ego")

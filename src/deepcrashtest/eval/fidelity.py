@@ -149,6 +149,7 @@ def reprojection_pairs(
             "x2": tracked[2],
             "y2": tracked[3],
         }
+        camera = scenario.camera.at_video_time(float(scenario.video_time(t)))  # its pitch and roll then
         poses = {"processed": (pose_at(ego.id, t), pose_at(agent.id, t))}
         if sim is not None and agent.id in sim_col:
             poses["simulated"] = (_pose_sim(sim, sim_col[ego.id], t), _pose_sim(sim, sim_col[agent.id], t))
@@ -157,9 +158,7 @@ def reprojection_pairs(
             box = None
             iou = err = float("nan")
             if ego_pose is not None and pose is not None:
-                pb = project_box(
-                    scenario.camera, ego_pose, *pose, agent.length, agent.width, agent.height, image_size=size
-                )
+                pb = project_box(camera, ego_pose, *pose, agent.length, agent.width, agent.height, image_size=size)
                 box = pb.box
                 iou = float(iou_matrix(box, tracked)[0, 0]) if box is not None else 0.0
                 err = _centre_error(box, tracked) if box is not None else float("nan")

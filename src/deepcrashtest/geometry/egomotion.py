@@ -89,6 +89,10 @@ class EgoMotion:
     #: SLAM poses); None for image-based ego-motion, whose rotations are measured with the assumed
     #: focal length and so cannot calibrate it.
     pitch: np.ndarray | None = None
+    #: Per-frame camera tilt from the image rotations between frames (radians): ``tilt[:, 0]`` pitch (nose up
+    #: positive), ``tilt[:, 1]`` roll (clockwise as seen from behind positive), each integrated over the clip
+    #: from 0 at the first frame (so it drifts slowly; the fast part is the camera's wobble). None: not measured.
+    tilt: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.t)
@@ -384,6 +388,7 @@ class EgoMotionEstimator:
         self._states: list[EgoState] = []
         self._dt: list[float] = []
         self._dyaw: list[float] = []
+        self._dtilt: list[tuple[float, float]] = []  # (pitch, roll) change of each measured frame, rad
         self._x = self._y = self._yaw = 0.0
         self._last_time: float | None = None
         self._frame = 0
@@ -598,6 +603,7 @@ class EgoMotionEstimator:
             self._refill(cur, mask, keyframe=True)
             self._dt.append(0.0)
             self._dyaw.append(0.0)
+            self._dtilt.append((0.0, 0.0))
             state = EgoState(idx, float(time), 0.0, 0.0, 0.0, 0.0, 0.0, True)
             self._states.append(state)
             return state
@@ -607,6 +613,7 @@ class EgoMotionEstimator:
         raw: float | None = None
         var = 0.0
         dyaw = 0.0
+        dtilt = (0.0, 0.0)
         n_road = 0
         valid = True
         if pyr is None or self._pyr is None or not len(self._p):
@@ -642,6 +649,8 @@ class EgoMotionEstimator:
                     self._invalid += 1
                 else:
                     metres, dyaw, n_road, R, t, fit = res
+                    rot = cv2.Rodrigues(R.T)[0].ravel()  # the camera's turn: about x = pitch up, about z = roll
+                    dtilt = (float(rot[0]), float(rot[2]))
                     k = max(1, self._kf_frames)
                     if parallax >= 5.0 * self.static_flow_px:
                         self._vote_overlay(q0, q1, cur.shape)
@@ -659,6 +668,7 @@ class EgoMotionEstimator:
         speed = self._filter.step(dt, raw, var)
         self._dt.append(dt)
         self._dyaw.append(dyaw)
+        self._dtilt.append(dtilt)
         ds = speed * dt
         mid = self._yaw + 0.5 * dyaw
         self._x += ds * math.cos(mid)
@@ -753,6 +763,7 @@ class EgoMotionEstimator:
             valid=np.array([e.valid for e in s], dtype=bool),
             warnings=warnings,
             static=bool(static),
+            tilt=np.cumsum(np.asarray(self._dtilt, dtype=float).reshape(-1, 2), axis=0),
         )
         return _every_frame(measured, self._all) if len(self._all) > len(s) else measured
 
@@ -770,7 +781,8 @@ def _every_frame(m: EgoMotion, every: list[tuple[int, float]]) -> EgoMotion:
     x = np.interp(t, m.t, m.x) + m.speed[-1] * after * np.cos(mid)
     y = np.interp(t, m.t, m.y) + m.speed[-1] * after * np.sin(mid)
     speed = np.interp(t, m.t, m.speed)
-    return EgoMotion(frame, t, x, y, yaw, speed, m.yaw_rate[k], m.valid[k], m.warnings, m.static)
+    tilt = None if m.tilt is None else np.column_stack([np.interp(t, m.t, m.tilt[:, j]) for j in range(2)])
+    return EgoMotion(frame, t, x, y, yaw, speed, m.yaw_rate[k], m.valid[k], m.warnings, m.static, tilt=tilt)
 
 
 def scene_parallax(p0: np.ndarray, p1: np.ndarray, shape: tuple[int, int], grid: tuple[int, int] = (4, 6)) -> float:

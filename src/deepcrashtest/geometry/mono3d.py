@@ -75,7 +75,7 @@ CANDIDATES: dict[str, tuple[str, ...]] = {
 }
 OUTPUT_COLUMNS = (
     "frame", "time", "track_id", "category", "x", "y", "vx", "vy", "yaw", "speed",
-    "length", "width", "height", "range", "detected", "x1", "y1", "x2", "y2", "score",
+    "length", "width", "height", "range", "detected", "x1", "y1", "x2", "y2", "score", "horizon_v",
 )  # fmt: skip
 
 
@@ -289,22 +289,29 @@ def size_scale(tracks: pd.DataFrame, cues: _Cues, det: np.ndarray, camera: Camer
 
 
 def frame_horizon(
-    frames: np.ndarray, v_bottom: np.ndarray, z_size: np.ndarray, camera: Camera, vh: float, shrink: float = 2.0
+    frames: np.ndarray,
+    v_bottom: np.ndarray,
+    z_size: np.ndarray,
+    camera: Camera,
+    vh: float | np.ndarray,
+    shrink: float = 2.0,
 ) -> np.ndarray:
     """Per-row horizon (px): the frame's pitch wobble estimated from all its boxes.
 
     Each uncut box whose depth ``z_size`` (m) is known from its track's size implies a horizon row
     ``v_bottom - fy h / z_size``; the frame's median offset from ``vh`` (shrunk towards 0 by
-    ``n / (n + shrink)`` for n boxes, then a 3-frame running median) is added to ``vh``."""
+    ``n / (n + shrink)`` for n boxes, then a 3-frame running median) is added to ``vh``. ``vh``: one
+    row, or one per box (the camera's pitch at each box's frame)."""
     implied = v_bottom - camera.fy * camera.height_m / z_size
     ok = np.isfinite(implied)
+    vh = np.broadcast_to(np.asarray(vh, dtype=float), implied.shape)
     uniq, inv = np.unique(frames, return_inverse=True)
     off = np.zeros(len(uniq))
     for k in range(len(uniq)):
         m = ok & (inv == k)
         n = int(m.sum())
         if n:
-            off[k] = float(np.median(implied[m] - vh)) * n / (n + shrink)
+            off[k] = float(np.median(implied[m] - vh[m])) * n / (n + shrink)
     if len(off) >= 3:
         padded = np.r_[off[0], off, off[-1]]
         off = np.median(np.stack([padded[:-2], padded[1:-1], padded[2:]]), axis=0)
@@ -436,12 +443,13 @@ def _rows(tracks: pd.DataFrame, ego: EgoMotion) -> _Rows:
 
 
 def _sizes_and_cues(
-    r: _Rows, camera: Camera, image_size: tuple[int, int], vh: float, cfg: MonoConfig
-) -> tuple[list, _Cues]:
-    """Each track's size (:func:`_track_size`) and the rows' cues, with the per-frame horizon."""
+    r: _Rows, camera: Camera, image_size: tuple[int, int], vh: np.ndarray, cfg: MonoConfig
+) -> tuple[list, _Cues, np.ndarray]:
+    """Each track's size (:func:`_track_size`), the rows' cues and horizon rows (px): ``vh`` (per row)
+    moved by the per-frame horizon of the boxes (:func:`frame_horizon`)."""
     cats = r.df["category"].to_numpy(dtype=str)
     track_cat = [track_category(Counter(cats[a:b].tolist())) for a, b in r.spans]
-    cues = _cues(r.boxes, camera, image_size, np.full(len(r.df), vh), cfg)
+    cues = _cues(r.boxes, camera, image_size, vh, cfg)
     scale = size_scale(r.df, cues, r.detected, camera, cfg.size_scale_min_below_px) * cfg.prior_scale
 
     def sizes(choose: bool) -> list:
@@ -451,7 +459,7 @@ def _sizes_and_cues(
         ]
 
     if not cfg.frame_horizon:
-        return sizes(True), cues
+        return sizes(True), cues, vh
     first = sizes(False)  # the detector's classes first: the horizon must not depend on the class choice
     z_size = np.full(len(r.df), np.nan)
     for (a, b), sz in zip(r.spans, first, strict=True):
@@ -459,7 +467,7 @@ def _sizes_and_cues(
     z_size[~r.detected | cues.cut_v] = np.nan
     vh_rows = frame_horizon(r.frames, r.boxes[:, 3], z_size, camera, vh, cfg.horizon_shrink)
     cues = _cues(r.boxes, camera, image_size, vh_rows, cfg)
-    return sizes(True), cues
+    return sizes(True), cues, vh_rows
 
 
 def _measurements(
@@ -536,6 +544,7 @@ def localize_tracks(
     fps: float,
     config: MonoConfig | None = None,
     horizon_v: float | None = None,
+    pitch_change: np.ndarray | None = None,
 ) -> pd.DataFrame:
     """World-frame states of every track (columns :data:`OUTPUT_COLUMNS`), see the module docstring.
 
@@ -543,15 +552,24 @@ def localize_tracks(
     rows between detections are filled by the filter; rows before a track's first and after its last
     measured frame are dropped). ``ego``: the camera path, one entry per video frame in ``ego.frame``;
     rows of other frames are ignored. ``horizon_v``: the horizon row (pixels), else the camera's pitch
-    gives it. Positions are in the frame of ``ego.x``/``ego.y``; ``range`` is the camera-to-centre
-    ground distance (m) of each row's measurement."""
+    gives it. ``pitch_change``: the camera's downward pitch at each of ``ego``'s frames minus its pitch
+    (rad; :func:`~deepcrashtest.geometry.attitude.camera_wobble`), moving the horizon frame by frame.
+    Positions are in the frame of ``ego.x``/``ego.y``; ``range`` is the camera-to-centre ground distance (m)
+    of each row's measurement; ``horizon_v`` the horizon row (px) its box was read against (NaN: no box)."""
     cfg = config or MonoConfig()
     vh = camera.horizon_v() if horizon_v is None else float(horizon_v)
     r = _rows(tracks, ego)
     out: dict[str, list[np.ndarray]] = {c: [] for c in OUTPUT_COLUMNS}
     if len(r.df) == 0:
         return pd.DataFrame({c: [] for c in OUTPUT_COLUMNS})
-    sizes, cues = _sizes_and_cues(r, camera, image_size, vh, cfg)
+    sizes, cues, vh_rows = _sizes_and_cues(r, camera, image_size, np.full(len(r.df), vh), cfg)
+    if pitch_change is not None:  # each frame's depth cues against the horizon of its pitch: cy - fy tan(pitch)
+        base = math.atan2(camera.cy - vh, camera.fy)
+        pitched = camera.cy - camera.fy * np.tan(base + np.asarray(pitch_change, dtype=float)[r.ego_i])
+        # the sizes (and classes) stay those of the clip's horizon: they pool a track's frames, and a class
+        # flip moves the whole track (ccd_000014's car with a roof box became a car, 4 m nearer, and its
+        # crash no longer replayed)
+        _, cues, vh_rows = _sizes_and_cues(r, camera, image_size, pitched, cfg)
     for (s0, s1), size in zip(r.spans, sizes, strict=True):
         rows = np.arange(s0, s1)
         meas, covs, rng = _measurements(rows, size, cues, r, ego, camera, cfg)
@@ -565,6 +583,7 @@ def localize_tracks(
         sub = r.df.iloc[rows]
         t = sub["time"].to_numpy(float)
         boxes = {k: sub[k].to_numpy(float) for k in ("x1", "y1", "x2", "y2", "score")}
+        boxes["horizon_v"] = vh_rows[rows]
         det = r.detected[rows]
         if cfg.extend_s > 0:
             t_of = dict(zip(ego.frame.tolist(), ego.t.tolist(), strict=True))

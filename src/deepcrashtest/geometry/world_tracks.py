@@ -28,6 +28,7 @@ import pandas as pd
 from scipy.signal import savgol_filter
 
 from deepcrashtest.errors import UserError
+from deepcrashtest.geometry.attitude import camera_wobble
 from deepcrashtest.geometry.box_heading import fit_box_headings
 from deepcrashtest.geometry.egomotion import EgoMotion
 from deepcrashtest.geometry.localize import Localizer
@@ -37,6 +38,7 @@ from deepcrashtest.perception.roadusers import track_category
 from deepcrashtest.scenario import (
     MAX_SPEED_MPS,
     Camera,
+    CameraAttitude,
     LaneTimeline,
     Provenance,
     Road,
@@ -161,6 +163,7 @@ def raw_scenario_from_tracks(
     if len(ego) < 2:
         raise UserError("ego motion has fewer than 2 frames: the video is too short")
     source = _video_source(meta).model_copy(update={"time_offset_s": -float(ego.t[0])})
+    params: dict[str, Any] = {}
     warnings = list(ego.warnings) + (list(lanes.warnings) if lanes is not None else [])
 
     # ego: camera path -> ego centre (camera forward_offset ahead of the centre)
@@ -180,18 +183,52 @@ def raw_scenario_from_tracks(
     size = (source.width, source.height)
     if localizer is None:
         path = dataclasses.replace(ego, x=cam_xy[:, 0], y=cam_xy[:, 1])
-        states = localize_tracks(tracks, camera, path, size, source.fps, mono, horizon_v)
+        wobble = camera_wobble(ego, roll=False)
+        pitch_change = None if wobble is None else wobble[:, 0]
+        states = localize_tracks(tracks, camera, path, size, source.fps, mono, horizon_v, pitch_change)
+        camera = camera.model_copy(update={"attitude": frame_attitude(states, camera, ego, pitch_change, horizon_v)})
         agents = _mono_agents(states, t0, origin, min_detected, warnings, min_confidence)
         method = "mono3d"
+        if camera.attitude is not None:
+            extra = " + ego-motion pitch" if wobble is not None else ""
+            params["camera_attitude"] = "boxes' per-frame horizon" + extra
     else:
         agents = _localized_agents(tracks, camera, ego, cam_xy, origin, localizer, size, t0, warnings)
         method = type(localizer).__name__
     raw = Scenario(
         name=name, stage="raw", source=source, camera=camera, ego=ego_vehicle, agents=agents,
         road=_road(ego_xy, lanes), warnings=warnings,
-        provenance=Provenance(command="extract", parameters={"localizer": method}, seed=seed),
+        provenance=Provenance(command="extract", parameters={"localizer": method, **params}, seed=seed),
     )  # fmt: skip
     return fit_box_headings(raw, tracks)  # headings that fit the boxes, not only the noisy direction of motion
+
+
+def frame_attitude(
+    states: pd.DataFrame, camera: Camera, ego: EgoMotion, pitch_change: np.ndarray | None, horizon_v: float | None
+) -> CameraAttitude | None:
+    """The camera's pitch at each of ``ego``'s frames as the localisation read the boxes (the horizon rows of
+    :func:`~deepcrashtest.geometry.mono3d.localize_tracks`' ``states``; frames without a box: ``pitch_change``),
+    as a change of ``camera.pitch_rad``; None when it never changes (a fixed camera, no per-frame horizon)."""
+    vh0 = camera.horizon_v() if horizon_v is None else float(horizon_v)
+    pitch = np.full(len(ego.t), math.atan2(camera.cy - vh0, camera.fy))
+    if pitch_change is not None:
+        pitch = pitch + np.asarray(pitch_change, dtype=float)
+    if len(states) and "horizon_v" in states.columns:
+        rows = states[np.isfinite(states["horizon_v"].to_numpy(float))]
+        per_frame = rows.groupby("frame")["horizon_v"].median()
+        at = {int(f): i for i, f in enumerate(ego.frame)}
+        for f, v in per_frame.items():
+            i = at.get(int(f))  # type: ignore[arg-type]
+            if i is not None:
+                pitch[i] = math.atan2(camera.cy - float(v), camera.fy)
+    change = pitch - camera.pitch_rad
+    if len(change) == 0 or float(np.abs(change).max()) < 1e-6:
+        return None
+    return CameraAttitude(
+        video_t=[round(float(v), 6) for v in ego.t],
+        pitch_rad=[round(float(v), 5) for v in np.clip(change, -0.5, 0.5)],
+        roll_rad=[0.0] * len(change),
+    )
 
 
 def _mono_agents(

@@ -119,12 +119,13 @@ class FidelityPainter:
         frame = self.sc.video_frame(t)
         rows = self.by_frame.get(frame if frame is not None else -1)
         ious = dict(zip(rows["agent_id"], rows["simulated_iou"], strict=True)) if rows is not None else {}
+        camera = self.sc.camera.at_video_time(float(self.sc.video_time(t)))
         for i, vid in enumerate(sim.vehicle_ids):
             if vid == self.sc.ego.id or not sim.present[k, i]:
                 continue
             v = self.vehicles[vid]
             x, y, yaw = (float(s) for s in sim.states[k, i, :3])
-            seg = project_box_edges(self.sc.camera, ego_pose, x, y, yaw, v.length, v.width, v.height)  # type: ignore[arg-type]
+            seg = project_box_edges(camera, ego_pose, x, y, yaw, v.length, v.width, v.height)  # type: ignore[arg-type]
             colour = RED if vid in hot else id_colour(vid)
             _draw_segments(img, seg, colour, 2)
             if vid in ious and np.isfinite(ious[vid]) and len(seg):
@@ -135,8 +136,8 @@ class FidelityPainter:
                     _text(img, f"{vid} IoU {ious[vid]:.2f}", (int(max(u, 0)), int(max(v_ - 6, 14))), colour, 0.45)
         if hot and self.first is not None and self.first.get("point") is not None:
             px, py = self.first["point"]
-            cam = world_to_camera(np.array([[px, py, 0.5]]), self.sc.camera, *ego_pose)  # type: ignore[arg-type]
-            uv = project_camera_points(cam, self.sc.camera)[0]
+            cam = world_to_camera(np.array([[px, py, 0.5]]), camera, *ego_pose)  # type: ignore[arg-type]
+            uv = project_camera_points(cam, camera)[0]
             if np.isfinite(uv).all():
                 cv2.drawMarker(img, (int(uv[0]), int(uv[1])), RED, cv2.MARKER_TILTED_CROSS, 28, 3, cv2.LINE_AA)
 

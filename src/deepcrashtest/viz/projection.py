@@ -52,11 +52,12 @@ def projected_frames(scenario: Scenario, pose: PoseFn, frame_count: int, source:
         if ego is None:
             continue
         boxes = []
+        cam = scenario.camera.at_video_time(f / scenario.source.fps)
         for v in scenario.agents:
             p = pose(v.id, t)
             if p is None:
                 continue
-            seg = project_box_edges(scenario.camera, ego, *p, v.length, v.width, v.height).reshape(-1, 4)
+            seg = project_box_edges(cam, ego, *p, v.length, v.width, v.height).reshape(-1, 4)
             seg = seg[np.isfinite(seg).all(axis=1)]
             u, vv = seg[:, 0::2], seg[:, 1::2]
             if not len(seg) or u.max() < 0 or u.min() > w or vv.max() < 0 or vv.min() > h:
