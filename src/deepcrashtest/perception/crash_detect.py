@@ -392,14 +392,17 @@ def _reaches_border(g: pd.DataFrame, width: int) -> pd.Series:
 
 def knee_frame(s: pd.DataFrame, fps: float) -> int | None:
     """The first frame at which an approaching box stops growing (two frames in a row growing at less
-    than a third of its rate over the previous half second, and not more than ``KNEE_MAX_LATER_GROWTH``
+    than a third of its rate over the previous half second, frames repeating the last one left out of
+    that rate, and not more than ``KNEE_MAX_LATER_GROWTH``
     in log size over the next half second: a detector's box jumping to a larger one is not it): the
     other road user is at the bumper."""
     ls = s["log_size"].to_numpy(float)
     g = np.diff(ls)
     n_prev = max(2, int(round(0.5 * fps)))
     for k in range(n_prev, len(g) - 1):
-        rate = float(np.median(g[k - n_prev : k]))
+        prev = g[k - n_prev : k]
+        changed = prev[prev != 0.0]  # a resampled clip repeats frames: no growth there (ccd_000340 at 15 fps)
+        rate = float(np.median(changed)) if len(changed) else 0.0
         stays = ls[k + 1 : k + 1 + n_prev].max() - ls[k] < KNEE_MAX_LATER_GROWTH  # not a box jump
         if rate > 0.02 and s["near"].iloc[k] >= 0.3 and g[k] < rate / 3 and g[k + 1] < rate / 3 and stays:
             return int(s.index[k])

@@ -76,10 +76,18 @@ def ego_along_measured_yaw(raw: Scenario, window_s: float, warnings: list[str]) 
             "re-integrated along the camera's heading, the agents moved with it (as the camera saw them)"
         )
 
+    return carry_with_ego(raw, t, shift), largest
+
+
+def carry_with_ego(raw: Scenario, t: np.ndarray, shift: np.ndarray) -> Scenario:
+    """``raw`` with the ego and every agent moved by ``shift`` (N, 2) metres, given at the ego's sample times
+    ``t`` (N,) s and interpolated at each vehicle's own: the agents were placed relative to the camera and
+    stay where the camera saw them when the ego's path is corrected."""
+
     def moved(v: Vehicle) -> Vehicle:
         a = v.trajectory.arrays()
         dx, dy = np.interp(a["t"], t, shift[:, 0]), np.interp(a["t"], t, shift[:, 1])
         traj = v.trajectory.model_copy(update={"x": (a["x"] + dx).tolist(), "y": (a["y"] + dy).tolist()})
         return v.model_copy(update={"trajectory": traj})
 
-    return raw.evolve(ego=moved(raw.ego), agents=[moved(a) for a in raw.agents]), largest
+    return raw.evolve(ego=moved(raw.ego), agents=[moved(a) for a in raw.agents])

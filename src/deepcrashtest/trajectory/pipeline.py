@@ -57,9 +57,11 @@ from deepcrashtest.scenario import (
 )
 from deepcrashtest.trajectory.agentheading import with_observed_yaw
 from deepcrashtest.trajectory.collision import MOVING_MPS, first_contact, headings
+from deepcrashtest.trajectory.contact import ContactParams
 from deepcrashtest.trajectory.crash import CrashOutcome, earlier_touch, resolve_crash
 from deepcrashtest.trajectory.dense import EPS_T, Dense, EgoFrame, agent_dense, moves_in_video, span
 from deepcrashtest.trajectory.egoheading import ego_along_measured_yaw, smooth_series
+from deepcrashtest.trajectory.egotraction import ego_within_traction
 from deepcrashtest.trajectory.params import Stage2Params
 from deepcrashtest.trajectory.road import along_road, build_road, extend_head_on
 from deepcrashtest.trajectory.roadframe import RoadFrame
@@ -79,6 +81,7 @@ class _Run:
     t0: float
     warnings: list[str]
     ego_shift_m: float = 0.0
+    ego_retime_m: float = 0.0
 
     @property
     def jolt_at_crash(self) -> bool:
@@ -124,6 +127,9 @@ def _process_scenario(raw: Scenario, seed: int, params: Stage2Params | None) -> 
     _check_raw(raw)
     run = _Run(raw, params or Stage2Params(), float(raw.source.fps), float(raw.ego.trajectory.t[0]), list(raw.warnings))
     run.raw, run.ego_shift_m = ego_along_measured_yaw(raw, run.p.ego_yaw_window_s, run.warnings)
+    run.raw, run.ego_retime_m = ego_within_traction(
+        run.raw, run.p.savgol_window_s, ContactParams().kin_margin, run.warnings
+    )
     run.raw = _collision_with_seen_participants(run)
     run.raw = _collision_that_can_happen(run)
     ego_frame, ego = _ego_phase(run)
@@ -504,6 +510,7 @@ def _assemble(
             "stepback_accel_mps2": p.stepback_accel_mps2,
             "video_time_offset_s": t_max - run.t0,
             "ego_heading_shift_m": round(run.ego_shift_m, 3),
+            "ego_traction_shift_m": round(run.ego_retime_m, 3),
             "stage2": p.as_dict(),
         }
     )

@@ -1,0 +1,89 @@
+"""The ego within its traction: its measured distance along its path re-timed so that a vehicle can drive it.
+
+A dashcam's monocular ego-motion takes its metric scale from the road's parallax; where the road gives
+none for a while (snow, a textureless road, a rescaled or re-filmed copy of the clip) the speed is held
+and then jumps to the next measurement (ccd_000053 upscaled to 1920x1080: 1.4 -> 7 m/s within 1 s,
+6.4 m/s^2; filmed off a screen: 3.3 -> 9.7 m/s, 7.3 m/s^2). The simulator's vehicle accelerates at most
+``Kinematics.max_accel_mps2`` and brakes at most ``max_brake_mps2``: its replay of such a path lagged
+1-1.4 m behind it and missed the crash the scenario was made to have.
+
+Here the ego's distance along its (raw) path, smoothed as stage 2 smooths it, is replaced by the closest one
+(least squares, SciPy's bounded ``lsq_linear``) whose acceleration stays within ``margin`` x those limits
+(the rest is the replay's path follower's headroom), and every agent is moved with the ego at its time:
+the agents were placed relative to the camera and stay where the camera saw them (the raw scenario's
+reprojection is unchanged; the error of a held speed is the ego's, common to everything it placed). An
+ego that already keeps within the limits is unchanged. Times in seconds, positions in metres (world
+frame), accelerations in m/s^2.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import lsq_linear
+
+from deepcrashtest.scenario import Kinematics, Scenario, kinematics
+from deepcrashtest.trajectory.egoheading import carry_with_ego, smooth_series
+
+GRID_S = 0.1
+"""Spacing (s) of the re-timed profile's samples: its acceleration is constant between them."""
+MIN_TRAVEL_M = 1.0
+"""An ego that travels less than this (metres) is left alone (a parked camera's noise)."""
+
+
+def along_path(xy: np.ndarray, s: np.ndarray, s_new: np.ndarray) -> np.ndarray:
+    """Points (M, 2) at distances ``s_new`` (M,) along the path ``xy`` (N, 2) whose samples lie at the
+    non-decreasing distances ``s`` (N,); continued straight along the end steps beyond its ends."""
+    keep = np.concatenate([[True], np.diff(s) > 1e-9])
+    ss, pts = s[keep], xy[keep]
+    out = np.column_stack([np.interp(s_new, ss, pts[:, 0]), np.interp(s_new, ss, pts[:, 1])])
+    if len(ss) >= 2:
+        u0 = (pts[1] - pts[0]) / (ss[1] - ss[0])
+        u1 = (pts[-1] - pts[-2]) / (ss[-1] - ss[-2])
+        lo, hi = s_new < ss[0], s_new > ss[-1]
+        out[lo] = pts[0] + (s_new[lo] - ss[0])[:, None] * u0
+        out[hi] = pts[-1] + (s_new[hi] - ss[-1])[:, None] * u1
+    return out
+
+
+def bounded_profile(s: np.ndarray, dt: float, a_max: float, b_max: float) -> np.ndarray:
+    """The distances (M,) closest to ``s`` (M,) (least squares), sampled every ``dt`` s, whose second
+    differences / dt^2 lie in [-``b_max``, ``a_max``] and whose first speed is >= 0."""
+    m = len(s)
+    k = np.arange(m)[:, None]
+    j = np.arange(1, m - 1)[None, :]
+    A = np.hstack([np.ones((m, 1)), k * dt, dt * dt * np.maximum(k - j, 0)])
+    lb = np.concatenate([[-np.inf, 0.0], np.full(m - 2, -b_max)])
+    ub = np.concatenate([[np.inf, np.inf], np.full(m - 2, a_max)])
+    x = lsq_linear(A, s, bounds=(lb, ub), method="bvls").x
+    return np.maximum.accumulate(A @ x)  # never backwards
+
+
+def ego_within_traction(
+    raw: Scenario, window_s: float, margin: float, warnings: list[str], kin: Kinematics | None = None
+) -> tuple[Scenario, float]:
+    """``raw`` with the ego re-timed along its path within ``margin`` x its kinematics' acceleration and
+    braking (its speed smoothed over ``window_s`` s, as stage 2 smooths it) and every agent moved with it
+    (see the module docstring); returns it and the largest shift of the ego (metres, 0: unchanged)."""
+    kin = kin or kinematics(raw.ego.category)
+    e = raw.ego.trajectory.arrays()
+    t, xy = e["t"], np.column_stack([e["x"], e["y"]])
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))]) if len(t) > 1 else np.zeros(len(t))
+    if len(t) < 5 or s[-1] < MIN_TRAVEL_M:
+        return raw, 0.0
+    m = int(np.ceil((t[-1] - t[0]) / GRID_S - 1e-9)) + 1
+    tg = np.linspace(t[0], t[-1], m)
+    dt = float(tg[1] - tg[0])
+    sg = np.interp(tg, t, smooth_series(t, s, window_s))
+    a_max, b_max = margin * kin.max_accel_mps2, margin * kin.max_brake_mps2
+    acc = np.diff(sg, 2) / dt**2
+    if m < 4 or (acc.max() <= a_max and acc.min() >= -b_max):
+        return raw, 0.0
+    ds = np.interp(t, tg, bounded_profile(sg, dt, a_max, b_max) - sg)
+    shift = along_path(xy, s, s + ds) - xy
+    largest = float(np.hypot(*shift.T).max())
+    warnings.append(
+        f"ego: its measured speed changes at up to {max(acc.max(), -acc.min()):.1f} m/s^2 (ego-motion scale "
+        f"held where the road gave none?), more than a vehicle's {a_max:.1f} / -{b_max:.1f} m/s^2; re-timed "
+        f"along its path within them (moved up to {largest:.1f} m), the agents moved with it"
+    )
+    return carry_with_ego(raw, t, shift), largest
