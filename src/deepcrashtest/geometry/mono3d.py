@@ -118,7 +118,7 @@ class MonoConfig:
     contact_floor_rel: float = 0.06  # ... and all of them together no better than this (road shape)
     # detected boxes cut at the bottom and a side (no depth cue: a car the ego passes) at a track's ends are
     # carried by the motion model for at most this long (s)
-    carry_cut_s: float = 0.0
+    carry_cut_s: float = 0.5
 
 
 def class_size(category: str) -> tuple[float, float, float]:
