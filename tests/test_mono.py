@@ -280,3 +280,28 @@ def test_unknown_camera_held_out_0008(kitti_root):
     confirmed after 3 hits; goal 60; never used to choose a setting)."""
     rows = evaluate_mono(kitti_root, [8], camera="unknown")["sequences"]
     assert rows["0008"]["MOTA"] >= 51.0, rows["0008"]["MOTA"]
+
+
+def test_cut_boxes_at_a_track_end_are_carried(prep):
+    """Boxes cut at the bottom and a side (a car the ego passes: no depth cue) at a track's ends are carried by
+    the motion model for at most ``carry_cut_s``, detected, and within the 2 m gate of a labelled car (median)."""
+    from deepcrashtest.eval.kitti_mono import ego_of
+    from deepcrashtest.geometry.mono3d import localize_tracks
+
+    tracks = image_tracks(prep, DEFAULT_MONO)
+    ego = ego_of(prep.world)
+    cfg = DEFAULT_MONO.mono
+    on = localize_tracks(tracks, prep.camera, ego, prep.size, 10.0, cfg)
+    off = localize_tracks(tracks, prep.camera, ego, prep.size, 10.0, dataclasses.replace(cfg, carry_cut_s=0.0))
+    extra = on.merge(off[["track_id", "frame"]], how="left", indicator=True)
+    extra = extra[extra["_merge"] == "left_only"]
+    w, h = prep.size
+    assert len(extra) >= 5 and extra["detected"].all()
+    assert ((extra["y2"] >= h - 2) & ((extra["x1"] <= 1) | (extra["x2"] >= w - 2))).all()
+    for _, g in extra.groupby("track_id"):
+        assert len(g) <= round(cfg.carry_cut_s * 10.0) * 2
+    near = []
+    for _, row in extra.iterrows():  # each carried row against the nearest labelled car of its frame
+        gt = prep.ground_truth[int(row["frame"])].objects.world
+        near.append(np.hypot(gt[:, 0] - row["x"], gt[:, 1] - row["y"]).min() if len(gt) else np.inf)
+    assert np.median(near) < 2.0
