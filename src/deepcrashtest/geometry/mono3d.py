@@ -531,14 +531,12 @@ def _extension(
 
 def _measured_span(valid: np.ndarray, det: np.ndarray, frames: np.ndarray, fps: float, carry_s: float) -> slice:
     """Rows of a track from its first to its last measured one (``valid``: indices of the measured rows),
-    widened over the detected rows without a depth cue just outside them (at most ``carry_s`` seconds)."""
-    a, b = int(valid[0]), int(valid[-1])
+    widened to the farthest detected rows (without a depth cue) at most ``carry_s`` seconds outside them
+    (a detector run every few frames leaves predicted rows between them)."""
     reach = carry_s * fps
-    while a > 0 and det[a - 1] and frames[valid[0]] - frames[a - 1] <= reach:
-        a -= 1
-    while b + 1 < len(det) and det[b + 1] and frames[b + 1] - frames[valid[-1]] <= reach:
-        b += 1
-    return slice(a, b + 1)
+    near = np.nonzero(det & (np.abs(frames - frames[valid[0]]) <= reach) & (frames <= frames[valid[0]]))[0]
+    far = np.nonzero(det & (np.abs(frames - frames[valid[-1]]) <= reach) & (frames >= frames[valid[-1]]))[0]
+    return slice(int(near.min()) if len(near) else int(valid[0]), int(far.max()) + 1 if len(far) else int(valid[-1]) + 1)
 
 
 def _fps(ego: EgoMotion) -> float:
