@@ -536,7 +536,8 @@ def _measured_span(valid: np.ndarray, det: np.ndarray, frames: np.ndarray, fps: 
     reach = carry_s * fps
     near = np.nonzero(det & (np.abs(frames - frames[valid[0]]) <= reach) & (frames <= frames[valid[0]]))[0]
     far = np.nonzero(det & (np.abs(frames - frames[valid[-1]]) <= reach) & (frames >= frames[valid[-1]]))[0]
-    return slice(int(near.min()) if len(near) else int(valid[0]), int(far.max()) + 1 if len(far) else int(valid[-1]) + 1)
+    first = int(near.min()) if len(near) else int(valid[0])
+    return slice(first, int(far.max()) + 1 if len(far) else int(valid[-1]) + 1)
 
 
 def _fps(ego: EgoMotion) -> float:
