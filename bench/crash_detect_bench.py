@@ -12,12 +12,14 @@ positions (ccd_000014, 000053, 000132, 000340, 000721, 000882, 001143); report o
 
 Usage::
 
-    python bench/crash_detect_bench.py [--work DIR ...] [--clips a,b] [--json FILE]
+    python bench/crash_detect_bench.py [--work DIR ...] [--clips a,b] [--json FILE] [--labels FILE ...]
 
 Each clip's extraction is taken from the first ``--work`` folder that has it (default: the
 extractions of ``bench/fidelity_crashes.py`` in /tmp/deepcrashtest_fidelity). The camera's global motion (for
 the jolt) needs the video decoded once; it is cached as ``motion_<clip>.npz`` in ``--motion-cache``
-(default /tmp/crashdet_motion).
+(default /tmp/crashdet_motion). ``--labels /tmp/robust/labels.json --work /tmp/robust/out_TAG`` scores the
+variants of ``bench/robust_variants.py`` (their own videos, frame rates and picture inside black bars) in
+an "other" split.
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ from deepcrashtest.perception.boxes import iou_matrix  # noqa: E402
 from deepcrashtest.perception.crash_detect import GlobalMotion  # noqa: E402
 from deepcrashtest.pipeline.crash import crash_for_raw  # noqa: E402
 from deepcrashtest.scenario import Scenario  # noqa: E402
+from deepcrashtest.video.bars import video_picture_area  # noqa: E402
 from deepcrashtest.video.source import open_video  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -48,16 +51,21 @@ if not DATA.is_dir():
 LABELS = (ROOT / "bench" / "labels" / "dad_crashes.json", ROOT / "bench" / "labels" / "ccd_crashes.json")
 CCD_ALL = sorted(load_crash_labels(LABELS[1]))
 HELD_OUT = set(CCD_ALL[1::2])
+BASE = {n for f in LABELS for n in load_crash_labels(f)}
 CRASH_DT_S = 0.25
 
 
 def global_motion(video: Path, cache: Path, max_frames: int | None) -> tuple[np.ndarray, np.ndarray]:
-    """(frames, shifts) of the camera's global image motion, decoded once and cached."""
+    """(frames, shifts) of the camera's global image motion inside black bars (as extract measures it),
+    decoded once and cached."""
+    area = video_picture_area(video)
     f = cache / f"motion_{video.stem}.npz"
+    if area is not None and area[:2] != (0, 0):  # bars: not the cache of a motion measured over them
+        f = cache / f"motion_{video.stem}_{'-'.join(map(str, area))}.npz"
     if f.is_file():
         z = np.load(f)
         return z["frames"], z["shifts"]
-    gm = GlobalMotion()
+    gm = GlobalMotion(area=area)
     with open_video(video) as src:
         for fr in src:
             if max_frames is not None and fr.index >= max_frames:
@@ -96,9 +104,10 @@ def run_clip(name: str, label: CrashLabel, dirs: list[Path], cache: Path) -> dic
     tracks = pd.read_csv(d / "tracks.csv")
     last = int(tracks["frame"].max()) + 1 if len(tracks) else None
     motion = global_motion(DATA / label.video, cache, last if name.startswith("highway") else None)
-    scen, rec = crash_for_raw(raw, tracks, motion)
+    scen, rec = crash_for_raw(raw, tracks, motion, picture=video_picture_area(DATA / label.video))
     col = scen.collision
-    row: dict[str, Any] = {"clip": name, "split": "held-out" if name in HELD_OUT else "tune", "from": str(d.parent)}
+    split = "held-out" if name in HELD_OUT else "tune" if name in BASE else "other"
+    row: dict[str, Any] = {"clip": name, "split": split, "from": str(d.parent)}
     row["found"] = None if col is None else sorted(col.participants)
     row["frame"] = rec.get("frame")
     row["conf"] = rec.get("confidence")
@@ -146,10 +155,11 @@ def main() -> None:
     ap.add_argument("--clips", default=None)
     ap.add_argument("--motion-cache", type=Path, default=Path("/tmp/crashdet_motion"))
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--labels", type=Path, action="append", default=[], help="more label files (variants)")
     args = ap.parse_args()
     dirs = list(args.work or []) + [Path("/tmp/deepcrashtest_fidelity")]
     labels: dict[str, CrashLabel] = {}
-    for f in LABELS:
+    for f in (*LABELS, *args.labels):
         labels.update(load_crash_labels(f))
     names = args.clips.split(",") if args.clips else sorted(labels)
     rows = [run_clip(n, labels[n], dirs, args.motion_cache) for n in names]
@@ -157,7 +167,7 @@ def main() -> None:
     print(" | ".join(cols))
     for r in rows:
         print(" | ".join(str(r.get(c, "")) for c in cols))
-    for which in ("tune", "held-out"):
+    for which in ("tune", "held-out", "other"):
         print(summary(rows, which))
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))

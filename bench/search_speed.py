@@ -13,7 +13,10 @@
    the search used before): the simulator's speed-up, and a check that both give the same outcomes.
 
 Prints one JSON line. The figures are wall times of a machine that may be shared: the ratio, measured in
-one run, is the robust figure; ``search_cpu_s`` is the CPU time the search process and its workers used.
+one run, is the robust figure; ``search_cpu_s`` is the CPU time the search process and its workers used;
+``load_average`` (1-minute, before and after) says how shared the machine was. The CLI runs with Python's
+bytecode cache on (``PYTHONDONTWRITEBYTECODE`` dropped, the modules compiled once before the timed runs), as
+an installed package runs: without it every run compiles each module again (~0.2 s of CPU here).
 Usage: python bench/search_speed.py [--sequence 3] [--starts 500] [--noise-variants 4] [--workers N] [--stepwise 256]
        [--baseline-src OTHER_CHECKOUT/src] [--repeat 1]  (before/after: both CLIs alternately, same run)
 """
@@ -44,12 +47,26 @@ KITTI = ROOT.parent / "shared" / "data" / "kitti_tracking"
 
 
 def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-c", "import sys; from deepcrashtest.cli import main; sys.exit(main())", *args]
+    """The console command (``cli.run``; ``cli.main`` in a checkout without it)."""
+    code = "import sys, deepcrashtest.cli as c; r = getattr(c, 'run', None); sys.exit(r() if r else c.main())"
+    return [sys.executable, "-c", code, *args]
+
+
+def _env(src: Path) -> dict[str, str]:
+    """The CLI's environment: ``src`` first on the path, bytecode cached (as an installed package)."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    return {**env, "PYTHONPATH": str(src)}
+
+
+def _compile(src: Path) -> None:
+    """Compile the search's modules of ``src`` once (their bytecode cached beside them), untimed."""
+    imports = "import deepcrashtest.cli, deepcrashtest.config, deepcrashtest.search.run, deepcrashtest.search.plot"
+    subprocess.run([sys.executable, "-c", imports], check=True, env=_env(src))
 
 
 def _time_cli(cmd: list[str], src: Path) -> tuple[dict, float, float]:
     """Run the CLI with ``src`` first on the path: its JSON summary, wall seconds, CPU seconds (with children)."""
-    env = {**os.environ, "PYTHONPATH": str(src)}
+    env = _env(src)
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.run(_cli(*cmd), check=True, env=env, capture_output=True, text=True)
@@ -112,6 +129,9 @@ def main() -> None:
         srcs = {"search": ROOT / "src"}
         if args.baseline_src:
             srcs["baseline"] = Path(args.baseline_src).resolve()
+        for src in srcs.values():
+            _compile(src)
+        load_before = os.getloadavg()[0]
         runs: dict[str, list[tuple[float, float]]] = {k: [] for k in srcs}
         summaries: dict[str, dict] = {}
         for rep in range(args.repeat):
@@ -172,6 +192,7 @@ def main() -> None:
                 **steps,
                 "outputs": written,
                 "cpus": os.cpu_count(),
+                "load_average": [round(load_before, 1), round(os.getloadavg()[0], 1)],
                 "note": "wall times on a possibly shared machine; the ratio is measured in one run",
             }
         )

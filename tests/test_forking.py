@@ -1,14 +1,15 @@
-"""Forked: a function's result from a forked child, the same as computed here; failures raised here."""
+"""Forked and Helper: results from a forked child, the same as computed here; failures raised here."""
 
 from __future__ import annotations
 
 import os
+import signal
 import threading
 
 import numpy as np
 import pytest
 
-from deepcrashtest.forking import Forked
+from deepcrashtest.forking import Forked, Helper
 
 
 def _pid_and_sum(a: np.ndarray) -> tuple[int, float]:
@@ -50,3 +51,31 @@ def test_no_fork_while_other_python_threads_run():
     finally:
         stop.set()
         other.join()
+
+
+def test_helper_runs_its_jobs_in_order_in_one_child():
+    a = np.arange(200_000, dtype=float)
+    with Helper() as helper:
+        helper.submit(_pid_and_sum, a)
+        helper.submit(_pid_and_sum, a[:10])
+        (pid1, s1), (pid2, s2) = helper.results()
+    assert (s1, s2) == (float(a.sum()), float(a[:10].sum()))
+    if not _single_threaded():
+        pytest.skip("other threads run in this test process: no fork (by design)")
+    assert pid1 == pid2 != os.getpid()
+
+
+def test_helper_raises_a_jobs_error_here():
+    with Helper() as helper:
+        helper.submit(_fails, "bad table")
+        with pytest.raises(ValueError, match="bad table"):
+            helper.results()
+
+
+def test_a_killed_helper_is_not_trusted_its_jobs_run_here():
+    with Helper() as helper:
+        if helper._proc is not None:
+            os.kill(helper._proc.pid, signal.SIGKILL)
+            helper._proc.join()
+        helper.submit(_pid_and_sum, np.ones(4))
+        assert helper.results() == [(os.getpid(), 4.0)]

@@ -106,7 +106,10 @@ def test_self_calibration_recovers_the_kitti_camera(prep):
     assert abs(cam.height_m - 1.65) < 0.25
     assert cam.focal_sigma_px and cam.height_sigma_m and cam.horizon_sigma_px is not None
     without_ego = self_calibrate(tracks, start, prep.size, None)
-    assert without_ego.camera.fy == start.fy and any("prior kept" in n for n in without_ego.notes)
+    assert without_ego.camera.fy == start.fy and any("default 621 px kept" in n for n in without_ego.notes)
+    # the unmeasured default focal length says how uncertain it is (the true one is 14 % longer)
+    assert without_ego.camera.focal_sigma_px == pytest.approx(0.35 * start.fy)
+    assert without_ego.summary()["fy_sigma"] == pytest.approx(0.35 * start.fy, abs=0.1)
 
 
 def test_noisy_label_boxes_are_seeded(kitti_root, prep):
@@ -181,6 +184,19 @@ def test_pitch_bounce_calibrates_the_focal_where_parked_cars_mislead(kitti_root)
     echo = self_calibrate(tracks, start, p4.size, image_ego, ego_scaled_by_height=True)
     assert echo.camera.fy == start.fy and any("cannot calibrate" in n for n in echo.notes)
     assert echo.ego_scale == pytest.approx(echo.height_m / start.height_m)
+
+
+def test_turn_focal_removes_the_camera_swing(prep):
+    """Sequence 0014 (true fy 707 px): in a turn the camera, ahead of the rear axle, also steps sideways,
+    which moves the boxes the same way as the rotation: leaving that step in read the focal length 16 %
+    long (817 px); without it +6 % from the default 621 px (751 px) and +3 % from the true one."""
+    from deepcrashtest.geometry.selfcalib import focal_from_rotation
+
+    tracks = image_tracks(prep, DEFAULT_MONO)
+    ego = EgoMotion.from_poses(prep.world.poses, 10.0)
+    for fy0, tol in ((621.0, 0.08), (prep.camera.fy, 0.045)):
+        est = focal_from_rotation(tracks, prep.size, prep.size[0] / 2, ego, fy0)
+        assert est is not None and est[2] >= 100 and abs(est[0] / prep.camera.fy - 1.0) < tol, (fy0, est)
 
 
 #: Held-out MOTA floors (KITTI camera, PointRCNN 2D boxes): about 2 points under what the tuned

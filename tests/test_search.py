@@ -196,7 +196,7 @@ def test_cli_search_json(crash, tmp_path):
 
 
 def test_results_csv_text_is_pandas_to_csv(searched):
-    from deepcrashtest.search.outputs import csv_text
+    from deepcrashtest.search.table import csv_text
 
     out, _ = searched
     df = pd.read_csv(out / "results.csv")

@@ -24,7 +24,7 @@ def test_outcomes_are_drawn_at_their_offsets(tmp_path):
         }
     )
     boundary = {"angle_deg": [0.0, 90.0, 180.0, 270.0], "radius_m": [2.0, None, 2.0, 1.0]}
-    out = plot_starts(df, space, boundary, None, tmp_path / "starts.png", False, "four variants")
+    out = plot_starts(df, space.half_box, boundary, None, tmp_path / "starts.png", False, "four variants")
     img = cv2.imread(str(out))
     assert img is not None and img.shape[2] == 3
 

@@ -10,12 +10,16 @@ Conventions for every command:
 
 from __future__ import annotations
 
+import atexit
+import contextlib
 import json
+import os
 import sys
+import threading
 import traceback
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import typer
 from typer._click import exceptions as click_exc  # typer >= 0.29 vendors its own click
@@ -439,31 +443,33 @@ def search(
     Defaults in brackets come from ``SearchConfig``; a ``--config`` file's ``search:`` section overrides them.
     """
     _quiet_if_json(as_json)
-    from deepcrashtest.config import load_config
-    from deepcrashtest.search.run import run_search
+    from deepcrashtest.search.plot import start_helper  # light: the helper forks before the search's imports
 
-    cfg = load_config(config).with_search(
-        starts=starts,
-        noise_variants=noise_variants,
-        box_lateral=box_lateral,
-        box_longitudinal=box_longitudinal,
-        noise_sigma=noise_sigma,
-        controller=controller,
-        method=method,
-        seed=seed,
-        boundary_directions=boundary_directions,
-        max_scenarios=max_scenarios,
-        video=False if no_video else None,
-        duration=duration,
-    )
-    sc = _load(scenario)
-    emit(run_search(sc, output, cfg, engine=engine, workers=_workers(workers), force=force), as_json, _search_human)
+    with start_helper() as helper:  # it loads OpenCV on the other core while this process loads the simulator
+        from deepcrashtest.config import load_config
+        from deepcrashtest.search.run import run_search
+
+        cfg = load_config(config).with_search(
+            starts=starts,
+            noise_variants=noise_variants,
+            box_lateral=box_lateral,
+            box_longitudinal=box_longitudinal,
+            noise_sigma=noise_sigma,
+            controller=controller,
+            method=method,
+            seed=seed,
+            boundary_directions=boundary_directions,
+            max_scenarios=max_scenarios,
+            video=False if no_video else None,
+            duration=duration,
+        )
+        sc = _load(scenario)
+        summary = run_search(sc, output, cfg, engine=engine, workers=_workers(workers), force=force, helper=helper)
+    emit(summary, as_json, _search_human)
 
 
 def _workers(workers: int | None) -> int:
     """``--workers``: the CPU cores this process may use unless given."""
-    import os
-
     if workers is None:
         return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
     return workers
@@ -847,5 +853,22 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def run() -> NoReturn:
+    """The ``deepcrashtest`` console command: :func:`main`, then leave without Python's interpreter teardown.
+
+    After a command every output file is closed; what is left is freeing the process's objects and modules one
+    by one (a search: ~0.15 s of CPU, ~6 % of a 2,000-variant KITTI search on 2 cores). The exit handlers still
+    run and the standard streams are flushed; with another thread still running, the usual exit waits for it.
+    """
+    code = main()
+    if threading.active_count() > 1:
+        sys.exit(code)
+    atexit._run_exitfuncs()  # logging, multiprocessing, ... (what the interpreter's exit runs first)
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(OSError, ValueError):  # a closed pipe: nothing more to say
+            stream.flush()
+    os._exit(code)
+
+
 if __name__ == "__main__":  # pragma: no cover
-    raise SystemExit(main())
+    run()

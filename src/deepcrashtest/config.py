@@ -23,8 +23,6 @@ import os
 from dataclasses import dataclass, field
 from typing import Any
 
-import yaml
-
 from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import require_file
 from deepcrashtest.search.run import SearchConfig
@@ -56,6 +54,8 @@ def load_config(path: str | os.PathLike[str] | None) -> Config:
     """The defaults, with the YAML file at ``path`` (if any) merged over them."""
     if path is None:
         return Config()
+    import yaml  # only with a file (~15 ms of start-up otherwise)
+
     p = require_file(path, "config file")
     try:
         data = yaml.safe_load(p.read_text(encoding="utf-8"))

@@ -13,11 +13,16 @@ Evidence, per candidate pair and frame (each scored 0..1):
   (a spike of the global image motion's second difference against its median: the impact shakes
   the camera);
 * two tracks: their boxes touch or overlap in the image, they are close in 3D (``world``: their
-  ground positions, metres, less than ``CLOSE_3D_M`` apart beyond their half widths within
+  ground positions, metres, less than ``CLOSE_3D_M`` apart beyond their half widths within the last
   ``CLOSE_3D_WINDOW_S``; without ``world``, bottoms at a similar image row), and one of them changes
-  motion suddenly (a spike of the box centre's acceleration); discounted when a road user is at the
-  ego's bumper in the clip (near, approaching or with a jolt: not the ego's own bonnet). Two
-  pedestrians are never a crash pair.
+  motion suddenly (its box centre's velocity over ``CHANGE_SPAN_S`` after against before); discounted
+  when a road user is at the ego's bumper in the clip (near, approaching or with a jolt: not the ego's
+  own bonnet; in full when that ego crash scores ``EGO_CREDIBLE``). Two pedestrians are never a crash
+  pair.
+
+Every time scale is in seconds, every size a share of the picture (the picture inside black bars,
+``picture``, when the video has them): users' clips are resampled (frames repeated or dropped),
+upscaled and letterboxed.
 
 Only what the detector saw counts (with a ``state`` column, detected or predicted): a pair's evidence
 fades where a track coasts on the tracker's prediction (``SEEN_GAP_S``), the box jump where a coasting
@@ -62,18 +67,40 @@ ONSET_APART = 0.3
 #: An ego crash needs this much approach (closing) or jolt evidence at full score: a box at the bumper
 #: from the start without either is the ego's own bonnet or a queue (dad_000512: the bonnet as a "car").
 EGO_MIN_EVIDENCE = 0.3
+#: A road user at the ego's bumper discounts the pairs of tracks (an ego crash is the likelier one) in full when
+#: its ego crash scores at least EGO_CREDIBLE (the default cut), less in proportion below: a two-wheeler that
+#: passed close beside the ego 3 s before a third-party crash is no rival ego crash (dad_000478).
+EGO_CREDIBLE = 0.35
 #: A pair's contact frame is the first frame whose score reaches this share of its peak (0.9 -> 0.97 on
 #: dad_000550: 0.35 s early -> on the label; dad_000478 unchanged).
 PAIR_PEAK_SHARE = 0.97
 #: Two road users count as close in 3D when their ground-plane gap (centre distance less their half
 #: widths, metres) is under this; chosen on the DAD clips (labelled pairs 0-1 m, others >= 2.5 m).
 CLOSE_3D_M = 2.5
-#: ... at some time within this (s) of the frame (mono 3D positions jump by metres from frame to frame).
+#: ... at some time in the last CLOSE_3D_WINDOW_S (s) up to the frame (mono 3D positions jump by metres from
+#: frame to frame). Only before it: a window either side made the pair close up to 0.3 s before they met, and
+#: the contact that early (dad_000550 upscaled: 0.35 s early; dad_000512 0.1 s -> on the label).
 CLOSE_3D_WINDOW_S = 0.3
 #: ... and the last gap is held this long (s) after a road user's 3D positions end.
 CLOSE_3D_HOLD_S = 0.6
-#: A box edge within this many pixels of the image border is cut off by it.
-BORDER_PX = 4
+#: A road user's motion changes suddenly when its box centre's velocity over CHANGE_SPAN_S (s) after a
+#: frame differs from that before by CHANGE_FULL box widths per second (a box at least CHANGE_MIN_WIDTH of
+#: the image wide), and the change counts CHANGE_HOLD_S (s) either side. In seconds, not frames: the second
+#: difference of the box centre from frame to frame (full at 0.25 box widths) saturated on every frame of a
+#: clip resampled to 30 fps (its frames repeated) and on the tracker's corrections (upscaled dad_000550: a
+#: stall of the optical flow 0.4 s before the contact). The span 0.1 s spans the 3-frame pattern of 20 ->
+#: 30 fps; CHANGE_FULL chosen on the tune clips (5 as the old per-frame threshold at 20 fps: dad_000478
+#: 0.29 under the cut; 3.5: 0.38; 3: 0.42, the wrong pair of dad_000512 0.41 -> 0.45 against its 0.75).
+CHANGE_SPAN_S = 0.1
+CHANGE_FULL = 3.0
+CHANGE_MIN_WIDTH = 20 / 1280
+CHANGE_HOLD_S = 0.1
+#: Box sizes (px) divided by are at least this share of the picture's width (10 px at 1280).
+MIN_BOX_SHARE = 10 / 1280
+#: Box growth (closing) and nearness are smoothed over at least this long (s; 3 frames at 10-20 fps).
+SMOOTH_S = 0.15
+#: A box edge within this share of the picture's width (4 px at 1280) of its border is cut off by it.
+BORDER_SHARE = 4 / 1280
 #: ... and a box growing more than this (log size) in the frame it reaches the border jumped onto it
 #: (chosen on the tune clips: ccd_000014 0.33, ccd_001143 0.26 jumped; ccd_000132 0.07 grew).
 BORDER_JUMP = 0.15
@@ -237,28 +264,46 @@ def _per_track(tracks: pd.DataFrame, fps: float) -> dict[int, pd.DataFrame]:
 
 
 def _growth(g: pd.DataFrame, fps: float) -> pd.Series:
-    """d ln(box size)/dt (1/s), smoothed over 3 frames: 1/TTC when the track approaches."""
+    """d ln(box size)/dt (1/s), smoothed over :func:`_smooth_frames`: 1/TTC when the track approaches."""
     w = g["x2"].to_numpy(float) - g["x1"].to_numpy(float)
     h = g["y2"].to_numpy(float) - g["y1"].to_numpy(float)
     dt = np.maximum(np.diff(g.index.to_numpy(float)) / fps, 1e-6)
     r = np.r_[0.0, np.diff(np.log(np.sqrt(np.maximum(w * h, 1.0)))) / dt]
-    return pd.Series(r, index=g.index).rolling(3, center=True, min_periods=1).mean()
+    return pd.Series(r, index=g.index).rolling(_smooth_frames(fps), center=True, min_periods=1).mean()
 
 
-def _motion_change(g: pd.DataFrame, width: int) -> pd.Series:
-    """0..1 per frame: a sudden change of the box centre's velocity or of its size (fraction of width);
-    none where a track coasting on its prediction is detected again (``reacquired``)."""
+def _smooth_frames(fps: float) -> int:
+    """An odd number of frames, at least 3, spanning at least ``SMOOTH_S`` (3 at 10-20 fps, 5 at 30 fps: a
+    clip resampled to 30 fps repeats every third frame, its box growth 0 there and double the next)."""
+    return max(3, int(round(SMOOTH_S * fps)) | 1)
+
+
+def _border(width: int) -> float:
+    """The margin (px) within which a box edge is on the picture's border (``BORDER_SHARE``)."""
+    return BORDER_SHARE * width
+
+
+def _motion_change(g: pd.DataFrame, width: int, fps: float) -> pd.Series:
+    """0..1 per frame: a sudden change of the box centre's velocity (:data:`CHANGE_SPAN_S` before against
+    after, in box widths per second, at least :data:`CHANGE_MIN_WIDTH` of the image), full at
+    :data:`CHANGE_FULL` and held :data:`CHANGE_HOLD_S` either side; none within a span of either end of the
+    track or where a track coasting on its prediction is detected again (``reacquired``)."""
+    t = g.index.to_numpy(float) / fps
     cx = ((g["x1"] + g["x2"]) / 2).to_numpy(float)
     cy = ((g["y1"] + g["y2"]) / 2).to_numpy(float)
-    w = (g["x2"] - g["x1"]).to_numpy(float)
+    w = np.maximum((g["x2"] - g["x1"]).to_numpy(float), CHANGE_MIN_WIDTH * width)
+    tau = CHANGE_SPAN_S
     a = np.zeros(len(g))
-    if len(g) >= 3:
-        a[1:-1] = np.hypot(cx[2:] - 2 * cx[1:-1] + cx[:-2], cy[2:] - 2 * cy[1:-1] + cy[:-2]) / np.maximum(w[1:-1], 20)
+    inside = (t - tau >= t[0] - 1e-9) & (t + tau <= t[-1] + 1e-9) & (t > t[0]) & (t < t[-1])
+    if inside.any():
+        d2 = [np.interp(t + tau, t, c) - 2 * c + np.interp(t - tau, t, c) for c in (cx, cy)]
+        a = np.where(inside, np.hypot(*d2) / tau / w, 0.0)  # velocity change, widths/s
     if "reacquired" in g.columns:  # the tracker correcting its prediction, not the road user's motion
-        r = g["reacquired"].to_numpy(bool)
-        a[r | np.r_[r[1:], False] | np.r_[False, r[:-1]]] = 0.0
-    s = pd.Series(np.clip(a / 0.25, 0, 1), index=g.index)
-    return s.rolling(5, center=True, min_periods=1).max()
+        tr = t[g["reacquired"].to_numpy(bool)]
+        if len(tr):
+            a[np.abs(t[:, None] - tr[None, :]).min(axis=1) <= max(tau, 1 / fps) + 1e-9] = 0.0
+    hold = 2 * int(round(CHANGE_HOLD_S * fps)) + 1
+    return pd.Series(np.clip(a / CHANGE_FULL, 0, 1), index=g.index).rolling(hold, center=True, min_periods=1).max()
 
 
 def ego_scores(
@@ -272,7 +317,7 @@ def ego_scores(
     wide = np.clip(((x2 - x1) / width - 0.12) / 0.3, 0, 1)
     tall = np.clip(((y2 - y1) / height - 0.35) / 0.4, 0, 1)  # a person or two-wheeler close in front
     raw_near = np.maximum(wide, tall) * np.clip((y2 / height - 0.55) / 0.3, 0, 1)
-    near = pd.Series(raw_near, index=g.index).rolling(3, center=True, min_periods=1).max()
+    near = pd.Series(raw_near, index=g.index).rolling(_smooth_frames(fps), center=True, min_periods=1).max()
     closing = np.clip(_growth(g, fps).to_numpy(), 0, 1.5) / 1.5  # d ln(size)/dt = 1.5/s (TTC 0.67 s) -> 1
     j = pd.Series([jolt.get(int(f), 0.0) for f in g.index.to_numpy(int)], index=g.index)
     edge = _reaches_border(g, width)
@@ -302,7 +347,7 @@ def _knocked_over(g: pd.DataFrame, width: int, height: int) -> pd.Series:
         return out  # a two-wheeler's riders are detected as people (dad_000487), not knocked over
     w = np.maximum((g["x2"] - g["x1"]).to_numpy(float), 1.0)
     aspect = (g["y2"] - g["y1"]).to_numpy(float) / w
-    m = BORDER_PX
+    m = _border(width)
     cut = ((g["x1"] <= m) | (g["x2"] >= width - m) | (g["y1"] <= m) | (g["y2"] >= height - m)).to_numpy()
     for k in range(2, len(g)):
         if aspect[k] < FALLEN_ASPECT and not cut[k] and np.median(aspect[:k]) >= UPRIGHT_ASPECT:
@@ -318,7 +363,8 @@ def _exits(g: pd.DataFrame, width: int, fps: float, clip_end: int | None = None)
     frame): it drove past the ego, out of the view."""
     f = g.index.to_numpy(int)
     w = (g["x2"] - g["x1"]).to_numpy(float)
-    side = ((g["x1"] <= BORDER_PX) | (g["x2"] >= width - BORDER_PX)).to_numpy()
+    m = _border(width)
+    side = ((g["x1"] <= m) | (g["x2"] >= width - m)).to_numpy()
     n = EXIT_WINDOW_S * fps
     gone = bool(side[-1]) and clip_end is not None and f[-1] < clip_end  # the track ends on a side border
     out = np.zeros(len(f), bool)
@@ -335,7 +381,7 @@ def _reaches_border(g: pd.DataFrame, width: int) -> pd.Series:
     growing there, and the road user fills the image on which the camera's motion is measured (a
     "jolt" that is its own motion): a knee or jolt in that frame marks the road user arriving, the
     contact comes a frame later at the earliest (ccd_000014, ccd_001143: 2-3 frames before the label)."""
-    m = BORDER_PX
+    m = _border(width)
     at = np.column_stack([g["x1"] <= m, g["x2"] >= width - m, g["y1"] <= m]).astype(bool)
     prev = np.vstack([np.zeros((1, 3), bool), at[:-1]])
     w, h = (g["x2"] - g["x1"]).to_numpy(float), (g["y2"] - g["y1"]).to_numpy(float)
@@ -437,7 +483,7 @@ def _extended(w: WorldTrack, frames: float) -> WorldTrack:
 
 
 def close_3d(a: WorldTrack, b: WorldTrack, frames: np.ndarray, fps: float) -> np.ndarray:
-    """0..1 per frame: 1 when the two road users' ground gap (m) is 0 at some time within
+    """0..1 per frame: 1 when the two road users' ground gap (m) was 0 at some time in the last
     ``CLOSE_3D_WINDOW_S``, 0 from ``CLOSE_3D_M`` on. Each is carried at constant velocity for
     ``CLOSE_3D_HOLD_S`` beyond its 3D positions (a road user at the contact is often partly hidden
     and no longer placed in 3D); NaN where unknown."""
@@ -454,7 +500,7 @@ def close_3d(a: WorldTrack, b: WorldTrack, frames: np.ndarray, fps: float) -> np
     )
     gap = pd.Series(np.maximum(d - a.half_width - b.half_width, 0.0), index=grid.astype(int))
     k = max(1, int(round(CLOSE_3D_WINDOW_S * fps)))
-    gap = gap.rolling(2 * k + 1, center=True, min_periods=1).min()
+    gap = gap.rolling(k + 1, min_periods=1).min()
     g = gap.reindex(frames.astype(int)).to_numpy(float)
     return np.clip(1 - g / CLOSE_3D_M, 0, 1)
 
@@ -482,12 +528,14 @@ def pair_scores(
     ix = np.minimum(a["x2"], b["x2"]) - np.maximum(a["x1"], b["x1"])
     iy = np.minimum(a["y2"], b["y2"]) - np.maximum(a["y1"], b["y1"])
     scale = np.minimum(a["x2"] - a["x1"], b["x2"] - b["x1"])
-    touch = np.clip(1 + np.minimum(ix, iy) / np.maximum(scale, 10) / 0.15, 0, 1) * (iy > 0)
-    hb = np.maximum(np.maximum(a["y2"] - a["y1"], b["y2"] - b["y1"]), 10)
+    least = MIN_BOX_SHARE * width
+    touch = np.clip(1 + np.minimum(ix, iy) / np.maximum(scale, least) / 0.15, 0, 1) * (iy > 0)
+    hb = np.maximum(np.maximum(a["y2"] - a["y1"], b["y2"] - b["y1"]), least)
     rows = np.clip(1 - np.abs(a["y2"].to_numpy(float) - b["y2"].to_numpy(float)) / np.asarray(hb, float) / 0.35, 0, 1)
     near3 = close_3d(*world, common.to_numpy(), fps) if world is not None else np.full(len(common), np.nan)
     depth = pd.Series(np.where(np.isfinite(near3), near3, rows), index=common)
-    change = pd.Series(np.maximum(_motion_change(a, width).to_numpy(), _motion_change(b, width).to_numpy()), common)
+    changes = [_motion_change(t, width, fps).to_numpy() for t in (a, b)]
+    change = pd.Series(np.maximum(*changes), common)
     onset = _onset(pd.Series(np.asarray(touch, float), index=common), fps, entered)
     score = touch * depth * (0.2 + 0.8 * change) * onset * seen
     hidden = hidden_behind(a, b, scene, np.asarray(score, float) > 0) if scene is not None else np.zeros(len(common))
@@ -547,7 +595,8 @@ def entered_view(g: pd.DataFrame, width: int, height: int, first_frame: int) -> 
     """Whether the track came into the view during the clip (it starts after ``first_frame``) with its
     first box on the left, right or bottom image border: before, it was apart from everything in view."""
     x1, x2, y2 = (float(g[c].iloc[0]) for c in ("x1", "x2", "y2"))
-    at_border = x1 <= BORDER_PX or x2 >= width - BORDER_PX or y2 >= height - BORDER_PX
+    m = _border(width)
+    at_border = x1 <= m or x2 >= width - m or y2 >= height - m
     return bool(int(g.index[0]) > first_frame and at_border)
 
 
@@ -576,11 +625,13 @@ def detect_crash(
     allowed: set[int] | None = None,
     frames: tuple[int, int] | None = None,
     world: dict[int, WorldTrack] | None = None,
+    picture: tuple[int, int, int, int] | None = None,
 ) -> CrashFinding | None:
     """The most likely crash (module docstring), or None. ``motion`` = (frames, shifts) of
     :class:`GlobalMotion`; only tracks in ``allowed`` (if given) and frames in ``frames`` (inclusive);
-    ``world``: ground positions per track id (close in 3D; a pair without them uses the image rows)."""
-    cands = crash_candidates(tracks, width, height, fps, motion, allowed, frames, world)
+    ``world``: ground positions per track id (close in 3D; a pair without them uses the image rows);
+    ``picture``: the picture ``(x0, y0, x1, y1)`` (px) inside black bars (:func:`in_picture`)."""
+    cands = crash_candidates(tracks, width, height, fps, motion, allowed, frames, world, picture)
     if not cands:
         return None
     score, frame, pair, ev = cands[0]
@@ -598,9 +649,11 @@ def crash_candidates(
     allowed: set[int] | None = None,
     frames: tuple[int, int] | None = None,
     world: dict[int, WorldTrack] | None = None,
+    picture: tuple[int, int, int, int] | None = None,
 ) -> list[Candidate]:
     """Every candidate crash (each ego + track and each pair of tracks at its best frame), best first
     (arguments as :func:`detect_crash`)."""
+    tracks, width, height = in_picture(tracks, width, height, picture)
     per = {k: g for k, g in _per_track(tracks, fps).items() if allowed is None or k in allowed}
     clip_end = int(tracks["frame"].max()) if len(tracks) else None
     scene = scene_boxes(tracks)
@@ -613,7 +666,7 @@ def crash_candidates(
         if len(s):
             score, frame, ev = ego_best(s, fps)
             cands.append((score, frame, (EGO, tid), ev))
-    ego_near = max((_at_bumper(c[3]) for c in cands), default=0.0)
+    ego_near = max((_at_bumper(c[3]) * min(1.0, c[0] / EGO_CREDIBLE) for c in cands), default=0.0)
     ids = sorted(per)
     cats = _categories(tracks)
     first = int(tracks["frame"].min()) if len(tracks) else 0
@@ -630,6 +683,24 @@ def crash_candidates(
                 score, frame, pair, ev = _best(s, (ta, tb))
                 cands.append((score * (1 - 0.5 * ego_near), frame, pair, ev))
     return sorted(cands, key=lambda c: -c[0])
+
+
+def in_picture(
+    tracks: pd.DataFrame, width: int, height: int, picture: tuple[int, int, int, int] | None
+) -> tuple[pd.DataFrame, int, int]:
+    """The tracks' boxes in the coordinates of the picture ``(x0, y0, x1, y1)`` (px) inside black bars,
+    and the picture's width and height (px), each box clipped to the picture: every image share (near,
+    wide, tall), border and row test is the picture's, not the frame's, and a box the tracker's optical
+    flow carried into a bar is cut at the picture's edge (letterboxed ccd_000132: the car's box at the
+    bumper jumping between the picture's bottom and 40 px into the bar hid where it stopped growing, the
+    crash found 0.6 s late). Unchanged without ``picture`` or when it is the whole frame."""
+    if picture is None or tuple(picture) == (0, 0, width, height):
+        return tracks, width, height
+    x0, y0, x1, y1 = (int(v) for v in picture)
+    w, h = x1 - x0, y1 - y0
+    x = {c: (tracks[c] - x0).clip(0, w) for c in ("x1", "x2")}
+    y = {c: (tracks[c] - y0).clip(0, h) for c in ("y1", "y2")}
+    return tracks.assign(**x, **y), w, h
 
 
 def _at_bumper(ev: dict[str, float]) -> float:

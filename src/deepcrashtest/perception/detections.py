@@ -43,3 +43,35 @@ class Detector(Protocol):
     name: str
 
     def __call__(self, image: np.ndarray) -> Detections: ...
+
+
+class InPicture:
+    """``detector`` run on the picture ``area = (x0, y0, x1, y1)`` (px) inside black bars, its boxes
+    (and masks) put back in frame pixels. The bars are no part of the scene, and a detector that
+    scales the whole frame to its input sees the picture smaller than without them (letterboxed
+    dad_000478: 1280x960 at 864x648 instead of 1280x720 at 864x480, the scooter missed at the crash)."""
+
+    def __init__(self, detector: Detector, area: tuple[int, int, int, int]) -> None:
+        self.detector = detector
+        self.area = tuple(int(v) for v in area)
+        self.name = detector.name
+
+    def __call__(self, image: np.ndarray) -> Detections:
+        x0, y0, x1, y1 = self.area
+        h, w = image.shape[:2]
+        if (x0, y0, x1, y1) == (0, 0, w, h):
+            return self.detector(image)
+        det = self.detector(np.ascontiguousarray(image[y0:y1, x0:x1]))
+        boxes = (det.boxes + np.array([x0, y0, x0, y0], det.boxes.dtype)).astype(np.float32)
+        masks = None
+        if det.masks is not None:
+            masks = np.zeros((len(det), h, w), bool)
+            masks[:, y0:y1, x0:x1] = det.masks
+        return Detections(boxes, det.scores, det.categories, masks)
+
+
+def in_picture(detector: Detector, area: tuple[int, int, int, int] | None, width: int, height: int) -> Detector:
+    """``detector`` on the picture inside black bars (:class:`InPicture`); itself without bars."""
+    if area is None or tuple(area) == (0, 0, width, height):
+        return detector
+    return InPicture(detector, area)

@@ -60,17 +60,20 @@ def crash_for_raw(
     tracks: pd.DataFrame,
     motion: tuple[np.ndarray, np.ndarray] | None,
     spec: CrashSpec | None = None,
+    picture: tuple[int, int, int, int] | None = None,
 ) -> tuple[Scenario, dict[str, Any]]:
-    """The raw scenario with its crash (see the module docstring) and the provenance record."""
+    """The raw scenario with its crash (see the module docstring) and the provenance record;
+    ``picture``: the picture ``(x0, y0, x1, y1)`` (px) inside black bars, if any
+    (:func:`deepcrashtest.video.bars.video_picture_area`)."""
     fps = float(raw.source.fps)
     agents = {a.id for a in raw.agents}
     w, h = raw.source.width, raw.source.height
     finding: CrashFinding | None
     source: CollisionSource
     if spec is not None:
-        finding, source = _user_crash(spec, raw, tracks, motion, agents), "user"
+        finding, source = _user_crash(spec, raw, tracks, motion, agents, picture), "user"
     else:
-        finding = detect_crash(tracks, w, h, fps, motion, allowed=agents, world=world_tracks(raw))
+        finding = detect_crash(tracks, w, h, fps, motion, allowed=agents, world=world_tracks(raw), picture=picture)
         source = "video-auto"
     if finding is None:
         record: dict[str, Any] = {
@@ -78,7 +81,7 @@ def crash_for_raw(
             "source": source,
             "method": "image evidence (perception.crash_detect)",
         }
-        return _with_record(raw, record, None), record
+        return _with_record(raw, _bars(record, picture, w, h), None), record
     t_video = finding.frame / fps
     t = float(raw.scenario_time(t_video))
     t_ego = raw.ego.trajectory.t
@@ -95,9 +98,17 @@ def crash_for_raw(
     }
     if spec is not None:
         record["user_spec"] = spec.text
+    _bars(record, picture, w, h)
     conf = None if source == "user" else finding.confidence
     collision = Collision(time_s=t, other_id=a, agent_id=b, source=source, confidence=conf)
     return _with_record(raw, record, collision), record
+
+
+def _bars(record: dict[str, Any], picture: tuple[int, int, int, int] | None, w: int, h: int) -> dict[str, Any]:
+    """``record`` with the picture inside black bars (``picture_area``, px), when there are bars."""
+    if picture is not None and tuple(picture) != (0, 0, w, h):
+        record["picture_area"] = [int(v) for v in picture]
+    return record
 
 
 def world_tracks(raw: Scenario) -> dict[int, WorldTrack]:
@@ -119,7 +130,12 @@ def _with_record(raw: Scenario, record: dict[str, Any], collision: Collision | N
 
 
 def _user_crash(
-    spec: CrashSpec, raw: Scenario, tracks: pd.DataFrame, motion: tuple[np.ndarray, np.ndarray] | None, agents: set[int]
+    spec: CrashSpec,
+    raw: Scenario,
+    tracks: pd.DataFrame,
+    motion: tuple[np.ndarray, np.ndarray] | None,
+    agents: set[int],
+    picture: tuple[int, int, int, int] | None = None,
 ) -> CrashFinding:
     fps = float(raw.source.fps)
     last = (
@@ -140,7 +156,7 @@ def _user_crash(
     win = int(np.ceil(AUTO_PAIR_WINDOW_S * fps))
     found = detect_crash(
         tracks, raw.source.width, raw.source.height, fps, motion, allowed=agents, min_score=0.0,
-        frames=(spec.frame - win, spec.frame + win), world=world_tracks(raw),
+        frames=(spec.frame - win, spec.frame + win), world=world_tracks(raw), picture=picture,
     )  # fmt: skip
     if found is None:
         raise UserError(f"--crash {spec.text!r}: no road user is near frame {spec.frame}; name the pair (FRAME:ID,ID)")

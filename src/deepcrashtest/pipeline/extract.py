@@ -33,7 +33,7 @@ from deepcrashtest.fileio import atomic_path, check_writable, ensure_output_dir,
 from deepcrashtest.geometry.camera import default_camera
 from deepcrashtest.perception.annotate import Annotator
 from deepcrashtest.perception.detect import DEFAULT_DETECTOR, make_detector
-from deepcrashtest.perception.detections import Detector
+from deepcrashtest.perception.detections import Detector, in_picture
 from deepcrashtest.perception.lanes import LaneState, draw_lanes
 from deepcrashtest.perception.track import FrameTracks, detect_ahead, frame_records, records_table, track_detected
 from deepcrashtest.pipeline.geometry_pass import GeometryResult, TrackRows, extract_geometry
@@ -177,7 +177,8 @@ def _run_pass(
     if geo is not None:  # before anything is written: a bad --crash id refuses the whole set
         from deepcrashtest.pipeline.crash import crash_for_raw
 
-        geo.scenario, crash_info = crash_for_raw(geo.scenario, df, plan.motion.arrays(), crash_spec)
+        motion = plan.motion
+        geo.scenario, crash_info = crash_for_raw(geo.scenario, df, motion.arrays(), crash_spec, motion.area)
     with atomic_path(paths["tracks_csv"], force=force) as tmp:
         df.to_csv(tmp, index=False, float_format="%.3f")
     result = _summary(plan, meta, df, elapsed)
@@ -325,7 +326,8 @@ class _Pass:
                 frames = _watched(frames, self._shot_watch(meta), self.max_frames)
             frames = stack.enter_context(closing(prefetch(frames, 8, "decode")))
             every = max(1, min(self.detect_every, int(meta.fps * MAX_DETECT_GAP_S + 1e-6)))
-            detected = detect_ahead(itertools.islice(frames, self.max_frames), self.det, every)
+            det = in_picture(self.det, self.motion.area, meta.width, meta.height)  # the bars are no scene
+            detected = detect_ahead(itertools.islice(frames, self.max_frames), det, every)
             detected = stack.enter_context(closing(prefetch(detected, 8, "detect")))
             tracking = stack.enter_context(closing(prefetch(track_detected(detected, meta.fps, every), 8, "track")))
             tracked = progress(tracking, "extract", total=self._total(meta))

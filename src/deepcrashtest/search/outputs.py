@@ -13,18 +13,8 @@ from deepcrashtest.errors import ScenarioError
 from deepcrashtest.fileio import atomic_write_text
 from deepcrashtest.scenario import Provenance, Scenario, format_validation_error
 from deepcrashtest.search.evaluate import OUTCOME_FIELDS
-from deepcrashtest.search.plot import plot_starts
 from deepcrashtest.search.space import SearchSpace
-
-#: A table of results: column name -> (N,) array, in column order. A plain dict of NumPy arrays (pandas took
-#: ~0.7 s of CPU to import for it, a third of a 2,000-variant search); functions that read a table take any
-#: mapping of columns (a pandas DataFrame too).
-Table = dict[str, np.ndarray]
-
-
-def column(table: Mapping[str, Any], name: str) -> np.ndarray:
-    """Column ``name`` of a table (a dict of arrays or a pandas DataFrame) as a NumPy array."""
-    return np.asarray(table[name])
+from deepcrashtest.search.table import Table, column
 
 
 def results_table(
@@ -50,49 +40,6 @@ def results_table(
     for j, name in enumerate(space.names()):
         table[name] = th[:, j]
     return table
-
-
-def select(table: Mapping[str, Any], rows: np.ndarray) -> Table:
-    """The rows ``rows`` (a boolean mask or indices) of every column."""
-    return {k: column(table, k)[rows] for k in table}
-
-
-def write_csv(table: Mapping[str, Any], path: Path, force: bool) -> Path:
-    return atomic_write_text(path, csv_text(table), force=force)
-
-
-def csv_text(table: Mapping[str, Any], float_format: str = "%.6g") -> str:
-    """pandas' ``to_csv(index=False, float_format=float_format)`` of the table, the same text, ~20x faster.
-
-    Columns are formatted whole (floats with ``float_format``, NaN empty; booleans ``True``/``False``;
-    integers as numbers); a table with other columns, or text that would need quoting, goes to pandas.
-    """
-    cols: list[list[str]] = []
-    names = [str(c) for c in table]
-    for name in table:
-        v = column(table, name)
-        kind = v.dtype.kind
-        if kind == "f":
-            cols.append(["" if x != x else float_format % x for x in v.tolist()])
-        elif kind in "biu":
-            cols.append([str(x) for x in v.tolist()])
-        elif kind in "OU" and all(type(x) is str and not _NEEDS_QUOTES.intersection(x) for x in v.tolist()):
-            cols.append(v.tolist())
-        else:
-            return _pandas_csv(table, float_format)
-    if any(_NEEDS_QUOTES.intersection(c) for c in names):
-        return _pandas_csv(table, float_format)
-    lines = [",".join(names), *map(",".join, zip(*cols, strict=True))] if cols else [",".join(names)]
-    return "\n".join(lines) + "\n"
-
-
-def _pandas_csv(table: Mapping[str, Any], float_format: str) -> str:
-    import pandas as pd
-
-    return pd.DataFrame({k: column(table, k) for k in table}).to_csv(index=False, float_format=float_format)
-
-
-_NEEDS_QUOTES = frozenset(',"\n\r')
 
 
 def variant_scenario(
@@ -227,68 +174,3 @@ def _plain(o: Any) -> Any:
     if isinstance(o, Path):
         return str(o)
     raise TypeError(type(o).__name__)
-
-
-class BackgroundPlot:
-    """``plot_starts`` in a forked process that imports OpenCV while the parent simulates.
-
-    Start it before the simulations; ``submit(...)`` (``plot_starts``' arguments) hands it the data,
-    ``result()`` waits for the file. Where ``fork`` is not available the plot is drawn in this process.
-    """
-
-    def __init__(self) -> None:
-        import multiprocessing
-
-        self._conn: Any = None
-        self._proc: Any = None
-        self._args: tuple[Any, ...] = ()
-        if "fork" in multiprocessing.get_all_start_methods():
-            ctx = multiprocessing.get_context("fork")
-            self._conn, child = ctx.Pipe()
-            self._proc = ctx.Process(target=_plot_worker, args=(child,), daemon=True)
-            self._proc.start()
-            child.close()
-
-    def submit(self, *args: Any) -> None:
-        if self._proc is None:
-            self._args = args
-        else:
-            self._conn.send(args)
-
-    def result(self) -> Path:
-        if self._proc is None:
-            return plot_starts(*self._args)
-        ok, result = self._conn.recv()
-        self.close()
-        if not ok:
-            raise result
-        return result
-
-    def close(self) -> None:
-        if self._proc is not None:
-            if self._proc.is_alive():
-                try:
-                    self._conn.send(None)
-                except OSError:  # the worker already finished
-                    pass
-            self._proc.join()
-            self._conn.close()
-            self._proc = None
-
-    def __enter__(self) -> BackgroundPlot:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-
-def _plot_worker(conn: Any) -> None:
-    import cv2  # noqa: F401  (imported while the parent simulates)
-
-    args = conn.recv()
-    if args is None:
-        return
-    try:
-        conn.send((True, plot_starts(*args)))
-    except Exception as exc:  # handed to the parent, which raises it
-        conn.send((False, exc))

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from deepcrashtest.fileio import atomic_path
+from deepcrashtest.forking import Helper
 
 # BGR colours (Matplotlib's tab:red, tab:green, gold)
 RED, GREEN, GOLD, BLACK, GREY = (40, 39, 214), (44, 160, 44), (0, 215, 255), (0, 0, 0), (128, 128, 128)
@@ -21,18 +22,31 @@ AX = (120, 40, 455, 620)  # axes left, top, right, bottom (pixels)
 FONT = 0  # cv2.FONT_HERSHEY_SIMPLEX
 
 
+def preload() -> None:
+    """Import OpenCV (the forked output helper does it while the search simulates)."""
+    import cv2  # noqa: F401
+
+
+def start_helper() -> Helper:
+    """The search's output helper (``search.run.run_search``'s ``helper``): a forked process that loads OpenCV
+    now and later writes results.csv and starts.png. A context manager. This module is light to import, so the
+    command line starts it before importing the simulator: the two load side by side on two cores."""
+    return Helper(preload)
+
+
 def plot_starts(
-    df: Any, space: Any, boundary: dict | None, best: int | None, path: Path, force: bool, title: str
+    df: Any, half_box: Any, boundary: dict | None, best: int | None, path: Path, force: bool, title: str
 ) -> Path:
     """Start offsets (lateral, longitudinal) of every variant, safe green / unsafe red; random variants as
     discs, CEM samples as triangles; the search box dashed, the safe/unsafe boundary (no noise) as a line,
     the original start a cross, the best safe variant a star. Writes a PNG to ``path`` (atomically).
 
-    ``df``: the results table, any mapping of columns (``search.outputs.Table`` or a pandas DataFrame)."""
+    ``df``: the results table, any mapping of columns (``search.table.Table`` or a pandas DataFrame);
+    ``half_box``: the start box's half extents, longitudinal and lateral (m, ``SearchSpace.half_box``)."""
     import cv2
 
     img = np.full((H, W, 3), 255, np.uint8)
-    hb = space.half_box  # longitudinal, lateral half extents (m)
+    hb = np.asarray(half_box, float)  # longitudinal, lateral half extents (m)
     lat_lim, lon_lim = 1.15 * hb[1], 1.15 * hb[0]
     # equal aspect: metres per pixel from the tighter axis, the axes box shrunk to fit
     left, top, right, bottom = AX

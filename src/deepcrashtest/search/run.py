@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from dataclasses import asdict, dataclass
@@ -12,8 +13,9 @@ import numpy as np
 
 from deepcrashtest.errors import UserError, check_seed
 from deepcrashtest.fileio import output_set, restage_paths
+from deepcrashtest.forking import Helper
 from deepcrashtest.scenario import Scenario
-from deepcrashtest.search import outputs
+from deepcrashtest.search import outputs, plot, table
 from deepcrashtest.search.evaluate import Evaluator
 from deepcrashtest.search.methods import CemConfig, Log, boundary_scan, cem_search, first_safe, is_safe, random_search
 from deepcrashtest.search.space import SearchSpace
@@ -72,36 +74,31 @@ def run_search(
     engine: str = "local",
     workers: int = 1,
     force: bool = False,
+    helper: Helper | None = None,
 ) -> dict[str, Any]:
     """Search variants of ``scenario``, write the outputs under ``output``, return the summary.
 
     The outputs are one set (:func:`deepcrashtest.fileio.output_set`): all from this run, or none.
+    ``helper``: the output helper of :func:`deepcrashtest.search.plot.start_helper` (the command line starts it
+    before its imports; by default one is started here): it writes results.csv and starts.png while this
+    process writes the rest.
     """
     cfg.check()
     out = Path(output)
-    with output_set(out, OUTPUT_FILES, force) as stage:
-        summary = _search(scenario, stage, cfg, engine, workers)
+    with output_set(out, OUTPUT_FILES, force) as stage, contextlib.ExitStack() as stack:
+        if helper is None:
+            helper = stack.enter_context(plot.start_helper())
+        summary = _search(scenario, stage, cfg, engine, workers, helper)
         summary["outputs"] = restage_paths(summary["outputs"], stage, out)
         outputs.write_summary(summary, stage / "summary.json", False)
     return summary
 
 
-def _search(scenario: Scenario, out_dir: Path, cfg: SearchConfig, engine: str, workers: int) -> dict[str, Any]:
+def _search(
+    scenario: Scenario, out_dir: Path, cfg: SearchConfig, engine: str, workers: int, helper: Helper
+) -> dict[str, Any]:
     """Run the search and write every output but summary.json into ``out_dir`` (an empty staging folder)."""
     space = SearchSpace.for_scenario(scenario, cfg.box_lateral, cfg.box_longitudinal, cfg.noise_sigma)
-    with outputs.BackgroundPlot() as plotter:
-        return _search_and_write(scenario, out_dir, cfg, engine, workers, space, plotter)
-
-
-def _search_and_write(
-    scenario: Scenario,
-    out_dir: Path,
-    cfg: SearchConfig,
-    engine: str,
-    workers: int,
-    space: SearchSpace,
-    plotter: outputs.BackgroundPlot,
-) -> dict[str, Any]:
     force = False
     t0 = time.perf_counter()
     log = Log()
@@ -135,21 +132,24 @@ def _search_and_write(
     df = outputs.results_table(space, theta, res, log.method, log.iteration, safe)
     meta = {**asdict(cfg), "engine": engine}
     meta.pop("video")
+    # the helper writes these meanwhile; replacing allowed (this run's own staging folder: a job rerun here after
+    # the helper died replaces its partial file)
+    helper.submit(table.write_csv, df, out_dir / "results.csv", True)
     scen_paths, problems, best_sc = outputs.write_variants(
         scenario, space, df, theta, out_dir / "safe_variants", meta, cfg.max_scenarios, force
     )
     best_id = _best_safe(df, problems)
     is_random = np.array(log.method) == "random"
-    plotter.submit(
-        df,
-        space,
+    helper.submit(
+        plot.plot_starts,
+        {k: df[k] for k in ("variant", "method", "safe", "d_lat", "d_lon")},
+        space.half_box,
         boundary,
         best_id,
         out_dir / "starts.png",
-        force,
+        True,
         f"{scenario.name}: {int(safe[is_random].sum())} of {int(is_random.sum())} random variants safe",
-    )  # drawn in the background while the table is written
-    outputs.write_csv(df, out_dir / "results.csv", force)
+    )
     summary: dict[str, Any] = {
         "scenario": scenario.name,
         "controller": cfg.controller,
@@ -171,7 +171,7 @@ def _search_and_write(
         "results_csv": str(out_dir / "results.csv"),
         "safe_scenarios": scen_paths,
         "scenario_problems": [f"variant {k}: {v}" for k, v in problems.items()],
-        "plot": str(plotter.result()),
+        "plot": str(helper.results()[-1]),  # the helper's jobs: results.csv, starts.png
         "video": None,
     }
     if cfg.video and best_sc is not None:
@@ -239,7 +239,7 @@ def crash_question(scenario: Scenario, cfg: SearchConfig) -> dict[str, Any]:
     return out
 
 
-def _best_safe(df: outputs.Table, problems: dict[int, str]) -> int | None:
+def _best_safe(df: table.Table, problems: dict[int, str]) -> int | None:
     """The safe variant with the least change among those that make a valid Scenario (ties: the lowest id)."""
     ok = df["safe"] & ~np.isin(df["variant"], list(problems))
     if not ok.any():
@@ -258,7 +258,7 @@ def _metrics(res: dict[str, np.ndarray], i: int) -> dict[str, Any]:
     return {k: _finite(res[k][i]) for k in keys}
 
 
-def _row(df: outputs.Table, vid: int | None) -> dict[str, Any] | None:
+def _row(df: table.Table, vid: int | None) -> dict[str, Any] | None:
     if vid is None:
         return None
     i = int(np.flatnonzero(df["variant"] == vid)[0])
@@ -280,7 +280,7 @@ def _nan_extreme(v: np.ndarray, largest: bool) -> float:
 
 
 def _method_summaries(
-    df: outputs.Table,
+    df: table.Table,
     res: dict[str, np.ndarray],
     methods: list[str],
     cfg: SearchConfig,
