@@ -235,7 +235,7 @@ def test_far_receding_tracks_are_carried_past_their_end(kitti_root):
 def test_near_ground_contacts_size_the_track(kitti_root):
     """A track's height fused with its near ground contacts (bottom edge far below the horizon) is
     closer to the labelled car's than the class prior's posterior alone, and it lifts the MOTA of
-    training sequence 0006 (77.4 against 68.0 without; chosen on the 18 training sequences). An option,
+    training sequence 0006 (81.0 against 71.4 without; chosen on the 18 training sequences). An option,
     off by default: on the dashcam fidelity clips it loses two reproduced crashes."""
     from deepcrashtest.eval.boxes import iou_2d
     from deepcrashtest.eval.kitti_mono import ego_of, quick_mota
@@ -268,7 +268,7 @@ def test_near_ground_contacts_size_the_track(kitti_root):
     assert np.median([on[t] for t in changed]) < np.median([off[t] for t in changed]) - 0.003
     mota_on = quick_mota([prep], dataclasses.replace(DEFAULT_MONO, mono=on_cfg))[0]
     mota_off = quick_mota([prep], DEFAULT_MONO)[0]
-    assert mota_on >= 75.0 and mota_off < 70.0, (mota_on, mota_off)
+    assert mota_on >= 75.0 and mota_on - mota_off > 7.0, (mota_on, mota_off)
 
 
 def test_forward_axis_column_from_road_users_beside_the_ego_path(kitti_root):
