@@ -200,9 +200,9 @@ def test_turn_focal_removes_the_camera_swing(prep):
 
 
 #: Held-out MOTA floors (KITTI camera, PointRCNN 2D boxes): about 2 points under what the tuned
-#: defaults measure (77.25 / 66.57 / 85.17, README), above the numbers two rounds before (74.55 /
+#: defaults measure (79.64 / 66.87 / 85.34, README), above the numbers two rounds before (74.55 /
 #: 61.41 / 78.62), so a return to that state fails. The path is deterministic (no random choice).
-HELD_OUT_FLOOR = {"0003": 75.0, "0008": 64.5, "0010": 83.0}
+HELD_OUT_FLOOR = {"0003": 77.5, "0008": 64.8, "0010": 83.3}
 
 
 def test_held_out_mota_does_not_regress(kitti_root):
@@ -235,7 +235,7 @@ def test_far_receding_tracks_are_carried_past_their_end(kitti_root):
 def test_near_ground_contacts_size_the_track(kitti_root):
     """A track's height fused with its near ground contacts (bottom edge far below the horizon) is
     closer to the labelled car's than the class prior's posterior alone, and it lifts the MOTA of
-    training sequence 0006 (77.4 against 68.0 without; chosen on the 18 training sequences). An option,
+    training sequence 0006 (81.0 against 71.4 without; chosen on the 18 training sequences). An option,
     off by default: on the dashcam fidelity clips it loses two reproduced crashes."""
     from deepcrashtest.eval.boxes import iou_2d
     from deepcrashtest.eval.kitti_mono import ego_of, quick_mota
@@ -268,7 +268,7 @@ def test_near_ground_contacts_size_the_track(kitti_root):
     assert np.median([on[t] for t in changed]) < np.median([off[t] for t in changed]) - 0.003
     mota_on = quick_mota([prep], dataclasses.replace(DEFAULT_MONO, mono=on_cfg))[0]
     mota_off = quick_mota([prep], DEFAULT_MONO)[0]
-    assert mota_on >= 75.0 and mota_off < 70.0, (mota_on, mota_off)
+    assert mota_on >= 75.0 and mota_on - mota_off > 7.0, (mota_on, mota_off)
 
 
 def test_forward_axis_column_from_road_users_beside_the_ego_path(kitti_root):
@@ -296,3 +296,28 @@ def test_unknown_camera_held_out_0008(kitti_root):
     confirmed after 3 hits; goal 60; never used to choose a setting)."""
     rows = evaluate_mono(kitti_root, [8], camera="unknown")["sequences"]
     assert rows["0008"]["MOTA"] >= 51.0, rows["0008"]["MOTA"]
+
+
+def test_cut_boxes_at_a_track_end_are_carried(prep):
+    """Boxes cut at the bottom and a side (a car the ego passes: no depth cue) at a track's ends are carried by
+    the motion model for at most ``carry_cut_s``, detected, and within the 2 m gate of a labelled car (median)."""
+    from deepcrashtest.eval.kitti_mono import ego_of
+    from deepcrashtest.geometry.mono3d import localize_tracks
+
+    tracks = image_tracks(prep, DEFAULT_MONO)
+    ego = ego_of(prep.world)
+    cfg = DEFAULT_MONO.mono
+    on = localize_tracks(tracks, prep.camera, ego, prep.size, 10.0, cfg)
+    off = localize_tracks(tracks, prep.camera, ego, prep.size, 10.0, dataclasses.replace(cfg, carry_cut_s=0.0))
+    extra = on.merge(off[["track_id", "frame"]], how="left", indicator=True)
+    extra = extra[extra["_merge"] == "left_only"]
+    w, h = prep.size
+    assert len(extra) >= 5 and extra["detected"].all()
+    assert ((extra["y2"] >= h - 2) & ((extra["x1"] <= 1) | (extra["x2"] >= w - 2))).all()
+    for _, g in extra.groupby("track_id"):
+        assert len(g) <= round(cfg.carry_cut_s * 10.0) * 2
+    near = []
+    for _, row in extra.iterrows():  # each carried row against the nearest labelled car of its frame
+        gt = prep.ground_truth[int(row["frame"])].objects.world
+        near.append(np.hypot(gt[:, 0] - row["x"], gt[:, 1] - row["y"]).min() if len(gt) else np.inf)
+    assert np.median(near) < 2.0

@@ -116,6 +116,9 @@ class MonoConfig:
     contact_min_below_px: float | None = None
     contact_row_rel: float = 0.2  # ... each measure the track's height to this (1 sigma, relative) ...
     contact_floor_rel: float = 0.06  # ... and all of them together no better than this (road shape)
+    # detected boxes cut at the bottom and a side (no depth cue: a car the ego passes) at a track's ends are
+    # carried by the motion model for at most this long (s)
+    carry_cut_s: float = 0.5
 
 
 def class_size(category: str) -> tuple[float, float, float]:
@@ -386,9 +389,11 @@ def _kalman(
     g = np.array([[dt**2 / 2, 0], [0, dt**2 / 2], [dt, 0], [0, dt]])
     kf.Q = g @ g.T * cfg.accel_std**2
     kf.H = np.array([[1, 0, 0, 0], [0, 1, 0, 0]], float)
-    kf.x = np.array([meas[0, 0], meas[0, 1], 0.0, 0.0])
+    first = int(np.nonzero(np.isfinite(meas[:, 0]))[0][0])  # rows before it: carried (smoothed back)
+    lead_s = (frames[first] - frames[0]) * dt
+    kf.x = np.array([meas[first, 0], meas[first, 1], 0.0, 0.0])
     kf.P = np.zeros((4, 4))
-    kf.P[:2, :2] = covs[0]
+    kf.P[:2, :2] = covs[first] + np.eye(2) * (cfg.init_speed_std * lead_s) ** 2
     kf.P[2, 2] = kf.P[3, 3] = cfg.init_speed_std**2
     xs = np.zeros((len(span), 4))
     ps = np.zeros((len(span), 4, 4))
@@ -532,6 +537,17 @@ def _extension(
     return np.array(frames, dtype=int), np.array(states, dtype=float).reshape(-1, 4)
 
 
+def _measured_span(valid: np.ndarray, det: np.ndarray, frames: np.ndarray, fps: float, carry_s: float) -> slice:
+    """Rows of a track from its first to its last measured one (``valid``: indices of the measured rows),
+    widened to the farthest detected rows (without a depth cue) at most ``carry_s`` seconds outside them
+    (a detector run every few frames leaves predicted rows between them)."""
+    reach = carry_s * fps
+    near = np.nonzero(det & (np.abs(frames - frames[valid[0]]) <= reach) & (frames <= frames[valid[0]]))[0]
+    far = np.nonzero(det & (np.abs(frames - frames[valid[-1]]) <= reach) & (frames >= frames[valid[-1]]))[0]
+    first = int(near.min()) if len(near) else int(valid[0])
+    return slice(first, int(far.max()) + 1 if len(far) else int(valid[-1]) + 1)
+
+
 def _fps(ego: EgoMotion) -> float:
     return float((len(ego.t) - 1) / max(ego.t[-1] - ego.t[0], 1e-9)) if len(ego.t) > 1 else 10.0
 
@@ -576,7 +592,7 @@ def localize_tracks(
         valid = np.nonzero(np.isfinite(meas[:, 0]))[0]
         if len(valid) == 0:
             continue
-        inside = slice(valid[0], valid[-1] + 1)  # frames from the first to the last measured one
+        inside = _measured_span(valid, r.detected[rows], r.frames[rows], fps, cfg.carry_cut_s)
         rows, meas, covs, rng = rows[inside], meas[inside], covs[inside], rng[inside]
         span = r.frames[rows]
         xs = _kalman(span, meas, covs, fps, cfg)[1][span - span[0]]
