@@ -134,7 +134,7 @@ def still_edge_mask(
         return None
     edges = np.mean([cv2.Canny(_grey(im), 60, 150) > 0 for im in images[:: max(1, len(images) // 10)]], axis=0)
     still = edges >= share
-    if still.sum() > 0.5 * max(1, int((edges >= 0.5).sum())):
+    if still.sum() > 0.5 * float(edges.sum()):  # most of a frame's edges stay: a stopped camera
         return None
     return cv2.dilate(still.astype(np.uint8), np.ones((dilate_px, dilate_px), np.uint8)) > 0
 
