@@ -23,6 +23,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT = ROOT.parent / "shared" / "data" / "dashcam_udacity" / "highway_lane_challenge.mp4"
 
@@ -81,6 +83,12 @@ def main() -> None:
             f"| {name} | {r['frames'] / r['wall']:.2f} | {r['wall']:.1f} | {r['cpu']:.1f} | "
             f"{r['cpu'] / r['frames'] * 1000:.0f} ms | {r['inner_fps']:.2f} | {r['rss_mb']:.0f} |"
         )
+    if args.repeat > 1:  # CPU seconds vary by ~10 % run to run under load: every run's, in order
+        for name, _, _ in variants:
+            cpus = ", ".join(f"{r['cpu']:.1f}" for r in runs[name])
+            walls = ", ".join(f"{r['wall']:.1f}" for r in runs[name])
+            med = np.median([r["cpu"] for r in runs[name]])
+            print(f"{name}: CPU s per run {cpus} (median {med:.1f}); wall s {walls}")
     if len(variants) > 1:
         a, b = (min(runs[n], key=lambda x: x["wall"]) for n in (variants[0][0], variants[1][0]))
         print(

@@ -99,3 +99,29 @@ def test_camera_jolt_is_measured_inside_black_bars():
     dy = [np.array(m.shift)[1:, 1] for m in (plain, full, inside)]
     assert np.allclose(dy[2], dy[0], atol=0.05)
     assert np.abs(dy[1]).mean() < 0.7 * np.abs(dy[0]).mean()  # what the bars did
+
+
+def test_extract_gives_the_camera_the_picture_area_of_its_own_pass(tmp_path):
+    """``extract`` finds the black bars from the first frames of its one decoding pass (no second
+    decoding) and hands the picture area to a camera callable, as the CLI's ``camera_for_video``."""
+    import cv2
+    import pytest
+
+    from deepcrashtest.pipeline.extract import run_extract
+
+    src = _frames(need(CCD / "ccd_000053.mp4"), 10)  # 640x360
+    video = _write(tmp_path / "l.mp4", [cv2.copyMakeBorder(f, 60, 60, 0, 0, cv2.BORDER_CONSTANT) for f in src], 10)
+    seen: list[tuple[int, int, object]] = []
+
+    class Seen(Exception):
+        pass
+
+    def camera(width: int, height: int, *, area: tuple[int, int, int, int] | None) -> None:
+        seen.append((width, height, area))
+        raise Seen  # what the camera is called with is all this test needs
+
+    with pytest.raises(Seen):
+        run_extract(video, tmp_path / "out", camera=camera, lanes=False, report=False, shots=False)  # type: ignore[arg-type]
+    assert len(seen) == 1 and seen[0][:2] == (640, 480)
+    assert np.allclose(seen[0][2], (0, 60, 640, 420), atol=2)  # type: ignore[arg-type]
+    assert not (tmp_path / "out" / "tracks.csv").exists()  # nothing written by a failed run

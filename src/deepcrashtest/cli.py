@@ -259,7 +259,6 @@ def extract(
     from deepcrashtest.fileio import require_file
     from deepcrashtest.geometry.camera import camera_for_video
     from deepcrashtest.pipeline.extract import run_extract
-    from deepcrashtest.video.bars import video_picture_area
 
     if not video.is_dir():
         require_file(video, "video")
@@ -271,10 +270,8 @@ def extract(
         require_file(camera, "camera file")
     if chessboard is not None and not chessboard.is_dir():
         raise UserError(f"{chessboard}: chessboard folder not found")
-    area = video_picture_area(video, fps)  # the picture inside black bars, if any
-    cam = partial(
-        camera_for_video, yaml_path=camera, hfov_deg=hfov, chessboard=chessboard, height_m=camera_height, area=area
-    )
+    # the picture inside black bars (area=) comes from the pass's own first frames
+    cam = partial(camera_for_video, yaml_path=camera, hfov_deg=hfov, chessboard=chessboard, height_m=camera_height)
     result = run_extract(
         video,
         output,

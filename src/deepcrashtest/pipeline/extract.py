@@ -24,7 +24,7 @@ from collections.abc import Callable, Iterable, Iterator
 from contextlib import closing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -41,7 +41,7 @@ from deepcrashtest.pipeline.threads import Worker, prefetch
 from deepcrashtest.scenario import Camera, VideoSource
 from deepcrashtest.trajectory.params import Stage2Params
 from deepcrashtest.ui import track as progress
-from deepcrashtest.video.bars import video_picture_area
+from deepcrashtest.video.bars import SAMPLE_FRAMES, picture_area
 from deepcrashtest.video.shots import Shot, ShotWatch
 from deepcrashtest.video.source import Frame, VideoMeta, open_video
 from deepcrashtest.video.writer import VideoWriter
@@ -68,6 +68,16 @@ WARM_IMPORTS = (
     "deepcrashtest.trajectory.pipeline",
 )
 REPORT_IMPORTS = ("deepcrashtest.viz.report", "matplotlib.figure")
+
+
+class CameraForVideo(Protocol):
+    """The camera of a video from its size (px) and the picture inside its black bars (``(x0, y0, x1, y1)``
+    px from the pass's first frames, :func:`deepcrashtest.video.bars.picture_area`; None without frames),
+    e.g. ``functools.partial(geometry.camera.camera_for_video, hfov_deg=...)``."""
+
+    def __call__(self, width: int, height: int, *, area: tuple[int, int, int, int] | None) -> Camera: ...
+
+
 #: Shots of a compilation shorter than this (seconds) are not extracted.
 MIN_EXTRACT_SHOT_S = 1.0
 
@@ -82,7 +92,7 @@ def run_extract(
     force: bool = False,
     annotate: bool = True,
     geometry: bool = True,
-    camera: Camera | Callable[[int, int], Camera] | None = None,
+    camera: Camera | CameraForVideo | None = None,
     dashboard_rows: int | None = None,
     lanes: bool = True,
     report: bool = True,
@@ -103,7 +113,8 @@ def run_extract(
     ``scenario_raw.json`` (world-frame tracks), ``scenario.json`` (after stage 2) and
     ``report.html``. ``camera`` defaults to :func:`deepcrashtest.geometry.camera.default_camera`
     (horizon from the lanes' vanishing point or the flow's focus of expansion); a callable gets the
-    video's width and height and returns the Camera. Returns a summary.
+    video's width and height and, as ``area``, the picture inside black bars (:class:`CameraForVideo`)
+    and returns the Camera. Returns a summary.
 
     The crash (:mod:`deepcrashtest.pipeline.crash`): detected from image evidence in the same pass,
     or ``crash`` = ``"FRAME[:ID,ID]"`` (the user's, ids as in tracks.csv, ``ego`` allowed); it is the
@@ -154,7 +165,7 @@ def _final_paths(value: Any, stage: Path, out: Path) -> Any:
 
 def _run_pass(
     plan: _Pass,
-    camera: Camera | Callable[[int, int], Camera] | None,
+    camera: Camera | CameraForVideo | None,
     dashboard_rows: int | None,
     geometry: bool,
     lanes: bool,
@@ -310,7 +321,7 @@ class _Pass:
 
     def run(
         self,
-        camera: Camera | Callable[[int, int], Camera] | None,
+        camera: Camera | CameraForVideo | None,
         dashboard_rows: int | None,
         geometry: bool,
         lanes: bool,
@@ -319,12 +330,16 @@ class _Pass:
         records: list[tuple[object, ...]] = []
         with open_video(self.src_path, self.fps) as source, contextlib.ExitStack() as stack:
             meta = source.meta
-            self.motion.area = video_picture_area(self.src_path, self.fps)  # inside black bars, if any
             ensure_output_dir(self.paths["tracks_csv"].parent)
             frames = _in_range(source, self.frame_range)
             if self.watch_shots:
                 frames = _watched(frames, self._shot_watch(meta), self.max_frames)
             frames = stack.enter_context(closing(prefetch(frames, 8, "decode")))
+            # the picture inside black bars (the detector's input, the camera, the jolt) from the pass's own first
+            # frames: no second opening and decoding of the video before the pass
+            head = list(itertools.islice(frames, SAMPLE_FRAMES))
+            self.motion.area = picture_area([f.image for f in head]) if head else None
+            frames = itertools.chain(head, frames)
             every = max(1, min(self.detect_every, int(meta.fps * MAX_DETECT_GAP_S + 1e-6)))
             det = in_picture(self.det, self.motion.area, meta.width, meta.height)  # the bars are no scene
             detected = detect_ahead(itertools.islice(frames, self.max_frames), det, every)
@@ -338,7 +353,7 @@ class _Pass:
                     draw(ft, None)
                 self._imported()
                 return records, None, meta
-            cam = camera(meta.width, meta.height) if callable(camera) else camera
+            cam = camera(meta.width, meta.height, area=self.motion.area) if callable(camera) else camera
             cam = cam or default_camera(meta.width, meta.height, area=self.motion.area)
             return records, self._geometry(tracked, records, meta, cam, dashboard_rows, lanes, draw), meta
 

@@ -37,9 +37,11 @@ def _bar_pair(bright: np.ndarray) -> tuple[int, int]:
 def picture_area(images: list[np.ndarray]) -> tuple[int, int, int, int]:
     """The picture inside black bars, ``(x0, y0, x1, y1)`` pixels (x1, y1 exclusive); the whole frame
     when there are no bars."""
-    grey = [im.max(axis=2) if im.ndim == 3 else im for im in images]
-    peak = np.max(np.stack(grey), axis=0)
-    h, w = peak.shape
+    h, w = images[0].shape[:2]
+    peak = np.zeros((h, w), np.uint8)
+    for im in images:  # the brightest channel of each pixel, over the frames (np.max(axis=2) is ~10x slower)
+        for channel in (im[:, :, c] for c in range(im.shape[2])) if im.ndim == 3 else (im,):
+            np.maximum(peak, channel, out=peak)
     top, bottom = _bar_pair(peak.max(axis=1))
     left, right = _bar_pair(peak.max(axis=0))
     return left, top, w - right, h - bottom
