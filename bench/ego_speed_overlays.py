@@ -1,9 +1,8 @@
 """Ego speed on real dashcam clips against the speed their overlay shows (bench/labels/ego_speed_overlays.json).
 
 For each labelled clip the geometry stage's own camera estimate (dashboard rows + horizon from the first
-2 s, with ``--tracks`` also from their vehicle boxes, and the still-edge mask, as ``extract`` does) feeds
-:class:`~deepcrashtest.geometry.egomotion.EgoMotionEstimator` over the decoded frames; the smoothed speed
-is compared frame by frame with the overlay reading. Printed per clip:
+2 s, as ``extract`` does) feeds :class:`~deepcrashtest.geometry.egomotion.EgoMotionEstimator` over the
+decoded frames; the smoothed speed is compared frame by frame with the overlay reading. Printed per clip:
 the overlay's mean, the estimate's mean and median over the labelled frames, the median error in % of the
 overlay on frames where it reads > 0, the frames the estimator calls stopped (< 0.3 m/s), how many frames
 had a road-scale measurement (and their spread, before smoothing), and the camera
@@ -59,7 +58,7 @@ def run_clip(video: Path, chessboard: bool, last_frame: int, tracks: Path | None
     import pandas as pd
 
     from deepcrashtest.geometry.camera import calibrate_chessboard, default_camera
-    from deepcrashtest.geometry.egomotion import EgoMotionEstimator, still_edge_mask
+    from deepcrashtest.geometry.egomotion import EgoMotionEstimator
     from deepcrashtest.pipeline.geometry_pass import estimate_camera
 
     cap = cv2.VideoCapture(str(video))
@@ -76,11 +75,9 @@ def run_clip(video: Path, chessboard: bool, last_frame: int, tracks: Path | None
     if chessboard:
         calib, _, _ = calibrate_chessboard(video.parent / "camera_calibration")
         cam = calib.model_copy(update={"height_m": cam.height_m})
+    cam, rows, _ = estimate_camera(images[: int(2 * fps) + 1], cam)
     boxes = pd.read_csv(tracks) if tracks is not None and tracks.exists() else None
-    first = boxes[boxes.frame <= int(2 * fps)] if boxes is not None else None  # as extract: its first 2 s
-    cam, rows, _ = estimate_camera(images[: int(2 * fps) + 1], cam, boxes=first)
-    still = still_edge_mask(images[: int(2 * fps) + 1])
-    est = EgoMotionEstimator(cam, mask_bottom_rows=rows, still_mask=still, **options)
+    est = EgoMotionEstimator(cam, mask_bottom_rows=rows, **options)
     t0 = time.process_time()
     raw = []
     for i, img in enumerate(images):

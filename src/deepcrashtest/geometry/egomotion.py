@@ -116,33 +116,6 @@ class EgoMotion:
         return cls(frame, t, xy[:, 0], xy[:, 1], yaw, speed, rate, np.ones(len(t), bool), pitch=pitch)
 
 
-#: A pixel that is a Canny edge in at least this share of the calibration frames is burned-in text, a frame
-#: border or the car's own body, not scene (see :func:`still_edge_mask`).
-STILL_EDGE_SHARE = 0.9
-
-
-def still_edge_mask(
-    images: Sequence[np.ndarray], share: float = STILL_EDGE_SHARE, dilate_px: int = 9
-) -> np.ndarray | None:
-    """Full-frame boolean mask of edges that stay put while the scene moves (burned-in date/speed text, black
-    borders), dilated by ``dilate_px``; None when most edges stay (a stopped camera: nothing tells them apart).
-
-    The estimator's own overlay vote (:meth:`EgoMotionEstimator._vote_overlay`) needs solved moving pairs first;
-    on ccd_000014 the date/speed line below the road (rows ~688-708, outside the detected dashboard rows) held
-    the static test under its threshold on every frame once the road corners' region reached it."""
-    if len(images) < 3:
-        return None
-    edges = np.mean([cv2.Canny(_grey(im), 60, 150) > 0 for im in images[:: max(1, len(images) // 10)]], axis=0)
-    still = edges >= share
-    if still.sum() > 0.5 * float(edges.sum()):  # most of a frame's edges stay: a stopped camera
-        return None
-    return cv2.dilate(still.astype(np.uint8), np.ones((dilate_px, dilate_px), np.uint8)) > 0
-
-
-def _grey(img: np.ndarray) -> np.ndarray:
-    return img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-
-
 def _down_vector(pitch_rad: float, roll_rad: float = 0.0) -> np.ndarray:
     """World 'down' expressed in the camera frame (x right, y down, z forward) for a pitched camera."""
     down = np.array([0.0, math.cos(pitch_rad), math.sin(pitch_rad)])
@@ -351,7 +324,6 @@ class EgoMotionEstimator:
     acceleration).
     ``max_rate_hz``: frames closer than ~1 / this to the last measured one are not measured; their
     state is interpolated (or extrapolated at the end) in :meth:`result` (None: every frame).
-    ``still_mask``: full-frame boolean mask of pixels that are no scene (burned-in text: :func:`still_edge_mask`).
     """
 
     def __init__(
@@ -379,7 +351,6 @@ class EgoMotionEstimator:
         coarse_corners: bool = True,
         accel_tau_s: float = 1.5,
         max_rate_hz: float | None = MAX_RATE_HZ,
-        still_mask: np.ndarray | None = None,
     ) -> None:
         if scale_method != "homography":
             raise ValueError(f"scale_method must be 'homography' (got {scale_method!r})")
@@ -431,8 +402,6 @@ class EgoMotionEstimator:
         self._dist = np.asarray(camera.distortion, dtype=float)
         self.max_rate_hz = max_rate_hz
         self._all: list[tuple[int, float]] = []  # (frame, time) of every update, measured or not
-        self.still_mask = still_mask  # full-frame pixels that are no scene (:func:`still_edge_mask`)
-        self._still: np.ndarray | None = None  # the same at work resolution
 
     # ------------------------------------------------------------------ helpers
     def _prepare(self, frame: np.ndarray) -> np.ndarray:
@@ -459,10 +428,6 @@ class EgoMotionEstimator:
                 max(0, int((y1 - pad) * s)) : max(0, int((y2 + pad) * s)),
                 max(0, int((x1 - pad) * s)) : max(0, int((x2 + pad) * s)),
             ] = 0
-        if self.still_mask is not None:
-            if self._still is None or self._still.shape != (h, w):
-                self._still = cv2.resize(self.still_mask.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
-            mask[self._still] = 0
         if self._overlay is not None:
             cells = (self._overlay[0] >= 3) & (self._overlay[0] >= 3 * self._overlay[1])
             still = cv2.resize(cells.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST)

@@ -39,7 +39,7 @@ from deepcrashtest.geometry.camera import (
     vanishing_point_from_lines,
     with_horizon,
 )
-from deepcrashtest.geometry.egomotion import MAX_RATE_HZ, EgoMotion, EgoMotionEstimator, still_edge_mask
+from deepcrashtest.geometry.egomotion import MAX_RATE_HZ, EgoMotion, EgoMotionEstimator
 from deepcrashtest.geometry.localize import Localizer
 from deepcrashtest.perception.lanes import ClassicalLaneDetector, LaneDetector, LaneState, LaneTimelineResult
 from deepcrashtest.perception.track import TRACK_COLUMNS, records_table
@@ -71,58 +71,10 @@ class GeometryResult:
     calibration: SelfCalibration | None = None
 
 
-#: A lane vanishing point / flow focus of expansion further than this many sigmas (and at least
-#: ``HORIZON_AGREE_MIN_PX``) from the horizon of the same frames' vehicle boxes is not the horizon: the boxes'
-#: is used, the one localisation's self-calibration measures too (bench/ego_horizon_diag.py: on the 20 shared
-#: crash clips the first 2 s of boxes read within 20 px of the whole clip's self-calibrated horizon, the lanes'
-#: vanishing point / flow was off by 90-340 px on 8; ccd_000014: row 184, the hillside's edge, against 521 / 540).
-HORIZON_AGREE_SIGMAS = 3.0
-HORIZON_AGREE_MIN_PX = 30.0
-
-
 def estimate_camera(
-    images: list[np.ndarray],
-    camera: Camera,
-    dashboard_rows: int | None = None,
-    boxes: pd.DataFrame | None = None,
-    notes: list[str] | None = None,
-) -> tuple[Camera, int, str]:
-    """Dashboard rows and horizon from a few frames. Returns (camera with pitch, rows, pitch source).
-
-    ``boxes``: the same frames' tracks (tracks-table columns); when they place the horizon
-    (:func:`~deepcrashtest.geometry.selfcalib.horizon_from_few_boxes`) away from the lanes' vanishing point or
-    the flow's focus of expansion (:data:`HORIZON_AGREE_SIGMAS`), or neither was found, the boxes' horizon is
-    used (source ``self_calibration``) and the choice is appended to ``notes``."""
-    cam, rows, source = _image_horizon(images, camera, dashboard_rows)
-    if boxes is None or not len(boxes) or camera.pitch_source in ("user", "kitti_calib"):
-        return cam, rows, source
-    from deepcrashtest.geometry.selfcalib import horizon_from_few_boxes
-
-    h, w = images[0].shape[:2]
-    found = horizon_from_few_boxes(boxes, (w, h), cam.height_m)
-    if found is None:
-        return cam, rows, source
-    vh, sigma, n = found
-    image_vh = cam.horizon_v()
-    if source in ("vanishing_point", "flow_foe"):
-        if abs(image_vh - vh) <= max(HORIZON_AGREE_SIGMAS * sigma, HORIZON_AGREE_MIN_PX):
-            return cam, rows, source
-        why = f"the {source} (row {image_vh:.0f}) disagrees with"
-    else:
-        why = "no vanishing point or focus of expansion: horizon from"
-    if notes is not None:
-        notes.append(
-            f"ego-motion and lanes horizon: {why} {n} vehicle boxes of the first frames (row {vh:.0f} +- {sigma:.0f} "
-            "px): the boxes' row is used, as localisation's self-calibration does"
-        )
-    cam = with_horizon(cam, vh, "self_calibration").model_copy(update={"horizon_sigma_px": sigma})
-    return cam, rows, "self_calibration"
-
-
-def _image_horizon(
     images: list[np.ndarray], camera: Camera, dashboard_rows: int | None = None
 ) -> tuple[Camera, int, str]:
-    """Dashboard rows and the horizon from the lanes' vanishing point or the flow's focus of expansion."""
+    """Dashboard rows and horizon from a few frames. Returns (camera with pitch, rows, pitch source)."""
     h, w = images[0].shape[:2]
     spread = images[:: max(1, len(images) // 9)]  # pairs ~0.2 s apart: enough road motion to see
     rows = detect_dashboard_rows(spread) if dashboard_rows is None else int(dashboard_rows)
@@ -167,19 +119,12 @@ def extract_geometry(
     through ego-motion and lanes (annotation draws the lanes in the same pass).
     """
     buffer, rest = _calibration_frames(frames, calib_seconds)
-    horizon_notes: list[str] = []
-    images = [f.image for f, _ in buffer]
-    cam, rows, horizon_source = estimate_camera(
-        images, camera, dashboard_rows, _table([trk for _, trk in buffer]), horizon_notes
-    )
+    cam, rows, horizon_source = estimate_camera([f.image for f, _ in buffer], camera, dashboard_rows)
     size = (int(buffer[0][0].image.shape[1]), int(buffer[0][0].image.shape[0]))  # width, height (px)
-    still = still_edge_mask(images)
-    del images
-    ego_est = EgoMotionEstimator(cam, mask_bottom_rows=rows, max_width=max_width, seed=seed, still_mask=still)
+    ego_est = EgoMotionEstimator(cam, mask_bottom_rows=rows, max_width=max_width, seed=seed)
     lane_det: LaneDetector | None = lane_detector or (
         ClassicalLaneDetector(cam, mask_bottom_rows=rows, seed=seed) if lanes else None
     )
-    ego_horizon = cam.horizon_v()
     lane_states: dict[int, LaneState] = {}
     indices: list[int] = []
     all_tracks: list[pd.DataFrame] = []
@@ -226,10 +171,6 @@ def extract_geometry(
 
     sc = raw_scenario_from_tracks(tracks, meta, cam, ego, lane_tl, localizer, name=name, seed=seed)
     params = {**sc.provenance.parameters, "dashboard_rows": rows, "horizon_source": horizon_source}
-    params["ego_motion_horizon_v"] = round(ego_horizon, 1)
-    params["still_mask_px"] = int(still.sum()) if still is not None else 0
-    if horizon_notes:
-        params["horizon_choice"] = horizon_notes
     if calibration is not None:
         params["self_calibration"] = calibration.summary()
     sc = sc.evolve(provenance=sc.provenance.model_copy(update={"parameters": params}))
@@ -250,19 +191,6 @@ class _RateGate:
             return False
         self.last = time
         return True
-
-
-def _table(parts: list[TrackRows]) -> pd.DataFrame | None:
-    """The tracks of several frames as one table (None without any)."""
-    rows = [r for p in parts if isinstance(p, list) for r in p]
-    tables = [p for p in parts if not isinstance(p, list) and len(p)]
-    if rows:
-        tables.append(records_table(rows))
-    if not tables:
-        return None
-    import pandas as pd
-
-    return pd.concat(tables, ignore_index=True)
 
 
 def _boxes(trk: TrackRows) -> np.ndarray:
