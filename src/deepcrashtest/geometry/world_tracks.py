@@ -28,6 +28,7 @@ import pandas as pd
 from scipy.signal import savgol_filter
 
 from deepcrashtest.errors import UserError
+from deepcrashtest.geometry.box_heading import fit_box_headings
 from deepcrashtest.geometry.egomotion import EgoMotion
 from deepcrashtest.geometry.localize import Localizer
 from deepcrashtest.geometry.mono3d import MonoConfig, localize_tracks
@@ -185,11 +186,12 @@ def raw_scenario_from_tracks(
     else:
         agents = _localized_agents(tracks, camera, ego, cam_xy, origin, localizer, size, t0, warnings)
         method = type(localizer).__name__
-    return Scenario(
+    raw = Scenario(
         name=name, stage="raw", source=source, camera=camera, ego=ego_vehicle, agents=agents,
         road=_road(ego_xy, lanes), warnings=warnings,
         provenance=Provenance(command="extract", parameters={"localizer": method}, seed=seed),
     )  # fmt: skip
+    return fit_box_headings(raw, tracks)  # headings that fit the boxes, not only the noisy direction of motion
 
 
 def _mono_agents(

@@ -55,6 +55,7 @@ from deepcrashtest.scenario import (
     Vehicle,
     format_validation_error,
 )
+from deepcrashtest.trajectory.agentheading import with_observed_yaw
 from deepcrashtest.trajectory.collision import MOVING_MPS, first_contact, headings
 from deepcrashtest.trajectory.crash import CrashOutcome, earlier_touch, resolve_crash
 from deepcrashtest.trajectory.dense import EPS_T, Dense, EgoFrame, agent_dense, moves_in_video, span
@@ -131,6 +132,7 @@ def _process_scenario(raw: Scenario, seed: int, params: Stage2Params | None) -> 
     crash = _crash_phase(run, ego, agents, t_max)
     vehicles = _final_phase(run, ego, crash)
     vehicles[0] = _with_measured_yaw(vehicles[0], run, t_max)
+    vehicles = [vehicles[0], *_with_observed_yaws(vehicles[1:], crash.agents, t_max - run.t0)]
     collision = _collision_record(crash, vehicles)
     road = _road_phase(run, ego, crash, ego_frame, t_max)
     return _assemble(run, vehicles, road, collision, crash, t_max, seed)
@@ -414,6 +416,14 @@ def _with_measured_yaw(ego: Vehicle, run: _Run, t_max: float) -> Vehicle:
     yaw = np.interp(a["t"], *measured)
     traj = ego.trajectory.model_copy(update={"yaw": [float(v) for v in yaw]})
     return ego.model_copy(update={"trajectory": traj})
+
+
+def _with_observed_yaws(vehicles: list[Vehicle], dense: list[Dense], t_shift: float) -> list[Vehicle]:
+    """Moving agents keep the raw heading (fitted to their boxes) where the video saw them
+    (:func:`~deepcrashtest.trajectory.agentheading.with_observed_yaw`); parked ones already face it."""
+    static = {d.id for d in dense if d.static}
+    raw = {d.id: d.vehicle for d in dense}
+    return [v if v.id in static or v.id not in raw else with_observed_yaw(v, raw[v.id], t_shift) for v in vehicles]
 
 
 def _collision_record(crash: CrashOutcome, vehicles: list[Vehicle]) -> Collision | None:
