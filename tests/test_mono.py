@@ -212,19 +212,25 @@ def test_held_out_mota_does_not_regress(kitti_root):
         assert rows[name]["MOTA"] >= floor, (name, rows[name]["MOTA"])
 
 
-def test_far_receding_tracks_are_carried_past_their_end(kitti_root):
-    """Extension rows are undetected, beyond the minimum range, and only on tracks that recede."""
+def _rows_added_by(prep, **off_settings):
+    """(ego, rows with the default settings, rows with ``off_settings``, the rows only the default adds)."""
     from deepcrashtest.eval.kitti_mono import ego_of
     from deepcrashtest.geometry.mono3d import localize_tracks
 
-    prep = prepare_mono(kitti_root, 2)  # highway: cars drive away beyond the detector's reach
     tracks = image_tracks(prep, DEFAULT_MONO)
     ego = ego_of(prep.world)
     cfg = DEFAULT_MONO.mono
     on = localize_tracks(tracks, prep.camera, ego, prep.size, 10.0, cfg)
-    off = localize_tracks(tracks, prep.camera, ego, prep.size, 10.0, dataclasses.replace(cfg, extend_s=0.0))
+    off = localize_tracks(tracks, prep.camera, ego, prep.size, 10.0, dataclasses.replace(cfg, **off_settings))
     extra = on.merge(off[["track_id", "frame"]], how="left", indicator=True)
-    extra = extra[extra["_merge"] == "left_only"]
+    return ego, on, off, extra[extra["_merge"] == "left_only"]
+
+
+def test_far_receding_tracks_are_carried_past_their_end(kitti_root):
+    """Extension rows are undetected, beyond the minimum range, and only on tracks that recede."""
+    prep = prepare_mono(kitti_root, 2)  # highway: cars drive away beyond the detector's reach
+    cfg = DEFAULT_MONO.mono
+    ego, on, off, extra = _rows_added_by(prep, extend_s=0.0)
     assert len(extra) > 20 and not extra["detected"].any() and extra["x1"].isna().all()
     assert len(on) - len(extra) == len(off)
     ex = extra.merge(pd.DataFrame({"frame": ego.frame, "ex": ego.x, "ey": ego.y}), on="frame")
@@ -301,16 +307,8 @@ def test_unknown_camera_held_out_0008(kitti_root):
 def test_cut_boxes_at_a_track_end_are_carried(prep):
     """Boxes cut at the bottom and a side (a car the ego passes: no depth cue) at a track's ends are carried by
     the motion model for at most ``carry_cut_s``, detected, and within the 2 m gate of a labelled car (median)."""
-    from deepcrashtest.eval.kitti_mono import ego_of
-    from deepcrashtest.geometry.mono3d import localize_tracks
-
-    tracks = image_tracks(prep, DEFAULT_MONO)
-    ego = ego_of(prep.world)
     cfg = DEFAULT_MONO.mono
-    on = localize_tracks(tracks, prep.camera, ego, prep.size, 10.0, cfg)
-    off = localize_tracks(tracks, prep.camera, ego, prep.size, 10.0, dataclasses.replace(cfg, carry_cut_s=0.0))
-    extra = on.merge(off[["track_id", "frame"]], how="left", indicator=True)
-    extra = extra[extra["_merge"] == "left_only"]
+    _, _, _, extra = _rows_added_by(prep, carry_cut_s=0.0)
     w, h = prep.size
     assert len(extra) >= 5 and extra["detected"].all()
     assert ((extra["y2"] >= h - 2) & ((extra["x1"] <= 1) | (extra["x2"] >= w - 2))).all()
