@@ -6,10 +6,11 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
 
 from conftest import DATA, need
 from deepcrashtest.geometry.camera import calibrate_chessboard, default_camera, detect_dashboard_rows
-from deepcrashtest.geometry.egomotion import EgoMotionEstimator
+from deepcrashtest.geometry.egomotion import MAX_RATE_HZ, EgoMotionEstimator
 from deepcrashtest.pipeline.geometry_pass import estimate_camera
 
 DAD = DATA / "crash_dad"
@@ -85,20 +86,72 @@ def test_moving_dashcam_with_date_overlay_is_not_stopped():
     assert float(np.median(res.speed[1:])) > 3.0
 
 
-def test_25fps_video_is_measured_at_most_20_times_a_second_and_interpolated():
-    """highway_project_video (25 fps): every other frame is measured (MAX_RATE_HZ = 20), the frames
-    between lie on the straight line between their measured neighbours, and every frame has a state."""
-    imgs = _frames(DATA / "dashcam_udacity" / "highway_project_video.mp4", 21)
+def _decoded(path: Path, count: int) -> tuple[list[np.ndarray], list[float]]:
+    """The first ``count`` frames of a clip and their times (s) from the container, as extract sees them."""
+    from deepcrashtest.video.source import open_video
+
+    imgs, times = [], []
+    with open_video(need(path)) as source:
+        for frame in source:
+            imgs.append(frame.image)
+            times.append(frame.time)
+            if len(imgs) == count:
+                break
+    return imgs, times
+
+
+@pytest.mark.parametrize(
+    ("clip", "count", "step"),
+    [
+        ("dashcam_udacity/highway_project_video.mp4", 22, 3),  # 25 fps: every third frame (8.3 Hz)
+        ("crash_dad/dad_000478.mp4", 13, 2),  # 20 fps: every other frame (10 Hz)
+        ("crash_ccd/ccd_000053.mp4", 12, 1),  # 10 fps: every frame
+    ],
+)
+def test_rate_cap_measures_the_frames_at_most_max_rate_hz_apart(clip: str, count: int, step: int):
+    """MAX_RATE_HZ = 10: ego-motion measures the first frame and then each frame >= ~0.09 s after the last
+    measured one, on the clips' own timestamps; the lanes' gate (extract's geometry pass) takes the same
+    frames; every frame still has a state, and a frame between two measured ones lies on the straight line
+    between them (interpolated in time)."""
+    from deepcrashtest.pipeline.geometry_pass import _RateGate
+
+    assert MAX_RATE_HZ == 10.0
+    imgs, times = _decoded(DATA / clip, count)
     h, w = imgs[0].shape[:2]
-    est = EgoMotionEstimator(default_camera(w, h), mask_bottom_rows=detect_dashboard_rows(imgs[::5]))
-    for i, img in enumerate(imgs):
-        est.update(img, i / 25.0)
+    est = EgoMotionEstimator(default_camera(w, h), mask_bottom_rows=detect_dashboard_rows(imgs[::4]))
+    gate = _RateGate(MAX_RATE_HZ)
+    lanes = [k for k, t in enumerate(times) if gate.take(t)]
+    for img, t in zip(imgs, times, strict=True):
+        est.update(img, t)
     res = est.result()
-    assert len(res) == 21 and list(res.frame) == list(range(21))
-    assert not res.static and float(np.median(res.speed)) > 5.0  # driving on the highway
-    odd = np.arange(1, 20, 2)
-    for arr in (res.x, res.y, res.yaw, res.speed):
-        assert np.allclose(arr[odd], 0.5 * (arr[odd - 1] + arr[odd + 1]), atol=1e-9)
+    measured = [s.frame for s in est._states]
+    assert measured == list(range(0, count, step)) == lanes
+    assert len(res) == count and list(res.frame) == list(range(count))
+    assert not res.static and float(np.median(res.speed)) > 2.0  # all three egos drive
+    t = np.asarray(times)
+    for a, b in zip(measured[:-1], measured[1:], strict=True):
+        for k in range(a + 1, b):
+            u = (t[k] - t[a]) / (t[b] - t[a])
+            for arr in (res.x, res.y, res.yaw, res.speed):
+                assert arr[k] == pytest.approx((1 - u) * arr[a] + u * arr[b], abs=1e-9)
+
+
+def test_10fps_video_gives_the_same_ego_motion_as_without_a_rate_cap():
+    """A 10 fps clip (KITTI, the CCD crash clips) is measured at every frame under the cap: the result is
+    the uncapped estimator's, bit for bit."""
+    imgs, times = _decoded(DATA / "crash_ccd" / "ccd_000053.mp4", 20)
+    h, w = imgs[0].shape[:2]
+    rows = detect_dashboard_rows(imgs[::4])
+    runs = []
+    for rate in (MAX_RATE_HZ, None):
+        est = EgoMotionEstimator(default_camera(w, h), mask_bottom_rows=rows, max_rate_hz=rate)
+        for img, t in zip(imgs, times, strict=True):
+            est.update(img, t)
+        runs.append(est.result())
+    capped, every = runs
+    for name in ("frame", "t", "x", "y", "yaw", "speed", "yaw_rate", "valid", "tilt"):
+        assert np.array_equal(getattr(capped, name), getattr(every, name)), name
+    assert float(np.median(capped.speed)) > 2.0
 
 
 def test_road_crop_box_stays_inside_the_image_when_the_road_warps_off_it():
