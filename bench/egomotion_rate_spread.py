@@ -45,7 +45,9 @@ def main() -> None:
                 break
     h, w = frames[0].shape
     print(f"{args.video}: {len(frames)} frames; ego-motion with the default camera, CPU of one thread")
-    print("| rate | dashboard rows | final yaw deg | path m | median speed m/s | mean abs speed diff m/s | CPU ms/frame |")
+    print(
+        "| rate | dashboard rows | final yaw deg | path m | median speed m/s | mean abs speed diff m/s | CPU ms/frame |"
+    )
     print("|---|---|---|---|---|---|---|")
     ref: np.ndarray | None = None
     for rate in (float(r) for r in args.rates.split(",")):
