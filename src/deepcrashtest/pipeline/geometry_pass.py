@@ -13,10 +13,10 @@ The first ``calib_seconds`` of frames are buffered to estimate what the stream n
 dashboard/bonnet rows (below a persistent edge with a still image beneath, unless given), and the horizon
 (vanishing point of the lane lines, else the focus of expansion of the flow, else the camera's own pitch).
 Then every buffered and later frame goes through the ego-motion estimator and the lane detector once (both
-measure at most ``MAX_RATE_HZ`` frames a second: a 20, 25 or 30 fps video every other frame, the frames between
-interpolated or showing the last lanes); frames are never decoded twice. Lanes run in a second thread beside the
-ego-motion estimator (both spend their time in OpenCV / NumPy, which release the GIL). When no calibration was
-given (the camera's intrinsics are the unknown-dashcam default), the whole video's tracks then calibrate the camera
+measure at most ``MAX_RATE_HZ`` frames a second: a 25 fps video at 12.5 fps, the frames between interpolated
+or showing the last lanes); frames are never decoded twice. Lanes run in a second thread beside the ego-motion
+estimator (both spend their time in OpenCV / NumPy, which release the GIL). When no calibration was given (the
+camera's intrinsics are the unknown-dashcam default), the whole video's tracks then calibrate the camera
 (:func:`~deepcrashtest.geometry.selfcalib.self_calibrate`: horizon, camera height, focal length, each with its
 uncertainty and source) and the ego path is rescaled to the measured camera height.
 """
@@ -179,8 +179,8 @@ def extract_geometry(
 
 class _RateGate:
     """``take(time)``: True for the first frame and for each frame at least ~1 / ``max_hz`` s after the
-    last taken one (the rule of ``EgoMotionEstimator(max_rate_hz)``: at 15 Hz a 20, 25 or 30 fps video
-    every other frame, a 10 fps video at every frame)."""
+    last taken one (the rule of ``EgoMotionEstimator(max_rate_hz)``: a 25 fps video at 12.5 fps, 10
+    and 20 fps videos at every frame)."""
 
     def __init__(self, max_hz: float | None) -> None:
         self.min_gap_s = 0.9 / max_hz if max_hz else 0.0
