@@ -117,11 +117,11 @@ def _run(src: Path, cmd: list[str]) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--sequence", type=int, default=3)
-    ap.add_argument("--starts", type=int, default=500)
-    ap.add_argument("--noise-variants", type=int, default=4)
     ap.add_argument("--baseline-src", default=None, help="another checkout's src/: its CLI timed alternately")
     ap.add_argument("--repeat", type=int, default=3, help="runs per side (the minimum of each figure counts)")
+    ap.add_argument("--sequence", type=int, default=3, help="KITTI tracking sequence")
+    ap.add_argument("--starts", type=int, default=500, help="random starts (as search_speed.py)")
+    ap.add_argument("--noise-variants", type=int, default=4, help="noisy paths per start")
     args = ap.parse_args()
     if not KITTI.exists():
         print(json.dumps({"skipped": f"real data not found: {KITTI}"}))
