@@ -152,3 +152,47 @@ def test_evolve_validates_and_third_party_collision(kitti8_raw):
     with pytest.raises(ScenarioError, match="unknown Scenario field"):
         kitti8_raw.evolve(colision=None)
     assert sc.scenario_time(sc.video_time(2.5)) == pytest.approx(2.5)
+
+
+def test_evolve_equals_a_whole_revalidation_and_still_checks_the_physics(kitti8_raw):
+    """evolve keeps the unchanged fields' validated models: the result is the same file as validating the whole
+    changed dump (KITTI 0008), and a changed trajectory is still checked, alone and against the others."""
+    ego = kitti8_raw.ego.trajectory.arrays()
+    moved = Trajectory.from_arrays(ego["t"], ego["x"] + 1.5, ego["y"] - 0.5, ego["yaw"], ego["speed"])
+    changes = {"name": "moved", "ego": kitti8_raw.ego.model_copy(update={"trajectory": moved})}
+    fast = kitti8_raw.evolve(**changes)
+    whole = Scenario.from_dict({**kitti8_raw.model_dump(), "name": "moved", "ego": changes["ego"].model_dump()})
+    assert fast.to_json() == whole.to_json()
+    assert fast.agents[0] is kitti8_raw.agents[0]  # shared, not validated again
+    bad = moved.model_dump()
+    bad["speed"][3] = 95.0
+    with pytest.raises(ScenarioError, match="physical limit 90"):
+        kitti8_raw.evolve(ego={**kitti8_raw.ego.model_dump(), "trajectory": bad})
+    spike = moved.model_dump()
+    spike["speed"][10] += 5.0  # 50 m/s^2: refused by the whole scenario's check of a processed scenario
+    with pytest.raises(ScenarioError, match=r"acceleration\| 50"):
+        kitti8_raw.evolve(stage="processed", agents=[], ego={**kitti8_raw.ego.model_dump(), "trajectory": spike})
+
+
+def _text_loop(v: str) -> str:
+    """The per-character check ``scenario._text`` replaced (the reference)."""
+    for i, ch in enumerate(v):
+        if (ord(ch) < 32 and ch not in "\t\n\r") or ord(ch) == 127 or 0xD800 <= ord(ch) <= 0xDFFF:
+            raise ValueError(f"control or invalid character U+{ord(ch):04X} at position {i}")
+    return v
+
+
+def test_text_check_refuses_exactly_what_the_character_loop_refused(kitti8_raw):
+    """Every code point (and the real scenario's texts) gets the same answer and message as the old loop."""
+    from deepcrashtest.scenario import _text
+
+    def answer(fn, v):
+        try:
+            return fn(v)
+        except ValueError as exc:
+            return str(exc)
+
+    texts = [kitti8_raw.source.path, *kitti8_raw.warnings, *kitti8_raw.provenance.history]
+    texts += [f"ok {chr(c)} tail\x7f" for c in range(0x110000)]
+    assert all(answer(_text, v) == answer(_text_loop, v) for v in texts)
+    assert answer(_text, "a\u0085b\x1fc") == "control or invalid character U+001F at position 3"

@@ -142,3 +142,75 @@ def test_settled_static_agents_are_not_stepped_kitti3(kitti_root, monkeypatch):
     assert slow is not None
     for f in agents_mod._Segment.__dataclass_fields__:
         assert np.asarray(getattr(fast, f)).tobytes() == np.asarray(getattr(slow, f)).tobytes(), f
+
+
+def _agents_touch_loop(ag, states, pres) -> bool:
+    """:meth:`AgentSet.join_contacts`' ignore rule step by step (the reference ``agents._agents_touch`` replaced)."""
+    ignore, prev = ag.ignore.copy(), ag.pres_prev
+    for k in range(len(states) - 1):
+        g = agents_mod.agent_gaps_all(states[k + 1 : k + 2], ag.half)[0]
+        p = pres[k + 1]
+        both = p[:, None] & p[None, :]
+        newly = both & ~(prev[:, None] & prev[None, :])
+        ignore |= newly & (g <= 0)
+        ignore &= ~(g > 0)
+        if np.triu(both & (g <= 0) & ~ignore, 1).any():
+            return True
+        prev = p
+    return False
+
+
+def test_agents_touch_blocks_equal_the_step_loop(head_on):
+    """The blockwise contact test gives the step loop's answer on KITTI 0008's agents moved at random: starts
+    already overlapping (ignored), agents entering and leaving, unknown (NaN) gaps; with and without contacts."""
+    world = prepare(head_on.model_copy(update={"stage": "processed"}), duration=8.0)
+    M, T = world.n_agents, len(world.times)
+    base = agents_mod.AgentSet(world, VehicleLimits())
+    states = np.repeat(base.state[None], T, axis=0)
+    walk = np.flatnonzero(base.walk)
+    states[1:, walk] = world.agent_paths.poses(np.arange(1, T))[:, walk]
+    pres0 = (base.start[None, :] <= np.arange(T)[:, None]) & (np.arange(T)[:, None] <= base.end[None, :])
+    rng = np.random.default_rng(5)
+    answers = []
+    for trial in range(16):
+        st, pres = states.copy(), pres0.copy()
+        if trial:
+            st[..., :2] += rng.normal(0.0, 0.6 * trial, (1, M, 2)) + rng.normal(0.0, 0.3, (T, M, 2))
+        if trial % 3 == 2:
+            pres &= rng.random((T, M)) > 0.05
+        if trial % 4 == 3:
+            st[rng.integers(0, T, 20), rng.integers(0, M, 20), 0] = np.nan
+        a, b = agents_mod.AgentSet(world, VehicleLimits()), agents_mod.AgentSet(world, VehicleLimits())
+        if trial % 2:
+            a.ignore[:] = b.ignore[:] = rng.random((M, M)) > 0.6
+        answers.append(agents_mod._agents_touch(a, st, pres))
+        assert answers[-1] == _agents_touch_loop(b, st, pres), trial
+    assert not answers[0] and any(answers)  # the real run has no contact; moved agents do
+    # agent 1 on agent 0 (0.5 m aside) from the start, only the two present. (apart in the middle third, agent 1
+    # present only from the middle, ignored at t = 0, agent 1 present before the first step) -> a contact:
+    # overlapping from the start: ignored if so at t = 0 or newly together, else a contact; apart, then
+    # overlapping again: a contact; entering overlapping in the middle: newly together, ignored
+    pres = np.zeros((T, M), bool)
+    pres[:, :2] = True
+    cases = [
+        ((False, False, True, True), False),
+        ((False, False, False, True), True),
+        ((False, False, False, False), False),
+        ((True, False, True, True), True),
+        ((False, True, False, True), False),
+    ]
+    for (apart, enter, ignored, before), touch in cases:
+        st = states.copy()
+        st[:, 1] = st[:, 0] + [0.5, 0.0, 0.0, 0.0]
+        if apart:
+            st[T // 3 : 2 * T // 3, 1, 1] += 20.0
+        p = pres.copy()
+        if enter:
+            p[: T // 2, 1] = False
+        a, b = agents_mod.AgentSet(world, VehicleLimits()), agents_mod.AgentSet(world, VehicleLimits())
+        for ag in (a, b):
+            ag.pres_prev = p[0].copy()
+            ag.pres_prev[1] = before and not enter
+            ag.ignore[:] = False
+            ag.ignore[0, 1] = ag.ignore[1, 0] = ignored
+        assert agents_mod._agents_touch(a, st, p) == _agents_touch_loop(b, st, p) == touch, (apart, enter, ignored)

@@ -86,3 +86,18 @@ def test_a_search_process_imports_neither_scipy_nor_pandas(kitti3, tmp_path):
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().splitlines()[-1] == "[]"
     assert (tmp_path / "s" / "results.csv").exists() and (tmp_path / "s" / "starts.png").exists()
+
+
+def test_reference_median_equals_numpy_bit_for_bit(kitti_root):
+    """``sim.reference._median`` (no numpy.ma import) gives ``np.median``'s value, bits included: the real
+    KITTI 0008 sample intervals and headings, and odd and even random lengths."""
+    from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
+    from deepcrashtest.sim.reference import _median
+
+    sc = scenario_from_kitti(kitti_root, 8)
+    arrays = [np.diff(v.trajectory.t) for v in sc.vehicles() if len(v.trajectory) > 1]
+    arrays += [np.asarray(v.trajectory.yaw) for v in sc.vehicles()]
+    rng = np.random.default_rng(2)
+    arrays += [rng.normal(0.0, 10.0 ** rng.uniform(-3, 3), n) for n in (*range(1, 30), 100, 101, 915)]
+    for a in arrays:
+        assert _median(a).hex() == float(np.median(a)).hex()

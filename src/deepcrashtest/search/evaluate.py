@@ -73,14 +73,16 @@ def simulate_variants(
 _CACHE: dict[tuple[str, float | None], Any] = {}
 
 
-def _prepared_world(scenario_json: str, duration: float | None) -> Any:
-    """Parse and prepare each scenario once per process (workers see the same JSON many times)."""
+def _prepared_world(scenario_json: str, duration: float | None, scenario: Scenario | None = None) -> Any:
+    """Parse and prepare each scenario once per process (workers see the same JSON many times); ``scenario``:
+    the validated Scenario of that JSON where the caller has it (not parsed again)."""
     from deepcrashtest.sim import prepare
 
     key = (scenario_json, duration)
     if key not in _CACHE:
         _CACHE.clear()
-        _CACHE[key] = prepare(Scenario.model_validate_json(scenario_json), duration=duration)
+        sc = scenario if scenario is not None else Scenario.model_validate_json(scenario_json)
+        _CACHE[key] = prepare(sc, duration=duration)
     return _CACHE[key]
 
 
@@ -118,8 +120,10 @@ class Evaluator:
         self.close()
 
     def close(self) -> None:
+        """Stop the worker processes. Every result is in by now, so this does not wait for them to exit (each
+        frees its share of the batch's arrays meanwhile): the search writes its outputs while they go."""
         if self._pool is not None and self.engine == "local":
-            self._pool.shutdown()
+            self._pool.shutdown(wait=False)
         self._pool = None
 
     def _map(self, chunks: Sequence[np.ndarray]) -> list[dict[str, np.ndarray]]:
@@ -149,7 +153,7 @@ class Evaluator:
         from deepcrashtest.sim.agents import agent_timeline
         from deepcrashtest.sim.vehicle import VehicleLimits
 
-        agent_timeline(_prepared_world(self._json, self.duration), VehicleLimits()).record_all()
+        agent_timeline(_prepared_world(self._json, self.duration, self.scenario), VehicleLimits()).record_all()
 
     # ------------------------------------------------------------------ evaluate
     def __call__(self, theta: np.ndarray) -> dict[str, np.ndarray]:

@@ -365,20 +365,32 @@ def _same_bits(a: np.ndarray, b: np.ndarray) -> bool:
 
 
 def _agents_touch(ag: AgentSet, states: np.ndarray, pres: np.ndarray) -> bool:
-    """Whether :meth:`AgentSet.join_contacts` would find a contact at any step (its ignore rule, in order)."""
-    ignore, prev = ag.ignore.copy(), ag.pres_prev
-    block = max(1, 65536 // (ag.M * ag.M))  # steps whose (M, M) gaps are computed together
-    for k in range(len(states) - 1):
-        if k % block == 0:  # gaps of the candidate states at k + 1
-            gaps = agent_gaps_all(states[k + 1 : k + 1 + block], ag.half)
-        p, g = pres[k + 1], gaps[k % block]
-        both = p[:, None] & p[None, :]
-        newly = both & ~(prev[:, None] & prev[None, :])
-        ignore |= newly & (g <= 0)
-        ignore &= ~(g > 0)
-        if np.triu(both & (g <= 0) & ~ignore, 1).any():
+    """Whether :meth:`AgentSet.join_contacts` would find a contact at any step (its ignore rule, in order).
+
+    The rule per pair and step ``k``: a pair newly present together and touching (gap <= 0) is ignored (it
+    started overlapping), until its gap is > 0 again; a touching pair not ignored is a contact. So a pair is
+    ignored at ``k`` exactly when its last such start is later than its last step apart (the first start: the
+    ignore mask at t = 0). Computed for blocks of steps at once (the last indices by a running maximum) instead
+    of step by step: the same answer.
+    """
+    M = ag.M
+    block = max(1, 65536 // (M * M))  # steps whose (M, M) gaps are computed together
+    upper = np.triu(np.ones((M, M), bool), 1)
+    prev_pres = np.concatenate([ag.pres_prev[None], pres[1:-1]])  # presence before step k's: (T - 1, M)
+    ignored = ag.ignore.copy()  # the ignore mask before the block
+    for k0 in range(0, len(states) - 1, block):
+        gaps = agent_gaps_all(states[k0 + 1 : k0 + 1 + block], ag.half)  # (K, M, M) at steps k0 .. k0 + K - 1
+        p, q = pres[k0 + 1 : k0 + 1 + len(gaps)], prev_pres[k0 : k0 + len(gaps)]
+        both = p[:, :, None] & p[:, None, :]
+        close = gaps <= 0
+        start = both & ~(q[:, :, None] & q[:, None, :]) & close  # newly together and touching: ignore from here
+        steps = np.arange(len(gaps))[:, None, None]
+        last_start = np.maximum.accumulate(np.where(start, steps, np.where(ignored, -1, -2)[None]), axis=0)
+        last_apart = np.maximum.accumulate(np.where(gaps > 0, steps, -2), axis=0)
+        ignore = last_start > last_apart
+        if (both & close & ~ignore & upper).any():
             return True
-        prev = p
+        ignored = ignore[-1]
     return False
 
 
