@@ -29,7 +29,7 @@ from deepcrashtest.geometry.camera import default_camera
 from deepcrashtest.geometry.world_tracks import raw_scenario_from_tracks
 from deepcrashtest.scenario import Camera, VideoSource
 
-DATA = Path("/work/shared/data/kitti_tracking")
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kitti_tracking"
 HELD_OUT = (3, 8, 10)
 TUNING = [s for s in range(21) if s not in HELD_OUT]
 
