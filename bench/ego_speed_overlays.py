@@ -53,11 +53,18 @@ def overlay_speeds(entry: dict[str, Any], n: int) -> np.ndarray:
     return out
 
 
-def run_clip(video: Path, chessboard: bool, last_frame: int, tracks: Path | None, options: dict[str, Any]) -> ClipRun:
+def run_clip(
+    video: Path,
+    chessboard: bool,
+    last_frame: int,
+    tracks: Path | None,
+    options: dict[str, Any],
+    overlay_mask: bool = True,
+) -> ClipRun:
     import cv2
     import pandas as pd
 
-    from deepcrashtest.geometry.camera import calibrate_chessboard, default_camera
+    from deepcrashtest.geometry.camera import calibrate_chessboard, default_camera, static_overlay_mask
     from deepcrashtest.geometry.egomotion import EgoMotionEstimator
     from deepcrashtest.pipeline.geometry_pass import estimate_camera
 
@@ -77,7 +84,8 @@ def run_clip(video: Path, chessboard: bool, last_frame: int, tracks: Path | None
         cam = calib.model_copy(update={"height_m": cam.height_m})
     cam, rows, _ = estimate_camera(images[: int(2 * fps) + 1], cam)
     boxes = pd.read_csv(tracks) if tracks is not None and tracks.exists() else None
-    est = EgoMotionEstimator(cam, mask_bottom_rows=rows, **options)
+    overlay = static_overlay_mask(images[: int(2 * fps) + 1]) if overlay_mask else None
+    est = EgoMotionEstimator(cam, mask_bottom_rows=rows, still_mask=overlay, **options)
     t0 = time.process_time()
     raw = []
     for i, img in enumerate(images):
@@ -134,6 +142,7 @@ def main() -> None:
     ap.add_argument("--clips", default="", help="comma-separated clip names (default: all)")
     ap.add_argument("--tracks", default="", help="folder with <clip>/tracks.csv to mask road users")
     ap.add_argument("--set", action="append", default=[], help="estimator option NAME=NUMBER (repeatable)")
+    ap.add_argument("--no-overlay-mask", action="store_true", help="without extract's static overlay mask")
     args = ap.parse_args()
     import cv2
 
@@ -150,11 +159,12 @@ def main() -> None:
             continue
         last = max(r["last_frame"] for r in entry["readings"])
         tracks = Path(args.tracks) / name / "tracks.csv" if args.tracks else None
-        report_labelled(name, entry, run_clip(Path(args.data) / entry["video"], False, last, tracks, options))
+        clip = run_clip(Path(args.data) / entry["video"], False, last, tracks, options, not args.no_overlay_mask)
+        report_labelled(name, entry, clip)
     for name, entry in labels["plausibility"].items():
         if wanted and name not in wanted:
             continue
-        r = run_clip(Path(args.data) / entry["video"], True, 250, None, options)
+        r = run_clip(Path(args.data) / entry["video"], True, 250, None, options, not args.no_overlay_mask)
         lo, hi = entry["range_kmh"]
         med = float(np.median(r.speed[1:])) * 3.6
         verdict = "plausible" if lo <= med <= hi else "IMPLAUSIBLE"

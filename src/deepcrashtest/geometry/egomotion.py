@@ -328,6 +328,8 @@ class EgoMotionEstimator:
     acceleration).
     ``max_rate_hz``: frames closer than ~1 / this to the last measured one are not measured; their
     state is interpolated (or extrapolated at the end) in :meth:`result` (None: every frame).
+    ``still_mask``: full-frame bool mask (True: not scene) of burned-in overlays found beforehand
+    (:func:`deepcrashtest.geometry.camera.static_overlay_mask`); no corner is taken or kept there.
     """
 
     def __init__(
@@ -355,6 +357,7 @@ class EgoMotionEstimator:
         coarse_corners: bool = True,
         accel_tau_s: float = 1.5,
         max_rate_hz: float | None = MAX_RATE_HZ,
+        still_mask: np.ndarray | None = None,
     ) -> None:
         if scale_method != "homography":
             raise ValueError(f"scale_method must be 'homography' (got {scale_method!r})")
@@ -407,6 +410,8 @@ class EgoMotionEstimator:
         self._dist = np.asarray(camera.distortion, dtype=float)
         self.max_rate_hz = max_rate_hz
         self._all: list[tuple[int, float]] = []  # (frame, time) of every update, measured or not
+        self.still_mask = still_mask
+        self._still: np.ndarray | None = None  # still_mask at the work resolution
 
     # ------------------------------------------------------------------ helpers
     def _prepare(self, frame: np.ndarray) -> np.ndarray:
@@ -433,6 +438,11 @@ class EgoMotionEstimator:
                 max(0, int((y1 - pad) * s)) : max(0, int((y2 + pad) * s)),
                 max(0, int((x1 - pad) * s)) : max(0, int((x2 + pad) * s)),
             ] = 0
+        if self.still_mask is not None:
+            if self._still is None or self._still.shape != (h, w):
+                small = cv2.resize(self.still_mask.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST)
+                self._still = small > 0
+            mask[self._still] = 0
         if self._overlay is not None:
             cells = (self._overlay[0] >= 3) & (self._overlay[0] >= 3 * self._overlay[1])
             still = cv2.resize(cells.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST)
