@@ -249,14 +249,17 @@ def _bonnet_stack(
 _OVERLAY_WIDTH = 640
 
 
+#: Overlay mask thresholds (:func:`static_overlay_mask`): the edge's gradient (grey levels per pixel), the
+#: stillness (temporal std over mean gradient, ~px of motion), the row gap closed and the dilation (px at
+#: :data:`_OVERLAY_WIDTH`).
+_OVERLAY_EDGE_MIN = 24.0
+_OVERLAY_STILL = 0.1
+_OVERLAY_CLOSE_PX = 21
+_OVERLAY_DILATE_PX = 3
+
+
 def static_overlay_mask(
-    frames: Iterable[np.ndarray],
-    max_frames: int = 10,
-    edge_min: float = 24.0,
-    still: float = 0.1,
-    max_share: float = 0.03,
-    dilate_px: int = 3,
-    close_px: int = 21,
+    frames: Iterable[np.ndarray], max_frames: int = 10, max_share: float = 0.03
 ) -> np.ndarray | None:
     """Pixels burned into or fixed to the picture (date/time/speed text, logos, frame borders, the bonnet's
     edge): full-frame bool mask (True = not scene), or None when nothing is found or the camera stands
@@ -264,33 +267,32 @@ def static_overlay_mask(
 
     ``frames``: a second or two of video (BGR or grey, any size), ``max_frames`` of them spread over it.
     A pixel is an overlay when it lies on an edge in at least 90 % of the frames (10th percentile of the
-    Sobel gradient magnitude at least ``edge_min`` grey levels per pixel, frames at :data:`_OVERLAY_WIDTH`
-    px) and its grey level does not change: temporal standard deviation under ``still`` times its mean
-    gradient, i.e. it moved less than ~``still`` px. A scene edge that persists (a distant ridge near the
-    focus of expansion) still drifts by a pixel or more with the camera's wobble and keeps its
-    corners; text on the picture does not move at all. When more than ``max_share`` of the frame is
-    such still detail (a standing or crawling camera: the stopped DAD 512 20.7 %, the near-still DAD
-    528 4.5 %, against 0.0-1.4 % on the 11 moving CCD/DAD clips and the Udacity highway clip measured,
-    KITTI odometry 0) the scene itself is still and None is returned: the ego-motion's stopped test
-    needs those points. Overlay corners otherwise outlive the blurred scene's in the feature tracker
-    and read as "stopped" (ccd_000014, ccd_000080). Gaps along a row up to ``close_px`` (changing digits
-    between still ones) are closed, then the mask is dilated by ``dilate_px`` (both at the analysis
-    width).
+    Sobel gradient magnitude at least :data:`_OVERLAY_EDGE_MIN` grey levels per pixel, frames at
+    :data:`_OVERLAY_WIDTH` px) and its grey level does not change: temporal standard deviation under
+    :data:`_OVERLAY_STILL` times its mean gradient, i.e. it moved less than ~0.1 px. A scene edge that
+    persists (a distant ridge near the focus of expansion) still drifts by a pixel or more with the
+    camera's wobble and keeps its corners; text on the picture does not move at all. When more than
+    ``max_share`` of the frame is such still detail (a standing or crawling camera: the stopped DAD 512
+    20.7 %, the near-still DAD 528 4.5 %, against 0.1-1.4 % on 9 moving CCD/DAD clips and the Udacity
+    highway clip, 0 on KITTI odometry) the scene itself is still and None is returned: the ego-motion's
+    stopped test needs those points. Overlay corners otherwise outlive the blurred scene's in the feature tracker
+    and read as "stopped" (ccd_000014, ccd_000080). Gaps along a row up to :data:`_OVERLAY_CLOSE_PX`
+    (changing digits between still ones) are closed, then the mask is dilated by :data:`_OVERLAY_DILATE_PX`.
     """
     frames = list(frames)
     stack, _ = _bonnet_stack(frames, max_frames, width=_OVERLAY_WIDTH, spread=True)
     if len(stack) < 4:
         return None
     grad = np.stack([np.hypot(cv2.Sobel(g, cv2.CV_32F, 1, 0), cv2.Sobel(g, cv2.CV_32F, 0, 1)) / 4.0 for g in stack])
-    persistent = np.percentile(grad, 10, axis=0) >= edge_min
-    fixed = persistent & (stack.std(axis=0) < still * grad.mean(axis=0))
+    persistent = np.percentile(grad, 10, axis=0) >= _OVERLAY_EDGE_MIN
+    fixed = persistent & (stack.std(axis=0) < _OVERLAY_STILL * grad.mean(axis=0))
     share = float(fixed.mean())
     if share == 0.0 or share > max_share:
         return None
     # a text line's glyphs that change (the seconds, a speed) sit between still ones: close the line's gaps
-    fixed_u8 = cv2.morphologyEx(fixed.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((1, close_px), np.uint8))
-    if dilate_px > 0:
-        fixed_u8 = cv2.dilate(fixed_u8, np.ones((2 * dilate_px + 1, 2 * dilate_px + 1), np.uint8))
+    fixed_u8 = cv2.morphologyEx(fixed.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((1, _OVERLAY_CLOSE_PX), np.uint8))
+    k = 2 * _OVERLAY_DILATE_PX + 1
+    fixed_u8 = cv2.dilate(fixed_u8, np.ones((k, k), np.uint8))
     fixed = fixed_u8 > 0
     h, w = frames[0].shape[:2]
     return cv2.resize(fixed.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
