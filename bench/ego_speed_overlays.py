@@ -60,7 +60,7 @@ def run_clip(
     last_frame: int,
     tracks: Path | None,
     options: dict[str, Any],
-    overlay_mask: bool = True,
+    overlay_mask: bool = False,
 ) -> ClipRun:
     import cv2
     import pandas as pd
@@ -172,7 +172,9 @@ def main() -> None:
     ap.add_argument("--clips", default="", help="comma-separated clip names (default: all)")
     ap.add_argument("--tracks", default="", help="folder with <clip>/tracks.csv to mask road users")
     ap.add_argument("--set", action="append", default=[], help="estimator option NAME=NUMBER (repeatable)")
-    ap.add_argument("--no-overlay-mask", action="store_true", help="without extract's static overlay mask")
+    ap.add_argument(
+        "--overlay-mask", action="store_true", help="with the static overlay mask (EgoMotionEstimator still_mask)"
+    )
     args = ap.parse_args()
     import cv2
 
@@ -189,12 +191,12 @@ def main() -> None:
             continue
         last = max(r["last_frame"] for r in entry["readings"])
         tracks = Path(args.tracks) / name / "tracks.csv" if args.tracks else None
-        clip = run_clip(Path(args.data) / entry["video"], False, last, tracks, options, not args.no_overlay_mask)
+        clip = run_clip(Path(args.data) / entry["video"], False, last, tracks, options, args.overlay_mask)
         report_labelled(name, entry, clip)
     for name, entry in labels["plausibility"].items():
         if wanted and name not in wanted:
             continue
-        r = run_clip(Path(args.data) / entry["video"], True, 250, None, options, not args.no_overlay_mask)
+        r = run_clip(Path(args.data) / entry["video"], True, 250, None, options, args.overlay_mask)
         lo, hi = entry["range_kmh"]
         med = float(np.median(r.speed[1:])) * 3.6
         verdict = "plausible" if lo <= med <= hi else "IMPLAUSIBLE"

@@ -134,7 +134,7 @@ def test_static_overlay_mask_covers_burned_in_text_not_the_scene():
 
 
 def test_no_road_corner_is_seeded_on_a_burned_in_overlay():
-    """CCD 14 as extract runs it (camera and overlay mask from the first 2 s): once the horizon is learned
+    """CCD 14 with extract's camera estimate and the overlay mask of the first 2 s: once the horizon is learned
     (~row 525) the road region ahead reaches into the date/speed line (rows ~688-708), where the road-corner
     quota (low corner threshold) finds the glyphs' sharp corners first; with the overlay mask no road
     corner is seeded there (and no point there enters the road-scale fit: ``_off_overlay``), while scene

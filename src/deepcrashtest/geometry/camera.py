@@ -275,9 +275,10 @@ def static_overlay_mask(
     ``max_share`` of the frame is such still detail (a standing or crawling camera: the stopped DAD 512
     20.7 %, the near-still DAD 528 4.5 %, against 0.1-1.4 % on 9 moving CCD/DAD clips and the Udacity
     highway clip, 0 on KITTI odometry) the scene itself is still and None is returned: the ego-motion's
-    stopped test needs those points. Overlay corners otherwise outlive the blurred scene's in the feature tracker
-    and read as "stopped" (ccd_000014, ccd_000080). Gaps along a row up to :data:`_OVERLAY_CLOSE_PX`
+    stopped test needs those points. Overlay corners otherwise outlive the blurred scene's in the feature
+    tracker and read as "stopped" (ccd_000014, ccd_000080). Gaps along a row up to :data:`_OVERLAY_CLOSE_PX`
     (changing digits between still ones) are closed, then the mask is dilated by :data:`_OVERLAY_DILATE_PX`.
+    For ``EgoMotionEstimator(still_mask=...)``, which ``extract`` does not switch on yet (README).
     """
     frames = list(frames)
     stack, _ = _bonnet_stack(frames, max_frames, width=_OVERLAY_WIDTH, spread=True)

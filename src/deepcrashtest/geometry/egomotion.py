@@ -333,8 +333,8 @@ class EgoMotionEstimator:
     there enters the road-scale fit. The scene's corners may still sit on it (as before the mask): masking
     them too left the essential matrix of blurred 10 fps clips without still points and its rotations
     noisy (ccd_000080: pitch swinging +-0.1 rad between frames, the camera attitude from them dropped the
-    fidelity IoU 0.72 / 0.64 -> 0.43 / 0.22).
-    """
+    fidelity IoU 0.72 / 0.64 -> 0.43 / 0.22). ``extract`` does not pass it (it changed dad_000487's ego
+    speed and lost that clip's crash; README, ego speed on real dashcam clips)."""
 
     def __init__(
         self,

@@ -36,7 +36,6 @@ from deepcrashtest.errors import UserError
 from deepcrashtest.geometry.camera import (
     detect_dashboard_rows,
     estimate_horizon_flow,
-    static_overlay_mask,
     vanishing_point_from_lines,
     with_horizon,
 )
@@ -122,8 +121,7 @@ def extract_geometry(
     buffer, rest = _calibration_frames(frames, calib_seconds)
     cam, rows, horizon_source = estimate_camera([f.image for f, _ in buffer], camera, dashboard_rows)
     size = (int(buffer[0][0].image.shape[1]), int(buffer[0][0].image.shape[0]))  # width, height (px)
-    overlay = static_overlay_mask([f.image for f, _ in buffer])
-    ego_est = EgoMotionEstimator(cam, mask_bottom_rows=rows, max_width=max_width, seed=seed, still_mask=overlay)
+    ego_est = EgoMotionEstimator(cam, mask_bottom_rows=rows, max_width=max_width, seed=seed)
     lane_det: LaneDetector | None = lane_detector or (
         ClassicalLaneDetector(cam, mask_bottom_rows=rows, seed=seed) if lanes else None
     )
