@@ -9,13 +9,17 @@ had a road-scale measurement (and their spread, before smoothing), and the camer
 ``fx * height`` that would make the means agree: the road plane's metric scale is proportional to the
 assumed focal length times the assumed camera height, and a clip without calibration runs on the
 unknown-dashcam default (90 deg horizontal field of view, 1.3 m). The highway clip (no overlay) runs with
-its chessboard calibration and is checked against a plausible range.
+its chessboard calibration and is checked against a plausible range. One more line per labelled clip: how
+much the scene grows in the image over each reading (:func:`scene_expansion`, no focal length needed).
 
 Run: PYTHONPATH=src python bench/ego_speed_overlays.py [--data DIR] [--clips a,b] [--tracks DIR] [--set NAME=X]
+[--overlay-mask]
 ``--tracks DIR``: ``DIR/<clip>/tracks.csv`` from an earlier extract masks the road users (as extract does)
 and self-calibrates the unknown camera from them as extract does (one more line: the speed rescaled by the
 measured over the assumed focal length x camera height);
-``--set``: an :class:`EgoMotionEstimator` option (repeatable), to compare variants on the same clips.
+``--set``: an :class:`EgoMotionEstimator` option (repeatable), to compare variants on the same clips;
+``--overlay-mask``: with ``still_mask`` from :func:`~deepcrashtest.geometry.camera.static_overlay_mask` of the
+first 2 s (not used by extract yet).
 """
 
 from __future__ import annotations
