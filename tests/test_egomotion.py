@@ -165,3 +165,48 @@ def test_road_crop_box_stays_inside_the_image_when_the_road_warps_off_it():
         x0, y0, x1, y1 = _crop_box(np.array(pts), w, h, margin=8, align=4)
         assert 0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h
     assert _crop_box(np.array([[100.0, 100.0], [300.0, 200.0]]), w, h, margin=8, align=4) == (92, 92, 308, 208)
+
+
+def _two_seconds(path: Path, fps: float) -> list[np.ndarray]:
+    return _frames(path, int(2 * fps) + 1)
+
+
+def test_static_overlay_mask_covers_burned_in_text_not_the_scene():
+    """CCD 14 (10 fps, a GPS date/position/speed line burned in at rows ~688-708): the still-pixel mask
+    covers that line and leaves the road and the scene above it; none for a stopped camera (DAD 512:
+    the whole scene stands still) or a plain moving scene (KITTI odometry seq00, no overlay)."""
+    from deepcrashtest.geometry.camera import static_overlay_mask
+
+    imgs = _two_seconds(DATA / "crash_ccd" / "ccd_000014.mp4", 10.0)
+    mask = static_overlay_mask(imgs)
+    assert mask is not None and mask.shape == imgs[0].shape[:2]
+    assert mask[686:712, 540:1240].mean() > 0.8  # measured 1.0 (glyphs, gaps closed, dilated)
+    assert mask[:680].mean() < 0.01  # measured 0.002 (the top border row)
+    assert static_overlay_mask(_frames(DAD / "dad_000512.mp4", 41)) is None
+    kitti = sorted(need(DATA / "kitti_odometry" / "seq00_frames0000-0159" / "image_0").glob("*.png"))[:21]
+    assert static_overlay_mask([cv2.imread(str(p)) for p in kitti]) is None
+
+
+def test_no_road_corner_is_seeded_on_a_burned_in_overlay():
+    """CCD 14 with extract's camera estimate and the overlay mask of the first 2 s: once the horizon is learned
+    (~row 525) the road region ahead reaches into the date/speed line (rows ~688-708), where the road-corner
+    quota (low corner threshold) finds the glyphs' sharp corners first; with the overlay mask no road
+    corner is seeded there (and no point there enters the road-scale fit: ``_off_overlay``), while scene
+    corners may stay on it as before (measured 9 tracked)."""
+    from deepcrashtest.geometry.camera import static_overlay_mask
+
+    imgs = _frames(DATA / "crash_ccd" / "ccd_000014.mp4", 12)
+    first = _two_seconds(DATA / "crash_ccd" / "ccd_000014.mp4", 10.0)
+    cam, rows, _ = estimate_camera(first, default_camera(1280, 720))
+    on_text = []
+    for mask in (None, static_overlay_mask(first)):
+        est = EgoMotionEstimator(cam, mask_bottom_rows=rows, still_mask=mask)
+        for i, img in enumerate(imgs):
+            est.update(img, i / 10.0)
+        road = est._road_mask(est._static_mask((540, 960), np.zeros((0, 4)))) > 0  # work px (960 wide)
+        text = np.zeros_like(road)
+        text[int(690 * 0.75) : int(708 * 0.75), int(540 * 0.75) : int(1240 * 0.75)] = True
+        p = est._p
+        on_text.append((float(road[text].mean()), int(np.sum(~est._off_overlay(p)))))
+    assert on_text[0][0] > 0.01  # without the mask the road region reaches into the text line (measured 0.026)
+    assert on_text[1][0] == 0.0

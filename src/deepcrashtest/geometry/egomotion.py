@@ -331,7 +331,13 @@ class EgoMotionEstimator:
     acceleration).
     ``max_rate_hz``: frames closer than ~1 / this to the last measured one are not measured; their
     state is interpolated (or extrapolated at the end) in :meth:`result` (None: every frame).
-    """
+    ``still_mask``: full-frame bool mask (True: not scene) of burned-in overlays found beforehand
+    (:func:`deepcrashtest.geometry.camera.static_overlay_mask`): no road corner is seeded there and no point
+    there enters the road-scale fit. The scene's corners may still sit on it (as before the mask): masking
+    them too left the essential matrix of blurred 10 fps clips without still points and its rotations
+    noisy (ccd_000080: pitch swinging +-0.1 rad between frames, the camera attitude from them dropped the
+    fidelity IoU 0.72 / 0.64 -> 0.43 / 0.22). ``extract`` does not pass it (it changed dad_000487's ego
+    speed and lost that clip's crash; README, ego speed on real dashcam clips)."""
 
     def __init__(
         self,
@@ -358,6 +364,7 @@ class EgoMotionEstimator:
         coarse_corners: bool = True,
         accel_tau_s: float = 1.5,
         max_rate_hz: float | None = MAX_RATE_HZ,
+        still_mask: np.ndarray | None = None,
     ) -> None:
         if scale_method != "homography":
             raise ValueError(f"scale_method must be 'homography' (got {scale_method!r})")
@@ -410,6 +417,8 @@ class EgoMotionEstimator:
         self._dist = np.asarray(camera.distortion, dtype=float)
         self.max_rate_hz = max_rate_hz
         self._all: list[tuple[int, float]] = []  # (frame, time) of every update, measured or not
+        self.still_mask = still_mask
+        self._still: np.ndarray | None = None  # still_mask at the work resolution
 
     # ------------------------------------------------------------------ helpers
     def _prepare(self, frame: np.ndarray) -> np.ndarray:
@@ -436,6 +445,9 @@ class EgoMotionEstimator:
                 max(0, int((y1 - pad) * s)) : max(0, int((y2 + pad) * s)),
                 max(0, int((x1 - pad) * s)) : max(0, int((x2 + pad) * s)),
             ] = 0
+        if self.still_mask is not None and (self._still is None or self._still.shape != (h, w)):
+            small = cv2.resize(self.still_mask.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST)
+            self._still = small > 0
         if self._overlay is not None:
             cells = (self._overlay[0] >= 3) & (self._overlay[0] >= 3 * self._overlay[1])
             still = cv2.resize(cells.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST)
@@ -477,7 +489,17 @@ class EgoMotionEstimator:
         vv, uu = np.mgrid[0:h:4, 0:w:4]
         coarse = self._road_region(uu.astype(float), vv.astype(float), h).astype(np.uint8)
         road = cv2.resize(coarse, (w, h), interpolation=cv2.INTER_NEAREST) * 255
+        if self._still is not None:
+            road[self._still] = 0
         return cv2.bitwise_and(road, mask)
+
+    def _off_overlay(self, p: np.ndarray) -> np.ndarray:
+        """Whether each work-px point (N, 2) lies off the burned-in overlay (``still_mask``)."""
+        if self._still is None or not len(p):
+            return np.ones(len(p), bool)
+        h, w = self._still.shape
+        ix, iy = np.clip(p[:, 0].astype(int), 0, w - 1), np.clip(p[:, 1].astype(int), 0, h - 1)
+        return ~self._still[iy, ix]
 
     def _track(self, prev: np.ndarray, cur: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Track the last frame's points into ``cur`` (work px): (positions, good mask).
@@ -572,9 +594,10 @@ class EgoMotionEstimator:
         self._learn_travel(R, t, dyaw)
         if moving:
             ok = ok & (np.linalg.norm(p1 - p0, axis=1) >= 0.1)
-        road = ok & self._road_region(p0[:, 0], p0[:, 1], h)
+        ok_road = ok & self._off_overlay(p0)
+        road = ok_road & self._road_region(p0[:, 0], p0[:, 1], h)
         if road.sum() < 2 * MIN_ROAD_POINTS:  # a narrow or textureless lane: take the shoulders too
-            road = ok & self._road_region(p0[:, 0], p0[:, 1], h, width_factor=3.0)
+            road = ok_road & self._road_region(p0[:, 0], p0[:, 1], h, width_factor=3.0)
         if road.sum() < MIN_ROAD_POINTS:
             return float("nan"), dyaw, int(road.sum()), R, t, None
         x0 = cv2.undistortPoints(p0[road].reshape(-1, 1, 2).astype(np.float64), K, None).reshape(-1, 2)
