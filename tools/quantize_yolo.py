@@ -78,6 +78,7 @@ def main() -> None:
     ap.add_argument("model", type=Path, help="the float YOLO26n ONNX (tools/export_yolo.py)")
     ap.add_argument("out", type=Path)
     ap.add_argument("--data", type=Path, required=True, help="the shared data folder")
+    ap.add_argument("--reduce-range", action="store_true", help="7-bit weights (no u8s8 saturation on AVX2)")
     args = ap.parse_args()
     import onnx
     from onnxruntime.quantization import CalibrationMethod, QuantFormat, QuantType, quantize_static
@@ -100,6 +101,7 @@ def main() -> None:
             activation_type=QuantType.QUInt8,
             calibrate_method=CalibrationMethod.MinMax,
             nodes_to_exclude=head,
+            reduce_range=args.reduce_range,
         )
         part.replace(args.out)
     print(f"wrote {args.out} ({len(inputs)} calibration inputs, {len(head)} head nodes float)")
