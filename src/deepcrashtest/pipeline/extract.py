@@ -45,6 +45,7 @@ from deepcrashtest.video.bars import SAMPLE_FRAMES, picture_area
 from deepcrashtest.video.shots import Shot, ShotWatch
 from deepcrashtest.video.source import Frame, VideoMeta, open_video
 from deepcrashtest.video.writer import VideoWriter
+from deepcrashtest.viz.sheet_thumbs import SheetThumbs
 
 if TYPE_CHECKING:  # imported where used: pandas, SciPy and the crash modules load while the first frames decode
     import pandas as pd
@@ -195,7 +196,7 @@ def _run_pass(
     result = _summary(plan, meta, df, elapsed)
     result["crash_detection"] = crash_info
     if geo is not None:
-        result.update(_finish_scenario(geo, paths, force, seed, report, result["warnings"], stage2))
+        result.update(_finish_scenario(geo, paths, force, seed, report, result["warnings"], stage2, plan.kept))
     return result
 
 
@@ -318,6 +319,8 @@ class _Pass:
     shot_watch: ShotWatch | None = field(default=None, init=False)
     imports: threading.Thread | None = field(default=None, init=False)
     """The background imports (:func:`_warm_imports`), joined after the last frame."""
+    kept: SheetThumbs | None = field(default=None, init=False)
+    """Thumbnails of the annotated frames for the report's contact sheet (when a report is written)."""
 
     def run(
         self,
@@ -378,10 +381,16 @@ class _Pass:
             return lambda _ft, _lanes: None
         writer = stack.enter_context(VideoWriter(path, meta.fps, meta.width, meta.height, force=self.force))
         drawer = Annotator(meta.fps)
+        if "report" in self.paths:  # the report's contact sheet from these frames, not from decoding the video
+            w, h = writer.width + writer.width % 2, writer.height + writer.height % 2  # as encoded
+            self.kept = SheetThumbs(meta.fps, w, h, expected=self._total(meta))
 
         def encode(item: tuple[FrameTracks, LaneState | None]) -> None:
             img = drawer.draw(item[0])
-            writer.write(draw_lanes(img, item[1]) if item[1] is not None else img)
+            img = draw_lanes(img, item[1]) if item[1] is not None else img
+            writer.write(img)
+            if self.kept is not None:
+                self.kept.add(img)
 
         worker: Worker[tuple[FrameTracks, LaneState | None]] = Worker(encode, 8, "encode")
         stack.callback(worker.close)  # drains before the writer closes (LIFO)
@@ -463,8 +472,10 @@ def _finish_scenario(
     report: bool,
     warnings: list[str],
     stage2: Stage2Params | None = None,
+    kept: SheetThumbs | None = None,
 ) -> dict[str, Any]:
-    """Save the raw scenario, run stage 2 on it, save the processed one and the report."""
+    """Save the raw scenario, run stage 2 on it, save the processed one and the report (its contact sheet from
+    ``kept``, the pass's thumbnails of the annotated frames)."""
     raw = geo.scenario
     raw.save(paths["scenario_raw"], force=force)
     ego = raw.ego.trajectory.arrays()
@@ -499,7 +510,7 @@ def _finish_scenario(
     if report:
         from deepcrashtest.viz.report import build_report
 
-        build_report(paths["scenario"], paths["report"], force=force)
+        build_report(paths["scenario"], paths["report"], force=force, kept=kept)
         info["report"] = str(paths["report"])
     return info
 

@@ -28,6 +28,7 @@ from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import atomic_write_text
 from deepcrashtest.scenario import Collision, Scenario, Vehicle
 from deepcrashtest.viz.plots import birdseye_figure, observed_mask, plot_observed, time_axes
+from deepcrashtest.viz.sheet_thumbs import SHEET_FRAMES, SHEET_THUMB_WIDTH, SheetThumbs, sheet_frames
 from deepcrashtest.viz.style import CLASS_DESCRIPTIONS, EGO_COLOUR, OBSERVED_NOTE, vehicle_colour
 
 #: The distance plot's axis stops here (metres): farther road users do not matter for a crash.
@@ -229,48 +230,38 @@ def camera_section(sc: Scenario) -> Section:
     return Section("Camera and calibration", table(rows))
 
 
-def sheet_frames(frame_count: int, frames: int, include: int | None = None) -> list[int]:
-    """``frames`` frame indices evenly spread over a video of ``frame_count`` frames (middle of each slice);
-    ``include`` (the collision's frame) takes the place of the nearest one."""
-    if frame_count <= 0:
-        return []
-    k = min(frames, frame_count)
-    out = sorted({int((i + 0.5) * frame_count / k) for i in range(k)})
-    if include is not None and 0 <= include < frame_count and include not in out:
-        out[int(np.argmin([abs(i - include) for i in out]))] = include
-    return sorted(out)
-
-
 def collision_frame(sc: Scenario | None) -> int | None:
     """The video frame of the scenario's collision (None without one, or outside the video)."""
     return None if sc is None or sc.collision is None else sc.video_frame(sc.collision.time_s)
 
 
 def contact_sheet_section(
-    video: str | Path, frames: int = 12, columns: int = 4, thumb_width: int = 320, sc: Scenario | None = None
+    video: str | Path,
+    frames: int = SHEET_FRAMES,
+    columns: int = 4,
+    thumb_width: int = SHEET_THUMB_WIDTH,
+    sc: Scenario | None = None,
+    kept: SheetThumbs | None = None,
 ) -> Section:
     """A grid of ``frames`` evenly spaced frames of ``video`` (the annotated extraction output).
 
     Each is titled ``#k``, its frame number, video time and (with ``sc``) scenario time; the plots
-    mark the same ``#k`` at the same scenario time (:func:`sheet_marks`).
+    mark the same ``#k`` at the same scenario time (:func:`sheet_marks`). ``kept``: the thumbnails the pass
+    kept of the frames it wrote to ``video`` (:class:`SheetThumbs`); only frames it did not keep are decoded.
     """
     import cv2
 
-    from deepcrashtest.viz.video_frames import VideoFrames
-
     if frames < 1 or columns < 1:
         raise UserError(f"contact sheet needs frames >= 1 and columns >= 1 (got {frames}, {columns})")
-    vf = VideoFrames(video)
-    try:
-        indices = sheet_frames(vf.frame_count, frames, collision_frame(sc))
-        thumbs = []
-        for i in indices:
-            rgb = vf.frame(i)
-            h, w = rgb.shape[:2]
-            thumbs.append(cv2.resize(rgb, (thumb_width, round(h * thumb_width / w)), interpolation=cv2.INTER_AREA))
-        info = vf.info()
-    finally:
-        vf.close()
+    if kept is not None and kept.thumb_width == thumb_width:
+        indices = sheet_frames(kept.count, frames, collision_frame(sc))
+        found = [kept.frame(i) for i in indices]
+        info = kept.info()
+        missing = [i for i, im in zip(indices, found, strict=True) if im is None]
+        decoded = dict(zip(missing, _decoded_thumbs(video, missing, thumb_width), strict=True))
+        thumbs = [im if im is not None else decoded[i] for i, im in zip(indices, found, strict=True)]
+    else:
+        indices, thumbs, info = _video_sheet(video, frames, thumb_width, sc)
     if not thumbs:
         return Section("Annotated frames", f"<p>{esc(Path(video).name)}: no frames.</p>")
     rows = math.ceil(len(thumbs) / columns)
@@ -301,7 +292,45 @@ def contact_sheet_section(
     return Section("Annotated frames", caption + img(sheet_b64, "contact sheet of annotated frames", "image/jpeg"))
 
 
-def sheet_marks(sc: Scenario, frame_count: int, frames: int = 12) -> list[tuple[str, float]]:
+def _video_sheet(
+    video: str | Path, frames: int, thumb_width: int, sc: Scenario | None
+) -> tuple[list[int], list[np.ndarray], dict[str, Any]]:
+    """The sheet's frame indices, their thumbnails and the video's facts, decoded from ``video``."""
+    from deepcrashtest.viz.video_frames import VideoFrames
+
+    vf = VideoFrames(video)
+    try:
+        indices = sheet_frames(vf.frame_count, frames, collision_frame(sc))
+        return indices, _thumbs_of(vf, indices, thumb_width), vf.info()
+    finally:
+        vf.close()
+
+
+def _decoded_thumbs(video: str | Path, indices: list[int], thumb_width: int) -> list[np.ndarray]:
+    """Thumbnails of frames ``indices`` decoded from ``video`` (not opened when there are none)."""
+    if not indices:
+        return []
+    from deepcrashtest.viz.video_frames import VideoFrames
+
+    vf = VideoFrames(video)
+    try:
+        return _thumbs_of(vf, indices, thumb_width)
+    finally:
+        vf.close()
+
+
+def _thumbs_of(vf: Any, indices: list[int], thumb_width: int) -> list[np.ndarray]:
+    import cv2
+
+    thumbs = []
+    for i in indices:
+        rgb = vf.frame(i)
+        h, w = rgb.shape[:2]
+        thumbs.append(cv2.resize(rgb, (thumb_width, round(h * thumb_width / w)), interpolation=cv2.INTER_AREA))
+    return thumbs
+
+
+def sheet_marks(sc: Scenario, frame_count: int, frames: int = SHEET_FRAMES) -> list[tuple[str, float]]:
     """``(#k, scenario time)`` of the contact sheet's frames, for the time plots."""
     indices = sheet_frames(frame_count, frames, collision_frame(sc))
     return [(f"#{k + 1}", sc.frame_time(i)) for k, i in enumerate(indices)]
@@ -553,19 +582,24 @@ def scenario_sections(
     sim_metrics: Mapping[str, Any] | Any | None = None,
     search: Any | None = None,
     fidelity: Any | None = None,
+    kept: SheetThumbs | None = None,
 ) -> list[Section]:
-    """Every section a scenario (+ optional annotated video, sim metrics, search table, fidelity result) gives."""
+    """Every section a scenario (+ optional annotated video, sim metrics, search table, fidelity result) gives.
+
+    ``kept``: the pass's thumbnails of ``video``'s frames (:class:`SheetThumbs`), so the sheet needs no decoding.
+    """
     from concurrent.futures import ThreadPoolExecutor
 
     from deepcrashtest.forking import Forked
     from deepcrashtest.viz.fidelity_section import fidelity_section
 
-    marks = sheet_marks(sc, _frame_count(video)) if video is not None else []
+    count = kept.count if kept is not None else _frame_count(video) if video is not None else 0
+    marks = sheet_marks(sc, count) if video is not None else []
     # two plots drawn in forked children (matplotlib holds the GIL; forked before the sheet's thread starts)
     birdseye, lanes = Forked(birdseye_section, sc), Forked(lane_offset_section, sc)
     with ThreadPoolExecutor(1, thread_name_prefix="contact-sheet") as pool:
-        # the sheet decodes the video (PyAV and OpenCV release the GIL) while matplotlib draws the plots
-        sheet = pool.submit(contact_sheet_section, video, sc=sc) if video is not None else None
+        # the sheet (decoding the video without ``kept``: PyAV and OpenCV release the GIL) while matplotlib draws
+        sheet = pool.submit(contact_sheet_section, video, sc=sc, kept=kept) if video is not None else None
         motion = motion_section(sc, marks)  # here, while the children draw theirs
         plots = [birdseye.result(), motion, lanes.result()]
     parts: list[Section | None] = [
@@ -663,10 +697,12 @@ def build_report(
     search: str | Path | None = None,
     force: bool = False,
     sim_metrics: Mapping[str, Any] | None = None,
+    kept: SheetThumbs | None = None,
 ) -> dict[str, Any]:
     """Write the report of a scenario file; optional inputs default to the files beside it.
 
-    ``sim_metrics`` (a metrics dict from a run made by the caller) takes the place of ``sim``.
+    ``sim_metrics`` (a metrics dict from a run made by the caller) takes the place of ``sim``; ``kept``: the
+    thumbnails ``extract`` kept of the annotated video's frames (:class:`SheetThumbs`) for the contact sheet.
 
     Beside the scenario: ``annotated.mp4`` (contact sheet), ``simulation.json`` (metrics, e.g.
     ``deepcrashtest simulate --json`` output), ``results.csv`` or ``search/results.csv`` (search table).
@@ -693,6 +729,7 @@ def build_report(
         sim_metrics=load_sim_metrics(sim_p) if sim_p is not None else sim_metrics,
         search=search_p,
         fidelity=load_fidelity(fidelity_p) if fidelity_p is not None else None,
+        kept=kept if video is None else None,
     )
     path = write_report(output, *sections, title=f"DeepCrashTest report: {sc.name}", force=force)
     return {
