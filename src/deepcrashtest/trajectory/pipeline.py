@@ -55,7 +55,7 @@ from deepcrashtest.scenario import (
     Vehicle,
     format_validation_error,
 )
-from deepcrashtest.trajectory.agentheading import with_observed_yaw
+from deepcrashtest.trajectory.agentheading import agents_along_box_heading, observed_headings, with_observed_yaw
 from deepcrashtest.trajectory.collision import MOVING_MPS, first_contact, headings
 from deepcrashtest.trajectory.contact import ContactParams
 from deepcrashtest.trajectory.crash import CrashOutcome, earlier_touch, resolve_crash
@@ -127,6 +127,7 @@ def _process_scenario(raw: Scenario, seed: int, params: Stage2Params | None) -> 
     _check_raw(raw)
     run = _Run(raw, params or Stage2Params(), float(raw.source.fps), float(raw.ego.trajectory.t[0]), list(raw.warnings))
     run.raw, run.ego_shift_m = ego_along_measured_yaw(raw, run.p.ego_yaw_window_s, run.warnings)
+    run.raw = agents_along_box_heading(run.raw, run.warnings)
     run.raw, run.ego_retime_m = ego_within_traction(
         run.raw, run.p.savgol_window_s, ContactParams().kin_margin, run.warnings
     )
@@ -333,6 +334,7 @@ def first_speed(d: Dense, window_s: float = 0.5) -> float:
 def _crash_phase(run: _Run, ego: Dense, agents: list[Dense], t_max: float) -> CrashOutcome:
     """The video's crash in scenario time, made to happen; every other contact before it removed."""
     known = run.raw.collision
+    _agents_face_their_boxes(agents, t_max - run.t0)
     if known is not None:
         known = known.model_copy(update={"time_s": known.time_s - run.t0 + t_max})
         if known.source == "video-auto" and not run.jolt_at_crash:
@@ -350,6 +352,18 @@ def _crash_phase(run: _Run, ego: Dense, agents: list[Dense], t_max: float) -> Cr
         run.warnings.append(f"agent {d.id}: fewer than 2 samples after processing; dropped")
     out.agents = [d for d in out.agents if d not in short]
     return out
+
+
+def _agents_face_their_boxes(agents: list[Dense], t_shift: float) -> None:
+    """Every moving agent's box, in the crash phase, faces the heading the processed scenario will give it
+    (:func:`_with_observed_yaws`), not its path's direction: the crash and the separations it arranges are
+    then those of the scenario's own boxes, which the replay drives (KITTI 0002's car turning into a
+    pedestrian missed him by its box's turn). ``t_shift``: scenario time minus raw time (s)."""
+    for d in agents:
+        r = d.vehicle.trajectory.arrays()
+        if d.static or len(d.t) < 2 or len(r["t"]) < 2:
+            continue
+        d.box_yaw = (d.t.copy(), observed_headings(d.t, d.box_headings(), r["t"] + t_shift, r["yaw"]))
 
 
 def _final_phase(run: _Run, ego: Dense, crash: CrashOutcome) -> list[Vehicle]:
