@@ -55,7 +55,7 @@ from deepcrashtest.scenario import (
     Vehicle,
     format_validation_error,
 )
-from deepcrashtest.trajectory.agentheading import agents_along_box_heading, observed_headings, with_observed_yaw
+from deepcrashtest.trajectory.agentheading import replayable_yaws, with_observed_yaw
 from deepcrashtest.trajectory.collision import MOVING_MPS, first_contact, headings
 from deepcrashtest.trajectory.contact import ContactParams
 from deepcrashtest.trajectory.crash import CrashOutcome, earlier_touch, resolve_crash
@@ -127,7 +127,6 @@ def _process_scenario(raw: Scenario, seed: int, params: Stage2Params | None) -> 
     _check_raw(raw)
     run = _Run(raw, params or Stage2Params(), float(raw.source.fps), float(raw.ego.trajectory.t[0]), list(raw.warnings))
     run.raw, run.ego_shift_m = ego_along_measured_yaw(raw, run.p.ego_yaw_window_s, run.warnings)
-    run.raw = agents_along_box_heading(run.raw, run.warnings)
     run.raw, run.ego_retime_m = ego_within_traction(
         run.raw, run.p.savgol_window_s, ContactParams().kin_margin, run.warnings
     )
@@ -139,7 +138,8 @@ def _process_scenario(raw: Scenario, seed: int, params: Stage2Params | None) -> 
     crash = _crash_phase(run, ego, agents, t_max)
     vehicles = _final_phase(run, ego, crash)
     vehicles[0] = _with_measured_yaw(vehicles[0], run, t_max)
-    vehicles = [vehicles[0], *_with_observed_yaws(vehicles[1:], crash.agents, t_max - run.t0)]
+    observed = [vehicles[0], *_with_observed_yaws(vehicles[1:], crash.agents, t_max - run.t0)]
+    vehicles = replayable_yaws(observed, vehicles, crash.collision, run.warnings)
     collision = _collision_record(crash, vehicles)
     road = _road_phase(run, ego, crash, ego_frame, t_max)
     return _assemble(run, vehicles, road, collision, crash, t_max, seed)
@@ -334,7 +334,6 @@ def first_speed(d: Dense, window_s: float = 0.5) -> float:
 def _crash_phase(run: _Run, ego: Dense, agents: list[Dense], t_max: float) -> CrashOutcome:
     """The video's crash in scenario time, made to happen; every other contact before it removed."""
     known = run.raw.collision
-    _agents_face_their_boxes(agents, t_max - run.t0)
     if known is not None:
         known = known.model_copy(update={"time_s": known.time_s - run.t0 + t_max})
         if known.source == "video-auto" and not run.jolt_at_crash:
@@ -352,18 +351,6 @@ def _crash_phase(run: _Run, ego: Dense, agents: list[Dense], t_max: float) -> Cr
         run.warnings.append(f"agent {d.id}: fewer than 2 samples after processing; dropped")
     out.agents = [d for d in out.agents if d not in short]
     return out
-
-
-def _agents_face_their_boxes(agents: list[Dense], t_shift: float) -> None:
-    """Every moving agent's box, in the crash phase, faces the heading the processed scenario will give it
-    (:func:`_with_observed_yaws`), not its path's direction: the crash and the separations it arranges are
-    then those of the scenario's own boxes, which the replay drives (KITTI 0002's car turning into a
-    pedestrian missed him by its box's turn). ``t_shift``: scenario time minus raw time (s)."""
-    for d in agents:
-        r = d.vehicle.trajectory.arrays()
-        if d.static or len(d.t) < 2 or len(r["t"]) < 2:
-            continue
-        d.box_yaw = (d.t.copy(), observed_headings(d.t, d.box_headings(), r["t"] + t_shift, r["yaw"]))
 
 
 def _final_phase(run: _Run, ego: Dense, crash: CrashOutcome) -> list[Vehicle]:
