@@ -55,24 +55,52 @@ def replayable_yaws(
 ) -> list[Vehicle]:
     """``observed`` (the processed vehicles, ego first, moving agents facing their boxes: :func:`with_observed_yaw`)
     with ``path``'s heading (the same vehicles facing along their paths, the boxes stage 2 made the crash with)
-    put back for the agents whose box heading changes the scenario's contacts: the crash pair no longer first
-    touching within ``REPLAY_TOUCH_TOL_S`` of ``collision`` (scenario time), or any other pair touching before
-    it. The replay takes each agent's heading from the scenario (``sim.world``), so the scenario's contacts
-    are the replay's."""
-    kept = list(observed)
+    put back where an agent's box heading changes the scenario's contacts: the crash pair no longer first
+    touching within ``REPLAY_TOUCH_TOL_S`` of ``collision`` (scenario time), or another pair touching before
+    it. Put back within ``REVERT_WINDOW_S`` of that contact (from there on for the pair), blended over
+    ``BLEND_S``; over the whole track when that does not help. The replay takes each agent's heading from the
+    scenario (``sim.world``), so the scenario's contacts are the replay's."""
     by_path = {v.id: v for v in path}
     changed = {v.id for v, p in zip(observed, path, strict=True) if v is not p}
-    while changed:
-        bad = _broken_contact(kept, collision, changed)
-        if not bad:
+    spans: dict[int, list[tuple[float, float]]] = {}
+    kept = list(observed)
+    for _ in range(4 * len(changed) + 1):
+        broken = _broken_contact(kept, collision, changed)
+        if broken is None:
             break
-        kept = [by_path[v.id] if v.id in bad else v for v in kept]
-        changed -= bad
+        ids, t_hit, lo, hi = broken
+        for i in ids:
+            own = spans.setdefault(i, [])
+            if any(a <= t_hit <= b for a, b in own):  # facing its path there did not help: along it throughout
+                own[:] = [(-math.inf, math.inf)]
+                changed.discard(i)
+            else:
+                own.append((lo, hi))
+        kept = [_path_heading_within(v, by_path[v.id], spans[v.id]) if v.id in spans else v for v in observed]
+    if spans:
         warnings.append(
-            f"agent(s) {sorted(bad)}: replayed along their paths' direction, not their boxes' heading (facing their "
-            "boxes they would touch another road user other than as the crash does)"
+            f"agent(s) {sorted(spans)}: face along their paths, not their boxes, near a contact that their boxes' "
+            "heading would change (the replay must touch as the crash does)"
         )
     return kept
+
+
+REVERT_WINDOW_S = 1.0
+"""Seconds either side of a contact within which an agent faces along its path (:func:`replayable_yaws`)."""
+
+
+def _path_heading_within(observed: Vehicle, path: Vehicle, spans: list[tuple[float, float]]) -> Vehicle:
+    """``observed`` facing as ``path`` within the time ``spans`` (s), blended over ``BLEND_S`` outside them."""
+    o, p = observed.trajectory.arrays(), path.trajectory.arrays()
+    t = o["t"]
+    w = np.zeros(len(t))
+    for lo, hi in spans:
+        out = np.maximum(np.maximum(lo - t, t - hi), 0.0)
+        w = np.maximum(w, np.clip(1.0 - out / BLEND_S, 0.0, 1.0))
+    diff = (np.unwrap(p["yaw"]) - np.unwrap(o["yaw"]) + math.pi) % (2 * math.pi) - math.pi
+    yaw = np.unwrap(np.unwrap(o["yaw"]) + w * diff)
+    traj = observed.trajectory.model_copy(update={"yaw": [float(v) for v in yaw]})
+    return observed.model_copy(update={"trajectory": traj})
 
 
 def _box_track(v: Vehicle, margin_m: float = 0.0) -> BoxTrack:
@@ -80,15 +108,18 @@ def _box_track(v: Vehicle, margin_m: float = 0.0) -> BoxTrack:
     return BoxTrack(a["t"], a["x"], a["y"], np.unwrap(a["yaw"]), v.length + 2 * margin_m, v.width + 2 * margin_m)
 
 
-def _broken_contact(vehicles: list[Vehicle], collision: Collision | None, changed: set[int]) -> set[int]:
-    """The ids among ``changed`` of a pair whose contact differs from the crash (see :func:`replayable_yaws`);
-    empty when none does."""
+def _broken_contact(
+    vehicles: list[Vehicle], collision: Collision | None, changed: set[int]
+) -> tuple[set[int], float, float, float] | None:
+    """The ids among ``changed`` of a pair whose contact differs from the crash (see :func:`replayable_yaws`),
+    the contact's time and the span (s) to face along the path; None when no pair's does."""
     pair = set(collision.participants) if collision is not None else set()
-    if collision is not None:
+    if collision is not None and pair & changed:
         a, b = (next(v for v in vehicles if v.id == i) for i in collision.participants)
         hit = first_contact(_box_track(a), _box_track(b))
-        if (hit is None or abs(hit.time_s - collision.time_s) > REPLAY_TOUCH_TOL_S) and pair & changed:
-            return pair & changed
+        if hit is None or abs(hit.time_s - collision.time_s) > REPLAY_TOUCH_TOL_S:
+            t_hit = collision.time_s if hit is None else min(hit.time_s, collision.time_s)
+            return pair & changed, t_hit, t_hit - REVERT_WINDOW_S, math.inf
     t_end = collision.time_s - REPLAY_TOUCH_TOL_S if collision is not None else math.inf
     boxes = [_box_track(v, GRAZE_MARGIN_M) for v in vehicles]
     for i, vi in enumerate(vehicles):
@@ -98,5 +129,5 @@ def _broken_contact(vehicles: list[Vehicle], collision: Collision | None, change
                 continue
             hit = _contact_after_apart(boxes[i], boxes[j])
             if hit is not None and hit.time_s < t_end:
-                return ids & changed
-    return set()
+                return ids & changed, hit.time_s, hit.time_s - REVERT_WINDOW_S, hit.time_s + REVERT_WINDOW_S
+    return None
