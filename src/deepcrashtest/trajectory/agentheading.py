@@ -85,7 +85,7 @@ def replayable_yaws(
     return kept
 
 
-REVERT_WINDOW_S = 1.0
+REVERT_WINDOW_S = 0.5
 """Seconds either side of a contact within which an agent faces along its path (:func:`replayable_yaws`)."""
 
 
@@ -129,5 +129,17 @@ def _broken_contact(
                 continue
             hit = _contact_after_apart(boxes[i], boxes[j])
             if hit is not None and hit.time_s < t_end:
-                return ids & changed, hit.time_s, hit.time_s - REVERT_WINDOW_S, hit.time_s + REVERT_WINDOW_S
+                movers = ids & changed
+                unseen = {k for k in movers if not _seen(vi if k == vi.id else vehicles[j], hit.time_s)}
+                return unseen or movers, hit.time_s, hit.time_s - REVERT_WINDOW_S, hit.time_s + REVERT_WINDOW_S
     return None
+
+
+def _seen(v: Vehicle, t: float) -> bool:
+    """Whether ``v``'s sample nearest to ``t`` (s) was observed (not extrapolated or invented): turning its box
+    there costs nothing the video shows."""
+    obs = v.trajectory.observed
+    if obs is None:
+        return True
+    k = int(np.argmin(np.abs(np.asarray(v.trajectory.t) - t)))
+    return bool(obs[k])
