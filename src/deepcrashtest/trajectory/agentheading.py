@@ -87,9 +87,9 @@ def replayable_yaws(
 
 REVERT_WINDOW_S = 0.0
 """Seconds either side of a contact within which an agent faces along its path (:func:`replayable_yaws`), then
-``BLEND_S`` back to its boxes. Chosen on the 20 fidelity clips (stage 2 rerun): 1.0 -> 0.5 -> 0.0 s raised the
-mean reprojection IoU (processed 0.622 -> 0.630 -> see README; the crash pairs of ccd_000014/132/721 face their
-boxes longer), every crash still reproduced."""
+``BLEND_S`` back to its boxes. Chosen on the 20 fidelity clips (DAD, CCD, highway; stage 2 rerun on one extract):
+1.0 / 0.5 / 0.0 s gave mean reprojection IoU processed 0.622 / 0.630 / 0.635, replay 0.593 / 0.602 / 0.606 (the
+crash pairs of ccd_000014/132/721 face their boxes longer), all 18 crashes reproduced each time."""
 
 
 def _path_heading_within(observed: Vehicle, path: Vehicle, spans: list[tuple[float, float]]) -> Vehicle:
