@@ -374,6 +374,10 @@ class PathSet:
     s_ref: np.ndarray  # (Q, T)
     v_ref: np.ndarray  # (Q, T)
     a_ref: np.ndarray  # (Q, T)
+    yaw_ref: np.ndarray | None = None
+    """(Q, T) heading (rad) a reference's pose takes at each grid step instead of its path's (NaN: the path's):
+    an agent replayed exactly faces where the scenario says (its heading fitted to its boxes), not along its
+    path (see :func:`~deepcrashtest.sim.world.build_world`)."""
 
     @classmethod
     def stack(cls, refs: list[Reference], dt: float) -> PathSet:
@@ -422,4 +426,8 @@ class PathSet:
         q = np.arange(u.shape[1])[None, :]
         j = np.minimum(i + 1, P - 1)
         xy = self.path[q, i] * (1.0 - f) + self.path[q, j] * f
-        return np.concatenate([xy, self.heading[q, i][..., None], self.v_ref[:, ks].T[..., None]], axis=-1)
+        head = self.heading[q, i]
+        if self.yaw_ref is not None:
+            own = self.yaw_ref[:, ks].T
+            head = np.where(np.isnan(own), head, own)
+        return np.concatenate([xy, head[..., None], self.v_ref[:, ks].T[..., None]], axis=-1)

@@ -77,6 +77,22 @@ def _reference(vid: int, traj: Any, times: np.ndarray, dt: float, smooth: bool) 
         raise ScenarioError(f"vehicle {vid}: {exc}") from None
 
 
+def _own_headings(vehicles: list[Any], refs: list[Reference], times: np.ndarray) -> np.ndarray:
+    """(M, T) heading (rad) of each moving agent's trajectory at the grid ``times`` (s), held before its first
+    and after its last sample; NaN for static agents (they hold their pose).
+
+    An agent replayed exactly takes its scenario heading rather than its path's direction: stage 2 keeps a
+    moving agent's heading fitted to its boxes where the video saw it (``trajectory/agentheading.py``), and
+    its path's direction is the monocular track's (range noise, or the ego-motion's error: ccd_000487's
+    car crossing broadside was replayed pointing at the camera, reprojection IoU 0.43)."""
+    out = np.full((len(vehicles), len(times)), np.nan)
+    for row, (v, r) in enumerate(zip(vehicles, refs, strict=True)):
+        if not r.static:
+            a = v.trajectory.arrays()
+            out[row] = np.interp(times, a["t"], np.unwrap(a["yaw"]))
+    return out
+
+
 def build_world(scenario: Scenario, dt: float = 0.02, duration: float | None = None) -> World:
     """Resample every vehicle's trajectory into references on a uniform grid of step ``dt``."""
     if not (np.isfinite(dt) and 0.001 <= dt <= 0.1):
@@ -90,6 +106,13 @@ def build_world(scenario: Scenario, dt: float = 0.02, duration: float | None = N
     vehicles = scenario.vehicles()
     exact = exact_agents(scenario)
     refs = [_reference(v.id, v.trajectory, times, dt, not exact) for v in vehicles]
+    yaw_ref = _own_headings(vehicles[1:], refs[1:], times) if exact and len(refs) > 1 else None
+    agent_paths = PathSet.stack(refs[1:], dt) if len(refs) > 1 else None
+    if agent_paths is not None and yaw_ref is not None:
+        agent_paths.yaw_ref = yaw_ref
+        for r, yaw in zip(refs[1:], yaw_ref, strict=True):
+            if not r.static and np.isfinite(yaw[r.start]):
+                r.init = np.array([r.init[0], r.init[1], yaw[r.start], r.init[3]])
     length = np.array([v.length for v in vehicles], float)
     return World(
         scenario=scenario,
@@ -102,6 +125,6 @@ def build_world(scenario: Scenario, dt: float = 0.02, duration: float | None = N
         mass=np.array([CATEGORY_MASS_KG[v.category] for v in vehicles], float),
         holonomic=np.array([(exact and i > 0) or v.category in HOLONOMIC_CATEGORIES for i, v in enumerate(vehicles)]),
         refs=refs,
-        agent_paths=PathSet.stack(refs[1:], dt) if len(refs) > 1 else None,
+        agent_paths=agent_paths,
         duration=float(times[-1]),
     )

@@ -55,7 +55,7 @@ from deepcrashtest.scenario import (
     Vehicle,
     format_validation_error,
 )
-from deepcrashtest.trajectory.agentheading import with_observed_yaw
+from deepcrashtest.trajectory.agentheading import replayable_yaws, with_observed_yaw
 from deepcrashtest.trajectory.collision import MOVING_MPS, first_contact, headings
 from deepcrashtest.trajectory.contact import ContactParams
 from deepcrashtest.trajectory.crash import CrashOutcome, earlier_touch, resolve_crash
@@ -138,7 +138,8 @@ def _process_scenario(raw: Scenario, seed: int, params: Stage2Params | None) -> 
     crash = _crash_phase(run, ego, agents, t_max)
     vehicles = _final_phase(run, ego, crash)
     vehicles[0] = _with_measured_yaw(vehicles[0], run, t_max)
-    vehicles = [vehicles[0], *_with_observed_yaws(vehicles[1:], crash.agents, t_max - run.t0)]
+    observed = [vehicles[0], *_with_observed_yaws(vehicles[1:], crash.agents, t_max - run.t0)]
+    vehicles = replayable_yaws(observed, vehicles, crash.collision, run.warnings)
     collision = _collision_record(crash, vehicles)
     road = _road_phase(run, ego, crash, ego_frame, t_max)
     return _assemble(run, vehicles, road, collision, crash, t_max, seed)
