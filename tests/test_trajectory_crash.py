@@ -7,15 +7,10 @@ import numpy as np
 import pytest
 
 from deepcrashtest.scenario import Collision, Scenario
-from deepcrashtest.trajectory.collision import BoxTrack, first_contact
+from deepcrashtest.trajectory.collision import BoxTrack, first_contact, vehicle_box
 from deepcrashtest.trajectory.contact import Movable, box_track, make_contact, separation
 from deepcrashtest.trajectory.pipeline import process_scenario
 from trajectory_cases import raw_scenario, track, vehicle
-
-
-def _box(v) -> BoxTrack:  # type: ignore[no-untyped-def]
-    a = v.trajectory.arrays()
-    return BoxTrack(a["t"], a["x"], a["y"], np.unwrap(a["yaw"]), v.length, v.width)
 
 
 def _contacts(sc: Scenario) -> list[tuple[int, int, float]]:
@@ -23,7 +18,7 @@ def _contacts(sc: Scenario) -> list[tuple[int, int, float]]:
     out = []
     for i in range(len(vs)):
         for j in range(i + 1, len(vs)):
-            hit = first_contact(_box(vs[i]), _box(vs[j]))
+            hit = first_contact(vehicle_box(vs[i]), vehicle_box(vs[j]))
             if hit is not None:
                 out.append((vs[i].id, vs[j].id, hit.time_s))
     return out
@@ -134,14 +129,14 @@ def test_implausible_agent_is_dropped_not_fatal():
 
 
 def test_overlap_from_the_start_then_a_retouch_counts_as_the_simulator_counts():
-    from deepcrashtest.trajectory.crash import _contact_after_apart
+    from deepcrashtest.trajectory.crash import contact_after_apart
 
     t = np.round(np.arange(0, 4.01, 0.1), 6)
     parked = BoxTrack(t, 20 + 0 * t, 0 * t, 0 * t, 4.5, 1.8)
     # starts overlapping the parked car (depth noise), drives off (apart after 1.125 s), backs into it at 1.875 s
     x = np.where(t <= 1.5, 20 + 4 * t, 26 - 4 * (t - 1.5))
     mover = BoxTrack(t, x, 0 * t, 0 * t, 4.5, 1.8)
-    hit = _contact_after_apart(parked, mover)
+    hit = contact_after_apart(parked, mover)
     assert hit is not None and 1.5 < hit.time_s < 4.0  # the re-touch, not the overlap at 0 s
     assert first_contact(parked, mover).time_s == 0.0  # type: ignore[union-attr]
 

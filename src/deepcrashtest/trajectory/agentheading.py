@@ -15,8 +15,8 @@ import math
 import numpy as np
 
 from deepcrashtest.scenario import Collision, Vehicle
-from deepcrashtest.trajectory.collision import BoxTrack, first_contact
-from deepcrashtest.trajectory.crash import _contact_after_apart
+from deepcrashtest.trajectory.collision import first_contact, vehicle_box
+from deepcrashtest.trajectory.crash import contact_after_apart
 
 BLEND_S = 0.5
 """Seconds over which the observed heading hands over to the path's direction outside the observed span."""
@@ -106,11 +106,6 @@ def _path_heading_within(observed: Vehicle, path: Vehicle, spans: list[tuple[flo
     return observed.model_copy(update={"trajectory": traj})
 
 
-def _box_track(v: Vehicle, margin_m: float = 0.0) -> BoxTrack:
-    a = v.trajectory.arrays()
-    return BoxTrack(a["t"], a["x"], a["y"], np.unwrap(a["yaw"]), v.length + 2 * margin_m, v.width + 2 * margin_m)
-
-
 def _broken_contact(
     vehicles: list[Vehicle], collision: Collision | None, changed: set[int]
 ) -> tuple[set[int], float, float, float] | None:
@@ -119,18 +114,18 @@ def _broken_contact(
     pair = set(collision.participants) if collision is not None else set()
     if collision is not None and pair & changed:
         a, b = (next(v for v in vehicles if v.id == i) for i in collision.participants)
-        hit = first_contact(_box_track(a), _box_track(b))
+        hit = first_contact(vehicle_box(a), vehicle_box(b))
         if hit is None or abs(hit.time_s - collision.time_s) > REPLAY_TOUCH_TOL_S:
             t_hit = collision.time_s if hit is None else min(hit.time_s, collision.time_s)
             return pair & changed, t_hit, t_hit - REVERT_WINDOW_S, math.inf
     t_end = collision.time_s - REPLAY_TOUCH_TOL_S if collision is not None else math.inf
-    boxes = [_box_track(v, GRAZE_MARGIN_M) for v in vehicles]
+    boxes = [vehicle_box(v, GRAZE_MARGIN_M) for v in vehicles]
     for i, vi in enumerate(vehicles):
         for j in range(i + 1, len(vehicles)):
             ids = {vi.id, vehicles[j].id}
             if ids <= pair or not ids & changed:
                 continue
-            hit = _contact_after_apart(boxes[i], boxes[j])
+            hit = contact_after_apart(boxes[i], boxes[j])
             if hit is not None and hit.time_s < t_end:
                 movers = ids & changed
                 unseen = {k for k in movers if not _seen(vi if k == vi.id else vehicles[j], hit.time_s)}

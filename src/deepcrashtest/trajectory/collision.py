@@ -9,9 +9,13 @@ last separated and the first overlapping sample.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import shapely
+
+if TYPE_CHECKING:
+    from deepcrashtest.scenario import Vehicle
 
 MOVING_MPS = 0.3  # below this speed the heading is taken from the neighbouring samples
 
@@ -69,6 +73,12 @@ class BoxTrack:
         vx = np.interp(t, self.t, np.gradient(self.x, self.t)) if len(self.t) > 1 else 0.0
         vy = np.interp(t, self.t, np.gradient(self.y, self.t)) if len(self.t) > 1 else 0.0
         return np.array([vx, vy], dtype=float)
+
+
+def vehicle_box(v: Vehicle, margin_m: float = 0.0) -> BoxTrack:
+    """A scenario vehicle's box at its trajectory samples (world frame), ``margin_m`` (m) larger on each side."""
+    a = v.trajectory.arrays()
+    return BoxTrack(a["t"], a["x"], a["y"], np.unwrap(a["yaw"]), v.length + 2 * margin_m, v.width + 2 * margin_m)
 
 
 def boxes(x: np.ndarray, y: np.ndarray, yaw: np.ndarray, length: float, width: float) -> np.ndarray:

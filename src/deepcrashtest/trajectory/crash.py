@@ -298,7 +298,7 @@ def _reach(d: Dense, t_end: float, fit_s: float = 0.5) -> None:
     d.observed = np.concatenate([d.observed, np.zeros(len(t_new), bool)])
 
 
-def _contact_after_apart(a: BoxTrack, b: BoxTrack) -> Contact | None:
+def contact_after_apart(a: BoxTrack, b: BoxTrack) -> Contact | None:
     """The first contact of two boxes, as the simulator counts it: boxes that overlap from their first
     common moment (label/depth noise) are ignored until they are apart, and a later re-touch counts."""
     hit = first_contact(a, b)
@@ -322,7 +322,7 @@ def _first_clash(ego: Dense, agents: list[Dense], pair: tuple[int, ...], t_end: 
             a, b = every[i], every[j]
             if (a.id in pair and b.id in pair) or (a.static and b.static):
                 continue
-            hit = _contact_after_apart(tracks[i], tracks[j])
+            hit = contact_after_apart(tracks[i], tracks[j])
             if hit is None or hit.time_s >= t_end:
                 continue
             cands = [d for d in (a, b) if d is not ego and d.id not in pair]

@@ -56,7 +56,7 @@ from deepcrashtest.scenario import (
     format_validation_error,
 )
 from deepcrashtest.trajectory.agentheading import replayable_yaws, with_observed_yaw
-from deepcrashtest.trajectory.collision import MOVING_MPS, first_contact, headings
+from deepcrashtest.trajectory.collision import MOVING_MPS, first_contact, headings, vehicle_box
 from deepcrashtest.trajectory.contact import ContactParams
 from deepcrashtest.trajectory.crash import CrashOutcome, earlier_touch, resolve_crash
 from deepcrashtest.trajectory.dense import EPS_T, Dense, EgoFrame, agent_dense, moves_in_video, span
@@ -441,7 +441,7 @@ def _collision_record(crash: CrashOutcome, vehicles: list[Vehicle]) -> Collision
         return None
     byid = {v.id: v for v in vehicles}
     a, b = (byid[i] for i in c.participants)
-    hit = first_contact(_box(a), _box(b))
+    hit = first_contact(vehicle_box(a), vehicle_box(b))
     if hit is None:
         crash.record["contact_time_s"] = None
         return c
@@ -450,13 +450,6 @@ def _collision_record(crash: CrashOutcome, vehicles: list[Vehicle]) -> Collision
     if c.x is None or c.y is None:
         update.update(x=hit.x, y=hit.y)
     return c.model_copy(update=update)
-
-
-def _box(v: Vehicle):  # type: ignore[no-untyped-def]
-    from deepcrashtest.trajectory.collision import BoxTrack
-
-    a = v.trajectory.arrays()
-    return BoxTrack(a["t"], a["x"], a["y"], np.unwrap(a["yaw"]), v.length, v.width)
 
 
 def _road_phase(run: _Run, ego: Dense, crash: CrashOutcome, ego_frame: EgoFrame, t_max: float) -> Road:
