@@ -27,6 +27,7 @@ from deepcrashtest.eval.kitti import match_rule
 from deepcrashtest.eval.kitti_mono import DEFAULT_MONO, MonoSequence, ego_of, image_tracks, prepare_mono, score_sequence
 from deepcrashtest.geometry import selfcalib as sc_mod
 from deepcrashtest.geometry.camera import default_camera
+from deepcrashtest.geometry.selfcalib_moving import focal_from_moving
 from deepcrashtest.geometry.world_tracks import raw_scenario_from_tracks
 from deepcrashtest.scenario import Camera, VideoSource
 
@@ -66,7 +67,14 @@ def _calib_parts(tracks, start: Camera, size, ego) -> dict:
     motion = sc_mod.focal_from_motion(tracks, size, start.cx, ego)
     bounce = sc_mod.focal_from_pitch(tracks, size, ego)
     rot = sc_mod.focal_from_rotation(tracks, size, start.cx, ego, start.fy)
-    return {"motion": motion, "bounce": bounce, "rotation": rot}
+    moving = focal_from_moving(sc_mod._usable(tracks, size), start.cx, ego, start.fy, sc_mod.BOX_HEIGHT_EXCESS)
+    return {"motion": motion, "moving": moving, "bounce": bounce, "rotation": rot}
+
+
+def _combined(results: list[dict]) -> float:
+    """Combined CLEAR-MOT MOTA (%) over sequences: 1 - (FN + FP + IDSW) / (TP + FN), summed."""
+    fn, fp, sw, tp = (sum(float(r[k]) for r in results) for k in ("CLR_FN", "CLR_FP", "IDSW", "CLR_TP"))
+    return 100.0 * (1.0 - (fn + fp + sw) / max(tp + fn, 1.0))
 
 
 def _fmt(e) -> str:
@@ -101,14 +109,14 @@ def main() -> None:
         vh_road, hc_road = _label_road(s, true)
         travel = float(np.sum(np.hypot(np.diff(ego.x), np.diff(ego.y))))
         turn = float(np.degrees(np.sum(np.abs(np.diff(np.unwrap(ego.yaw))))))
-        m_k, _ = _mota(prep, tracks, true)
-        m_u, _ = _mota(prep, tracks, cam)
+        m_k, res_k = _mota(prep, tracks, true)
+        m_u, res_u = _mota(prep, tracks, cam)
         row = {
             "seq": s, "frames": prep.world.n_frames, "travel_m": travel, "turn_deg": turn,
             "fy": cam.fy, "fy_sig": cam.focal_sigma_px or float("nan"), "fy_true": true.fy,
             "cx": cam.cx, "cx_true": true.cx, "vh": cal.horizon_v, "vh_sig": cal.horizon_sigma_px, "cy_true": true.cy,
             "hc": cal.height_m, "hc_sig": cal.height_sigma_m, "vh_road": vh_road, "hc_road": hc_road,
-            "mota_k": m_k, "mota_u": m_u,
+            "mota_k": m_k, "mota_u": m_u, "res_k": res_k, "res_u": res_u,
             "parts": {k: _fmt(v) for k, v in parts.items()}, "notes": cal.notes,
         }  # fmt: skip
         if args.oracle:
@@ -119,7 +127,8 @@ def main() -> None:
                 "hc": cam.model_copy(update={"height_m": true.height_m}),
                 "vh": cam.model_copy(update={"pitch_rad": math.atan2(cam.cy - true.cy, cam.fy)}),
             }
-            row["oracle"] = {k: _mota(prep, tracks, c)[0] for k, c in fixes.items()}
+            row["oracle_res"] = {k: _mota(prep, tracks, c)[1] for k, c in fixes.items()}
+            row["oracle"] = {k: 100 * float(v["MOTA"]) for k, v in row["oracle_res"].items()}
         rows.append(row)
         print(
             f"{s:04d} n{row['frames']} trav {travel:.0f}m turn {turn:.0f}d | fy {cam.fy:.0f}+-{row['fy_sig']:.0f} "
@@ -134,6 +143,13 @@ def main() -> None:
     mk = np.mean([r["mota_k"] for r in rows])
     mu = np.mean([r["mota_u"] for r in rows])
     print(f"mean per-sequence MOTA kitti {mk:.2f} unknown {mu:.2f}")
+    ck, cu = _combined([r["res_k"] for r in rows]), _combined([r["res_u"] for r in rows])
+    line = f"combined MOTA kitti {ck:.2f} unknown {cu:.2f}"
+    if args.oracle:
+        line += " oracle " + " ".join(
+            f"{k} {_combined([r['oracle_res'][k] for r in rows]):.2f}" for k in rows[0]["oracle_res"]
+        )
+    print(line)
 
 
 if __name__ == "__main__":

@@ -30,6 +30,7 @@ import pandas as pd
 from deepcrashtest.geometry.egomotion import EgoMotion
 from deepcrashtest.geometry.mono3d import class_size
 from deepcrashtest.geometry.selfcalib_axis import axis_column_from_path
+from deepcrashtest.geometry.selfcalib_moving import focal_from_moving
 from deepcrashtest.scenario import Camera
 
 MIN_BOXES = 30
@@ -348,11 +349,26 @@ MOTION_PITCH_MAX_LOG = 0.2
 PITCH_TRUSTED_REL = 0.12
 
 
+#: Floor of the steadily-moving-vehicle estimate's relative sigma (its tracks' own least-squares sigma
+#: is 1-3 %; on the 18 KITTI tracking training sequences other than 3, 8, 10 it reads -6..+4 % where
+#: it is the one used: 0002 -5.8 %, 0015 +1.0 %, 0018 -1.1 %).
+MOVING_MIN_REL = 0.04
+
+
+def _trusted_bounce_disagrees(est: tuple[float, float, int] | None, pitch: tuple[float, float, int] | None) -> bool:
+    """True when a trusted pitch-bounce estimate (:data:`PITCH_TRUSTED_REL`) is further than
+    :data:`MOTION_PITCH_MAX_LOG` (log) from ``est``."""
+    if est is None or pitch is None or pitch[1] * PITCH_SE_INFLATION >= PITCH_TRUSTED_REL:
+        return False
+    return abs(math.log(est[0] / pitch[0])) > MOTION_PITCH_MAX_LOG
+
+
 def combine_focal(
     prior: float,
     motion: tuple[float, float, int] | None,
     rotation: tuple[float, float, int] | None,
     pitch: tuple[float, float, int] | None = None,
+    moving: tuple[float, float, int] | None = None,
 ) -> tuple[float, float, int] | None:
     """Inverse-variance (log) combination of the prior and the estimates -> (f, rel sigma, support).
 
@@ -360,15 +376,20 @@ def combine_focal(
     from :data:`MOTION_MIN_TRACKS` on (relative sigma at least 4 %), thinner support as 25 %; the
     pitch-bounce estimate counts with its inflated standard error (:data:`PITCH_SE_INFLATION`,
     :data:`PITCH_MIN_REL`); the turn estimate at :data:`ROTATION_MIN_REL` at best (30 % below
-    :data:`ROTATION_MIN_PAIRS` box pairs)."""
+    :data:`ROTATION_MIN_PAIRS` box pairs). The steadily-moving-vehicle estimate
+    (:mod:`deepcrashtest.geometry.selfcalib_moving`, parked vehicles included) stands in for the
+    parked-vehicle one where that is missing or dropped (they share the parked tracks), at
+    :data:`MOVING_MIN_REL` at best; both are dropped when a trusted bounce disagrees."""
     terms = [(math.log(prior), FOCAL_PRIOR_REL)]
     support = 0
-    if motion is not None and pitch is not None and pitch[1] * PITCH_SE_INFLATION < PITCH_TRUSTED_REL:
-        if abs(math.log(motion[0] / pitch[0])) > MOTION_PITCH_MAX_LOG:
-            motion = None  # a mode of moving vehicles (all parked-vehicle estimates are for the same car kind)
+    if _trusted_bounce_disagrees(motion, pitch):
+        motion = None  # a mode of moving vehicles (all parked-vehicle estimates are for the same car kind)
     if motion is not None and motion[2] >= MOTION_MIN_AGREEING:
         terms.append((math.log(motion[0]), max(motion[1], 0.04) if motion[2] >= MOTION_MIN_TRACKS else 0.25))
         support += motion[2]
+    elif moving is not None and not _trusted_bounce_disagrees(moving, pitch):
+        terms.append((math.log(moving[0]), max(moving[1], MOVING_MIN_REL)))
+        support += moving[2]
     if pitch is not None:
         terms.append((math.log(pitch[0]), max(PITCH_SE_INFLATION * pitch[1], PITCH_MIN_REL)))
         support += pitch[2]
@@ -461,13 +482,22 @@ def self_calibrate(
     if ego is not None:
         motion = focal_from_motion(tracks, size, cam.cx, ego)
         bounce = focal_from_pitch(tracks, size, ego)
-        focal = combine_focal(cam.fy, motion, focal_from_rotation(tracks, size, cam.cx, ego, cam.fy), bounce)
+        moving = focal_from_moving(_usable(tracks, size), cam.cx, ego, cam.fy, BOX_HEIGHT_EXCESS)
+        focal = combine_focal(cam.fy, motion, focal_from_rotation(tracks, size, cam.cx, ego, cam.fy), bounce, moving)
         if focal is not None:  # the turn estimate removes the parallax with the focal length: redo it with the new one
-            focal = combine_focal(cam.fy, motion, focal_from_rotation(tracks, size, cam.cx, ego, focal[0]), bounce)
+            rotation = focal_from_rotation(tracks, size, cam.cx, ego, focal[0])
+            focal = combine_focal(cam.fy, motion, rotation, bounce, moving)
+            sources = {"parked": motion, "moving": moving, "turns": rotation, "bounce": bounce}
+            notes.append(
+                "focal length estimates (px, relative 1-sigma, support): "
+                + ", ".join(f"{k} {v[0]:.0f} {100 * v[1]:.1f} % {v[2]}" for k, v in sources.items() if v is not None)
+            )
     if focal is not None:
         fy, rel, used = focal
         sig_f = fy * rel
-        notes.append(f"focal length from the ego's motion: {used} parked tracks / turn box pairs / bounce frames")
+        notes.append(
+            f"focal length from the ego's motion: {used} parked or moving tracks / turn box pairs / bounce frames"
+        )
     elif camera.intrinsics_source == "default":  # the unknown-dashcam default: its spread is the uncertainty
         sig_f = FOCAL_PRIOR_REL * fy
         notes.append(

@@ -1,0 +1,113 @@
+"""The focal length from vehicles driving along the road while the ego's speed changes (external poses).
+
+:func:`deepcrashtest.geometry.selfcalib.focal_from_motion` needs parked vehicles: a car at rest at
+``P`` is at depth ``Z_k = (P - c_k) . f_k = fy H / h_k`` from the camera at ``c_k`` (heading ``f_k``),
+linear in ``(P, B = fy H)``. A car driving along the road at a steady speed ``v`` is at
+``P + v tau_k d`` (``d``: the road's direction, the ego's mean heading over the track; ``tau_k``:
+seconds since its first box): still linear, in ``(P, v, B)``. When the ego drives at a steady speed
+on a straight road too, the gap closes at a steady rate and ``B`` is not measurable (depth and closing
+speed scale together); every change of the ego's speed or heading that the other car does not share
+measures it. Each track gives ``log B`` with its 1-sigma from the least-squares covariance (rows
+weighted by the depth noise, ``~ Z`` for a box-height depth); the estimates are combined by inverse
+variance about their weighted mode (cars that change speed themselves are the outliers). Parked
+vehicles are the special case ``v = 0``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+
+from deepcrashtest.geometry.egomotion import EgoMotion
+from deepcrashtest.geometry.mono3d import class_size
+
+MIN_TRACK_FRAMES = 10
+#: Least ego travel (m) over a track.
+MIN_TRAVEL_M = 4.0
+#: Tracks whose own 1-sigma (log) exceeds this are not used; fewer usable than MIN_TRACKS: None.
+MAX_TRACK_REL = 0.05
+MIN_TRACKS = 1
+#: Kernel width (log) of the weighted mode, and the band about it whose tracks are combined.
+MODE_BW = 0.05
+MODE_BAND = 0.1
+
+
+def _track_estimate(
+    g: pd.DataFrame, ego: EgoMotion, idx: np.ndarray, cx: float, fy0: float, excess: float
+) -> tuple[float, float] | None:
+    """(log focal length, its 1-sigma) of one track, or None (too little leverage)."""
+    c = np.column_stack([ego.x[idx], ego.y[idx]])
+    if np.hypot(*(c[-1] - c[0])) < MIN_TRAVEL_M:
+        return None
+    yaw = ego.yaw[idx]
+    fwd = np.column_stack([np.cos(yaw), np.sin(yaw)])
+    right = np.column_stack([np.sin(yaw), -np.cos(yaw)])
+    ybar = math.atan2(float(np.mean(np.sin(yaw))), float(np.mean(np.cos(yaw))))
+    d = np.array([math.cos(ybar), math.sin(ybar)])
+    tau = ego.t[idx] - ego.t[idx][0]
+    H = class_size(str(g["category"].iloc[0]))[2]
+    h = (g["y2"] - g["y1"]).to_numpy(float)
+    u = 0.5 * (g["x1"] + g["x2"]).to_numpy(float) - cx
+    n = len(h)
+    # unknowns (Px, Py, v, B): forward rows P.f + v tau (d.f) - B / h = c.f,
+    # lateral rows P.r + v tau (d.r) = c.r + u H / h
+    A = np.vstack(
+        [
+            np.column_stack([fwd, tau * (fwd @ d), -1.0 / h]),
+            np.column_stack([right, tau * (right @ d), np.zeros(n)]),
+        ]
+    )
+    rhs = np.r_[np.sum(c * fwd, axis=1), np.sum(c * right, axis=1) + u * H / h]
+    z = fy0 * H / h  # depth at the starting focal length: the depth noise grows with it
+    w = np.r_[1.0 / z, 1.0 / z]
+    Aw, bw = A * w[:, None], rhs * w
+    sol, *_ = np.linalg.lstsq(Aw, bw, rcond=None)
+    if not sol[3] > 0 or 2 * n <= 4:
+        return None
+    r = bw - Aw @ sol
+    s2 = float(r @ r) / (2 * n - 4)
+    try:
+        cov = s2 * np.linalg.inv(Aw.T @ Aw)
+    except np.linalg.LinAlgError:
+        return None
+    rel = math.sqrt(max(float(cov[3, 3]), 0.0)) / sol[3]
+    return math.log(sol[3] / (H * excess)), rel
+
+
+def focal_from_moving(
+    tracks: pd.DataFrame, cx: float, ego: EgoMotion, fy0: float, excess: float
+) -> tuple[float, float, int] | None:
+    """(focal length px, relative 1-sigma, tracks used) from parked and steadily moving vehicles.
+
+    ``tracks``: usable boxes (detected, uncut vehicles) of the image tracker; ``cx``: the forward-axis
+    column (px); ``ego``: external metric poses; ``fy0``: the starting focal length (weights only);
+    ``excess``: the box height over ``fy H / Z`` (see ``selfcalib.BOX_HEIGHT_EXCESS``)."""
+    frame_to_i = {int(f): i for i, f in enumerate(ego.frame)}
+    est, sig = [], []
+    for _, g in tracks.groupby("track_id"):
+        g = g[g["frame"].isin(frame_to_i.keys())].sort_values("frame")
+        if len(g) < MIN_TRACK_FRAMES:
+            continue
+        idx = np.array([frame_to_i[int(f)] for f in g["frame"]])
+        e = _track_estimate(g, ego, idx, cx, fy0, excess)
+        if e is not None and e[1] < MAX_TRACK_REL:
+            est.append(e[0])
+            sig.append(e[1])
+    if len(est) < MIN_TRACKS:
+        return None
+    e, s = np.array(est), np.maximum(np.array(sig), 0.01)
+    w = 1.0 / s**2
+    grid = np.linspace(e.min() - 0.1, e.max() + 0.1, 400)
+    z = (grid[:, None] - e[None, :]) / np.hypot(MODE_BW, s[None, :])
+    density = (w[None, :] * np.exp(-0.5 * z**2)).sum(axis=1)
+    mode = float(grid[density.argmax()])
+    near = np.abs(e - mode) < np.maximum(MODE_BAND, 2 * s)
+    if near.sum() < MIN_TRACKS:
+        return None
+    wn = w[near]
+    mean = float(np.sum(wn * e[near]) / np.sum(wn))
+    se = 1.0 / math.sqrt(float(np.sum(wn)))
+    chi = float(np.sum(wn * (e[near] - mean) ** 2)) / max(int(near.sum()) - 1, 1)
+    return math.exp(mean), se * math.sqrt(max(chi, 1.0)), int(near.sum())
