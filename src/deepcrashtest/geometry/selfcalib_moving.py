@@ -91,10 +91,10 @@ def focal_from_moving(
         if len(g) < MIN_TRACK_FRAMES:
             continue
         idx = np.array([frame_to_i[int(f)] for f in g["frame"]])
-        e = _track_estimate(g, ego, idx, cx, fy0, excess)
-        if e is not None and e[1] < MAX_TRACK_REL:
-            est.append(e[0])
-            sig.append(e[1])
+        one = _track_estimate(g, ego, idx, cx, fy0, excess)
+        if one is not None and one[1] < MAX_TRACK_REL:
+            est.append(one[0])
+            sig.append(one[1])
     if len(est) < MIN_TRACKS:
         return None
     e, s = np.array(est), np.maximum(np.array(sig), 0.01)
