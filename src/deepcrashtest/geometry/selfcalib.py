@@ -14,8 +14,10 @@ is at depth ``Z_k = (P - c_k) . h_k`` from the camera at ``c_k`` heading ``h_k``
 ego path), and ``Z_k = fy hc / (v_b,k - v_h)``, so per track ``P . h_k - A / (v_b,k - v_h) = c_k . h_k``
 is linear in ``(P, A = fy hc)``. Each track long enough (and seen over enough ego travel) gives one
 ``A``; parked vehicles agree, moving ones scatter (a car driving ahead at the ego's speed looks
-infinitely far): the mode of ``log A`` over tracks is kept, ``fy = A / hc``. Without ego motion
-(or too few tracks) the focal length keeps its prior (the camera given) and says so.
+infinitely far): the mode of ``log A`` over tracks is kept, ``fy = A / hc``. Where too few parked
+vehicles agree, vehicles driving along the road at a steady speed stand in for them
+(:mod:`deepcrashtest.geometry.selfcalib_moving`). Without ego motion (or too few tracks) the focal
+length keeps its prior (the camera given) and says so.
 """
 
 from __future__ import annotations
