@@ -195,9 +195,11 @@ def report_labelled(name: str, entry: dict[str, Any], r: ClipRun) -> None:
     if r.calibration:
         sc = s * r.ego_scale
         err_c = 100 * float(np.median((sc[moving] - tr[moving]) / tr[moving])) if moving.any() else float("nan")
+        mean_c = float(np.mean(sc[lab]))
+        f_match = r.fx * mean_t / mean_c if mean_c > 0.05 else float("nan")  # speed goes with the focal length
         print(
             f"{'':22} self-calibrated as extract does ({r.calibration}): speed x {r.ego_scale:.2f}, mean "
-            f"{np.mean(sc[lab]) * 3.6:.1f} km/h, median error {err_c:.1f} %"
+            f"{mean_c * 3.6:.1f} km/h, median error {err_c:.1f} %; the focal length that would match: {f_match:.0f} px"
         )
     m = lab & np.isfinite(r.raw)
     if m.any():
