@@ -13,13 +13,19 @@ its chessboard calibration and is checked against a plausible range. One more li
 much the scene grows in the image over each reading (:func:`scene_expansion`, no focal length needed).
 
 Run: PYTHONPATH=src python bench/ego_speed_overlays.py [--data DIR] [--clips a,b] [--tracks DIR] [--set NAME=X]
-[--overlay-mask]
+[--overlay-mask] [--fx PX] [--height M] [--draw DIR]
 ``--tracks DIR``: ``DIR/<clip>/tracks.csv`` from an earlier extract masks the road users (as extract does)
 and self-calibrates the unknown camera from them as extract does (one more line: the speed rescaled by the
 measured over the assumed focal length x camera height);
 ``--set``: an :class:`EgoMotionEstimator` option (repeatable), to compare variants on the same clips;
 ``--overlay-mask``: with ``still_mask`` from :func:`~deepcrashtest.geometry.camera.static_overlay_mask` of the
-first 2 s (not used by extract yet).
+first 2 s (not used by extract yet); ``--fx`` / ``--height``: the labelled clips' camera with this focal length
+(px) / height (m) instead of the unknown-dashcam default (to check a focal length measured elsewhere: the
+speed should follow focal x height); ``--draw DIR``: ``DIR/<clip>_NNN.png`` per frame, the tracked points
+(red: in the road region whose motion gives the metric scale, green: scene), the horizon row the estimator
+uses (yellow) and the masked dashboard rows (magenta). One more line per labelled clip: the time base
+(identical consecutive frames), the dashboard rows, the horizon the estimator learned from its direction of
+travel against the boxes' (with ``--tracks``), and the pairs that gave a road scale.
 """
 
 from __future__ import annotations
@@ -45,6 +51,7 @@ class ClipRun:
     height_m: float
     cpu_ms: float  # estimator CPU time per frame (decoding not counted)
     raw: np.ndarray  # per frame: the keyframe pair's speed measurement (m/s) or NaN (none, or no road scale)
+    factors: str = ""  # time base, dashboard rows, horizons, road-scale pairs (one line)
     calibration: str = ""  # with --tracks: extract's self-calibration of the unknown camera (one line)
     images: list[np.ndarray] | None = None  # the decoded frames (for the scene-expansion check)
     ego_scale: float = 1.0  # the factor it applies to the speed (measured over assumed focal x height)
@@ -65,6 +72,8 @@ def run_clip(
     tracks: Path | None,
     options: dict[str, Any],
     overlay_mask: bool = False,
+    camera: tuple[float | None, float | None] = (None, None),
+    draw: Path | None = None,
 ) -> ClipRun:
     import cv2
     import pandas as pd
@@ -84,6 +93,11 @@ def run_clip(
     cap.release()
     h, w = images[0].shape[:2]
     cam = default_camera(w, h)
+    fx, height = camera
+    if fx is not None and not chessboard:
+        cam = cam.model_copy(update={"fx": fx, "fy": fx})
+    if height is not None and not chessboard:
+        cam = cam.model_copy(update={"height_m": height})
     if chessboard:
         calib, _, _ = calibrate_chessboard(video.parent / "camera_calibration")
         cam = calib.model_copy(update={"height_m": cam.height_m})
@@ -97,9 +111,18 @@ def run_clip(
         b = boxes[boxes.frame == i][["x1", "y1", "x2", "y2"]].to_numpy(float) if boxes is not None else None
         state = est.update(img, i / fps, b)
         raw.append(np.nan if state.raw_speed is None else state.raw_speed)
+        if draw is not None:
+            draw_points(draw / f"{video.stem}_{i:03d}.png", img, est, rows)
     cpu_ms = (time.process_time() - t0) / len(images) * 1000
     ego = est.result()
-    run = ClipRun(ego.speed, cam.fx, cam.height_m, cpu_ms, np.asarray(raw), images=images)
+    same = sum(int(np.array_equal(a, b)) for a, b in zip(images, images[1:], strict=False))
+    horizon = est._horizon_row() / est._scale_f  # noqa: SLF001 (a diagnosis of the estimator's own state)
+    factors = (
+        f"{len(images)} frames at {fps:g} fps, {same} identical to the one before; dashboard rows {rows}; horizon "
+        f"row {cam.horizon_v():.0f} at the start ({cam.pitch_source}), {horizon:.0f} learned from the travel; "
+        f"road scale on {int(np.isfinite(raw).sum())} of {len(images) - 1} frame pairs"
+    )
+    run = ClipRun(ego.speed, cam.fx, cam.height_m, cpu_ms, np.asarray(raw), factors, images=images)
     if boxes is not None and len(boxes) and cam.intrinsics_source == "default":
         from deepcrashtest.geometry.selfcalib import self_calibrate
 
@@ -107,6 +130,26 @@ def run_clip(
         run.ego_scale = cal.ego_scale
         run.calibration = f"height {cal.height_m:.2f} m, focal {cal.fy:.0f} px, horizon row {cal.horizon_v:.0f}"
     return run
+
+
+def draw_points(path: Path, img: np.ndarray, est: Any, rows: int) -> None:
+    """One frame with the estimator's tracked points (red: road region, green: scene), its horizon row
+    (yellow) and the masked dashboard rows (magenta), written to ``path`` (PNG)."""
+    import cv2
+
+    out = img.copy()
+    s = est._scale_f  # noqa: SLF001
+    h, w = out.shape[:2]
+    p = est._p  # noqa: SLF001
+    road = est._road_region(p[:, 0], p[:, 1], int(round(h * s))) if len(p) else np.zeros(0, bool)  # noqa: SLF001
+    for (u, v), r in zip(p / s, road, strict=True):
+        cv2.circle(out, (int(u), int(v)), 3, (0, 0, 255) if r else (0, 200, 0), -1)
+    hv = int(est._horizon_row() / s)  # noqa: SLF001
+    cv2.line(out, (0, hv), (w - 1, hv), (0, 255, 255), 1)
+    if rows:
+        cv2.line(out, (0, h - rows), (w - 1, h - rows), (255, 0, 255), 1)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), out)
 
 
 def scene_expansion(entry: dict[str, Any], images: list[np.ndarray]) -> str:
@@ -152,9 +195,11 @@ def report_labelled(name: str, entry: dict[str, Any], r: ClipRun) -> None:
     if r.calibration:
         sc = s * r.ego_scale
         err_c = 100 * float(np.median((sc[moving] - tr[moving]) / tr[moving])) if moving.any() else float("nan")
+        mean_c = float(np.mean(sc[lab]))
+        f_match = r.fx * mean_t / mean_c if mean_c > 0.05 else float("nan")  # speed goes with the focal length
         print(
             f"{'':22} self-calibrated as extract does ({r.calibration}): speed x {r.ego_scale:.2f}, mean "
-            f"{np.mean(sc[lab]) * 3.6:.1f} km/h, median error {err_c:.1f} %"
+            f"{mean_c * 3.6:.1f} km/h, median error {err_c:.1f} %; the focal length that would match: {f_match:.0f} px"
         )
     m = lab & np.isfinite(r.raw)
     if m.any():
@@ -163,6 +208,7 @@ def report_labelled(name: str, entry: dict[str, Any], r: ClipRun) -> None:
             f"{np.median(r.raw[m]) * 3.6:.1f} km/h, 10-90 % {np.percentile(r.raw[m], 10) * 3.6:.1f}-"
             f"{np.percentile(r.raw[m], 90) * 3.6:.1f} km/h (before the Kalman/RTS smoother)"
         )
+    print(f"{'':22} {r.factors}")
     if r.images is not None:
         print(f"{'':22} {scene_expansion(entry, r.images)}")
     zero = lab & (tr == 0)
@@ -179,6 +225,9 @@ def main() -> None:
     ap.add_argument(
         "--overlay-mask", action="store_true", help="with the static overlay mask (EgoMotionEstimator still_mask)"
     )
+    ap.add_argument("--fx", type=float, default=None, help="focal length (px) of the labelled clips' camera")
+    ap.add_argument("--height", type=float, default=None, help="camera height (m) of the labelled clips' camera")
+    ap.add_argument("--draw", default="", help="folder for PNGs of the tracked points, one per frame")
     args = ap.parse_args()
     import cv2
 
@@ -195,7 +244,17 @@ def main() -> None:
             continue
         last = max(r["last_frame"] for r in entry["readings"])
         tracks = Path(args.tracks) / name / "tracks.csv" if args.tracks else None
-        clip = run_clip(Path(args.data) / entry["video"], False, last, tracks, options, args.overlay_mask)
+        draw = Path(args.draw) if args.draw else None
+        clip = run_clip(
+            Path(args.data) / entry["video"],
+            False,
+            last,
+            tracks,
+            options,
+            args.overlay_mask,
+            (args.fx, args.height),
+            draw,
+        )
         report_labelled(name, entry, clip)
     for name, entry in labels["plausibility"].items():
         if wanted and name not in wanted:

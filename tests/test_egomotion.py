@@ -210,3 +210,33 @@ def test_no_road_corner_is_seeded_on_a_burned_in_overlay():
         on_text.append((float(road[text].mean()), int(np.sum(~est._off_overlay(p)))))
     assert on_text[0][0] > 0.01  # without the mask the road region reaches into the text line (measured 0.026)
     assert on_text[1][0] == 0.0
+
+
+def test_ego_yaw_follows_a_calibrated_focal_length():
+    """KITTI odometry seq00 frames 0-159 (a -85.8 deg turn) measured with the focal length assumed 20 % short
+    (0.8 x 718 px; height / 0.8 so focal x height, the speed's scale, stays right): the turn reads -105.8 deg
+    (a rotation is seen as focal x angle). Rescaled for the calibrated focal length (``rescaled``, as
+    ``extract`` does once the self-calibration measures one) it reads -84.6 deg; speeds and path length stay
+    as they were, and a ratio of 1 only scales the metres (extract today)."""
+    from deepcrashtest.datasets.kitti.files import KITTI_CAMERA_HEIGHT_M, read_poses
+    from deepcrashtest.eval.egomotion import egomotion_errors, frame_times, read_odometry_calib
+    from deepcrashtest.geometry.egomotion import rescaled
+    from deepcrashtest.scenario import Camera
+
+    folder = need(DATA / "kitti_odometry" / "seq00_frames0000-0159")
+    images = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in sorted((folder / "image_0").glob("*.png"))]
+    poses = read_poses(folder / "poses.txt")[: len(images)]
+    K, times = read_odometry_calib(folder), frame_times(folder, len(images))
+    cam = Camera(fx=0.8 * K[0, 0], fy=0.8 * K[1, 1], cx=K[0, 2], cy=K[1, 2], height_m=KITTI_CAMERA_HEIGHT_M / 0.8)
+    est = EgoMotionEstimator(cam)
+    for img, t in zip(images, times, strict=True):
+        est.update(img, float(t))
+    ego = est.result()
+    before = egomotion_errors(ego, poses, times)
+    after = egomotion_errors(rescaled(ego, 1.0, 0.8), poses, times)
+    assert before["yaw_error_final_deg"] > 10.0  # measured 19.9
+    assert after["yaw_error_final_deg"] < 3.0  # measured 1.2
+    assert after["distance_error_pct"] == before["distance_error_pct"]  # measured 2.05
+    same = rescaled(ego, 1.5, 1.0)
+    np.testing.assert_allclose(same.x, 1.5 * ego.x)
+    np.testing.assert_allclose(same.yaw, ego.yaw)

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -792,6 +792,32 @@ class EgoMotionEstimator:
             tilt=np.cumsum(np.asarray(self._dtilt, dtype=float).reshape(-1, 2), axis=0),
         )
         return _every_frame(measured, self._all) if len(self._all) > len(s) else measured
+
+
+def rescaled(ego: EgoMotion, length: float = 1.0, focal_ratio: float = 1.0) -> EgoMotion:
+    """Image ego-motion measured with an assumed camera, under a calibrated one.
+
+    ``length``: the metric scale factor (the road plane's scale goes with focal length x camera height:
+    calibrated over assumed); speeds and path lengths are multiplied by it. ``focal_ratio``: the assumed
+    over the calibrated focal length (px / px). A rotation is seen as an image shift of about focal x
+    angle, so the yaw (and the camera's pitch, ``tilt[:, 0]``; roll about the optical axis does not
+    depend on it) measured with the assumed focal length is multiplied by this ratio, and the path is
+    integrated again along the corrected headings (each step keeps its length, its heading the middle
+    of the frame pair's yaw). Measured on KITTI odometry seq00 frames 0-159 (a -85.8 deg turn) with
+    the focal length assumed at 0.5x / 2x the calibrated one (height scaled so that focal x height is
+    right): heading -154.6 / -51.8 deg, -77.3 / -103.6 deg after this rescaling (``focal_ratio`` 2 / 0.5;
+    the essential matrix of a wrongly assumed focal length is not an exact rescaling of the rotation).
+    ``focal_ratio == 1``: positions and speeds are only multiplied by ``length``."""
+    if focal_ratio == 1.0 or len(ego.t) < 2:
+        return replace(ego, x=ego.x * length, y=ego.y * length, speed=ego.speed * length)
+    dyaw = np.diff(ego.yaw) * focal_ratio
+    yaw = ego.yaw[0] + np.r_[0.0, np.cumsum(dyaw)]
+    step = np.hypot(np.diff(ego.x), np.diff(ego.y)) * length
+    mid = yaw[:-1] + 0.5 * dyaw
+    x = ego.x[0] * length + np.r_[0.0, np.cumsum(step * np.cos(mid))]
+    y = ego.y[0] * length + np.r_[0.0, np.cumsum(step * np.sin(mid))]
+    tilt = None if ego.tilt is None else ego.tilt * np.array([focal_ratio, 1.0])
+    return replace(ego, x=x, y=y, yaw=yaw, speed=ego.speed * length, yaw_rate=ego.yaw_rate * focal_ratio, tilt=tilt)
 
 
 def _every_frame(m: EgoMotion, every: list[tuple[int, float]]) -> EgoMotion:

@@ -23,7 +23,6 @@ uncertainty and source) and the ego path is rescaled to the measured camera heig
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
@@ -39,7 +38,7 @@ from deepcrashtest.geometry.camera import (
     vanishing_point_from_lines,
     with_horizon,
 )
-from deepcrashtest.geometry.egomotion import MAX_RATE_HZ, EgoMotion, EgoMotionEstimator
+from deepcrashtest.geometry.egomotion import MAX_RATE_HZ, EgoMotion, EgoMotionEstimator, rescaled
 from deepcrashtest.geometry.localize import Localizer
 from deepcrashtest.perception.lanes import ClassicalLaneDetector, LaneDetector, LaneState, LaneTimelineResult
 from deepcrashtest.perception.track import TRACK_COLUMNS, records_table
@@ -163,9 +162,9 @@ def extract_geometry(
         from deepcrashtest.geometry.selfcalib import self_calibrate
 
         calibration = self_calibrate(tracks, cam, size, ego, ego_scaled_by_height=True)
+        # speeds scale with focal length x height, rotations (seen as focal x angle) with the focal length
+        ego = rescaled(ego, calibration.ego_scale, cam.fy / calibration.camera.fy)
         cam = calibration.camera
-        s = calibration.ego_scale
-        ego = dataclasses.replace(ego, x=ego.x * s, y=ego.y * s, speed=ego.speed * s)
         horizon_source = cam.pitch_source
     from deepcrashtest.geometry.world_tracks import raw_scenario_from_tracks  # SciPy's signal: imported late
 
