@@ -93,6 +93,27 @@ def _patch() -> None:
         setattr(target, leaf, _timed(getattr(target, leaf), name))
 
 
+def run_extract_cli(app: Any, video: str, max_frames: int | None, extra: str) -> dict[str, Any]:
+    """``deepcrashtest extract VIDEO --json [--max-frames N] EXTRA`` in this process (the typer ``app``), into a
+    temporary folder; returns its summary."""
+    import contextlib
+    import io
+    import json
+
+    with tempfile.TemporaryDirectory() as tmp:
+        argv = ["extract", video, "-o", str(Path(tmp) / "out"), "--json", *extra.split()]
+        if max_frames:
+            argv += ["--max-frames", str(max_frames)]
+        buf = io.StringIO()
+        with contextlib.redirect_stdout(buf):
+            try:
+                app(argv, standalone_mode=False)
+            except SystemExit as exc:
+                if exc.code:
+                    raise
+        return dict(json.loads(buf.getvalue()))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("video", nargs="?", default=str(DEFAULT))
@@ -121,22 +142,7 @@ def main() -> None:
     m_patch = time.thread_time()
     _patch()  # imports every patched module now: its CPU is left out of the phase before the first frame
     _patch_pass(m0 + time.thread_time() - m_patch)
-    with tempfile.TemporaryDirectory() as tmp:
-        argv = ["extract", args.video, "-o", str(Path(tmp) / "out"), "--json", *args.args.split()]
-        if args.max_frames:
-            argv += ["--max-frames", str(args.max_frames)]
-        import contextlib
-        import io
-        import json
-
-        buf = io.StringIO()
-        with contextlib.redirect_stdout(buf):
-            try:
-                app(argv, standalone_mode=False)
-            except SystemExit as exc:
-                if exc.code:
-                    raise
-        summary = json.loads(buf.getvalue())
+    summary = run_extract_cli(app, args.video, args.max_frames, args.args)
     wall, total = time.perf_counter() - t0, time.process_time() - c0
     n = summary["frames"]
     cpu["imports (cli, before the run)"] = t_import

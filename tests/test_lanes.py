@@ -64,8 +64,12 @@ def test_ego_lane_found_with_plausible_width(chessboard_camera, name, dashboard_
     # tracked ids persist: the ego boundaries keep their ids through most frames
     left_ids = [s.left.track_id for s in states if s.left is not None]
     assert max(left_ids.count(i) for i in set(left_ids)) > 0.6 * len(left_ids)
-    over = draw_lanes(_frames(name, 1)[0], states[-1])
-    assert over.shape == _frames(name, 1)[0].shape and (over != _frames(name, 1)[0]).any()
+    frame = _frames(name, 1)[0]
+    over = draw_lanes(frame, states[-1])
+    assert over.shape == frame.shape and (over != frame).any()
+    # copy=False (extract draws onto the annotator's copy): the same pixels, drawn into the frame itself
+    same = frame.copy()
+    assert draw_lanes(same, states[-1], copy=False) is same and np.array_equal(same, over)
 
 
 def test_dark_frames_give_a_warning(chessboard_camera):

@@ -378,9 +378,11 @@ def hausdorff_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.maximum(d.min(axis=3).max(axis=2), d.min(axis=2).max(axis=2))
 
 
-def draw_lanes(frame_bgr: np.ndarray, state: LaneState, top_v: float | None = None) -> np.ndarray:
-    """A copy of the frame with tracked lane lines (ego boundaries thick green, others thin yellow)."""
-    out = frame_bgr.copy()
+def draw_lanes(frame_bgr: np.ndarray, state: LaneState, top_v: float | None = None, copy: bool = True) -> np.ndarray:
+    """A copy of the frame with tracked lane lines (ego boundaries thick green, others thin yellow); with
+    ``copy=False`` they are drawn into ``frame_bgr`` itself (extract draws onto the annotator's copy: one
+    full-frame copy less per frame)."""
+    out = frame_bgr.copy() if copy else frame_bgr
     h = out.shape[0]
     for ln in state.lines:
         v0 = (state.roi_top or ln.v_top) if top_v is None else top_v
