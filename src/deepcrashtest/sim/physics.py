@@ -199,13 +199,17 @@ class _PairListener(b2ContactListener):
         if self.episode is not None:
             self.ended = True
 
+    def PreSolve(self, contact: Any, old_manifold: Any) -> None:  # noqa: N802
+        """Nothing, as Box2D's own: defined here so that each contact's report does not call back into the C++
+        base class (~10 % of an impact's CPU)."""
+
     def PostSolve(self, contact: Any, impulse: Any) -> None:  # noqa: N802
         if self.episode is None or self.ended:
             return
         wm = self._wm
         contact._b2Contact__GetWorldManifold_internal(wm)
         nx, ny = wm.normal
-        count = contact.manifold.pointCount
+        count = impulse.count  # the solved constraint's points: the contact manifold's ``pointCount``
         sn, st = sum(impulse.normalImpulses[:count]), sum(impulse.tangentImpulses[:count])
         px, py = nx * sn + ny * st, ny * sn + -nx * st
         ia, ib = self._first, self._second  # fixture A's body receives -P, B's +P
