@@ -27,7 +27,14 @@ from typing import Any
 import numpy as np
 
 from deepcrashtest.sim.agents import agent_timeline
-from deepcrashtest.sim.boxes import contact_fraction, sat_gap, signed_distance, time_to_collision
+from deepcrashtest.sim.boxes import (
+    axis_gaps,
+    contact_fraction,
+    distance_lower_bound,
+    sat_gap,
+    signed_distance,
+    time_to_collision,
+)
 from deepcrashtest.sim.loop import NEAR_M, TTC_EVERY, LoopOutput, PreContact, batch_delta_v
 from deepcrashtest.sim.reference import PathSet
 from deepcrashtest.sim.rollout import rollout
@@ -38,6 +45,9 @@ from deepcrashtest.sim.world import World
 #: steps x ROWS x agents doubles).
 ROWS = 256
 _EPS = 1e-6  # metres / seconds of slack on the pruning bounds (they are exact up to rounding)
+#: Slack (m) on the corner bound against a row's minimum: rounding makes a computed distance at most ~1e-15 m
+#: below the bound's value, and an entry within this of the minimum is computed anyway.
+_SLACK_M = 1e-9
 #: Pairs (index, agent) farther than this from every row's ego (m) are left out of the distance
 #: geometry (TTC evaluation indices excepted); the bound this gives (~5.5 m for cars) must exceed each
 #: row's distance bound, else the rows are evaluated with every pair (see ``_Rows._prune_far_pairs``).
@@ -152,6 +162,12 @@ class _Rows:
         """Separating-axis gaps of the entries (pair n, row r), as the loop computes them."""
         e, a, eh, ah = self.ego[self.pi[n], r], self.ag[self.pi[n], self.pj[n]], self.eh, self.ah[self.pj[n]]
         return sat_gap(e[:, 0], e[:, 1], e[:, 2], eh[0], eh[1], a[:, 0], a[:, 1], a[:, 2], ah[:, 0], ah[:, 1])
+
+    def lower_bound(self, n: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """:func:`~deepcrashtest.sim.boxes.distance_lower_bound` of the entries (pair n, row r), metres."""
+        e, a, eh, ah = self.ego[self.pi[n], r], self.ag[self.pi[n], self.pj[n]], self.eh, self.ah[self.pj[n]]
+        gaps = axis_gaps(e[:, 0], e[:, 1], e[:, 2], eh[0], eh[1], a[:, 0], a[:, 1], a[:, 2], ah[:, 0], ah[:, 1])
+        return distance_lower_bound(*gaps)
 
     def evaluate(self, seg: Any, out: LoopOutput, rows: slice, pre_contact: dict[int, PreContact]) -> bool:
         """Write the rows' outcomes; False when pairs left out could hold a row's minimum (evaluate again
@@ -269,15 +285,19 @@ class _Rows:
             return False
         n, r = np.nonzero(valid & (self.lower <= upper[None, :]))
         g = self._gap(n, r, gap_known)
-        # entries whose gap is above their row's bound are never computed (the bound only falls) and sort last in
-        # their row: left out before the sort (~3/4 of them), the others keep their ranks
+        # entries whose gap is above their row's bound are never computed (the bound only falls): left out (~3/4)
         keep = g <= upper[r]
         n, r, g = n[keep], r[keep], g[keep]
-        order = np.lexsort((g, r))  # by row, smallest gap first
-        n, r, g = n[order], r[order], g[order]
+        # a tighter lower bound of the distance than the gap (corner to corner) where the distance is exact (apart,
+        # below NEAR_M; elsewhere it is the gap itself): an entry whose bound exceeds its row's cannot hold the minimum
+        bound = g.copy()
+        exact = (g > 0) & (g < NEAR_M)
+        bound[exact] = self.lower_bound(n[exact], r[exact])
+        order = np.lexsort((bound, r))  # by row, smallest bound first
+        n, r, g, bound = n[order], r[order], g[order], bound[order]
         rank = np.arange(len(r)) - np.searchsorted(r, r)  # position within the row
         for lo, hi in ((0, 1), (1, 8), (8, 64), (64, len(r) + 1)):  # the bound tightens round by round
-            sel = (rank >= lo) & (rank < hi) & (g <= upper[r])
+            sel = (rank >= lo) & (rank < hi) & (bound <= upper[r] + _SLACK_M)
             np.minimum.at(upper, r[sel], self._distance(n[sel], r[sel], g[sel]))
         out.min_distance[rows] = upper
         return True
