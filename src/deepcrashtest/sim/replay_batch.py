@@ -121,17 +121,27 @@ class _Rows:
         if prune and len(self.pi):
             self._prune_far_pairs()
         a = ag[self.pi, self.pj]  # (N, 4)
-        dx = a[:, None, 0] - ego[:, :, 0][self.pi]
-        dy = a[:, None, 1] - ego[:, :, 1][self.pi]
-        self.dist = np.sqrt(dx * dx + dy * dy)  # centre distances (N, R)
+        # centre offsets (N, R), kept for the time to collision; the rest in place (arrays of N x R, a few MB each)
+        self.dx = dx = np.subtract(a[:, None, 0], ego[:, :, 0][self.pi])
+        self.dy = dy = np.subtract(a[:, None, 1], ego[:, :, 1][self.pi])
+        t1, t2 = dx * dx, dy * dy
+        self.dist = np.sqrt(np.add(t1, t2, out=t1), out=t1)  # centre distances (N, R)
         self.r_a = np.hypot(self.ah[self.pj, 0], self.ah[self.pj, 1])[:, None]  # (N, 1) agents' circumradii
         if cos_sin is None:
             cos_sin = np.cos(ego[:, :, 2]), np.sin(ego[:, :, 2])
         c, s = cos_sin[0][self.pi], cos_sin[1][self.pi]  # per (index, row) (the roll-out's), then gathered
-        along = np.abs(dx * c + dy * s) - self.eh[0]
-        across = np.abs(dy * c - dx * s) - self.eh[1]
+        along = np.multiply(dx, c)  # |dx * c + dy * s| - half length
+        along += np.multiply(dy, s, out=t2)
+        np.abs(along, out=along)
+        along -= self.eh[0]
+        across = np.multiply(dy, c, out=c)  # |dy * c - dx * s| - half width
+        across -= np.multiply(dx, s, out=s)
+        np.abs(across, out=across)
+        across -= self.eh[1]
         # the separating-axis gap is the largest of four, two of them on the ego's axes, each at least this
-        self.lower = np.maximum(along, across) - self.r_a - _EPS
+        self.lower = np.maximum(along, across, out=along)
+        self.lower -= self.r_a
+        self.lower -= _EPS
 
     def _prune_far_pairs(self) -> None:
         """Leave out pairs (index, agent) whose agent is over ``FAR_M`` from every row's ego centre (the rows'
@@ -279,7 +289,7 @@ class _Rows:
             out.min_distance[rows] = upper
             return True
         r0 = np.nonzero(has)[0]
-        n0 = np.argmin(dist[:, r0], axis=0)
+        n0 = np.argmin(dist if len(r0) == R else dist[:, r0], axis=0)
         upper[r0] = self._distance(n0, r0, self._gap(n0, r0, gap_known))
         if (upper >= self.far_bound).any():
             return False
@@ -305,10 +315,7 @@ class _Rows:
     def _never_close(self, sel: np.ndarray, w: np.ndarray, speed: np.ndarray) -> np.ndarray:
         """(n, R) True where the boxes of pairs ``sel`` can never touch moving at their relative velocity ``w``
         (m/s): their circumcircles stay apart for all t >= 0, so the swept test gives infinity."""
-        a = self.ag[self.pi[sel], self.pj[sel]]
-        i = self.pi[sel]
-        dx = a[:, None, 0] - self.ego[i, :, 0]
-        dy = a[:, None, 1] - self.ego[i, :, 1]
+        dx, dy = self.dx[sel], self.dy[sel]
         reach = np.hypot(*self.eh) + self.r_a[sel] + _EPS  # (n, 1)
         closing = dx * w[..., 0] + dy * w[..., 1] < 0.0
         miss = np.abs(dx * w[..., 1] - dy * w[..., 0])  # closest approach of the centres times the speed
@@ -324,7 +331,8 @@ class _Rows:
         at, inv = np.unique(pi, return_inverse=True)  # each evaluation index once (several agents share it)
         ev = velocity_xy(self.ego[at, :, 2], self.ego[at, :, 3], self.steer[at])[inv]
         w = self.ag_vel[pi, pj][:, None, :] - ev
-        speed = np.hypot(w[..., 0], w[..., 1])
+        # relative speeds for the pruning bounds only (they carry _EPS of slack; hypot would be ~3x the CPU)
+        speed = np.sqrt(w[..., 0] * w[..., 0] + w[..., 1] * w[..., 1])
         ok &= ~self._never_close(sel, w, speed)
         with np.errstate(divide="ignore", invalid="ignore"):
             # no contact before the gap closes at the closing speed
