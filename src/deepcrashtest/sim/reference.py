@@ -383,10 +383,13 @@ class PathSet:
     path (see :func:`~deepcrashtest.sim.world.build_world`)."""
 
     @classmethod
-    def stack(cls, refs: list[Reference], dt: float) -> PathSet:
-        return cls.from_arrays(
+    def stack(cls, refs: list[Reference], dt: float, yaw_ref: np.ndarray | None = None) -> PathSet:
+        """The references ``refs`` stacked; ``yaw_ref`` (Q, T): their own headings (see the field), or None."""
+        out = cls.from_arrays(
             [r.path for r in refs], np.stack([r.s_ref for r in refs]), np.stack([r.v_ref for r in refs]), dt
         )
+        out.yaw_ref = yaw_ref
+        return out
 
     @classmethod
     def from_arrays(cls, paths: list[np.ndarray], s_ref: np.ndarray, v_ref: np.ndarray, dt: float) -> PathSet:
