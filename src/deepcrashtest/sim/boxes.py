@@ -32,20 +32,10 @@ def sat_gap(
     return np.maximum(np.maximum(g1, g2), np.maximum(g3, g4))
 
 
-def axis_gaps(
-    xa: np.ndarray,
-    ya: np.ndarray,
-    yawa: np.ndarray,
-    hla: np.ndarray,
-    hwa: np.ndarray,
-    xb: np.ndarray,
-    yb: np.ndarray,
-    yawb: np.ndarray,
-    hlb: np.ndarray,
-    hwb: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def axis_gaps(*boxes: np.ndarray | float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The gaps (m) between the boxes' projections on A's length and width axes and on B's (:func:`sat_gap` is
-    their largest)."""
+    their largest); ``boxes``: :func:`sat_gap`'s arguments, in its order."""
+    xa, ya, yawa, hla, hwa, xb, yb, yawb, hlb, hwb = (np.asarray(v) for v in boxes)
     ca, sa, cb, sb = np.cos(yawa), np.sin(yawa), np.cos(yawb), np.sin(yawb)
     dx, dy = xb - xa, yb - ya
     # |cos| and |sin| of the relative heading give all cross projections of the unit axes
