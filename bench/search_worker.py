@@ -24,6 +24,10 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
+
+from deepcrashtest.pipeline.kitti import kitti_scenarios  # noqa: E402
+
 KITTI = ROOT.parent / "shared" / "data" / "kitti_tracking"
 
 # Runs in each measured process: prepares the world, times one chunk, prints its CPU seconds and outcome hash.
@@ -62,32 +66,30 @@ def _rounded(values: list[float]) -> list[float]:
     return [round(v, 3) for v in values]
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser()
+def _args() -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description="one search worker's chunk, this checkout against another")
     ap.add_argument("--baseline-src", required=True, help="another checkout's src/, measured alternately")
-    ap.add_argument("--pairs", type=int, default=6)
-    ap.add_argument("--variants", type=int, default=1000)
-    ap.add_argument("--sequence", type=int, default=3)
-    args = ap.parse_args()
+    ap.add_argument("--pairs", type=int, default=6, help="alternating runs per side")
+    ap.add_argument("--variants", type=int, default=1000, help="variants in the chunk")
+    ap.add_argument("--sequence", type=int, default=3, help="KITTI tracking sequence")
+    return ap.parse_args()
+
+
+def main() -> None:
+    args = _args()
     if not KITTI.exists():
         print(json.dumps({"skipped": f"real data not found: {KITTI}"}))
         return
     srcs = {"search": ROOT / "src", "baseline": Path(args.baseline_src).resolve()}
     with tempfile.TemporaryDirectory() as tmp:
-        scen = Path(tmp) / "scenario"
-        code = "import sys, deepcrashtest.cli as c; sys.exit(c.run())"
-        subprocess.run(
-            [sys.executable, "-c", code, "scenario", "from-kitti", "--data", str(KITTI)]
-            + ["--sequence", str(args.sequence), "-o", str(scen)],
-            check=True,
-            env={**os.environ, "PYTHONPATH": str(ROOT / "src")},
-            stdout=subprocess.DEVNULL,
-        )
+        scen = Path(tmp) / "scenario.json"
+        # the Scenario ``deepcrashtest scenario from-kitti`` writes (stage 2 on the labels, seed 0), this checkout's
+        kitti_scenarios(KITTI, args.sequence, seed=0)[1].save(scen)
         runs: dict[str, list[dict]] = {k: [] for k in srcs}
         load_before = os.getloadavg()[0]
         for _ in range(args.pairs):
             for name, src in srcs.items():
-                runs[name].append(_run(src, scen / "scenario.json", args.variants))
+                runs[name].append(_run(src, scen, args.variants))
     cpu = {k: [r["cpu_s"] for r in v] for k, v in runs.items()}
     summary = {
         k: {"cpu_s_min": round(min(v), 3), "cpu_s_median": round(statistics.median(v), 3), "runs": _rounded(v)}
