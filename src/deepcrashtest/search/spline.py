@@ -56,12 +56,40 @@ def evaluate_paths(sp: SplineParams, ctrl: np.ndarray, t: np.ndarray, nu: int = 
     """Evaluate the spline (or its ``nu``-th time derivative) for many control-point sets.
 
     ``ctrl`` is (B, M, 2) (or (M, 2)); returns (B, K, 2) (or (K, 2)) at times ``t`` (K,), clamped
-    to the knot span. One basis-matrix product, so thousands of variants cost one matmul.
+    to the knot span. At most ``degree + 1`` basis functions are non-zero at a time: thousands of variants cost
+    a few array operations.
     """
     knots = np.asarray(sp.knots, dtype=float)
     tt = np.clip(np.asarray(t, dtype=float), knots[0], knots[-1])
-    basis = basis_matrix(knots, sp.degree, tt, nu)  # (K, M)
-    return np.einsum("km,...md->...kd", basis, ctrl)
+    first, weights = _band(knots.tobytes(), int(sp.degree), tt.tobytes(), int(nu))
+    c = np.asarray(ctrl, dtype=float)
+    # sum_m basis[k, m] * ctrl[..., m, :] over the band of non-zero basis functions of each row, in the order of m
+    # from 0.0: ``np.einsum("km,...md->...kd", basis, ctrl)``'s sum (the terms outside the band are exact zeros)
+    out = np.zeros(c.shape[:-2] + (len(first), c.shape[-1]))
+    term = np.empty_like(out)
+    for j in range(weights.shape[1]):
+        np.take(c, first + j, axis=-2, out=term)
+        term *= weights[:, j, None]
+        out += term
+    return out
+
+
+@functools.lru_cache(maxsize=16)
+def _band(knots_b: bytes, degree: int, t_b: bytes, nu: int) -> tuple[np.ndarray, np.ndarray]:
+    """The basis matrix (K, M) of :func:`basis_matrix` as bands of W columns: each row's first column ``first`` (K,)
+    and its values there (K, W); W is the widest run of non-zero columns of a row (at most ``degree + 1``), bands
+    ending past column M - 1 start earlier (their extra columns hold zeros). Read-only, kept as the matrix is."""
+    basis = _basis_cached(knots_b, degree, t_b, nu)
+    K, M = basis.shape
+    nz = basis != 0
+    first = np.argmax(nz, axis=1)  # 0 for a row of zeros
+    last = np.where(nz.any(axis=1), M - 1 - np.argmax(nz[:, ::-1], axis=1), 0)
+    width = min(int((last - first).max(initial=0)) + 1, M)
+    first = np.minimum(first, M - width)
+    weights = basis[np.arange(K)[:, None], first[:, None] + np.arange(width)[None, :]]
+    first.flags.writeable = False
+    weights.flags.writeable = False
+    return first, weights
 
 
 def basis_matrix(knots: np.ndarray, degree: int, t: np.ndarray, nu: int = 0) -> np.ndarray:

@@ -28,6 +28,14 @@ def sat_gap(
     exact when the closest features are a face and a corner); zero or negative: they touch or
     overlap, and ``-gap`` is the penetration depth.
     """
+    g1, g2, g3, g4 = axis_gaps(xa, ya, yawa, hla, hwa, xb, yb, yawb, hlb, hwb)
+    return np.maximum(np.maximum(g1, g2), np.maximum(g3, g4))
+
+
+def axis_gaps(*boxes: np.ndarray | float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The gaps (m) between the boxes' projections on A's length and width axes and on B's (:func:`sat_gap` is
+    their largest); ``boxes``: :func:`sat_gap`'s arguments, in its order."""
+    xa, ya, yawa, hla, hwa, xb, yb, yawb, hlb, hwb = (np.asarray(v) for v in boxes)
     ca, sa, cb, sb = np.cos(yawa), np.sin(yawa), np.cos(yawb), np.sin(yawb)
     dx, dy = xb - xa, yb - ya
     # |cos| and |sin| of the relative heading give all cross projections of the unit axes
@@ -37,7 +45,16 @@ def sat_gap(
     g2 = np.abs(-dx * sa + dy * ca) - hwa - (hlb * s + hwb * c)
     g3 = np.abs(dx * cb + dy * sb) - hlb - (hla * c + hwa * s)
     g4 = np.abs(-dx * sb + dy * cb) - hwb - (hla * s + hwa * c)
-    return np.maximum(np.maximum(g1, g2), np.maximum(g3, g4))
+    return g1, g2, g3, g4
+
+
+def distance_lower_bound(g1: np.ndarray, g2: np.ndarray, g3: np.ndarray, g4: np.ndarray) -> np.ndarray:
+    """A lower bound (m) of the distance between two boxes from their :func:`axis_gaps`, at least their separating-
+    axis gap: every point of B lies beyond both of A's slabs by at least ``g1`` and ``g2`` where these are positive,
+    so its distance to A is at least ``hypot(max(g1, 0), max(g2, 0))``; the same on B's axes."""
+    z = 0.0
+    on_a = np.hypot(np.maximum(g1, z), np.maximum(g2, z))
+    return np.maximum(on_a, np.hypot(np.maximum(g3, z), np.maximum(g4, z)))
 
 
 def corners(x: np.ndarray, y: np.ndarray, yaw: np.ndarray, hl: np.ndarray, hw: np.ndarray) -> np.ndarray:

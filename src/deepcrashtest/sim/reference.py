@@ -225,10 +225,12 @@ def build_pathset(
         return PathSet.stack(refs, dt), np.stack([r.init for r in refs])
     speed = np.hypot(vel[..., 0], vel[..., 1]).T  # (B, L)
     moving = speed > 0.5
-    head = np.arctan2(vel[..., 1], vel[..., 0]).T
     last_moving = speed.shape[1] - 1 - np.argmax(moving[:, ::-1], axis=1)
     rows = np.arange(len(xys))
-    end_heading = np.where(moving.any(axis=1), head[rows, last_moving], float(np.asarray(yaw_label, float)[-1]))
+    # the direction of motion only where it is used: at the start and at each path's last moving sample
+    v_end_moving = vel[last_moving, rows]
+    head_end = np.arctan2(v_end_moving[:, 1], v_end_moving[:, 0])
+    end_heading = np.where(moving.any(axis=1), head_end, float(np.asarray(yaw_label, float)[-1]))
     v_end = speed[:, -1]
     extension = EXTENSION_M + v_end * max(0.0, times[-1] - times[end])
     paths, lengths = _resample_paths(pos, seg, s_span, end_heading, extension)
@@ -242,7 +244,8 @@ def build_pathset(
     v_ref[:, start : end + 1] = speed
     v_ref[:, end:] = v_end[:, None]
     heading0 = float(np.asarray(yaw_label, float)[0])  # at rest: the trajectory's own heading (as _reference)
-    init = np.column_stack([pos[0, :, 0], pos[0, :, 1], np.where(moving[:, 0], head[:, 0], heading0), speed[:, 0]])
+    head0 = np.arctan2(vel[0, :, 1], vel[0, :, 0])
+    init = np.column_stack([pos[0, :, 0], pos[0, :, 1], np.where(moving[:, 0], head0, heading0), speed[:, 0]])
     return PathSet.from_padded(paths, lengths, s_ref, v_ref, dt), init
 
 
@@ -380,10 +383,13 @@ class PathSet:
     path (see :func:`~deepcrashtest.sim.world.build_world`)."""
 
     @classmethod
-    def stack(cls, refs: list[Reference], dt: float) -> PathSet:
-        return cls.from_arrays(
+    def stack(cls, refs: list[Reference], dt: float, yaw_ref: np.ndarray | None = None) -> PathSet:
+        """The references ``refs`` stacked; ``yaw_ref`` (Q, T): their own headings (see the field), or None."""
+        out = cls.from_arrays(
             [r.path for r in refs], np.stack([r.s_ref for r in refs]), np.stack([r.v_ref for r in refs]), dt
         )
+        out.yaw_ref = yaw_ref
+        return out
 
     @classmethod
     def from_arrays(cls, paths: list[np.ndarray], s_ref: np.ndarray, v_ref: np.ndarray, dt: float) -> PathSet:

@@ -27,7 +27,14 @@ from typing import Any
 import numpy as np
 
 from deepcrashtest.sim.agents import agent_timeline
-from deepcrashtest.sim.boxes import contact_fraction, sat_gap, signed_distance, time_to_collision
+from deepcrashtest.sim.boxes import (
+    axis_gaps,
+    contact_fraction,
+    distance_lower_bound,
+    sat_gap,
+    signed_distance,
+    time_to_collision,
+)
 from deepcrashtest.sim.loop import NEAR_M, TTC_EVERY, LoopOutput, PreContact, batch_delta_v
 from deepcrashtest.sim.reference import PathSet
 from deepcrashtest.sim.rollout import rollout
@@ -38,6 +45,9 @@ from deepcrashtest.sim.world import World
 #: steps x ROWS x agents doubles).
 ROWS = 256
 _EPS = 1e-6  # metres / seconds of slack on the pruning bounds (they are exact up to rounding)
+#: Slack (m) on the corner bound against a row's minimum: rounding makes a computed distance at most ~1e-15 m
+#: below the bound's value, and an entry within this of the minimum is computed anyway.
+_SLACK_M = 1e-9
 #: Pairs (index, agent) farther than this from every row's ego (m) are left out of the distance
 #: geometry (TTC evaluation indices excepted); the bound this gives (~5.5 m for cars) must exceed each
 #: row's distance bound, else the rows are evaluated with every pair (see ``_Rows._prune_far_pairs``).
@@ -111,17 +121,27 @@ class _Rows:
         if prune and len(self.pi):
             self._prune_far_pairs()
         a = ag[self.pi, self.pj]  # (N, 4)
-        dx = a[:, None, 0] - ego[:, :, 0][self.pi]
-        dy = a[:, None, 1] - ego[:, :, 1][self.pi]
-        self.dist = np.sqrt(dx * dx + dy * dy)  # centre distances (N, R)
+        # centre offsets (N, R), kept for the time to collision; the rest in place (arrays of N x R, a few MB each)
+        self.dx = dx = np.subtract(a[:, None, 0], ego[:, :, 0][self.pi])
+        self.dy = dy = np.subtract(a[:, None, 1], ego[:, :, 1][self.pi])
+        t1, t2 = dx * dx, dy * dy
+        self.dist = np.sqrt(np.add(t1, t2, out=t1), out=t1)  # centre distances (N, R)
         self.r_a = np.hypot(self.ah[self.pj, 0], self.ah[self.pj, 1])[:, None]  # (N, 1) agents' circumradii
         if cos_sin is None:
             cos_sin = np.cos(ego[:, :, 2]), np.sin(ego[:, :, 2])
         c, s = cos_sin[0][self.pi], cos_sin[1][self.pi]  # per (index, row) (the roll-out's), then gathered
-        along = np.abs(dx * c + dy * s) - self.eh[0]
-        across = np.abs(dy * c - dx * s) - self.eh[1]
+        along = np.multiply(dx, c)  # |dx * c + dy * s| - half length
+        along += np.multiply(dy, s, out=t2)
+        np.abs(along, out=along)
+        along -= self.eh[0]
+        across = np.multiply(dy, c, out=c)  # |dy * c - dx * s| - half width
+        across -= np.multiply(dx, s, out=s)
+        np.abs(across, out=across)
+        across -= self.eh[1]
         # the separating-axis gap is the largest of four, two of them on the ego's axes, each at least this
-        self.lower = np.maximum(along, across) - self.r_a - _EPS
+        self.lower = np.maximum(along, across, out=along)
+        self.lower -= self.r_a
+        self.lower -= _EPS
 
     def _prune_far_pairs(self) -> None:
         """Leave out pairs (index, agent) whose agent is over ``FAR_M`` from every row's ego centre (the rows'
@@ -152,6 +172,12 @@ class _Rows:
         """Separating-axis gaps of the entries (pair n, row r), as the loop computes them."""
         e, a, eh, ah = self.ego[self.pi[n], r], self.ag[self.pi[n], self.pj[n]], self.eh, self.ah[self.pj[n]]
         return sat_gap(e[:, 0], e[:, 1], e[:, 2], eh[0], eh[1], a[:, 0], a[:, 1], a[:, 2], ah[:, 0], ah[:, 1])
+
+    def lower_bound(self, n: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """:func:`~deepcrashtest.sim.boxes.distance_lower_bound` of the entries (pair n, row r), metres."""
+        e, a, eh, ah = self.ego[self.pi[n], r], self.ag[self.pi[n], self.pj[n]], self.eh, self.ah[self.pj[n]]
+        gaps = axis_gaps(e[:, 0], e[:, 1], e[:, 2], eh[0], eh[1], a[:, 0], a[:, 1], a[:, 2], ah[:, 0], ah[:, 1])
+        return distance_lower_bound(*gaps)
 
     def evaluate(self, seg: Any, out: LoopOutput, rows: slice, pre_contact: dict[int, PreContact]) -> bool:
         """Write the rows' outcomes; False when pairs left out could hold a row's minimum (evaluate again
@@ -263,21 +289,25 @@ class _Rows:
             out.min_distance[rows] = upper
             return True
         r0 = np.nonzero(has)[0]
-        n0 = np.argmin(dist[:, r0], axis=0)
+        n0 = np.argmin(dist if len(r0) == R else dist[:, r0], axis=0)
         upper[r0] = self._distance(n0, r0, self._gap(n0, r0, gap_known))
         if (upper >= self.far_bound).any():
             return False
         n, r = np.nonzero(valid & (self.lower <= upper[None, :]))
         g = self._gap(n, r, gap_known)
-        # entries whose gap is above their row's bound are never computed (the bound only falls) and sort last in
-        # their row: left out before the sort (~3/4 of them), the others keep their ranks
+        # entries whose gap is above their row's bound are never computed (the bound only falls): left out (~3/4)
         keep = g <= upper[r]
         n, r, g = n[keep], r[keep], g[keep]
-        order = np.lexsort((g, r))  # by row, smallest gap first
-        n, r, g = n[order], r[order], g[order]
+        # a tighter lower bound of the distance than the gap (corner to corner) where the distance is exact (apart,
+        # below NEAR_M; elsewhere it is the gap itself): an entry whose bound exceeds its row's cannot hold the minimum
+        bound = g.copy()
+        exact = (g > 0) & (g < NEAR_M)
+        bound[exact] = self.lower_bound(n[exact], r[exact])
+        order = np.lexsort((bound, r))  # by row, smallest bound first
+        n, r, g, bound = n[order], r[order], g[order], bound[order]
         rank = np.arange(len(r)) - np.searchsorted(r, r)  # position within the row
         for lo, hi in ((0, 1), (1, 8), (8, 64), (64, len(r) + 1)):  # the bound tightens round by round
-            sel = (rank >= lo) & (rank < hi) & (g <= upper[r])
+            sel = (rank >= lo) & (rank < hi) & (bound <= upper[r] + _SLACK_M)
             np.minimum.at(upper, r[sel], self._distance(n[sel], r[sel], g[sel]))
         out.min_distance[rows] = upper
         return True
@@ -285,10 +315,7 @@ class _Rows:
     def _never_close(self, sel: np.ndarray, w: np.ndarray, speed: np.ndarray) -> np.ndarray:
         """(n, R) True where the boxes of pairs ``sel`` can never touch moving at their relative velocity ``w``
         (m/s): their circumcircles stay apart for all t >= 0, so the swept test gives infinity."""
-        a = self.ag[self.pi[sel], self.pj[sel]]
-        i = self.pi[sel]
-        dx = a[:, None, 0] - self.ego[i, :, 0]
-        dy = a[:, None, 1] - self.ego[i, :, 1]
+        dx, dy = self.dx[sel], self.dy[sel]
         reach = np.hypot(*self.eh) + self.r_a[sel] + _EPS  # (n, 1)
         closing = dx * w[..., 0] + dy * w[..., 1] < 0.0
         miss = np.abs(dx * w[..., 1] - dy * w[..., 0])  # closest approach of the centres times the speed
@@ -304,7 +331,8 @@ class _Rows:
         at, inv = np.unique(pi, return_inverse=True)  # each evaluation index once (several agents share it)
         ev = velocity_xy(self.ego[at, :, 2], self.ego[at, :, 3], self.steer[at])[inv]
         w = self.ag_vel[pi, pj][:, None, :] - ev
-        speed = np.hypot(w[..., 0], w[..., 1])
+        # relative speeds for the pruning bounds only (they carry _EPS of slack; hypot would be ~3x the CPU)
+        speed = np.sqrt(w[..., 0] * w[..., 0] + w[..., 1] * w[..., 1])
         ok &= ~self._never_close(sel, w, speed)
         with np.errstate(divide="ignore", invalid="ignore"):
             # no contact before the gap closes at the closing speed

@@ -15,7 +15,7 @@ decimetres on slow, noisy tracks. The ego always drives the vehicle model.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -93,6 +93,14 @@ def _own_headings(vehicles: list[Any], refs: list[Reference], times: np.ndarray)
     return out
 
 
+def _facing(ref: Reference, yaw: np.ndarray) -> Reference:
+    """``ref`` starting with its own heading ``yaw`` (T,) rad at its first grid step (a moving agent replayed
+    exactly, see :func:`_own_headings`), or ``ref`` itself where it has none."""
+    if ref.static or not np.isfinite(yaw[ref.start]):
+        return ref
+    return replace(ref, init=np.array([ref.init[0], ref.init[1], yaw[ref.start], ref.init[3]]))
+
+
 def build_world(scenario: Scenario, dt: float = 0.02, duration: float | None = None) -> World:
     """Resample every vehicle's trajectory into references on a uniform grid of step ``dt``."""
     if not (np.isfinite(dt) and 0.001 <= dt <= 0.1):
@@ -107,12 +115,9 @@ def build_world(scenario: Scenario, dt: float = 0.02, duration: float | None = N
     exact = exact_agents(scenario)
     refs = [_reference(v.id, v.trajectory, times, dt, not exact) for v in vehicles]
     yaw_ref = _own_headings(vehicles[1:], refs[1:], times) if exact and len(refs) > 1 else None
-    agent_paths = PathSet.stack(refs[1:], dt) if len(refs) > 1 else None
-    if agent_paths is not None and yaw_ref is not None:
-        agent_paths.yaw_ref = yaw_ref
-        for r, yaw in zip(refs[1:], yaw_ref, strict=True):
-            if not r.static and np.isfinite(yaw[r.start]):
-                r.init = np.array([r.init[0], r.init[1], yaw[r.start], r.init[3]])
+    if yaw_ref is not None:
+        refs[1:] = [_facing(r, yaw) for r, yaw in zip(refs[1:], yaw_ref, strict=True)]
+    agent_paths = PathSet.stack(refs[1:], dt, yaw_ref) if len(refs) > 1 else None
     length = np.array([v.length for v in vehicles], float)
     return World(
         scenario=scenario,
