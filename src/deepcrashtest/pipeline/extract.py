@@ -39,7 +39,6 @@ from deepcrashtest.perception.track import FrameTracks, detect_ahead, frame_reco
 from deepcrashtest.pipeline.geometry_pass import GeometryResult, TrackRows, extract_geometry
 from deepcrashtest.pipeline.threads import Worker, prefetch
 from deepcrashtest.scenario import Camera, VideoSource
-from deepcrashtest.scipy_docs import plain_scipy_docs
 from deepcrashtest.trajectory.params import Stage2Params
 from deepcrashtest.ui import track as progress
 from deepcrashtest.video.bars import SAMPLE_FRAMES, picture_area
@@ -225,7 +224,6 @@ def _warm_imports(modules: tuple[str, ...]) -> threading.Thread:
     """
 
     def load() -> None:
-        plain_scipy_docs()  # ~0.4 s of CPU less (SciPy's docstring rewriting at import: deepcrashtest.scipy_docs)
         for name in modules:
             with contextlib.suppress(ImportError):
                 importlib.import_module(name)
