@@ -85,8 +85,8 @@ GRID: dict[tuple[str, str], list] = {
 #: 61.35, max_age_s 1.5 61.93, min_detected 6 61.90.
 #: Round mono8 (by hand, one setting at a time, 18 tuning sequences, KITTI camera; start 62.04): the near ground
 #: contacts (mono4) on again where the camera's height is measured (user / kitti_calib; a self-calibrated or
-#: default height, as on every dashcam clip, leaves them off: they would echo it): 150 px 63.84 (125 / 175 in
-#: the log of this round; mono4's grid chose 150). The car/van choice (`diag_mono.py --classes`: 1,195 detected
+#: default height, as on every dashcam clip, leaves them off: they would echo it; unknown camera with them on
+#: for a self-calibrated height 47.91 against 49.69): 150 px 63.84 (125 px 63.57, 175 px 63.30). The car/van choice (`diag_mono.py --classes`: 1,195 detected
 #: frames of labelled cars in tracks typed van, 514 of vans typed car; the cars typed van lie mostly beyond 45 m,
 #: where the bottom edges imply 2-3 m heights; the aspect term is biased: a car's box is 0.11 (log) taller for its
 #: width than the car prior's shape, 0.18 at 15-35 m, 0 beyond 45 m, a van's 0.21, so cars sit midway): dropped,
