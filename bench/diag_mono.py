@@ -1,6 +1,6 @@
 """Where the monocular path loses MOTA: FN / FP / IDSW broken down by cause and by distance.
 
-    PYTHONPATH=src nice -n 10 python bench/diag_mono.py [--sequences 0,1,2] [--camera kitti|unknown]
+    PYTHONPATH=src nice -n 10 python bench/diag_mono.py [--sequences 0,1,2] [--camera kitti|unknown] [--classes]
 
 Default: the 18 training sequences other than 3, 8, 10 (never the held-out ones unless asked).
 Per frame, an evaluated ground-truth car left unmatched (2 m world gate) is a *localisation* miss
@@ -9,6 +9,12 @@ when a kept hypothesis covers its image box (IoU >= 0.5), a *tracker* miss when 
 hypothesis is a *localisation* FP when its image box covers an evaluated car, else it is named by
 the label class it covers (Van, Truck, Pedestrian...; distractor cars: occluded/truncated), or
 *ghost*. Counts by the camera-to-object range bin.
+
+``--classes``: the class choice per track instead (KITTI camera): each kept track's typed class
+against the label type its detected boxes cover (2D IoU >= 0.5, majority), in detected frames, and
+per label type and range bin the median height its bottom edges imply (``box_h (v_bottom -
+v_horizon)^-1 h_camera``, m) and the median log box height/width against the car prior's (the class
+choice's aspect term): what the car/van choice has to go by.
 """
 
 from __future__ import annotations
@@ -19,16 +25,26 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 from scipy.optimize import linear_sum_assignment
 
-from deepcrashtest.datasets.kitti.files import KittiSequence, read_labels
+from deepcrashtest.datasets.kitti.files import KITTI_FPS, KittiSequence, read_labels
 from deepcrashtest.datasets.kitti.results import scenario_result_table
 from deepcrashtest.eval.boxes import iou_2d
 from deepcrashtest.eval.clear_mot import clear_only
 from deepcrashtest.eval.kitti import hypotheses_from_table, match_rule
-from deepcrashtest.eval.kitti_mono import DEFAULT_MONO, MonoTracking, mono_scenario, prepare_mono, score_sequence
+from deepcrashtest.eval.kitti_mono import (
+    DEFAULT_MONO,
+    MonoTracking,
+    ego_of,
+    image_tracks,
+    mono_scenario,
+    prepare_mono,
+    score_sequence,
+)
 from deepcrashtest.eval.kitti_rules import apply_kitti_rules
 from deepcrashtest.eval.kitti_world import world_table
+from deepcrashtest.geometry.mono3d import class_size, hull_factor, localize_tracks
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kitti_tracking"
 TUNING = [s for s in range(21) if s not in (3, 8, 10)]
@@ -121,6 +137,58 @@ def diagnose(seq: int, camera: str, config: MonoTracking = DEFAULT_MONO) -> tupl
     return out, fn, fp
 
 
+def class_rows(seq: int, config: MonoTracking = DEFAULT_MONO) -> pd.DataFrame:
+    """One row per kept track of a sequence: typed class, covered label type, detected frames,
+    median range (m), implied height (m) and log box aspect (KITTI camera; ``localize_tracks`` on the
+    poses' path without ``raw_scenario_from_tracks``' per-frame pitch, so a class may differ)."""
+    prep = prepare_mono(DATA, seq)
+    tracks = image_tracks(prep, config)
+    states = localize_tracks(tracks, prep.camera, ego_of(prep.world), prep.size, KITTI_FPS, config.mono)
+    labels = read_labels(KittiSequence(DATA, seq).labels)
+    lab_by = dict(iter(labels.groupby("frame")))
+    cam = prep.camera
+    out = []
+    for tid, g in states[states["detected"].astype(bool)].groupby("track_id"):
+        if len(g) < config.min_detected or g["score"].mean() <= config.min_confidence:
+            continue
+        types: Counter = Counter()
+        for f, box in zip(g["frame"], g[["x1", "y1", "x2", "y2"]].to_numpy(float), strict=True):
+            lab = lab_by.get(int(f))
+            iou = iou_2d(box[None], lab[["x1", "y1", "x2", "y2"]].to_numpy(float))[0] if lab is not None else []
+            types[str(lab["type"].iloc[int(np.argmax(iou))]) if len(iou) and max(iou) >= 0.5 else "none"] += 1
+        below = (g["y2"] - g["horizon_v"]).to_numpy(float)
+        ok = (below > 2.0) & (g["y2"].to_numpy(float) < prep.size[1] - 2)
+        h = ((g["y2"] - g["y1"]).to_numpy(float) * cam.height_m / np.where(ok, below, np.nan))[ok]
+        bh, bw = (g["y2"] - g["y1"]).to_numpy(float), (g["x2"] - g["x1"]).to_numpy(float)
+        ln, wd, ht = class_size("car")  # the car prior's box shape (as the class choice's aspect term)
+        a = np.arctan((0.5 * (g["x1"] + g["x2"]).to_numpy(float) - cam.cx) / cam.fx)
+        shape = ht * hull_factor(ht, ln, wd, cam.height_m, cam.fy * ht / bh, np.tan(a))
+        aspect = np.log(bh / bw) - np.log(shape / (ln * np.abs(np.sin(a)) + wd * np.abs(np.cos(a))))
+        out.append({
+            "seq": seq, "track": tid, "typed": g["category"].iloc[0], "label": types.most_common(1)[0][0],
+            "frames": len(g), "range": float(np.nanmedian(g["range"])),
+            "height": float(np.median(h)) if len(h) else np.nan, "aspect": float(np.median(aspect)),
+        })  # fmt: skip
+    return pd.DataFrame(out)
+
+
+def print_classes(seqs: list[int]) -> None:
+    """The class-choice tables of :func:`class_rows` over ``seqs``."""
+    df = pd.concat([class_rows(s) for s in seqs], ignore_index=True)
+    df["label"] = df["label"].where(df["label"].isin(["Car", "Van", "none"]), "other")
+    print("detected frames by label type (rows) and typed class (columns):")
+    print(pd.crosstab(df["label"], df["typed"], values=df["frames"], aggfunc="sum").fillna(0).astype(int))
+    df["bin"] = pd.cut(df["range"], [0, 15, 25, 35, 45, 60, 1000])
+    tab = df[df["label"].isin(["Car", "Van"])].groupby(["label", "bin"], observed=True)
+    print("per label type and median range (m): tracks, typed van, implied height q50/q75 (m), log aspect - car's:")
+    print(
+        tab.agg(
+            tracks=("frames", "size"), typed_van=("typed", lambda t: int((t == "van").sum())),
+            h50=("height", "median"), h75=("height", lambda h: h.quantile(0.75)), aspect=("aspect", "median"),
+        ).round(2)
+    )  # fmt: skip
+
+
 def _config(spec: str) -> MonoTracking:
     kw = {k: eval(v) for k, v in (p.split("=") for p in spec.split(",") if p)}  # noqa: S307 (bench option)
     return replace(DEFAULT_MONO, mono=replace(DEFAULT_MONO.mono, **kw))
@@ -130,8 +198,12 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--sequences", default=",".join(map(str, TUNING)))
     ap.add_argument("--camera", default="kitti")
+    ap.add_argument("--classes", action="store_true", help="the class choice per track (KITTI camera)")
     ap.add_argument("--mono", default="", help="MonoConfig overrides, e.g. hull_height=False,prior_scale=1.02")
     args = ap.parse_args()
+    if args.classes:
+        print_classes([int(x) for x in args.sequences.split(",")])
+        return
     FN, FP = Counter(), Counter()
     n_err = 0
     for s in [int(x) for x in args.sequences.split(",")]:

@@ -26,10 +26,10 @@ Per track:
    (``box_height Z_bottom / fy``) is pooled over the track (inverse-variance, in log) with the class
    prior of each candidate class (car, van, truck, bus, motorcycle, bicycle, pedestrian, see
    :data:`CANDIDATES`); the class whose prior explains the pooled height best is kept, and its
-   posterior height is then fused with the height its near ground contacts imply (boxes whose bottom
-   edge lies far below the horizon, where the bottom edge gives the depth to a few per cent:
-   :func:`_contact_height`) and scales its length and width. The same pooling gives the width cue's
-   scale.
+   posterior height is then fused, where the camera's height is measured, with the height its near
+   ground contacts imply (boxes whose bottom edge lies far below the horizon, where the bottom edge
+   gives the depth to a few per cent: :func:`_contact_height`) and scales its length and width. The
+   same pooling gives the width cue's scale.
 
 3. The cues are fused per frame by inverse variance (in log depth); the visible face is moved to
    the vehicle's centre (half its extent along the line of sight) and into the world frame with
@@ -73,6 +73,8 @@ CANDIDATES: dict[str, tuple[str, ...]] = {
     "bicycle": ("bicycle", "motorcycle"),
     "pedestrian": ("pedestrian",),
 }
+#: ``Camera.height_source`` values of a measured camera height (the near ground contacts need one).
+MEASURED_HEIGHT_SOURCES = ("user", "kitti_calib")
 OUTPUT_COLUMNS = (
     "frame", "time", "track_id", "category", "x", "y", "vx", "vy", "yaw", "speed",
     "length", "width", "height", "range", "detected", "x1", "y1", "x2", "y2", "score", "horizon_v",
@@ -110,10 +112,13 @@ class MonoConfig:
     extend_min_range_m: float = 45.0  # (40 m: 58.42, 50 m: 57.96, 30 m with 1 s: 55.05)
     # tuning MOTA 60.68 -> 62.52 (100 px: 62.22, 125: 62.35, 175: 61.92, 200: 60.67; row 0.1: 61.82, 0.3: 62.10;
     # floor 0.04: 62.53, 0.09: 62.38; at least 3 / 6 contacts: 61.99 / 61.22; not for the horizon: 62.33)
-    # near ground contacts (bottom edge this far below the horizon) ... Off by default (None): 150 px lifts
-    # KITTI training MOTA 60.68 -> 62.52 but lowers held-out 0010 by 2.2 and, on the dashcam fidelity clips,
-    # loses two reproduced crashes (dad_000478's pair no longer close in 3D; ccd_000014's replay misses)
-    contact_min_below_px: float | None = None
+    # near ground contacts (bottom edge this far below the horizon; None: unused) ... Used only where the camera's
+    # height is measured (``Camera.height_source`` in :data:`MEASURED_HEIGHT_SOURCES`): they measure a vehicle's
+    # height in units of the camera's, so with a self-calibrated or default height (which the boxes' sizes against
+    # the class priors set) they only echo it. With the KITTI camera (round mono8) 150 px lifts KITTI training
+    # MOTA 62.04 -> 63.84; on the dashcam fidelity clips (heights self-calibrated or default) it is off: there it
+    # had lost two reproduced crashes (dad_000478's pair no longer close in 3D; ccd_000014's replay missed)
+    contact_min_below_px: float | None = 150.0
     contact_row_rel: float = 0.2  # ... each measure the track's height to this (1 sigma, relative) ...
     contact_floor_rel: float = 0.06  # ... and all of them together no better than this (road shape)
     # detected boxes cut at the bottom and a side (no depth cue: a car the ego passes) at a track's ends are
@@ -233,13 +238,14 @@ def _contact_height(
 ) -> tuple[float, float]:  # fmt: skip
     """The track's height (m) and relative sigma, fused with what its near ground contacts imply.
 
-    Boxes whose bottom edge lies at least ``contact_min_below_px`` below the horizon (None: unused) give the depth
+    Only where the camera's height is measured (:data:`MEASURED_HEIGHT_SOURCES`), boxes whose bottom edge lies
+    at least ``contact_min_below_px`` below the horizon (None: unused) give the depth
     of the vehicle's near face to a few per cent, hence its height ``box_h Z_bottom / fy /
     hull_factor`` (the roof's far edge removed); each such frame errs by ``contact_row_rel`` (road
     height under the car) and the bottom edge's and top edge's pixel errors, their inverse-variance
     mean no better than ``contact_floor_rel`` (the road's shape is shared by the frames). That mean
     and ``height`` (the class prior's posterior) are fused by inverse variance in log."""
-    if cfg.contact_min_below_px is None:
+    if cfg.contact_min_below_px is None or camera.height_source not in MEASURED_HEIGHT_SOURCES:
         return height, rel
     below = camera.fy * camera.height_m / cues.z_bottom[use]
     near = use[below >= cfg.contact_min_below_px]
