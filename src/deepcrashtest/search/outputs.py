@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -91,7 +91,6 @@ def write_variants(
     meta: dict[str, Any],
     limit: int,
     force: bool,
-    on_best: Callable[[int | None], None] | None = None,
 ) -> tuple[list[str], dict[int, str], Scenario | None]:
     """Write the ``limit`` safe variants with the least change as Scenario files.
 
@@ -99,8 +98,6 @@ def write_variants(
     acceleration no vehicle has) is a result, not an error: it is recorded in the problems and skipped.
     Returns (paths written, {variant: problem}, the first valid variant's Scenario or None). The files are
     written by a few threads while the next variants are built (each write waits ~10 ms for its fsync).
-    ``on_best``: called once with the best variant's id (the first valid one; None when there is none) as soon as
-    it is known, before the other files are built (the search has its start plot drawn meanwhile).
     """
     from concurrent.futures import ThreadPoolExecutor
 
@@ -119,14 +116,9 @@ def write_variants(
             except ScenarioError as exc:
                 problems[int(vid)] = str(exc)
                 continue
-            if best is None:
-                best = sc
-                if on_best is not None:
-                    on_best(int(vid))
+            best = best or sc
             if len(saved) < limit:
                 saved.append(pool.submit(sc.save, folder / f"variant_{int(vid):04d}.json", force))
-        if best is None and on_best is not None:
-            on_best(None)
         paths = [str(f.result()) for f in saved]
     return paths, problems, best
 
