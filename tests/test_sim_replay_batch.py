@@ -104,7 +104,7 @@ def test_path_geometry_helpers_give_numpys_bits(kitti3_raw):
         assert got[0].tobytes() == heading.tobytes() and got[1].tobytes() == curv.tobytes()
     B, K = paths.shape[:2]
     rng = np.random.default_rng(5)
-    end, count = rng.integers(0, K // 2, B), rng.integers(0, K // 2, B)
+    end, count = rng.integers(0, K // 2, B), rng.integers(-2, K // 2, B)  # counts below 1: nothing written
     origin, step = paths[np.arange(B), end], rng.normal(size=(B, 2))
     want, got = paths.copy(), paths.copy()
     m = np.arange(1, int(count.max()) + 1)

@@ -312,7 +312,8 @@ def _continue_straight(
     tails = np.multiply((np.arange(1, n + 1) * PATH_DS_M)[None, :, None], step[:, None, :])  # (B, n, 2)
     tails += origin[:, None, :]
     for b, (e, c) in enumerate(zip(end.tolist(), count.tolist(), strict=True)):
-        paths[b, e + 1 : e + 1 + c] = tails[b, :c]
+        if c > 0:  # (m = 1..count: none for a count below 1)
+            paths[b, e + 1 : e + 1 + c] = tails[b, :c]
 
 
 def _continue_straight_units(
