@@ -10,7 +10,7 @@ CPU seconds (``time.process_time`` of the parent, from the process start; the ch
 are the figures a loaded machine blurs least; wall seconds are given for the record.
 
 Prints one JSON line: per side, the parent's CPU by phase (the minimum over ``--repeat`` runs), the parent's
-and the children's CPU in all.
+and the children's CPU in all; the wall seconds before the workers start and after they finish, per run.
 Usage: python bench/search_phases.py [--sequence 3] [--starts 500] [--baseline-src OTHER/src] [--repeat 3]
 """
 
@@ -112,6 +112,8 @@ def _run(src: Path, cmd: list[str]) -> dict:
         "serial_after_workers_cpu_s": serial_after,
         "children_cpu_s": data["children_cpu"],
         "wall_s": wall["end"],
+        "wall_before_workers_s": wall["workers:start"],
+        "wall_after_workers_s": wall["end"] - wall["workers:end"],
     }
 
 
@@ -159,6 +161,8 @@ def main() -> None:
                 for k in ("parent_cpu_s", "serial_before_workers_cpu_s", "serial_after_workers_cpu_s", "children_cpu_s")
             },
             "wall_s_runs": [round(r["wall_s"], 2) for r in rs],
+            # the serial stretches' wall (the output helper works beside the parent after the workers)
+            **{f"{k}_runs": [round(r[k], 3) for r in rs] for k in ("wall_before_workers_s", "wall_after_workers_s")},
         }
     out["load_average"] = [round(load_before, 1), round(os.getloadavg()[0], 1)]
     out["note"] = "CPU seconds of the parent by phase (minimum over runs); wall times depend on the machine's load"
