@@ -89,31 +89,6 @@ def test_search_variants_of_kitti8_with_a_head_on_agent(kitti8_raw):
     assert fast.collided.any()
 
 
-def test_path_geometry_helpers_give_numpys_bits(kitti3_raw):
-    """The variants' path headings and curvatures (one-pass central differences) and their straight tails (written
-    row by row) are ``np.gradient``'s and the index-array scatter's bits, on KITTI 0003's search variants."""
-    from deepcrashtest.sim.reference import PATH_DS_M, _continue_straight, _unwrap, path_heading_curvature
-
-    space = SearchSpace.for_scenario(kitti3_raw)
-    paths = space.paths(space.reference_grid(np.random.default_rng([0, 4]), 16, 2))  # (32, K, 2) waypoints
-    for path in (paths, paths[:, :2], paths[:, :3], paths[0]):
-        d = np.gradient(path, axis=-2)
-        heading = _unwrap(np.arctan2(d[..., 1], d[..., 0]))
-        curv = np.clip(np.gradient(heading, axis=-1) / PATH_DS_M, -0.25, 0.25)
-        got = path_heading_curvature(path)
-        assert got[0].tobytes() == heading.tobytes() and got[1].tobytes() == curv.tobytes()
-    B, K = paths.shape[:2]
-    rng = np.random.default_rng(5)
-    end, count = rng.integers(0, K // 2, B), rng.integers(-2, K // 2, B)  # counts below 1: nothing written
-    origin, step = paths[np.arange(B), end], rng.normal(size=(B, 2))
-    want, got = paths.copy(), paths.copy()
-    m = np.arange(1, int(count.max()) + 1)
-    rows, k = np.nonzero(m[None, :] <= count[:, None])
-    want[rows, end[rows] + m[k]] = origin[rows] + (m[k] * PATH_DS_M)[:, None] * step[rows]
-    _continue_straight(got, end, count, origin, step)
-    assert got.tobytes() == want.tobytes()
-
-
 def test_unwrap_shortcut_is_numpy_unwrap():
     from deepcrashtest.sim.reference import _unwrap
 

@@ -120,25 +120,11 @@ def resample_path(points: np.ndarray, end_heading: float, extension: float, ds: 
 
 def path_heading_curvature(path: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Heading (rad, unwrapped) and curvature (1/m) along arc-length-uniform paths ``(..., P, 2)`` -> ``(..., P)``."""
-    dx, dy = _central_difference(path[..., 0]), _central_difference(path[..., 1])
-    heading = _unwrap(np.arctan2(dy, dx, out=dy))
-    curv = _central_difference(heading)
-    curv /= PATH_DS_M
+    d = np.gradient(path, axis=-2)
+    heading = _unwrap(np.arctan2(d[..., 1], d[..., 0]))
+    curv = np.gradient(heading, axis=-1) / PATH_DS_M
     # curvature of a smoothed vehicle path: bounded by the minimum turning radius (~4 m)
-    return heading, np.clip(curv, -0.25, 0.25, out=curv)
-
-
-def _central_difference(f: np.ndarray) -> np.ndarray:
-    """``np.gradient(f, axis=-1)`` (unit spacing, one-sided differences at the ends) bit for bit, as one new
-    contiguous array without NumPy's temporaries (a path's x or y component is read in place, strided)."""
-    out = np.empty(f.shape)
-    if f.shape[-1] < 2:
-        raise ValueError("a central difference needs at least 2 samples")
-    np.subtract(f[..., 2:], f[..., :-2], out=out[..., 1:-1])
-    out[..., 1:-1] /= 2.0
-    np.subtract(f[..., 1], f[..., 0], out=out[..., 0])
-    np.subtract(f[..., -1], f[..., -2], out=out[..., -1])
-    return out
+    return heading, np.clip(curv, -0.25, 0.25)
 
 
 def _unwrap(p: np.ndarray) -> np.ndarray:
@@ -303,17 +289,15 @@ def _continue_straight(
 ) -> None:
     """Write ``paths[b, end[b] + m] = origin[b] + (m * PATH_DS_M) * step[b]`` for m = 1..count[b], in place.
 
-    ``paths`` (B, P, 2); only the tails' width is computed (not the whole (B, P) padding), then written row by row
-    as slices (3x less CPU than one scatter of every point through index arrays).
+    ``paths`` (B, P, 2); only the written tail is computed (not the whole (B, P) padding).
     """
     n = int(count.max()) if len(count) else 0
     if n <= 0:
         return
-    tails = np.multiply((np.arange(1, n + 1) * PATH_DS_M)[None, :, None], step[:, None, :])  # (B, n, 2)
-    tails += origin[:, None, :]
-    for b, (e, c) in enumerate(zip(end.tolist(), count.tolist(), strict=True)):
-        if c > 0:  # (m = 1..count: none for a count below 1)
-            paths[b, e + 1 : e + 1 + c] = tails[b, :c]
+    m = np.arange(1, n + 1)
+    rows, k = np.nonzero(m[None, :] <= count[:, None])
+    steps = (m[k] * PATH_DS_M)[:, None]
+    paths[rows, end[rows] + m[k]] = origin[rows] + steps * step[rows]
 
 
 def _continue_straight_units(
