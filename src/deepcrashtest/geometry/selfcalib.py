@@ -32,7 +32,7 @@ import pandas as pd
 from deepcrashtest.geometry.egomotion import EgoMotion
 from deepcrashtest.geometry.mono3d import class_size
 from deepcrashtest.geometry.selfcalib_axis import axis_column_from_path
-from deepcrashtest.geometry.selfcalib_moving import focal_from_moving
+from deepcrashtest.geometry.selfcalib_moving import focal_from_moving, sightings
 from deepcrashtest.scenario import Camera
 
 MIN_BOXES = 30
@@ -175,20 +175,13 @@ def focal_from_motion(
         g = g[g["frame"].isin(frame_to_i.keys())]
         if len(g) < MIN_TRACK_FRAMES:
             continue
-        i = np.array([frame_to_i[int(f)] for f in g["frame"]])
-        c = np.column_stack([ego.x[i], ego.y[i]])
-        if np.hypot(*(c[-1] - c[0])) < MIN_TRAVEL_M:
+        s = sightings(g, ego, np.array([frame_to_i[int(f)] for f in g["frame"]]), cx)
+        if s.travel_m < MIN_TRAVEL_M:
             continue
-        fwd = np.column_stack([np.cos(ego.yaw[i]), np.sin(ego.yaw[i])])
-        right = np.column_stack([np.sin(ego.yaw[i]), -np.cos(ego.yaw[i])])
-        H = class_size(str(g["category"].iloc[0]))[2]
-        h = (g["y2"] - g["y1"]).to_numpy(float)
-        u = 0.5 * (g["x1"] + g["x2"]).to_numpy(float) - cx
-        M = np.vstack([np.column_stack([fwd, -1.0 / h]), np.column_stack([right, np.zeros(len(h))])])
-        rhs = np.r_[np.sum(c * fwd, axis=1), np.sum(c * right, axis=1) + u * H / h]
-        sol, *_ = np.linalg.lstsq(M, rhs, rcond=None)
+        M = np.vstack([np.column_stack([s.fwd, -1.0 / s.h]), np.column_stack([s.right, np.zeros(len(s.h))])])
+        sol, *_ = np.linalg.lstsq(M, s.rhs, rcond=None)
         if sol[2] > 0:
-            estimates.append(math.log(sol[2] / (H * BOX_HEIGHT_EXCESS)))
+            estimates.append(math.log(sol[2] / (s.H * BOX_HEIGHT_EXCESS)))
             weights.append(len(g))
     if len(estimates) < 3:
         return None

@@ -16,6 +16,7 @@ vehicles are the special case ``v = 0``.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -34,32 +35,57 @@ MODE_BW = 0.05
 MODE_BAND = 0.1
 
 
+@dataclass(frozen=True)
+class Sightings:
+    """One track's boxes seen from the ego's poses, as rows of the ground-vehicle model.
+
+    A vehicle of class height ``H`` whose box is ``h`` px tall lies at depth ``fy H / h`` and lateral offset
+    ``(u - cx) H / h`` (m) from the camera at ``c`` (world m) heading ``fwd`` (right ``right``): along ``fwd``
+    its position satisfies ``P . fwd - B / h = c . fwd`` with ``B = fy H``, across ``P . right = c . right + u H
+    / h``; ``rhs`` holds those right-hand sides (forward rows, then lateral rows)."""
+
+    fwd: np.ndarray  # (n, 2) the ego's heading per box
+    right: np.ndarray  # (n, 2) its right-hand side
+    h: np.ndarray  # (n,) box height (px)
+    H: float  # the class's height (m)
+    rhs: np.ndarray  # (2n,)
+    travel_m: float  # the ego's straight-line travel over the track (m)
+
+
+def sightings(g: pd.DataFrame, ego: EgoMotion, idx: np.ndarray, cx: float) -> Sightings:
+    """:class:`Sightings` of the track ``g`` (image-tracker rows) at the ego's states ``idx``; ``cx``: the
+    forward-axis column (px)."""
+    c = np.column_stack([ego.x[idx], ego.y[idx]])
+    yaw = ego.yaw[idx]
+    fwd = np.column_stack([np.cos(yaw), np.sin(yaw)])
+    right = np.column_stack([np.sin(yaw), -np.cos(yaw)])
+    H = class_size(str(g["category"].iloc[0]))[2]
+    h = (g["y2"] - g["y1"]).to_numpy(float)
+    u = 0.5 * (g["x1"] + g["x2"]).to_numpy(float) - cx
+    rhs = np.r_[np.sum(c * fwd, axis=1), np.sum(c * right, axis=1) + u * H / h]
+    return Sightings(fwd, right, h, H, rhs, float(np.hypot(*(c[-1] - c[0]))))
+
+
 def _track_estimate(
     g: pd.DataFrame, ego: EgoMotion, idx: np.ndarray, cx: float, fy0: float, excess: float
 ) -> tuple[float, float] | None:
     """(log focal length, its 1-sigma) of one track, or None (too little leverage)."""
-    c = np.column_stack([ego.x[idx], ego.y[idx]])
-    if np.hypot(*(c[-1] - c[0])) < MIN_TRAVEL_M:
+    s = sightings(g, ego, idx, cx)
+    if s.travel_m < MIN_TRAVEL_M:
         return None
+    fwd, right, h, H, rhs = s.fwd, s.right, s.h, s.H, s.rhs
     yaw = ego.yaw[idx]
-    fwd = np.column_stack([np.cos(yaw), np.sin(yaw)])
-    right = np.column_stack([np.sin(yaw), -np.cos(yaw)])
     ybar = math.atan2(float(np.mean(np.sin(yaw))), float(np.mean(np.cos(yaw))))
     d = np.array([math.cos(ybar), math.sin(ybar)])
     tau = ego.t[idx] - ego.t[idx][0]
-    H = class_size(str(g["category"].iloc[0]))[2]
-    h = (g["y2"] - g["y1"]).to_numpy(float)
-    u = 0.5 * (g["x1"] + g["x2"]).to_numpy(float) - cx
     n = len(h)
-    # unknowns (Px, Py, v, B): forward rows P.f + v tau (d.f) - B / h = c.f,
-    # lateral rows P.r + v tau (d.r) = c.r + u H / h
+    # unknowns (Px, Py, v, B): the parked vehicle's rows with the steady speed's column (v tau (d.f), v tau (d.r))
     A = np.vstack(
         [
             np.column_stack([fwd, tau * (fwd @ d), -1.0 / h]),
             np.column_stack([right, tau * (right @ d), np.zeros(n)]),
         ]
     )
-    rhs = np.r_[np.sum(c * fwd, axis=1), np.sum(c * right, axis=1) + u * H / h]
     z = fy0 * H / h  # depth at the starting focal length: the depth noise grows with it
     w = np.r_[1.0 / z, 1.0 / z]
     Aw, bw = A * w[:, None], rhs * w
