@@ -168,16 +168,18 @@ class _Rows:
         # lower = max(along, across) - r_a - eps >= |centre offset| / sqrt(2) - max half extent - r_a - eps
         self.far_bound = far_m / np.sqrt(2.0) - float(self.eh.max()) - r_max - 1e-3
 
+    def _boxes(self, n: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The ego's and the agents' boxes of the entries (pair n, row r), as :func:`sat_gap`'s arguments."""
+        e, a, eh, ah = self.ego[self.pi[n], r], self.ag[self.pi[n], self.pj[n]], self.eh, self.ah[self.pj[n]]
+        return e[:, 0], e[:, 1], e[:, 2], eh[0], eh[1], a[:, 0], a[:, 1], a[:, 2], ah[:, 0], ah[:, 1]
+
     def gap(self, n: np.ndarray, r: np.ndarray) -> np.ndarray:
         """Separating-axis gaps of the entries (pair n, row r), as the loop computes them."""
-        e, a, eh, ah = self.ego[self.pi[n], r], self.ag[self.pi[n], self.pj[n]], self.eh, self.ah[self.pj[n]]
-        return sat_gap(e[:, 0], e[:, 1], e[:, 2], eh[0], eh[1], a[:, 0], a[:, 1], a[:, 2], ah[:, 0], ah[:, 1])
+        return sat_gap(*self._boxes(n, r))
 
     def lower_bound(self, n: np.ndarray, r: np.ndarray) -> np.ndarray:
         """:func:`~deepcrashtest.sim.boxes.distance_lower_bound` of the entries (pair n, row r), metres."""
-        e, a, eh, ah = self.ego[self.pi[n], r], self.ag[self.pi[n], self.pj[n]], self.eh, self.ah[self.pj[n]]
-        gaps = axis_gaps(e[:, 0], e[:, 1], e[:, 2], eh[0], eh[1], a[:, 0], a[:, 1], a[:, 2], ah[:, 0], ah[:, 1])
-        return distance_lower_bound(*gaps)
+        return distance_lower_bound(*axis_gaps(*self._boxes(n, r)))
 
     def evaluate(self, seg: Any, out: LoopOutput, rows: slice, pre_contact: dict[int, PreContact]) -> bool:
         """Write the rows' outcomes; False when pairs left out could hold a row's minimum (evaluate again
