@@ -9,8 +9,14 @@ around the search's functions; ``--baseline-src`` times another checkout's CLI a
 CPU seconds (``time.process_time`` of the parent, from the process start; the children's from ``getrusage``)
 are the figures a loaded machine blurs least; wall seconds are given for the record.
 
+Each worker reports its own CPU since its fork (its share of the variants plus its cold costs: unpickling the job,
+first-touch page faults, per-process caches); ``critical_path_cpu_s`` = the parent's serial CPU before the
+workers + the slowest worker's CPU + the parent's serial CPU after them: the whole process's wall time on an
+idle machine with a core per worker (~2.5 s for main's measured idle 2.55 s), from figures a load blurs less.
+
 Prints one JSON line: per side, the parent's CPU by phase (the minimum over ``--repeat`` runs), the parent's
-and the children's CPU in all; the wall seconds before the workers start and after they finish, per run.
+and the children's CPU in all, the critical path; the slowest worker's CPU and the wall seconds (in all, before
+the workers start, after they finish) per run.
 Usage: python bench/search_phases.py [--sequence 3] [--starts 500] [--baseline-src OTHER/src] [--repeat 3]
 """
 
@@ -61,6 +67,14 @@ def helper():
     wrap(ev.Evaluator, "warm", "warm")
     wrap(ev.Evaluator, "_map", "workers")
     wrap(out, "write_variants", "variant files")
+    sim = ev.simulate_variants
+    def worker(*a, **k):  # in a forked worker: its CPU since the fork, cold costs included
+        try:
+            return sim(*a, **k)
+        finally:
+            sys.stderr.write("\nWORKER " + json.dumps(time.process_time()) + "\n")
+    worker.__module__, worker.__qualname__ = ev.__name__, "simulate_variants"  # pickled by name, as the original
+    ev.simulate_variants = worker
     return h
 plot.start_helper = helper
 code = cli.main(sys.argv[1:])
@@ -105,7 +119,11 @@ def _run(src: Path, cmd: list[str]) -> dict:
             phases[label] = cpu[b] - (0.0 if label == "interpreter" else cpu[a])
     serial_before = cpu["workers:start"]
     serial_after = cpu["end"] - cpu["workers:end"]
+    workers = [json.loads(ln.removeprefix("WORKER ")) for ln in proc.stderr.splitlines() if ln.startswith("WORKER ")]
     return {
+        "workers_cpu_s": workers,
+        # the critical path on an idle machine with a core per worker: serial start, the slowest worker, serial end
+        "critical_path_cpu_s": serial_before + max(workers, default=0.0) + serial_after,
         "phases_cpu_s": phases,
         "parent_cpu_s": cpu["end"],
         "serial_before_workers_cpu_s": serial_before,
@@ -158,8 +176,15 @@ def main() -> None:
             },
             **{
                 k: round(min(r[k] for r in rs), 3)
-                for k in ("parent_cpu_s", "serial_before_workers_cpu_s", "serial_after_workers_cpu_s", "children_cpu_s")
+                for k in (
+                    "parent_cpu_s",
+                    "serial_before_workers_cpu_s",
+                    "serial_after_workers_cpu_s",
+                    "children_cpu_s",
+                    "critical_path_cpu_s",
+                )
             },
+            "slowest_worker_cpu_s_runs": [round(max(r["workers_cpu_s"], default=0.0), 3) for r in rs],
             "wall_s_runs": [round(r["wall_s"], 2) for r in rs],
             # the serial stretches' wall (the output helper works beside the parent after the workers)
             **{f"{k}_runs": [round(r[k], 3) for r in rs] for k in ("wall_before_workers_s", "wall_after_workers_s")},

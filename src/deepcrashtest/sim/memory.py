@@ -32,14 +32,22 @@ def retain_freed_memory() -> None:
     _done = True
     _no_huge_pages()
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        mallopt = libc.mallopt
+        mallopt = _libc().mallopt
     except (OSError, AttributeError):  # not glibc (musl, ...): leave the allocator as it is
         return
     mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
     mallopt(_M_MMAP_THRESHOLD, 512 << 20)
     mallopt(_M_TRIM_THRESHOLD, 1 << 30)
     mallopt(_M_TOP_PAD, 64 << 20)
+
+
+def _libc() -> ctypes.CDLL:
+    """The C library: glibc by its soname, else whatever ``find_library`` names. ``find_library`` runs
+    ``ldconfig -p`` in a subprocess (~10 ms of wall and CPU in every search worker), so it is only the fallback."""
+    try:
+        return ctypes.CDLL("libc.so.6")
+    except OSError:
+        return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so")
 
 
 def _no_huge_pages() -> None:
