@@ -336,7 +336,8 @@ ROTATION_MIN_REL = 0.07
 #: A dashcam is mounted near level: a horizon further from the image centre than this pitch (at the
 #: prior focal length) hints at a longer focal length or a principal point off the image centre
 #: (ccd_000014: 540 px against 360, 16 deg at 640 px, but its poles stay vertical where a 16 deg pitch
-#: would tilt them ~13 deg at the edges: a level camera, a cropped frame); said in the notes, not acted on.
+#: would tilt them ~13 deg at the edges: a level camera, a cropped frame); said in the notes. The
+#: level-camera term (:mod:`deepcrashtest.geometry.selfcalib_image`) weighs such horizons softly.
 STEEP_PITCH_RAD = math.radians(8.0)
 #: A parked-vehicle estimate further than this (log) from a trusted pitch-bounce estimate (inflated
 #: relative sigma under PITCH_TRUSTED_REL) is a mode of moving vehicles and is dropped (training

@@ -14,12 +14,12 @@ than the prior, only that a horizon far from the centre is more likely a longer 
 steep camera. It cannot tell a longer focal length from a cropped frame (principal point off the
 centre row), which keeps its sigma wide.
 
-Measured (issue 14 item 5; horizon rows from the boxes, `geometry.selfcalib`): see the README's
-self-calibration paragraph. Candidates measured and not kept (image-only, no poses): the vertical
-vanishing point (``bench/vertical_lines.py``; lens distortion dominates the few-degree pitch tilt: the
-Udacity clip 781 px with a distortion term against the chessboard 1154, ccd_000014 968 against
-~2,400 implied), and epipolar self-calibration of tracked corners (degenerate on straight drives:
-``bench/focal_epipolar.py``).
+Measured per clip (issue 14 item 5; horizon rows from the boxes, :mod:`deepcrashtest.geometry.selfcalib`):
+the README's "Image-only focal length" notes under the ego speed on dashcam clips. Candidates measured
+and not kept (image-only, no poses): the vertical vanishing point (``bench/vertical_lines.py``; lens
+distortion dominates the few-degree pitch tilt: the Udacity clip 781 px with a distortion term against
+the chessboard 1154, ccd_000014 968 against ~2,400 implied), and epipolar self-calibration of tracked
+corners (degenerate on straight drives: ``bench/focal_epipolar.py``).
 """
 
 from __future__ import annotations
