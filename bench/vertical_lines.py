@@ -8,7 +8,10 @@ per clip the fit below and the focal length it implies. **Not used by extract**:
 ``k`` comes out > 0 (verticals converging upwards) on 16 of 20 clips whatever side of the image centre
 the horizon lies, and the Udacity clip (chessboard fy 1154 px, cy 388, k1 -0.26) reads 628 px at its
 chessboard cy: the barrel distortion of dashcam lenses bends verticals more than a few degrees of
-pitch tilts them, so the cue needs a distortion model (plumb-line calibration) first. On ccd_000014
+pitch tilts them, so the cue needs a distortion model (plumb-line calibration) first. With
+``--distortion`` (a term ``x y`` beside the pitch's, branch dashfocal, 2026-12-02) ``k`` takes the
+horizon's sign on more clips but still misreads the known ones: Udacity 781 px (chessboard 1154; its
+segments span only rows -134..45 about the centre), ccd_000014 968 px (k 19.2e-5 +- 4.2e-5). On ccd_000014
 (horizon 180 px below the centre) the verticals are near parallel (k 12e-5 +- 5e-5 over 2 s, -0.3e-5
 over 5 s): a level camera whose principal point is not at the image centre, not a steep pitch.
 
@@ -87,11 +90,17 @@ def vertical_segments(image: np.ndarray, mask_bottom_rows: int = 0) -> np.ndarra
     return seg[(length >= MIN_SEGMENT_REL * h) & (tilt < MAX_TILT_DEG) & inside]
 
 
+#: With ``--distortion``: one more column ``x y`` in the fit (a radial lens distortion ``k1`` tilts a
+#: vertical through ``(x, y)`` by about ``2 k1 x y / f^2``: odd in ``y``, where the pitch's tilt is not).
+DISTORTION_TERM = False
+
+
 def _fit(x: np.ndarray, y: np.ndarray, s: np.ndarray, w0: np.ndarray, iters: int = 20) -> tuple[float, float]:
-    """Robust ``s = s0 + k (x - s y)`` -> (s0, k)."""
-    A = np.column_stack([np.ones_like(x), x - s * y])
+    """Robust ``s = s0 + k (x - s y)`` (+ ``c x y`` with :data:`DISTORTION_TERM`) -> (s0, k)."""
+    cols = [np.ones_like(x), x - s * y] + ([x * y * 1e-3] if DISTORTION_TERM else [])
+    A = np.column_stack(cols)
     w = w0.copy()
-    sol = np.zeros(2)
+    sol = np.zeros(A.shape[1])
     for _ in range(iters):
         sw = np.sqrt(w)
         sol = np.linalg.lstsq(A * sw[:, None], s * sw, rcond=None)[0]
@@ -176,7 +185,10 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--work", default="/work/cache/fid_s9", help="folder with <clip>/tracks.csv, scenario_raw.json")
     ap.add_argument("--clips", default="")
+    ap.add_argument("--distortion", action="store_true", help="fit a radial-distortion term x*y as well")
     args = ap.parse_args()
+    global DISTORTION_TERM
+    DISTORTION_TERM = args.distortion
     videos = sorted(DATA.glob("crash_*/*.mp4")) + [DATA / "dashcam_udacity" / "highway_project_video.mp4"]
     wanted = set(filter(None, args.clips.split(",")))
     for video in videos:

@@ -32,6 +32,7 @@ import pandas as pd
 from deepcrashtest.geometry.egomotion import EgoMotion
 from deepcrashtest.geometry.mono3d import class_size
 from deepcrashtest.geometry.selfcalib_axis import axis_column_from_path
+from deepcrashtest.geometry.selfcalib_image import focal_from_level_horizon
 from deepcrashtest.geometry.selfcalib_moving import focal_from_moving, sightings
 from deepcrashtest.scenario import Camera
 
@@ -335,7 +336,8 @@ ROTATION_MIN_REL = 0.07
 #: A dashcam is mounted near level: a horizon further from the image centre than this pitch (at the
 #: prior focal length) hints at a longer focal length or a principal point off the image centre
 #: (ccd_000014: 540 px against 360, 16 deg at 640 px, but its poles stay vertical where a 16 deg pitch
-#: would tilt them ~13 deg at the edges: a level camera, a cropped frame); said in the notes, not acted on.
+#: would tilt them ~13 deg at the edges: a level camera, a cropped frame); said in the notes. The
+#: level-camera term (:mod:`deepcrashtest.geometry.selfcalib_image`) weighs such horizons softly.
 STEEP_PITCH_RAD = math.radians(8.0)
 #: A parked-vehicle estimate further than this (log) from a trusted pitch-bounce estimate (inflated
 #: relative sigma under PITCH_TRUSTED_REL) is a mode of moving vehicles and is dropped (training
@@ -366,6 +368,7 @@ def combine_focal(
     rotation: tuple[float, float, int] | None,
     pitch: tuple[float, float, int] | None = None,
     moving: tuple[float, float, int] | None = None,
+    level: tuple[float, float, int] | None = None,
 ) -> tuple[float, float, int] | None:
     """Inverse-variance (log) combination of the prior and the estimates -> (f, rel sigma, support).
 
@@ -376,7 +379,8 @@ def combine_focal(
     :data:`ROTATION_MIN_PAIRS` box pairs). The steadily-moving-vehicle estimate
     (:mod:`deepcrashtest.geometry.selfcalib_moving`, parked vehicles included) stands in for the
     parked-vehicle one where that is missing or dropped (they share the parked tracks), at
-    :data:`MOVING_MIN_REL` at best; both are dropped when a trusted bounce disagrees."""
+    :data:`MOVING_MIN_REL` at best; both are dropped when a trusted bounce disagrees. ``level``: the
+    level-camera term of the horizon (:mod:`deepcrashtest.geometry.selfcalib_image`), at its own sigma."""
     terms = [(math.log(prior), FOCAL_PRIOR_REL)]
     support = 0
     if _trusted_bounce_disagrees(motion, pitch):
@@ -394,6 +398,8 @@ def combine_focal(
         rel = max(3 * rotation[1], ROTATION_MIN_REL) if rotation[2] >= ROTATION_MIN_PAIRS else 0.3
         terms.append((math.log(rotation[0]), rel))
         support += rotation[2]
+    if level is not None:
+        terms.append((math.log(level[0]), level[1]))
     if len(terms) == 1:
         return None
     w = np.array([1.0 / r**2 for _, r in terms])
@@ -434,6 +440,21 @@ def _calibrate_axis(
     return cam.model_copy(update={"cx": cx_post})
 
 
+def _level_term(camera: Camera, vh: float, sig_v: float, notes: list[str]) -> tuple[float, float, int] | None:
+    """The level-camera term of the horizon row ``vh`` (px, 1-sigma ``sig_v``) for the unknown-dashcam
+    default's focal length (:func:`~deepcrashtest.geometry.selfcalib_image.focal_from_level_horizon`);
+    None for a camera whose intrinsics were given, or a horizon near the centre row."""
+    if camera.intrinsics_source != "default":
+        return None
+    term = focal_from_level_horizon(vh - camera.cy, sig_v, camera.fy, FOCAL_PRIOR_REL)
+    if term is not None:
+        notes.append(
+            f"horizon {vh - camera.cy:+.0f} px from the centre row: a level camera says {term[0]:.0f} px +- "
+            f"{100 * term[1]:.0f} % (or the frame is cropped)"
+        )
+    return term
+
+
 def self_calibrate(
     tracks: pd.DataFrame,
     camera: Camera,
@@ -461,13 +482,20 @@ def self_calibrate(
         vh, sig_v, n = few
         notes.append(
             f"fewer than {MIN_BOXES} uncut vehicle boxes: horizon from {n} boxes at the prior camera height "
-            f"{cam.height_m:.2f} m (was row {cam.horizon_v():.0f}, {cam.pitch_source}); height and focal length keep "
-            "their priors"
+            f"{cam.height_m:.2f} m (was row {cam.horizon_v():.0f}, {cam.pitch_source}); the height keeps its prior"
         )
-        pitch = math.atan2(cam.cy - vh, cam.fy)
-        cam = cam.model_copy(update={"pitch_rad": pitch, "pitch_source": "self_calibration", "horizon_sigma_px": sig_v})
-        return SelfCalibration(cam, vh, sig_v, cam.height_m, float("nan"), cam.fy, float("nan"), n, 0, notes)
+        focal = combine_focal(cam.fy, None, None, level=_level_term(camera, vh, sig_v, notes))
+        upd: dict[str, Any] = {"pitch_source": "self_calibration", "horizon_sigma_px": sig_v}
+        fy, sig_f = cam.fy, float("nan")
+        if focal is not None:
+            fy, sig_f = focal[0], focal[0] * focal[1]
+            upd |= {"fx": cam.fx * fy / cam.fy, "fy": fy, "intrinsics_source": "self_calibration"}
+            upd["focal_sigma_px"] = sig_f
+        cam = cam.model_copy(update=upd | {"pitch_rad": math.atan2(cam.cy - vh, fy)})
+        scale = fy / camera.fy if ego_scaled_by_height else 1.0
+        return SelfCalibration(cam, vh, sig_v, cam.height_m, float("nan"), fy, sig_f, n, 0, notes, scale)
     vh, sig_v, hc, sig_h, n = hh
+    level = _level_term(camera, vh, sig_v, notes)
     fy, sig_f, used = cam.fy, float("nan"), 0
     focal = None
     ego_scale = hc / cam.height_m if ego_scaled_by_height else 1.0
@@ -480,20 +508,24 @@ def self_calibrate(
         motion = focal_from_motion(tracks, size, cam.cx, ego)
         bounce = focal_from_pitch(tracks, size, ego)
         moving = focal_from_moving(_usable(tracks, size), cam.cx, ego, cam.fy, BOX_HEIGHT_EXCESS)
-        focal = combine_focal(cam.fy, motion, focal_from_rotation(tracks, size, cam.cx, ego, cam.fy), bounce, moving)
+        rotation = focal_from_rotation(tracks, size, cam.cx, ego, cam.fy)
+        focal = combine_focal(cam.fy, motion, rotation, bounce, moving, level)
         if focal is not None:  # the turn estimate removes the parallax with the focal length: redo it with the new one
             rotation = focal_from_rotation(tracks, size, cam.cx, ego, focal[0])
-            focal = combine_focal(cam.fy, motion, rotation, bounce, moving)
+            focal = combine_focal(cam.fy, motion, rotation, bounce, moving, level)
             sources = {"parked": motion, "moving": moving, "turns": rotation, "bounce": bounce}
             notes.append(
                 "focal length estimates (px, relative 1-sigma, support): "
                 + ", ".join(f"{k} {v[0]:.0f} {100 * v[1]:.1f} % {v[2]}" for k, v in sources.items() if v is not None)
             )
+    elif level is not None:  # no ego motion that can calibrate it: the level-camera horizon alone
+        focal = combine_focal(cam.fy, None, None, level=level)
     if focal is not None:
         fy, rel, used = focal
         sig_f = fy * rel
         notes.append(
-            f"focal length from the ego's motion: {used} parked or moving tracks / turn box pairs / bounce frames"
+            f"focal length {fy:.0f} px +- {100 * rel:.0f} %: {used} parked or moving tracks / turn box pairs / "
+            f"bounce frames{', the level-camera horizon' if level is not None else ''}"
         )
     elif camera.intrinsics_source == "default":  # the unknown-dashcam default: its spread is the uncertainty
         sig_f = FOCAL_PRIOR_REL * fy
