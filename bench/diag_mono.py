@@ -10,6 +10,11 @@ hypothesis is a *localisation* FP when its image box covers an evaluated car, el
 the label class it covers (Van, Truck, Pedestrian...; distractor cars: occluded/truncated), or
 *ghost*. Counts by the camera-to-object range bin.
 
+``--lifecycle``: where each unmatched evaluated car under a detector box is lost along the path (box under
+``min_score``; no image-track row on it; its image track dropped by ``min_detected`` / ``min_confidence``; its
+agent typed other than Car; its agent 2-6 m or > 6 m off), by range bin; and the FP by the agent's age
+(detected frames) and whether it is a never-matched / mostly-FP / mostly-TP track.
+
 ``--classes``: the class choice per track instead (KITTI camera): each kept track's typed class
 against the label type its detected boxes cover (2D IoU >= 0.5, majority), in detected frames, and
 per label type and range bin the median height its bottom edges imply (``box_h (v_bottom -
@@ -137,6 +142,69 @@ def diagnose(seq: int, camera: str, config: MonoTracking = DEFAULT_MONO) -> tupl
     return out, fn, fp
 
 
+def _frame_matches(g, h, rule) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(evaluated gt matched, kept hypotheses matched, kept hypotheses' ids) of one frame (KITTI rules)."""
+    fr = apply_kitti_rules(g, h, rule)
+    mg, mh = np.zeros(len(fr.gt_ids), bool), np.zeros(fr.similarity.shape[1], bool)
+    if fr.similarity.size:
+        r, c = linear_sum_assignment(-fr.similarity)
+        ok = fr.similarity[r, c] > 1e-9
+        mg[r[ok]], mh[c[ok]] = True, True
+    return mg, mh, h.ids[np.isin(h.ids, fr.hyp_ids)]
+
+
+def _lost_where(gbox, gxy, f, prep, cfg, rows, agents, ndet, ah) -> str:
+    """Where an unmatched evaluated car (image box ``gbox``, world ``gxy``) is lost along the path."""
+    det = prep.detections[f]
+    cover = iou_2d(gbox[None], det.boxes.astype(float))[0] if len(det.boxes) else np.zeros(0)
+    if not (cover >= 0.5).any():
+        return "detector"
+    if float(det.scores[cover.argmax()]) < cfg.min_score:
+        return "box under min_score"
+    t_cover = iou_2d(gbox[None], rows[["x1", "y1", "x2", "y2"]].to_numpy(float))[0] if rows is not None else []
+    if not len(t_cover) or max(t_cover) < 0.5:
+        return "no image-track row"
+    tid = int(rows["track_id"].iloc[int(np.argmax(t_cover))])
+    if tid not in agents:
+        return "dropped (min_detected)" if ndet[tid] < cfg.min_detected else "dropped (min_confidence)"
+    mine = ah[ah["track_id"] == tid] if ah is not None else ah
+    if mine is None or not len(mine):
+        return "agent without this frame"
+    if mine["type"].iloc[0] != "Car":
+        return f"agent typed {mine['type'].iloc[0]}"
+    d = float(np.hypot(mine["wx"].iloc[0] - gxy[0], mine["wy"].iloc[0] - gxy[1]))
+    return "agent 2-6 m off" if d < 6 else "agent > 6 m off"
+
+
+def lifecycle(seq: int, config: MonoTracking = DEFAULT_MONO) -> tuple[Counter, Counter]:
+    """FN by where the car is lost (:func:`_lost_where`) and range bin; FP by agent age and kind (KITTI camera)."""
+    prep = prepare_mono(DATA, seq)
+    tracks = image_tracks(prep, config)
+    sc, _ = mono_scenario(prep, config, "kitti", tracks)
+    rule = match_rule("distance")
+    table = scenario_result_table(sc, prep.world, prep.P2, not config.report_predicted, image_size=prep.size)
+    hyp_by = dict(iter(world_table(prep.world, table).groupby("frame")))
+    det_rows = tracks[tracks["state"] == "detected"]
+    rows_by, ndet = dict(iter(det_rows.groupby("frame"))), det_rows.groupby("track_id").size()
+    agents = {a.id: a for a in sc.agents}
+    fn, fp, tp_of, fp_of = Counter(), Counter(), Counter(), Counter()
+    for f, (g, h) in enumerate(zip(prep.ground_truth, hypotheses_from_table(table, prep.world), strict=True)):
+        mg, mh, ids = _frame_matches(g, h, rule)
+        tp_of.update(int(i) for i in ids[mh])
+        fp_of.update(int(i) for i in ids[~mh])
+        ev = g.evaluated
+        for i in np.nonzero(~mg)[0]:
+            gbox, gxy = g.objects.boxes2d[ev][i], g.objects.world[ev][i, :2]
+            why = _lost_where(gbox, gxy, f, prep, config, rows_by.get(f), agents, ndet, hyp_by.get(f))
+            fn[(why, _bin(float(prep.gt_range[f][ev][i])))] += 1
+    for tid, n in fp_of.items():
+        nd = int(np.sum(agents[tid].trajectory.observed))
+        age = "8-14" if nd < 15 else "15-29" if nd < 30 else "30+"
+        kind = "never matched" if not tp_of[tid] else "mostly FP" if tp_of[tid] < n else "mostly TP"
+        fp[(kind, f"{age} detected frames")] += n
+    return fn, fp
+
+
 def class_rows(seq: int, config: MonoTracking = DEFAULT_MONO) -> pd.DataFrame:
     """One row per kept track of a sequence: typed class, covered label type, detected frames,
     median range (m), implied height (m) and log box aspect (KITTI camera; ``localize_tracks`` on the
@@ -199,10 +267,23 @@ def main() -> None:
     ap.add_argument("--sequences", default=",".join(map(str, TUNING)))
     ap.add_argument("--camera", default="kitti")
     ap.add_argument("--classes", action="store_true", help="the class choice per track (KITTI camera)")
+    ap.add_argument("--lifecycle", action="store_true", help="FN by where lost, FP by track age (KITTI camera)")
     ap.add_argument("--mono", default="", help="MonoConfig overrides, e.g. hull_height=False,prior_scale=1.02")
     args = ap.parse_args()
     if args.classes:
         print_classes([int(x) for x in args.sequences.split(",")])
+        return
+    if args.lifecycle:
+        fn_all, fp_all = Counter(), Counter()
+        for s in [int(x) for x in args.sequences.split(",")]:
+            fn, fp = lifecycle(s, _config(args.mono))
+            fn_all.update(fn)
+            fp_all.update(fp)
+            print(f"{s:04d} FN {dict(fn.most_common(4))} FP {dict(fp.most_common(3))}", flush=True)
+        for title, c in (("FN by where lost / range:", fn_all), ("FP by agent kind / age:", fp_all)):
+            print(title)
+            for k, v in sorted(c.items()):
+                print("  ", k, v)
         return
     FN, FP = Counter(), Counter()
     n_err = 0

@@ -57,6 +57,20 @@ def test_core_lifecycle_ids_at_confirmation():
     assert c.track_id == 2  # ids are never reused
 
 
+def test_core_confirms_on_accumulated_scores():
+    """With ``min_evidence`` a run of weak detections needs more rounds than one of strong ones."""
+    core: TrackCore[TrackBase] = TrackCore(min_hits=2, max_misses=2, min_evidence=2.7)
+    strong, weak = core.spawn(TrackBase(), 0.99), core.spawn(TrackBase(), 0.75)
+    rounds = {id(strong): 0, id(weak): 0}
+    for k in range(1, 5):
+        core.step(np.array([[0.0, np.inf], [np.inf, 0.0]]), max_cost=0.5, scores=np.array([0.99, 0.75]))
+        for t in (strong, weak):
+            if t.confirmed and not rounds[id(t)]:
+                rounds[id(t)] = k + 1  # detections so far, the first counted
+    assert rounds[id(strong)] == 3 and rounds[id(weak)] == 4  # 2.97 >= 2.7 after 3; 0.75 x 4 = 3.0
+    assert TrackCore(min_hits=1).spawn(TrackBase()).confirmed  # no evidence asked: the hits alone
+
+
 @pytest.fixture(scope="module")
 def clip_tracks():
     """The first 40 frames of a real crash clip, detector every 5th frame (8 detector runs)."""

@@ -10,9 +10,11 @@ Nothing here knows about images or coordinates, so an image-plane tracker (IoU c
         core.spawn(MyTrack(...))                    # id, state and counters are filled in by spawn
     core.prune()                                    # drop deleted tracks (also returned)
 
-Lifecycle: a new track is TENTATIVE; after ``min_hits`` detections (counting the first) it is
-CONFIRMED. A TENTATIVE track that misses one detection round is DELETED; a CONFIRMED one is
-DELETED after more than ``max_misses`` consecutive missed rounds. Ids are given at confirmation
+Lifecycle: a new track is TENTATIVE; after ``min_hits`` detections (counting the first) whose
+scores (``step(..., scores=)``, ``spawn(track, score)``; 1 each when not given) add up to
+``min_evidence`` or more it is CONFIRMED: a run of weak boxes needs more rounds than one of strong
+ones. A TENTATIVE track that misses one detection round is DELETED; a CONFIRMED one is DELETED after
+more than ``max_misses`` consecutive missed rounds. Ids are given at confirmation
 (1, 2, 3 ... in that order, never reused), so short-lived false detections use up no ids;
 a TENTATIVE track has id 0 (``ids_at_birth=True``: every track gets its id when spawned, for owners
 that report tentative tracks too).
@@ -45,6 +47,7 @@ class TrackBase:
     hits: int = 0  # detection rounds with a matched detection
     misses: int = 0  # consecutive detection rounds without one
     rounds: int = 0  # detection rounds since creation
+    evidence: float = 0.0  # sum of the matched detections' scores (counting the first)
 
     @property
     def confirmed(self) -> bool:
@@ -104,29 +107,35 @@ class TrackCore(Generic[T]):
     tracks: list[T] = field(default_factory=list)
     next_id: int = 1
     ids_at_birth: bool = False
+    min_evidence: float = 0.0
 
-    def step(self, cost: np.ndarray, max_cost: float) -> StepResult[T]:
-        """Assign detections to the current tracks and advance every track's lifecycle by one round."""
+    def _met(self, track: T) -> bool:
+        return track.hits >= self.min_hits and track.evidence >= self.min_evidence
+
+    def step(self, cost: np.ndarray, max_cost: float, scores: np.ndarray | None = None) -> StepResult[T]:
+        """Assign detections to the current tracks and advance every track's lifecycle by one round
+        (``scores``: the detections' scores, added to a matched track's evidence; None: 1 each)."""
         cost = np.asarray(cost, dtype=np.float64)
         if cost.shape[0] != len(self.tracks):
             raise ValueError(f"cost has {cost.shape[0]} rows for {len(self.tracks)} tracks")
         a = assign(cost, max_cost)
         matched = [(self.tracks[r], c) for r, c in a.pairs]
         missed = [self.tracks[r] for r in a.unmatched_rows]
-        for t, _ in matched:
-            self.hit(t)
+        for t, c in matched:
+            self.hit(t, 1.0 if scores is None else float(scores[c]))
         for t in missed:
             self.miss(t)
         return StepResult(matched, a.unmatched_cols, missed)
 
-    def spawn(self, track: T) -> T:
-        """Register a new track from a detection: TENTATIVE, or CONFIRMED with an id when min_hits <= 1."""
+    def spawn(self, track: T, score: float = 1.0) -> T:
+        """Register a new track from a detection (of ``score``): TENTATIVE, or CONFIRMED with an id when
+        one detection meets ``min_hits`` and ``min_evidence``."""
         track.track_id = 0
-        track.hits, track.misses, track.rounds = 1, 0, 1
+        track.hits, track.misses, track.rounds, track.evidence = 1, 0, 1, float(score)
         track.state = TrackState.TENTATIVE
         if self.ids_at_birth:
             track.track_id = self._new_id()
-        if self.min_hits <= 1:
+        if self._met(track):
             self._confirm(track)
         self.tracks.append(track)
         return track
@@ -140,11 +149,12 @@ class TrackCore(Generic[T]):
         if not track.track_id:
             track.track_id = self._new_id()
 
-    def hit(self, track: T) -> None:
+    def hit(self, track: T, score: float = 1.0) -> None:
         track.hits += 1
         track.rounds += 1
         track.misses = 0
-        if track.state is TrackState.TENTATIVE and track.hits >= self.min_hits:
+        track.evidence += score
+        if track.state is TrackState.TENTATIVE and self._met(track):
             self._confirm(track)
 
     def miss(self, track: T) -> None:

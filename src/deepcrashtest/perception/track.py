@@ -147,7 +147,9 @@ class BoxTracker:
     flow); ``min_hits``: detection rounds needed to confirm a track; ``min_iou``: the least IoU
     between a carried box and a detection for them to be matched; ``min_score``: weaker detections
     are ignored; ``new_track_score``: the least score of a detection that starts a track (weaker ones
-    only extend tracks). ``detector`` may be None when detections are passed to :meth:`update_boxes`.
+    only extend tracks); ``min_evidence``: the least sum of a tentative track's detection scores for
+    it to be confirmed, besides ``min_hits`` (0: the hits alone). ``detector`` may be None when
+    detections are passed to :meth:`update_boxes`.
     """
 
     def __init__(
@@ -161,6 +163,7 @@ class BoxTracker:
         new_track_score: float = 0.5,
         flow: BoxFlow | None = None,
         min_score: float = 0.0,
+        min_evidence: float = 0.0,
     ) -> None:
         if detect_every < 1:
             raise ValueError(f"detect_every must be >= 1 (got {detect_every})")
@@ -171,7 +174,9 @@ class BoxTracker:
         self.new_track_score = float(new_track_score)
         self.min_score = float(min_score)
         max_misses = max(1, math.ceil(max_age_s * fps / detect_every))
-        self.core: TrackCore[ImageTrack] = TrackCore(min_hits=min_hits, max_misses=max_misses)
+        self.core: TrackCore[ImageTrack] = TrackCore(
+            min_hits=min_hits, max_misses=max_misses, min_evidence=min_evidence
+        )
         self.flow = flow or BoxFlow()
         self._prev: GreyFrame | None = None
         self._width = 0  # image width (px) of the current frame
@@ -258,7 +263,7 @@ class BoxTracker:
             cost[tg[:, None] != dg[None, :]] = np.inf
             cost[_height_jumps(tracks, dets.boxes)] = np.inf
             cost[_comes_back(tracks, dets.boxes, self._width) & (cost <= 1.0 - self.min_iou)] = np.inf
-        result = self.core.step(cost, max_cost=1.0 - self.min_iou)
+        result = self.core.step(cost, max_cost=1.0 - self.min_iou, scores=dets.scores)
         for t, j in result.matched:
             self._absorb(t, dets, j)
         existing = [t.box for t in self.core.tracks if t.state is not TrackState.DELETED]
@@ -267,7 +272,7 @@ class BoxTracker:
                 continue
             if existing and iou_matrix(dets.boxes[j], np.stack(existing)).max() > 0.5:
                 continue  # a duplicate of a live track's box
-            t = self.core.spawn(ImageTrack())
+            t = self.core.spawn(ImageTrack(), float(dets.scores[j]))
             t.box = dets.boxes[j].astype(np.float64)
             t.detected_box = t.box.copy()
             t.last_detected = self._n
