@@ -16,8 +16,6 @@ tracks' boxes gives ``fy hc``; its 1-sigma is a bootstrap over those tracks.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pandas as pd
 
@@ -88,7 +86,7 @@ def height_from_parked(
     w = np.array([len(parts[k][1]) for k in keep], float)
     grid = np.linspace(e.min(), e.max(), 400)
     mode = float(grid[(w[None, :] * np.exp(-0.5 * ((grid[:, None] - e[None, :]) / MODE_BW) ** 2)).sum(axis=1).argmax()])
-    agree = [parts[k] for k, ek in zip(keep, e) if abs(ek - mode) < MODE_BAND]
+    agree = [parts[k] for k, ek in zip(keep, e, strict=True) if abs(ek - mode) < MODE_BAND]
     if len(agree) < MIN_TRACKS:
         return None
     slope = _fit(agree)[1]
