@@ -17,7 +17,9 @@ is linear in ``(P, A = fy hc)``. Each track long enough (and seen over enough eg
 infinitely far): the mode of ``log A`` over tracks is kept, ``fy = A / hc``. Where too few parked
 vehicles agree, vehicles driving along the road at a steady speed stand in for them
 (:mod:`deepcrashtest.geometry.selfcalib_moving`). Without ego motion (or too few tracks) the focal
-length keeps its prior (the camera given) and says so.
+length keeps its prior (the camera given) and says so. With external metric poses the same parked
+vehicles also give the **camera height** without any class size (their depth from the ego's travel,
+:mod:`deepcrashtest.geometry.selfcalib_height`), fused with the box line's by inverse variance.
 """
 
 from __future__ import annotations
@@ -114,7 +116,9 @@ def horizon_and_height(
     1.47, 0011 1.42, 0019 1.26 against 1.65: taller vehicles typed car, boxes taller than the near face;
     the scale is the class prior's). Tried and dropped (branch monounk, ``bench/selfcalib_diag.py``): a Tukey fit
     with the box-height excess (0004 1.68 m) moved the 18 training sequences' unknown-camera MOTA
-    49.69 -> 49.90 only, lost dad_000487's reproduced crash and lowered held-out 0008 52.48 -> 37.60."""
+    49.69 -> 49.90 only, lost dad_000487's reproduced crash and lowered held-out 0008 52.48 -> 37.60.
+    With external poses :func:`_calibrate_height` fuses in the parked vehicles' height, which needs no class
+    size (0005 1.47 -> 1.57 m, 0007 1.50 -> 1.64, 0020 1.59 -> 1.66)."""
     d = _usable(tracks, size)
     if len(d) < MIN_BOXES:
         return None
