@@ -440,9 +440,10 @@ def _calibrate_axis(
 
 #: 1-sigma (relative) of the box line's camera height for the vehicles about being taller or lower than
 #: the class prior on the whole: the labelled cars' mean height spans 1.45-1.83 m over the 18 KITTI
-#: tracking training sequences other than 3, 8, 10 (about 10 %; combined unknown-camera MOTA there: 0
-#: 58.67, 0.1 58.85, 0.2 58.93, the box line alone 58.49); the parked-vehicle height's bootstrap sigma
-#: is floored at PARKED_MIN_SIGMA_M, and it is dropped further than PARKED_MAX_SIGMAS combined bare
+#: tracking training sequences other than 3, 8, 10 (about 10 %; combined unknown-camera MOTA there, in
+#: a first version: 0 58.67, 0.1 58.85, 0.2 58.93; this one at 0.1 58.57; the box line alone 58.49);
+#: the parked-vehicle height's bootstrap sigma is floored at PARKED_MIN_SIGMA_M, and it is dropped
+#: further than PARKED_MAX_SIGMAS combined bare
 #: sigmas (bootstrap; the box line's without this spread) from the box line (training 0004: 0.91 m
 #: +- 0.02 from 11 tracks moving in step, against 1.50 m +- 0.13).
 FLEET_HEIGHT_REL = 0.1
