@@ -62,14 +62,21 @@ def _parked_rows(g: pd.DataFrame, ego: EgoMotion, idx: np.ndarray, cx: float) ->
 
 
 def height_from_parked(
-    boxes: pd.DataFrame, cx: float, ego: EgoMotion, fy: float, horizon_v: float, seed: int = 0
+    boxes: pd.DataFrame,
+    cx: float,
+    ego: EgoMotion,
+    fy: float,
+    horizon_v: float,
+    seed: int = 0,
+    prior: tuple[float, float] | None = None,
 ) -> tuple[float, float, int] | None:
     """(camera height m, its 1-sigma m, agreeing tracks) from parked vehicles (see the module docstring).
 
     ``boxes``: detected, uncut vehicle boxes of the image tracker; ``cx``, ``fy``: the forward-axis
     column and the focal length (px); ``ego``: metric external poses; ``horizon_v``: the horizon row (px)
-    the tracks' heights are read against to find the parked ones. None with fewer than
-    :data:`MIN_TRACKS` agreeing tracks."""
+    the tracks' heights are read against to find the parked ones; ``prior``: (height m, 1-sigma m) that
+    weights the mode (cars moving in step with the ego make a mode of their own far below it). None with
+    fewer than :data:`MIN_TRACKS` agreeing tracks."""
     frame_to_i = {int(f): i for i, f in enumerate(ego.frame)}
     parts = []
     for _, g in boxes[boxes["frame"].isin(frame_to_i.keys())].groupby("track_id"):
@@ -85,7 +92,10 @@ def height_from_parked(
     e = np.log(hc[keep])
     w = np.array([len(parts[k][1]) for k in keep], float)
     grid = np.linspace(e.min(), e.max(), 400)
-    mode = float(grid[(w[None, :] * np.exp(-0.5 * ((grid[:, None] - e[None, :]) / MODE_BW) ** 2)).sum(axis=1).argmax()])
+    density = (w[None, :] * np.exp(-0.5 * ((grid[:, None] - e[None, :]) / MODE_BW) ** 2)).sum(axis=1)
+    if prior is not None:
+        density = density * np.exp(-0.5 * ((grid - np.log(prior[0])) / (prior[1] / prior[0])) ** 2)
+    mode = float(grid[density.argmax()])
     agree = [parts[k] for k, ek in zip(keep, e, strict=True) if abs(ek - mode) < MODE_BAND]
     if len(agree) < MIN_TRACKS:
         return None
