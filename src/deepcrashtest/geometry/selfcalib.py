@@ -118,7 +118,7 @@ def horizon_and_height(
     with the box-height excess (0004 1.68 m) moved the 18 training sequences' unknown-camera MOTA
     49.69 -> 49.90 only, lost dad_000487's reproduced crash and lowered held-out 0008 52.48 -> 37.60.
     With external poses :func:`_calibrate_height` fuses in the parked vehicles' height, which needs no class
-    size (0005 1.47 -> 1.57 m, 0007 1.50 -> 1.64, 0020 1.59 -> 1.66)."""
+    size (training 0005 1.47 -> 1.62 m, 0007 1.50 -> 1.62, 0020 1.59 -> 1.64; true 1.65)."""
     d = _usable(tracks, size)
     if len(d) < MIN_BOXES:
         return None

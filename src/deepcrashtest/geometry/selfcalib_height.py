@@ -33,6 +33,7 @@ MODE_BW = 0.05
 MODE_BAND = 0.1
 MIN_TRACKS = 5
 BOOTSTRAP = 30
+SEED = 0
 
 
 def _fit(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[float, float]:
@@ -67,7 +68,6 @@ def height_from_parked(
     ego: EgoMotion,
     fy: float,
     horizon_v: float,
-    seed: int = 0,
     prior: tuple[float, float] | None = None,
 ) -> tuple[float, float, int] | None:
     """(camera height m, its 1-sigma m, agreeing tracks) from parked vehicles (see the module docstring).
@@ -100,6 +100,6 @@ def height_from_parked(
     if len(agree) < MIN_TRACKS:
         return None
     slope = _fit(agree)[1]
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(SEED)
     boots = [_fit([agree[i] for i in rng.integers(0, len(agree), len(agree))])[1] for _ in range(BOOTSTRAP)]
     return slope / fy, float(np.std(boots)) / fy, len(agree)
