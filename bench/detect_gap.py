@@ -8,9 +8,8 @@ are matched to the tracker's confirmed boxes (IoU >= 0.5, Hungarian): recall = m
 IoU of the matches. No labels exist at 25 fps; the per-frame detector is the reference (its own misses
 are not counted against the tracker), so this measures what skipping costs, not absolute accuracy.
 
-``--stable-iou 0.5 [--stable-score 0]`` adds extract's schedule (every 5th frame, a call skipped while the last
-two found a calm scene: :mod:`deepcrashtest.perception.schedule`, :func:`stable_schedule`), replayed from the
-same detections (video of 24 fps or more; below, it makes every call).
+``--stable-iou 0.5 [--stable-score 0.5]`` adds a need-driven schedule (every 5th frame, a call skipped while the
+last two found the same road users: :func:`stable_schedule`), replayed from the same detections.
 
 Run: PYTHONPATH=src python bench/detect_gap.py [VIDEO ...] [--frames 250] [--every 2,3,5,6,8] [--stable-iou 0.5]
 """
@@ -51,7 +50,7 @@ def main() -> None:
         help="also a need-driven schedule per value (e.g. 0.5,0.7): every 5th frame, but a call is skipped when the "
         "last two calls found the same road users (one to one at IoU >= the value; never two skips in a row)",
     )
-    ap.add_argument("--stable-score", default="0", help="least score of a road user compared (e.g. 0,0.5)")
+    ap.add_argument("--stable-score", default="0.5", help="least score of a road user compared (e.g. 0.3,0.5)")
     args = ap.parse_args()
     det = make_detector(args.detector)
     print(f"detector {det.name}; load average {os.getloadavg()[0]:.1f}")
@@ -70,7 +69,7 @@ def main() -> None:
             for tau, low in itertools.product(
                 map(float, args.stable_iou.split(",")), map(float, args.stable_score.split(","))
             ):
-                calls = stable_schedule(frames, dets, base, fps, tau, low)
+                calls = stable_schedule(dets, base, tau, low)
                 schedules.append((f"{base}, skip if stable (IoU {tau:g}, score {low:g})", base, calls))
         for name, every, calls in schedules:
             pairs = [(f, d if k in calls else None) for k, (f, d) in enumerate(zip(frames, dets, strict=True))]
@@ -97,15 +96,39 @@ def main() -> None:
         print(f"({Path(video).name}: {len(frames)} frames at {fps:g} fps, detector {cpu:.0f} ms CPU a frame)")
 
 
-def stable_schedule(frames: list, dets: list, every: int, fps: float, min_iou: float, min_score: float) -> set[int]:
-    """Frames extract's schedule (:func:`deepcrashtest.perception.schedule.detect_stable`: every ``every``-th
-    frame, a call skipped while the last two calls found a calm scene, never two in a row) calls the detector
-    on, replayed from the per-frame detections (road users compared from score ``min_score``)."""
-    from deepcrashtest.perception.schedule import detect_stable
+def stable_schedule(dets: list, every: int, min_iou: float, min_score: float) -> set[int]:
+    """Frames a need-driven schedule computable ahead of the tracker (from the detector's own boxes) calls the
+    detector on: every ``every``-th frame, except that a call is skipped when the last two calls made found the
+    same road users (score >= ``min_score``, riders joined: as many, matched one to one at IoU >= ``min_iou``;
+    nothing appeared, left or moved fast), and never two calls in a row. Measured and not taken (README,
+    Performance, eighth round); ``extract`` with it was commit 9d0d5da of branch extractfps6."""
+    from scipy.optimize import linear_sum_assignment
 
-    by_image = {id(f.image): d for f, d in zip(frames, dets, strict=True)}
-    out = detect_stable(frames, lambda image: by_image[id(image)], every, fps, min_iou, min_score)
-    return {k for k, (_f, d) in enumerate(out) if d is not None}
+    from deepcrashtest.perception.boxes import iou_matrix
+    from deepcrashtest.perception.roadusers import road_users
+
+    def boxes(k: int) -> np.ndarray:
+        d = road_users(dets[k])
+        return np.asarray(d.boxes[d.scores >= min_score], float).reshape(-1, 4)
+
+    def same(a: np.ndarray, b: np.ndarray) -> bool:
+        if len(a) != len(b):
+            return False
+        if not len(a):
+            return True
+        iou = iou_matrix(a, b)
+        rows, cols = linear_sum_assignment(-iou)
+        return bool((iou[rows, cols] >= min_iou).all())
+
+    calls: list[int] = []
+    skipped_last = False
+    for k in range(0, len(dets), every):
+        if len(calls) >= 2 and not skipped_last and same(boxes(calls[-2]), boxes(calls[-1])):
+            skipped_last = True
+            continue
+        calls.append(k)
+        skipped_last = False
+    return set(calls)
 
 
 if __name__ == "__main__":

@@ -35,8 +35,7 @@ from deepcrashtest.perception.annotate import Annotator
 from deepcrashtest.perception.detect import DEFAULT_DETECTOR, make_detector
 from deepcrashtest.perception.detections import Detector, in_picture
 from deepcrashtest.perception.lanes import LaneState, draw_lanes
-from deepcrashtest.perception.schedule import detect_stable
-from deepcrashtest.perception.track import FrameTracks, frame_records, records_table, track_detected
+from deepcrashtest.perception.track import FrameTracks, detect_ahead, frame_records, records_table, track_detected
 from deepcrashtest.pipeline.geometry_pass import GeometryResult, TrackRows, extract_geometry
 from deepcrashtest.pipeline.threads import Worker, prefetch
 from deepcrashtest.scenario import Camera, VideoSource
@@ -56,9 +55,7 @@ if TYPE_CHECKING:  # imported where used: pandas, SciPy and the crash modules lo
 
 DEFAULT_DETECT_EVERY = 5
 #: The detector runs at least this often (s) whatever ``detect_every`` says: at 10 fps (the CCD crash clips)
-#: every 5th frame left half a second between detections, and the road user the ego hits went untracked. In video
-#: of 24 fps or more a scheduled call is skipped while the last two found a calm scene (never two in a row:
-#: :mod:`deepcrashtest.perception.schedule`).
+#: every 5th frame left half a second between detections, and the road user the ego hits went untracked.
 MAX_DETECT_GAP_S = 0.25
 #: Every file ``extract`` may write into its output folder (one set per run: see fileio.output_set).
 OUTPUT_NAMES = ("tracks.csv", "annotated.mp4", "scenario_raw.json", "scenario.json", "report.html")
@@ -348,7 +345,7 @@ class _Pass:
             frames = itertools.chain(head, frames)
             every = max(1, min(self.detect_every, int(meta.fps * MAX_DETECT_GAP_S + 1e-6)))
             det = in_picture(self.det, self.motion.area, meta.width, meta.height)  # the bars are no scene
-            detected = detect_stable(itertools.islice(frames, self.max_frames), det, every, meta.fps)
+            detected = detect_ahead(itertools.islice(frames, self.max_frames), det, every)
             detected = stack.enter_context(closing(prefetch(detected, 8, "detect")))
             tracking = stack.enter_context(closing(prefetch(track_detected(detected, meta.fps, every), 8, "track")))
             tracked = progress(tracking, "extract", total=self._total(meta))
