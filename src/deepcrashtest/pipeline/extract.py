@@ -34,6 +34,7 @@ from deepcrashtest.geometry.camera import default_camera
 from deepcrashtest.perception.annotate import Annotator
 from deepcrashtest.perception.detect import DEFAULT_DETECTOR, make_detector
 from deepcrashtest.perception.detections import Detector, in_picture
+from deepcrashtest.perception.global_motion import GlobalMotion  # no pandas: the crash modules load in the background
 from deepcrashtest.perception.lanes import LaneState, draw_lanes
 from deepcrashtest.perception.track import FrameTracks, detect_ahead, frame_records, records_table, track_detected
 from deepcrashtest.pipeline.geometry_pass import GeometryResult, TrackRows, extract_geometry
@@ -50,7 +51,6 @@ from deepcrashtest.viz.sheet_thumbs import SheetThumbs
 if TYPE_CHECKING:  # imported where used: pandas, SciPy and the crash modules load while the first frames decode
     import pandas as pd
 
-    from deepcrashtest.perception.crash_detect import GlobalMotion
     from deepcrashtest.pipeline.crash import CrashSpec
 
 DEFAULT_DETECT_EVERY = 5
@@ -206,12 +206,6 @@ def _parse_crash(text: str) -> CrashSpec:
     return parse_crash(text)
 
 
-def _global_motion() -> GlobalMotion:
-    from deepcrashtest.perception.crash_detect import GlobalMotion
-
-    return GlobalMotion()
-
-
 def _warm_imports(modules: tuple[str, ...]) -> threading.Thread:
     """Import what the later phases need in a background thread while the frames flow.
 
@@ -314,7 +308,7 @@ class _Pass:
     watch_shots: bool = False
     """Look for shot cuts in this pass (:class:`~deepcrashtest.video.shots.ShotWatch`); a cut raises
     :class:`_Compilation` (at the first cut found, or after the last frame)."""
-    motion: GlobalMotion = field(default_factory=lambda: _global_motion())
+    motion: GlobalMotion = field(default_factory=GlobalMotion)
     """The camera's global image motion per frame (the ego's jolt, for crash detection)."""
     shot_watch: ShotWatch | None = field(default=None, init=False)
     imports: threading.Thread | None = field(default=None, init=False)
