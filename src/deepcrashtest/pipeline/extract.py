@@ -59,6 +59,9 @@ DEFAULT_DETECT_EVERY = 5
 MAX_DETECT_GAP_S = 0.25
 #: Every file ``extract`` may write into its output folder (one set per run: see fileio.output_set).
 OUTPUT_NAMES = ("tracks.csv", "annotated.mp4", "scenario_raw.json", "scenario.json", "report.html")
+#: The shot watch's PySceneDetect, first of the background imports: it loads while the main thread opens the
+#: detector's session (the pass's first frame waits for both; ~0.1-0.2 s of wall time less before it, load 3-7).
+SHOT_IMPORTS = ("scenedetect",)
 #: Modules the pass needs only after its first frames (the tracker's first association, the lanes after the
 #: calibration buffer, the crash's image motion), then those of the later phases (world tracks and
 #: self-calibration, stage 2, the report), imported in the background from the start (:func:`_warm_imports`).
@@ -125,9 +128,10 @@ def run_extract(
     _check_options(detect_every, max_frames)
     src_path, out = Path(video), Path(output)
     paths = _output_paths(src_path, out, annotate, geometry, report, force)
-    imports = _warm_imports(PASS_IMPORTS + (WARM_IMPORTS + REPORT_IMPORTS * report if geometry else ()))
-    det = make_detector(detector)
     watch = shots and frame_range is None  # cuts are looked for in the same decoding pass
+    later = WARM_IMPORTS + REPORT_IMPORTS * report if geometry else ()
+    imports = _warm_imports(SHOT_IMPORTS * watch + PASS_IMPORTS + later)
+    det = make_detector(detector)
     try:
         with output_set(out, OUTPUT_NAMES, force) as stage:  # the whole set of one run, or nothing
             staged = {key: stage / path.name for key, path in paths.items()}
