@@ -35,7 +35,7 @@ STAGES = [
     ("deepcrashtest.perception.track", "BoxTracker.update_boxes", "tracker (flow, association)"),
     ("deepcrashtest.geometry.egomotion", "EgoMotionEstimator.update", "ego-motion"),
     ("deepcrashtest.perception.lanes", "ClassicalLaneDetector.update", "lanes"),
-    ("deepcrashtest.perception.crash_detect", "GlobalMotion.update", "global motion"),
+    ("deepcrashtest.perception.global_motion", "GlobalMotion.update", "global motion"),
     ("deepcrashtest.perception.annotate", "Annotator.draw", "annotate"),
     ("deepcrashtest.video.writer", "VideoWriter.write", "encode (calling thread)"),
     ("deepcrashtest.pipeline.extract", "records_table", "per-frame tables"),

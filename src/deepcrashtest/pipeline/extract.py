@@ -34,6 +34,7 @@ from deepcrashtest.geometry.camera import default_camera
 from deepcrashtest.perception.annotate import Annotator
 from deepcrashtest.perception.detect import DEFAULT_DETECTOR, make_detector
 from deepcrashtest.perception.detections import Detector, in_picture
+from deepcrashtest.perception.global_motion import GlobalMotion  # no pandas: the crash modules load in the background
 from deepcrashtest.perception.lanes import LaneState, draw_lanes
 from deepcrashtest.perception.track import FrameTracks, detect_ahead, frame_records, records_table, track_detected
 from deepcrashtest.pipeline.geometry_pass import GeometryResult, TrackRows, extract_geometry
@@ -50,7 +51,6 @@ from deepcrashtest.viz.sheet_thumbs import SheetThumbs
 if TYPE_CHECKING:  # imported where used: pandas, SciPy and the crash modules load while the first frames decode
     import pandas as pd
 
-    from deepcrashtest.perception.crash_detect import GlobalMotion
     from deepcrashtest.pipeline.crash import CrashSpec
 
 DEFAULT_DETECT_EVERY = 5
@@ -59,6 +59,9 @@ DEFAULT_DETECT_EVERY = 5
 MAX_DETECT_GAP_S = 0.25
 #: Every file ``extract`` may write into its output folder (one set per run: see fileio.output_set).
 OUTPUT_NAMES = ("tracks.csv", "annotated.mp4", "scenario_raw.json", "scenario.json", "report.html")
+#: The shot watch's PySceneDetect, first of the background imports: it loads while the main thread opens the
+#: detector's session (the pass's first frame waits for both; ~0.1-0.2 s of wall time less before it, load 3-7).
+SHOT_IMPORTS = ("scenedetect",)
 #: Modules the pass needs only after its first frames (the tracker's first association, the lanes after the
 #: calibration buffer, the crash's image motion), then those of the later phases (world tracks and
 #: self-calibration, stage 2, the report), imported in the background from the start (:func:`_warm_imports`).
@@ -125,9 +128,10 @@ def run_extract(
     _check_options(detect_every, max_frames)
     src_path, out = Path(video), Path(output)
     paths = _output_paths(src_path, out, annotate, geometry, report, force)
-    imports = _warm_imports(PASS_IMPORTS + (WARM_IMPORTS + REPORT_IMPORTS * report if geometry else ()))
-    det = make_detector(detector)
     watch = shots and frame_range is None  # cuts are looked for in the same decoding pass
+    later = WARM_IMPORTS + REPORT_IMPORTS * report if geometry else ()
+    imports = _warm_imports(SHOT_IMPORTS * watch + PASS_IMPORTS + later)
+    det = make_detector(detector)
     try:
         with output_set(out, OUTPUT_NAMES, force) as stage:  # the whole set of one run, or nothing
             staged = {key: stage / path.name for key, path in paths.items()}
@@ -204,12 +208,6 @@ def _parse_crash(text: str) -> CrashSpec:
     from deepcrashtest.pipeline.crash import parse_crash
 
     return parse_crash(text)
-
-
-def _global_motion() -> GlobalMotion:
-    from deepcrashtest.perception.crash_detect import GlobalMotion
-
-    return GlobalMotion()
 
 
 def _warm_imports(modules: tuple[str, ...]) -> threading.Thread:
@@ -314,7 +312,7 @@ class _Pass:
     watch_shots: bool = False
     """Look for shot cuts in this pass (:class:`~deepcrashtest.video.shots.ShotWatch`); a cut raises
     :class:`_Compilation` (at the first cut found, or after the last frame)."""
-    motion: GlobalMotion = field(default_factory=lambda: _global_motion())
+    motion: GlobalMotion = field(default_factory=GlobalMotion)
     """The camera's global image motion per frame (the ego's jolt, for crash detection)."""
     shot_watch: ShotWatch | None = field(default=None, init=False)
     imports: threading.Thread | None = field(default=None, init=False)
