@@ -102,6 +102,11 @@ GRID: dict[tuple[str, str], list] = {
 #: evidence 63.91; births from 0.85 64.53; a tentative track surviving one miss 63.09; min_score 0.6 63.31); then
 #: min_confidence 0.85 / 0.92, min_detected 6 / 10, max_age_s 1.5, min_iou 0.3: 63.57 / 63.87 / 64.42 / 64.54 /
 #: 64.47 / 64.30; contact_min_below_px 125 / 175: 64.22 / 63.81 (all kept).
+#: Round mono10 (by hand, one setting at a time, 18 tuning sequences, KITTI camera; start 64.55): a track without
+#: 150 px contacts sized from its nearest ones (MonoConfig.contact_far_below_px) 60 / 75 / 80 / 90 / 100 / 110 px:
+#: 62.51 / 64.94 / 65.14 / 65.37 / 65.18 / 64.96 -> 90 px, final sizes only; also in the per-frame horizon's sizes
+#: (100 / 90 / 75 / 110 / 125 px: 65.38 / 65.33 / 64.81 / 64.73 / 64.51; 0014 -11.5 from one track's class flip)
+#: and with their own floor (0.04 / 0.08 / 0.1 at 100 px: 65.57 / 65.16 / 64.89): dropped.
 #: Tried and dropped: the KITTI labels' median car length/width (3.9 / 1.62 m) as priors 54.32,
 #: width cue at 12 % 56.70; a per-track range scale from the track's motion against the ego's
 #: (parked cars fitted as a point) 36.4-45.7 (slow cars in queues look parked at the wrong scale,
