@@ -249,7 +249,7 @@ class _SpeedFilter:
     27 m/s in a city street over 5 s; 1.5 s, a vehicle-dynamics prior not tuned on any clip, ends
     those ramps at 15 m/s and leaves the KITTI odometry errors as they were). Measurements whose innovation is
     beyond ``gate`` standard deviations are ignored, unless ``max_rejects`` come in a row (then the
-    filter re-starts at the third from the three: :func:`robust_level`; a real change, not an outlier). After ``hold_s`` seconds
+    filter re-starts from those and the next: :func:`robust_level`; a real change, not an outlier). After ``hold_s`` seconds
     without a measurement the acceleration is dropped and the speed held: on ccd_000882 (no road scale
     after frame 11) the last, noisy deceleration was extrapolated to 0 m/s, and 27 of 49 frames read
     "stopped" while the ego drove.
@@ -265,7 +265,7 @@ class _SpeedFilter:
         start: tuple[float, float] | None = None,
     ) -> None:
         self.hold_s = hold_s
-        self.start = start  # (speed m/s, variance) prior at the first reading; None: the first reading itself
+        self.start = start  # (speed m/s, variance) to start from at the first reading; None: that reading
         self.q = jerk**2
         self.tau = accel_tau_s
         self.gate = gate
@@ -295,22 +295,17 @@ class _SpeedFilter:
             self.since = 0.0
             S = Pp[0, 0] + var
             innov = z - xp[0]
-            if not self.started and self.start is not None:  # a prior at the first reading, then fused as any
-                xp, Pp = np.array([self.start[0], 0.0]), np.diag([self.start[1], 4.0])
-                self.first, self.started = len(self.log), True
-                S, innov = Pp[0, 0] + var, z - xp[0]
-                x, P = xp, Pp
-            if not self.started:
-                x, P = np.array([z, 0.0]), np.diag([var, 4.0])
+            if not self.started:  # the first reading, or the level decided from the first few (``start``)
+                z0, var0 = (z, var) if self.start is None else self.start
+                x, P = np.array([z0, 0.0]), np.diag([var0, 4.0])
                 self.first, self.started, outcome = len(self.log), True, "start"
+            elif self.rejects >= self.max_rejects:  # a real change: re-start from the rejected readings
+                level, level_var = robust_level([*(r[1:3] for r in self.readings[-self.max_rejects :]), (z, var)])
+                x, P = np.array([level, 0.0]), np.diag([level_var, 4.0])
+                self.rejects, outcome = 0, "restart"
             elif innov * innov > self.gate**2 * S:
                 self.rejects += 1
                 outcome = "gated"
-                if self.rejects >= self.max_rejects:  # a real change: re-start from the rejected readings
-                    recent = [r[1:3] for r in self.readings[len(self.readings) - self.max_rejects + 1 :]]
-                    level, level_var = robust_level([*recent, (float(z), var)])
-                    x, P = np.array([level, 0.0]), np.diag([level_var, 4.0])
-                    self.rejects, outcome = 0, "restart"
             else:
                 outcome = "fused"
                 Kg = Pp[:, 0] / S
