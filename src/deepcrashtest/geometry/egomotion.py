@@ -249,7 +249,7 @@ class _SpeedFilter:
     27 m/s in a city street over 5 s; 1.5 s, a vehicle-dynamics prior not tuned on any clip, ends
     those ramps at 15 m/s and leaves the KITTI odometry errors as they were). Measurements whose innovation is
     beyond ``gate`` standard deviations are ignored, unless ``max_rejects`` come in a row (then the
-    filter re-starts from those and the next: :func:`robust_level`; a real change, not an outlier). After ``hold_s`` seconds
+    filter re-starts from the measurement: a real change, not an outlier). After ``hold_s`` seconds
     without a measurement the acceleration is dropped and the speed held: on ccd_000882 (no road scale
     after frame 11) the last, noisy deceleration was extrapolated to 0 m/s, and 27 of 49 frames read
     "stopped" while the ego drove.
@@ -299,9 +299,8 @@ class _SpeedFilter:
                 z0, var0 = (z, var) if self.start is None else self.start
                 x, P = np.array([z0, 0.0]), np.diag([var0, 4.0])
                 self.first, self.started, outcome = len(self.log), True, "start"
-            elif self.rejects >= self.max_rejects:  # a real change: re-start from the rejected readings
-                level, level_var = robust_level([*(r[1:3] for r in self.readings[-self.max_rejects :]), (z, var)])
-                x, P = np.array([level, 0.0]), np.diag([level_var, 4.0])
+            elif self.rejects >= self.max_rejects:  # a real change: re-start from this reading
+                x, P = np.array([z, 0.0]), np.diag([var, 4.0])
                 self.rejects, outcome = 0, "restart"
             elif innov * innov > self.gate**2 * S:
                 self.rejects += 1
