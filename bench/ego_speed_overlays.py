@@ -55,6 +55,7 @@ class ClipRun:
     calibration: str = ""  # with --tracks: extract's self-calibration of the unknown camera (one line)
     images: list[np.ndarray] | None = None  # the decoded frames (for the scene-expansion check)
     ego_scale: float = 1.0  # the factor it applies to the speed (measured over assumed focal x height)
+    readings: list[tuple[int, float, float, str]] | None = None  # the speed filter's (step, m/s, var, outcome)
 
 
 def overlay_speeds(entry: dict[str, Any], n: int) -> np.ndarray:
@@ -123,6 +124,7 @@ def run_clip(
         f"road scale on {int(np.isfinite(raw).sum())} of {len(images) - 1} frame pairs"
     )
     run = ClipRun(ego.speed, cam.fx, cam.height_m, cpu_ms, np.asarray(raw), factors, images=images)
+    run.readings = est._filter.readings  # noqa: SLF001 (a diagnosis of the estimator's own state)
     if boxes is not None and len(boxes) and cam.intrinsics_source == "default":
         from deepcrashtest.geometry.selfcalib import self_calibrate
 

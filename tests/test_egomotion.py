@@ -240,3 +240,24 @@ def test_ego_yaw_follows_a_calibrated_focal_length():
     same = rescaled(ego, 1.5, 1.0)
     np.testing.assert_allclose(same.x, 1.5 * ego.x)
     np.testing.assert_allclose(same.yaw, ego.yaw)
+
+
+def test_speed_filter_logs_every_reading_and_what_it_did_with_it():
+    """CCD 53 (10 fps, default camera): the speed filter's log (``bench/speed_filter_readings.py``) holds
+    every road-scale or stopped reading the estimator fed it, in order, with its outcome. On this clip the
+    filter starts on 19 km/h and fuses 26 / 25 (frames 1-4); frames 36-38 read 10 / 8 / 3 km/h (1-sigma
+    0.2-0.6), each gated, until the fourth in a row re-starts it (frame 39, 3 km/h): the first-reading hold
+    and re-start that README's ego-speed notes measure."""
+    imgs = _frames(DATA / "crash_ccd" / "ccd_000053.mp4", 42)
+    h, w = imgs[0].shape[:2]
+    est = EgoMotionEstimator(default_camera(w, h), mask_bottom_rows=detect_dashboard_rows(imgs[::4]))
+    raws = []
+    for i, img in enumerate(imgs):
+        state = est.update(img, i / 10.0)
+        raws.append((i, state.raw_speed))
+    log = est._filter.readings
+    fed = [(i, z) for i, z in raws if z is not None]
+    assert [(s + 1, z) for s, z, _, _ in log] == [(i, pytest.approx(z)) for i, z in fed]
+    assert log[0][3] == "start" and {o for *_, o in log} <= {"start", "fused", "gated", "restart"}
+    assert [o for *_, o in log if o != "fused"] == ["start", "gated", "gated", "gated", "restart"]
+    assert all(v > 0 for _, _, v, _ in log)

@@ -256,16 +256,9 @@ class _SpeedFilter:
     """
 
     def __init__(
-        self,
-        jerk: float = 3.0,
-        gate: float = 3.0,
-        max_rejects: int = 3,
-        accel_tau_s: float = 0.0,
-        hold_s: float = 0.5,
-        start: tuple[float, float] | None = None,
+        self, jerk: float = 3.0, gate: float = 3.0, max_rejects: int = 3, accel_tau_s: float = 0.0, hold_s: float = 0.5
     ) -> None:
         self.hold_s = hold_s
-        self.start = start  # (speed m/s, variance) to start from at the first reading; None: that reading
         self.q = jerk**2
         self.tau = accel_tau_s
         self.gate = gate
@@ -277,12 +270,10 @@ class _SpeedFilter:
         self.since = 0.0  # seconds since the last measurement
         self.first = 0  # the step of the first measurement: earlier steps take its smoothed speed
         self.log: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
-        self.readings: list[tuple[int, float, float, str]] = []  # (step, z m/s, var, start/fused/gated/restart)
-        self.inputs: list[tuple[float, float | None, float]] = []  # every step's (dt, z, var), for the replay
+        self.readings: list[tuple[int, float, float, str]] = []  # (step, m/s, variance, start/restart/gated/fused)
 
     def step(self, dt: float, z: float | None, var: float) -> float:
         """Advance by ``dt`` seconds, fuse the speed measurement ``z`` (variance ``var``); returns speed."""
-        self.inputs.append((dt, z, var))
         self.since += dt
         decay = math.exp(-dt / self.tau) if self.tau > 0 else 1.0
         if self.since > self.hold_s:
@@ -295,43 +286,29 @@ class _SpeedFilter:
             self.since = 0.0
             S = Pp[0, 0] + var
             innov = z - xp[0]
-            if not self.started:  # the first reading, or the level decided from the first few (``start``)
-                z0, var0 = (z, var) if self.start is None else self.start
-                x, P = np.array([z0, 0.0]), np.diag([var0, 4.0])
-                self.first, self.started, outcome = len(self.log), True, "start"
-            elif self.rejects >= self.max_rejects:  # a real change: re-start from this reading
+            if not self.started or self.rejects >= self.max_rejects:
                 x, P = np.array([z, 0.0]), np.diag([var, 4.0])
-                self.rejects, outcome = 0, "restart"
+                outcome = "restart" if self.started else "start"
+                if not self.started:
+                    self.first = len(self.log)
+                self.started, self.rejects = True, 0
             elif innov * innov > self.gate**2 * S:
                 self.rejects += 1
                 outcome = "gated"
             else:
-                outcome = "fused"
                 Kg = Pp[:, 0] / S
                 x = xp + Kg * innov
                 P = Pp - np.outer(Kg, Pp[0])
-                self.rejects = 0
+                self.rejects, outcome = 0, "fused"
             self.readings.append((len(self.log), float(z), float(var), outcome))
         self.x, self.P = x, P
         self.log.append((F, xp, Pp, x, P))
         return max(0.0, float(x[0]))
 
     def smoothed(self) -> np.ndarray:
-        """RTS-smoothed speeds of every step so far (m/s, >= 0).
-
-        Unless given a ``start``, the steps are first filtered again from a start decided by the first
-        ``max_rejects`` readings (:func:`robust_level`), not by the first reading alone: with sparse
-        readings whose scatter exceeds their stated variance, a filter started on its first reading
-        gated out the later ones (ccd_000882: 28 km/h held, 61 / 45 / 15 / 53 gated; ccd_000340 held 2
-        km/h, gated 16 / 11 / 8) until ``max_rejects`` came in a row."""
+        """RTS-smoothed speeds of every step so far (m/s, >= 0)."""
         if not self.log:
             return np.zeros(0)
-        prior = self.start_prior() if self.start is None else None
-        if prior is not None:
-            replay = _SpeedFilter(self.q**0.5, self.gate, self.max_rejects, self.tau, self.hold_s, prior)
-            for dt, z, var in self.inputs:
-                replay.step(dt, z, var)
-            return replay.smoothed()
         xs = [self.log[-1][3]]
         Ps = [self.log[-1][4]]
         for k in range(len(self.log) - 2, -1, -1):
@@ -343,29 +320,6 @@ class _SpeedFilter:
         out = np.maximum(0.0, np.array([x[0] for x in reversed(xs)]))
         out[: self.first] = out[self.first]  # before any measurement: no evidence of another speed
         return out
-
-    def start_prior(self) -> tuple[float, float] | None:
-        """The start (speed m/s, variance) from the first ``max_rejects`` readings (:func:`robust_level`),
-        or None where they agree with their median within ``gate`` of their own standard deviations (then
-        the first reading is as good a start: the filter's start as before, KITTI odometry unchanged)."""
-        first = [r[1:3] for r in self.readings[: self.max_rejects]]
-        if not first:
-            return None
-        level = robust_level(first)
-        if all((z - level[0]) ** 2 <= self.gate**2 * v for z, v in first):
-            return None
-        return level
-
-
-def robust_level(readings: Sequence[tuple[float, float]]) -> tuple[float, float]:
-    """A speed level (m/s) and its variance from a few ``(speed m/s, variance)`` readings: their median,
-    with the variance of their scatter (1.4826 x the median absolute deviation, squared) added to the
-    readings' own median variance, so that readings that disagree give a wide start, not a confident one."""
-    z = np.array([r[0] for r in readings], dtype=float)
-    var = np.array([r[1] for r in readings], dtype=float)
-    med = float(np.median(z))
-    spread = 1.4826 * float(np.median(np.abs(z - med)))
-    return med, float(np.median(var)) + spread**2
 
 
 class EgoMotionEstimator:
