@@ -17,16 +17,12 @@ from __future__ import annotations
 import argparse
 import itertools
 import math
-import pickle
 from pathlib import Path
 
-from selfcalib_diag import DATA, HELD_OUT, TUNING, _combined, _mota
+from selfcalib_diag import _combined, _mota, load_sequence, training_args
 
-from deepcrashtest.datasets.kitti.scenario import KITTI_CAMERA_FORWARD_OFFSET_M
-from deepcrashtest.eval.kitti_mono import DEFAULT_MONO, ego_of, image_tracks, prepare_mono
 from deepcrashtest.geometry import selfcalib as sc
 from deepcrashtest.geometry import selfcalib_axis as ax
-from deepcrashtest.geometry.camera import default_camera
 
 GRID_K = (1.0, 2.0, 3.0, 4.0, 5.0, 6.0)
 GRID_FLOOR = (0.0, 3.0, 5.0, 8.0)
@@ -59,15 +55,7 @@ def _load(seqs: list[int], cache: Path) -> dict[int, dict]:
     data = {}
     try:
         for s in seqs:
-            prep = prepare_mono(DATA, s)
-            f = cache / f"tracks_{s:04d}.pkl"
-            if f.exists():
-                tracks = pickle.loads(f.read_bytes())
-            else:
-                tracks = image_tracks(prep, DEFAULT_MONO)
-                f.write_bytes(pickle.dumps(tracks))
-            ego = ego_of(prep.world)
-            start = default_camera(*prep.size).model_copy(update={"forward_offset_m": KITTI_CAMERA_FORWARD_OFFSET_M})
+            prep, tracks, ego, start = load_sequence(s, cache)
             cam = sc.self_calibrate(tracks, start, prep.size, ego).camera
             boxes = sc._usable(tracks, prep.size)
             data[s] = {
@@ -81,15 +69,8 @@ def _load(seqs: list[int], cache: Path) -> dict[int, dict]:
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--sequences", default=",".join(map(str, TUNING)))
-    ap.add_argument("--cache", required=True)
     ap.add_argument("--variants", action="store_true")
-    args = ap.parse_args()
-    seqs = [int(s) for s in args.sequences.split(",")]
-    if set(seqs) & set(HELD_OUT):
-        raise SystemExit("tune on the training sequences only (3, 8, 10 are held out)")
-    cache = Path(args.cache)
-    cache.mkdir(parents=True, exist_ok=True)
+    args, seqs, cache = training_args(ap, None)
     data = _load(seqs, cache)
     memo: dict[tuple[int, float], dict] = {}
 
