@@ -79,32 +79,43 @@ def _combined(results: list[dict]) -> float:
     return 100.0 * (1.0 - (fn + fp + sw) / max(tp + fn, 1.0))
 
 
+def training_args(ap: argparse.ArgumentParser, cache: str | None) -> tuple[argparse.Namespace, list[int], Path]:
+    """Parse ``--sequences`` (training ones only: 3, 8, 10 refused) and ``--cache`` (created) besides ``ap``'s own."""
+    ap.add_argument("--sequences", default=",".join(map(str, TUNING)))
+    ap.add_argument("--cache", default=cache, required=cache is None)
+    args = ap.parse_args()
+    seqs = [int(s) for s in args.sequences.split(",")]
+    if set(seqs) & set(HELD_OUT):
+        raise SystemExit("diagnose on the training sequences only (3, 8, 10 are held out)")
+    path = Path(args.cache)
+    path.mkdir(parents=True, exist_ok=True)
+    return args, seqs, path
+
+
+def load_sequence(s: int, cache: Path):
+    """(prepared sequence, image tracks cached under ``cache``, ego motion, the unknown camera's start)."""
+    prep = prepare_mono(DATA, s)
+    f = cache / f"tracks_{s:04d}.pkl"
+    if f.exists():
+        tracks = pickle.loads(f.read_bytes())
+    else:
+        tracks = image_tracks(prep, DEFAULT_MONO)
+        f.write_bytes(pickle.dumps(tracks))
+    start = default_camera(*prep.size).model_copy(update={"forward_offset_m": KITTI_CAMERA_FORWARD_OFFSET_M})
+    return prep, tracks, ego_of(prep.world), start
+
+
 def _fmt(e) -> str:
     return "-" if e is None else f"{e[0]:.0f}({100 * e[1]:.0f}%,{e[2]})"
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--sequences", default=",".join(map(str, TUNING)))
     ap.add_argument("--oracle", action="store_true")
-    ap.add_argument("--cache", default="/tmp/selfcalib_diag")
-    args = ap.parse_args()
-    seqs = [int(s) for s in args.sequences.split(",")]
-    if set(seqs) & set(HELD_OUT):
-        raise SystemExit("diagnose on the training sequences only (3, 8, 10 are held out)")
-    cache = Path(args.cache)
-    cache.mkdir(parents=True, exist_ok=True)
+    args, seqs, cache = training_args(ap, "/tmp/selfcalib_diag")
     rows = []
     for s in seqs:
-        prep = prepare_mono(DATA, s)
-        f = cache / f"tracks_{s:04d}.pkl"
-        if f.exists():
-            tracks = pickle.loads(f.read_bytes())
-        else:
-            tracks = image_tracks(prep, DEFAULT_MONO)
-            f.write_bytes(pickle.dumps(tracks))
-        ego = ego_of(prep.world)
-        start = default_camera(*prep.size).model_copy(update={"forward_offset_m": KITTI_CAMERA_FORWARD_OFFSET_M})
+        prep, tracks, ego, start = load_sequence(s, cache)
         cal = sc_mod.self_calibrate(tracks, start, prep.size, ego)
         parts = _calib_parts(tracks, start, prep.size, ego)
         cam, true = cal.camera, prep.camera

@@ -380,3 +380,26 @@ def test_confirmation_by_accumulated_scores_tracks_far_cars(kitti_root):
     old = dataclasses.replace(DEFAULT_MONO, new_track_score=0.97, min_hits=3, min_evidence=0.0)
     now, before = quick_mota([prep], DEFAULT_MONO)[0], quick_mota([prep], old)[0]
     assert now >= 50.0 and now - before > 7.0, (now, before)
+
+
+def test_axis_column_skips_rows_across_a_bend(kitti_root):
+    """Training sequences 0009 and 0020 (true column 609.6 / 607.2 px), unknown camera: where the path has
+    turned between the camera and the point, a depth error moves every point across the bent path the
+    same way, like a column error. Using such rows read the column +3.9 / +6.7 px off; without them +1.4 /
+    +4.4 px (``selfcalib_axis.MAX_PATH_TURN_DEG``)."""
+    from deepcrashtest.datasets.kitti.scenario import KITTI_CAMERA_FORWARD_OFFSET_M
+    from deepcrashtest.eval.kitti_mono import ego_of
+    from deepcrashtest.geometry.camera import default_camera
+    from deepcrashtest.geometry.selfcalib import BOX_HEIGHT_EXCESS, _usable
+    from deepcrashtest.geometry.selfcalib_axis import axis_column_from_path
+
+    for seq, tol in ((9, 2.5), (20, 5.5)):
+        p = prepare_mono(kitti_root, seq)
+        tracks, ego = image_tracks(p, DEFAULT_MONO), ego_of(p.world)
+        start = default_camera(*p.size).model_copy(update={"forward_offset_m": KITTI_CAMERA_FORWARD_OFFSET_M})
+        cam = self_calibrate(tracks, start, p.size, ego).camera
+        boxes = _usable(tracks, p.size)
+        est = axis_column_from_path(boxes, cam.fy, start.cx, ego, BOX_HEIGHT_EXCESS)
+        assert est is not None
+        est = axis_column_from_path(boxes, cam.fy, est[0], ego, BOX_HEIGHT_EXCESS)
+        assert est is not None and est[2] >= 40 and abs(est[0] - p.camera.cx) < tol, (seq, est, p.camera.cx)
