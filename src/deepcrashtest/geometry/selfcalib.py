@@ -35,7 +35,14 @@ from deepcrashtest.geometry.egomotion import EgoMotion
 from deepcrashtest.geometry.mono3d import class_size
 from deepcrashtest.geometry.selfcalib_axis import axis_column_from_path
 from deepcrashtest.geometry.selfcalib_image import focal_from_level_horizon
-from deepcrashtest.geometry.selfcalib_moving import focal_from_moving, sightings
+from deepcrashtest.geometry.selfcalib_moving import (
+    MODE_BAND,
+    focal_from_moving,
+    parked_fit,
+    pose_tracks,
+    sightings,
+    weighted_log_mode,
+)
 from deepcrashtest.scenario import Camera
 
 MIN_BOXES = 30
@@ -172,30 +179,20 @@ def focal_from_motion(
     ``f_k``, right ``r_k``): ``P . f_k - B / h_k = c_k . f_k`` with ``B = fy H``, and
     ``P . r_k = c_k . r_k + (u_k - cx) H / h_k``. Least squares per track gives ``P`` and ``B``; the
     mode of ``log B`` over tracks (parked vehicles agree, moving ones scatter) gives ``fy = B / H``."""
-    d = _usable(tracks, size)
-    frame_to_i = {int(f): i for i, f in enumerate(ego.frame)}
     estimates = []
     weights = []
-    for _, g in d.groupby("track_id"):
-        g = g[g["frame"].isin(frame_to_i.keys())]
-        if len(g) < MIN_TRACK_FRAMES:
-            continue
-        s = sightings(g, ego, np.array([frame_to_i[int(f)] for f in g["frame"]]), cx)
+    for g, idx in pose_tracks(_usable(tracks, size), ego, MIN_TRACK_FRAMES):
+        s = sightings(g, ego, idx, cx)
         if s.travel_m < MIN_TRAVEL_M:
             continue
-        M = np.vstack([np.column_stack([s.fwd, -1.0 / s.h]), np.column_stack([s.right, np.zeros(len(s.h))])])
-        sol, *_ = np.linalg.lstsq(M, s.rhs, rcond=None)
+        sol = parked_fit(s)
         if sol[2] > 0:
             estimates.append(math.log(sol[2] / (s.H * BOX_HEIGHT_EXCESS)))
             weights.append(len(g))
     if len(estimates) < 3:
         return None
     e, w = np.array(estimates), np.array(weights, float)
-    grid = np.linspace(e.min(), e.max(), 400)
-    bw = 0.05
-    density = (w[None, :] * np.exp(-0.5 * ((grid[:, None] - e[None, :]) / bw) ** 2)).sum(axis=1)
-    mode = float(grid[density.argmax()])
-    near = np.abs(e - mode) < 0.1
+    near = np.abs(e - weighted_log_mode(e, w)) < MODE_BAND
     est = float(np.average(e[near], weights=w[near]))
     spread = float(np.sqrt(np.average((e[near] - est) ** 2, weights=w[near])) / math.sqrt(near.sum()))
     return math.exp(est), max(spread, 0.01), int(near.sum())

@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 
 from deepcrashtest.geometry.egomotion import EgoMotion
-from deepcrashtest.geometry.selfcalib_moving import sightings
+from deepcrashtest.geometry.selfcalib_moving import MODE_BAND, parked_fit, pose_tracks, sightings, weighted_log_mode
 
 #: A track needs this many boxes (and the ego this much travel over it, m) to place a parked vehicle;
 #: boxes nearer or further than the depth range (m) are not used (the near face's bottom cut or hidden,
@@ -28,9 +28,7 @@ from deepcrashtest.geometry.selfcalib_moving import sightings
 MIN_TRACK_BOXES = 8
 MIN_TRAVEL_M = 4.0
 DEPTH_RANGE_M = (3.0, 60.0)
-#: Kernel width and band (log) of the mode of the tracks' heights, and the fewest agreeing tracks.
-MODE_BW = 0.05
-MODE_BAND = 0.1
+#: The fewest agreeing tracks (within ``MODE_BAND`` of the mode, in log).
 MIN_TRACKS = 5
 BOOTSTRAP = 30
 SEED = 0
@@ -49,9 +47,7 @@ def _parked_rows(g: pd.DataFrame, ego: EgoMotion, idx: np.ndarray, cx: float) ->
     s = sightings(g, ego, idx, cx)
     if s.travel_m < MIN_TRAVEL_M:
         return None
-    n = len(s.h)
-    rows = np.vstack([np.column_stack([s.fwd, -1.0 / s.h]), np.column_stack([s.right, np.zeros(n)])])
-    (px, py, b), *_ = np.linalg.lstsq(rows, s.rhs, rcond=None)
+    px, py, b = parked_fit(s)
     if not b > 0:
         return None
     cam = np.column_stack([ego.x[idx], ego.y[idx]])
@@ -77,25 +73,18 @@ def height_from_parked(
     the tracks' heights are read against to find the parked ones; ``prior``: (height m, 1-sigma m) that
     weights the mode (cars moving in step with the ego make a mode of their own far below it). None with
     fewer than :data:`MIN_TRACKS` agreeing tracks."""
-    frame_to_i = {int(f): i for i, f in enumerate(ego.frame)}
     parts = []
-    for _, g in boxes[boxes["frame"].isin(frame_to_i.keys())].groupby("track_id"):
-        if len(g) >= MIN_TRACK_BOXES:
-            g = g.sort_values("frame")
-            one = _parked_rows(g, ego, np.array([frame_to_i[int(f)] for f in g["frame"]]), cx)
-            if one is not None:
-                parts.append(one)
+    for g, idx in pose_tracks(boxes, ego, MIN_TRACK_BOXES):
+        one = _parked_rows(g, ego, idx, cx)
+        if one is not None:
+            parts.append(one)
     hc = np.array([np.median((vb - horizon_v) / iz) / fy for iz, vb in parts])
     keep = [k for k in range(len(parts)) if hc[k] > 0]
     if len(keep) < MIN_TRACKS:
         return None
     e = np.log(hc[keep])
     w = np.array([len(parts[k][1]) for k in keep], float)
-    grid = np.linspace(e.min(), e.max(), 400)
-    density = (w[None, :] * np.exp(-0.5 * ((grid[:, None] - e[None, :]) / MODE_BW) ** 2)).sum(axis=1)
-    if prior is not None:
-        density = density * np.exp(-0.5 * ((grid - np.log(prior[0])) / (prior[1] / prior[0])) ** 2)
-    mode = float(grid[density.argmax()])
+    mode = weighted_log_mode(e, w, prior)
     agree = [parts[k] for k, ek in zip(keep, e, strict=True) if abs(ek - mode) < MODE_BAND]
     if len(agree) < MIN_TRACKS:
         return None

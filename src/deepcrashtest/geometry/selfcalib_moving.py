@@ -16,6 +16,7 @@ vehicles are the special case ``v = 0``.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -66,6 +67,36 @@ def sightings(g: pd.DataFrame, ego: EgoMotion, idx: np.ndarray, cx: float) -> Si
     return Sightings(fwd, right, h, H, rhs, float(np.hypot(*(c[-1] - c[0]))))
 
 
+def pose_tracks(boxes: pd.DataFrame, ego: EgoMotion, min_boxes: int) -> Iterator[tuple[pd.DataFrame, np.ndarray]]:
+    """Each track of ``boxes`` (image-tracker rows) with ``min_boxes`` or more boxes in frames the ego's poses
+    cover, in frame order, with the indices of those poses."""
+    frame_to_i = {int(f): i for i, f in enumerate(ego.frame)}
+    for _, g in boxes[boxes["frame"].isin(frame_to_i.keys())].groupby("track_id"):
+        if len(g) >= min_boxes:
+            g = g.sort_values("frame")
+            yield g, np.array([frame_to_i[int(f)] for f in g["frame"]])
+
+
+def parked_fit(s: Sightings) -> np.ndarray:
+    """``(Px, Py, B)`` of a parked vehicle from its :class:`Sightings`: least squares of the forward rows
+    ``P . fwd - B / h`` and the lateral rows ``P . right`` against ``s.rhs`` (world m; ``B = fy H``, px m)."""
+    n = len(s.h)
+    rows = np.vstack([np.column_stack([s.fwd, -1.0 / s.h]), np.column_stack([s.right, np.zeros(n)])])
+    sol, *_ = np.linalg.lstsq(rows, s.rhs, rcond=None)
+    return sol
+
+
+def weighted_log_mode(e: np.ndarray, w: np.ndarray, prior: tuple[float, float] | None = None) -> float:
+    """The mode of the logs ``e`` (one per track, weights ``w``): the peak of their Gaussian kernel density
+    (width :data:`MODE_BW`) over 400 points between their extremes, times a log-normal ``prior`` (value,
+    1-sigma) when given."""
+    grid = np.linspace(e.min(), e.max(), 400)
+    density = (w[None, :] * np.exp(-0.5 * ((grid[:, None] - e[None, :]) / MODE_BW) ** 2)).sum(axis=1)
+    if prior is not None:
+        density = density * np.exp(-0.5 * ((grid - np.log(prior[0])) / (prior[1] / prior[0])) ** 2)
+    return float(grid[density.argmax()])
+
+
 def _track_estimate(
     g: pd.DataFrame, ego: EgoMotion, idx: np.ndarray, cx: float, fy0: float, excess: float
 ) -> tuple[float, float] | None:
@@ -110,13 +141,8 @@ def focal_from_moving(
     ``tracks``: usable boxes (detected, uncut vehicles) of the image tracker; ``cx``: the forward-axis
     column (px); ``ego``: external metric poses; ``fy0``: the starting focal length (weights only);
     ``excess``: the box height over ``fy H / Z`` (see ``selfcalib.BOX_HEIGHT_EXCESS``)."""
-    frame_to_i = {int(f): i for i, f in enumerate(ego.frame)}
     est, sig = [], []
-    for _, g in tracks.groupby("track_id"):
-        g = g[g["frame"].isin(frame_to_i.keys())].sort_values("frame")
-        if len(g) < MIN_TRACK_FRAMES:
-            continue
-        idx = np.array([frame_to_i[int(f)] for f in g["frame"]])
+    for g, idx in pose_tracks(tracks, ego, MIN_TRACK_FRAMES):
         one = _track_estimate(g, ego, idx, cx, fy0, excess)
         if one is not None and one[1] < MAX_TRACK_REL:
             est.append(one[0])
