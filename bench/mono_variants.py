@@ -24,7 +24,7 @@ from multiprocessing import Pool
 from pathlib import Path
 from typing import Any
 
-from selfcalib_diag import TUNING, _combined, load_sequence
+from selfcalib_diag import _combined, load_sequence, training_args
 
 from deepcrashtest.eval.clear_mot import clear_only
 from deepcrashtest.eval.kitti import match_rule
@@ -33,7 +33,6 @@ from deepcrashtest.geometry.selfcalib import self_calibrate
 from deepcrashtest.geometry.world_tracks import raw_scenario_from_tracks
 from deepcrashtest.scenario import Camera, VideoSource
 
-HELD_OUT = (3, 8, 10)
 BIN_KEYS = ("0-20 m", "20-40 m", "40-60 m")
 
 
@@ -77,20 +76,13 @@ def _score(job: tuple[int, Path, MonoTracking, tuple[str, ...], float | None]) -
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--sequences", default=",".join(map(str, TUNING)))
-    ap.add_argument("--cache", required=True)
     ap.add_argument("--mono", default="", help="MonoConfig overrides, e.g. class_switch_cost=2.0")
     ap.add_argument("--tracker", default="", help="MonoTracking overrides, e.g. min_confidence=0.85")
     ap.add_argument("--cameras", default="kitti,unknown")
     ap.add_argument("--kitti-height", type=float, default=None, help="the KITTI camera's height (m)")
     ap.add_argument("--errors", action="store_true", help="position errors by distance bin per sequence")
     ap.add_argument("--processes", type=int, default=2)
-    args = ap.parse_args()
-    seqs = [int(s) for s in args.sequences.split(",")]
-    if set(seqs) & set(HELD_OUT):
-        raise SystemExit("training sequences only (3, 8, 10 are held out)")
-    cache = Path(args.cache)
-    cache.mkdir(parents=True, exist_ok=True)
+    args, seqs, cache = training_args(ap, None)
     cfg = replace(DEFAULT_MONO, mono=replace(DEFAULT_MONO.mono, **_overrides(args.mono)), **_overrides(args.tracker))
     cameras = tuple(args.cameras.split(","))
     jobs = [(s, cache, cfg, cameras, args.kitti_height) for s in seqs]
