@@ -298,10 +298,10 @@ def _continue_straight(
     n = int(count.max()) if len(count) else 0
     if n <= 0:
         return
-    m = np.arange(1, n + 1)
-    rows, k = np.nonzero(m[None, :] <= count[:, None])
-    steps = (m[k] * PATH_DS_M)[:, None]
-    paths[rows, end[rows] + m[k]] = origin[rows] + steps * step[rows]
+    steps = (np.arange(1, n + 1) * PATH_DS_M)[:, None]  # (n, 1) metres along each tail
+    # one slice per path (each tail's points are consecutive): no (total points,) index and value temporaries
+    for b, (e, c) in enumerate(zip(end.tolist(), count.tolist(), strict=True)):
+        paths[b, e + 1 : e + 1 + c] = origin[b] + steps[:c] * step[b]
 
 
 def _continue_straight_units(
