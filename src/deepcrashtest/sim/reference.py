@@ -378,7 +378,7 @@ class PathSet:
     path: np.ndarray  # (Q, P, 2)
     heading: np.ndarray  # (Q, P)
     curvature: np.ndarray  # (Q, P)
-    s_ref: np.ndarray  # (Q, T)
+    s_ref: np.ndarray  # (Q, T); build_pathset's: views of time-major (T, Q) arrays, as the roll-out reads them
     v_ref: np.ndarray  # (Q, T)
     a_ref: np.ndarray  # (Q, T)
     yaw_ref: np.ndarray | None = None
