@@ -7,7 +7,8 @@ ego paths from the search space, the path tables, the roll-out, the contact / di
 Box2D impacts. Each measurement is a fresh Python process (as a forked worker, its arrays are fresh memory: the
 page faults count), the world prepared and the first call made before the timed one; the two checkouts alternate
 ``--pairs`` times, so that both see the same load. Prints one JSON line: per side the CPU seconds of the chunk
-(min, median, each run), the ratio of the minima and of the medians, and whether both sides' outcomes are
+(min, median, each run) and its minor page faults (min: fresh memory touched, 4 KiB each), the ratio of the minima
+and of the medians, and whether both sides' outcomes are
 identical bit for bit (a hash of every outcome array).
 Usage: python bench/search_worker.py --baseline-src OTHER_CHECKOUT/src [--pairs 6] [--variants 1000] [--sequence 3]
 """
@@ -32,7 +33,7 @@ KITTI = ROOT.parent / "shared" / "data" / "kitti_tracking"
 
 # Runs in each measured process: prepares the world, times one chunk, prints its CPU seconds and outcome hash.
 PROBE = r"""
-import hashlib, json, sys, time
+import hashlib, json, resource, sys, time
 import numpy as np
 from deepcrashtest.scenario import Scenario
 from deepcrashtest.search import evaluate as ev
@@ -45,13 +46,13 @@ theta = space.reference_grid(np.random.default_rng([0, 1]), 500, 4)[: int(sys.ar
 js = sc.model_dump_json()
 agent_timeline(ev._prepared_world(js, None, sc), VehicleLimits()).record_all()
 ev.simulate_variants(js, space, theta[:2], "replay", 0)  # imports, caches
-t0 = time.process_time()
+f0, t0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt, time.process_time()
 out = ev.simulate_variants(js, space, theta, "replay", 0)
-cpu = time.process_time() - t0
+cpu, faults = time.process_time() - t0, resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0
 h = hashlib.sha256()
 for k in sorted(out):
     h.update(np.ascontiguousarray(out[k]).tobytes())
-print(json.dumps({"cpu_s": cpu, "hash": h.hexdigest()[:16]}))
+print(json.dumps({"cpu_s": cpu, "page_faults": faults, "hash": h.hexdigest()[:16]}))
 """
 
 
@@ -92,7 +93,12 @@ def main() -> None:
                 runs[name].append(_run(src, scen, args.variants))
     cpu = {k: [r["cpu_s"] for r in v] for k, v in runs.items()}
     summary = {
-        k: {"cpu_s_min": round(min(v), 3), "cpu_s_median": round(statistics.median(v), 3), "runs": _rounded(v)}
+        k: {
+            "cpu_s_min": round(min(v), 3),
+            "cpu_s_median": round(statistics.median(v), 3),
+            "runs": _rounded(v),
+            "page_faults_min": min(r["page_faults"] for r in runs[k]),
+        }
         for k, v in cpu.items()
     }
     hashes = {r["hash"] for v in runs.values() for r in v}

@@ -68,3 +68,14 @@ def test_fit_spline_refuses_too_few_samples():
         fit_spline(np.array([0.0, 0.1, 0.2]), np.zeros((3, 2)))
     sp = fit_spline(np.linspace(0, 3, 31), np.column_stack([np.linspace(0, 30, 31), np.zeros(31)]))
     np.testing.assert_allclose(evaluate_paths(sp, np.column_stack([sp.cx, sp.cy]), np.array([1.5]))[0], [15, 0])
+
+
+def test_variant_kinematics_of_many_are_each_variants_trajectory(space):
+    """The variant files' trajectories computed a block at a time are each variant's own, bit for bit."""
+    from deepcrashtest.scenario import Trajectory
+
+    theta = space.reference_grid(np.random.default_rng(7), 6, 3)
+    kin = space.variant_kinematics(theta)
+    assert len(kin) == len(theta)
+    for b, arrays in enumerate(kin):
+        assert Trajectory.from_arrays(*arrays) == space.variant_trajectory(theta[b]), b

@@ -76,6 +76,37 @@ def test_pathset_of_many_paths_equals_stacked_references(kitti3_raw):
     assert np.array_equal(init, np.stack([r.init for r in refs]))
 
 
+def test_packed_paths_serve_every_chunk_and_roll_out_as_the_path_set(kitti3_raw):
+    """The batch packs the ego paths once for all its chunks (released after the only one): several chunks give the
+    one chunk's outcomes, and a roll-out over packed paths is the path set's, bit for bit."""
+    from deepcrashtest.sim.rollout import PackedPaths, rollout
+    from deepcrashtest.sim.vehicle import VehicleLimits
+
+    space = SearchSpace.for_scenario(kitti3_raw)
+    theta = space.reference_grid(np.random.default_rng([0, 4]), 6, 3)
+    world = prepare(kitti3_raw)
+    paths, zero = space.paths(theta), np.zeros((len(theta), 2))
+    one = simulate_batch(world, zero, ego_paths=paths)
+    several = simulate_batch(world, zero, ego_paths=paths, chunk_size=5)  # 4 chunks share the packed paths
+    for name in one.__dataclass_fields__:
+        a, b = getattr(one, name), getattr(several, name)
+        assert np.array_equal(a, b, equal_nan=a.dtype.kind == "f") if isinstance(a, np.ndarray) else a == b, name
+    tr = kitti3_raw.ego.trajectory
+    t = np.linspace(tr.t[0], tr.t[-1], paths.shape[1])
+    pathset, init = build_pathset(t, paths, np.interp(t, tr.t, tr.yaw), world.times, world.dt)
+    wb, steps, lim = float(world.wheelbase[0]), len(world.times) - 1, VehicleLimits()
+    q, off = np.arange(len(theta)), np.zeros((len(theta), 2))
+    packed = PackedPaths.pack(pathset, wb)
+    a = rollout(pathset, q, off, init, wb, world.dt, steps, lim)
+    b = rollout(packed, q, off, init, wb, world.dt, steps, lim)
+    for name in a.__dataclass_fields__:
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    with pytest.raises(ValueError, match="wheelbase"):
+        rollout(packed, q, off, init, wb + 0.1, world.dt, steps, lim)
+    packed.release()
+    assert packed.table.size == 0 and packed.s_ref.size == 0
+
+
 def test_search_variants_of_kitti8_with_a_head_on_agent(kitti8_raw):
     """Perturbed ego paths (the search's variants) on the 28-vehicle scene, with collisions."""
     sc = meet_ego(kitti8_raw, 10, 8.8)

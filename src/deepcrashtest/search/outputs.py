@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -11,7 +11,7 @@ from pydantic import ValidationError
 
 from deepcrashtest.errors import ScenarioError
 from deepcrashtest.fileio import atomic_write_text
-from deepcrashtest.scenario import Provenance, Scenario, format_validation_error
+from deepcrashtest.scenario import Provenance, Scenario, Trajectory, format_validation_error
 from deepcrashtest.search.evaluate import OUTCOME_FIELDS
 from deepcrashtest.search.space import SearchSpace
 from deepcrashtest.search.table import Table, column
@@ -43,15 +43,22 @@ def results_table(
 
 
 def variant_scenario(
-    scenario: Scenario, space: SearchSpace, theta: np.ndarray, variant: int, meta: dict[str, Any]
+    scenario: Scenario,
+    space: SearchSpace,
+    theta: np.ndarray,
+    variant: int,
+    meta: dict[str, Any],
+    kinematics: tuple[np.ndarray, ...] | None = None,
 ) -> Scenario:
     """The scenario with the ego's trajectory (and spline) replaced by variant ``theta``'s.
 
     Provenance records the variant's parameters, the search settings (``meta``) and the seed.
+    ``kinematics``: the variant's trajectory arrays where computed already (:meth:`SearchSpace.variant_kinematics`).
     Raises ScenarioError when the variant breaks the Scenario's physical limits.
     """
     try:
-        traj, spline = space.variant_trajectory(theta), space.variant_spline(theta)
+        traj = space.variant_trajectory(theta) if kinematics is None else Trajectory.from_arrays(*kinematics)
+        spline = space.variant_spline(theta)
     except ValidationError as exc:
         raise ScenarioError(f"variant {variant}: ego.{format_validation_error(exc)}") from None
     ego = scenario.ego.model_copy(update={"trajectory": traj, "spline": spline})
@@ -107,12 +114,14 @@ def write_variants(
     saved: list[Any] = []
     problems: dict[int, str] = {}
     best: Scenario | None = None
+    kinematics = _kinematics(space, theta, variant[order], limit)
+    candidates = zip(variant[order].tolist(), method[order].tolist(), kinematics, strict=True)
     with ThreadPoolExecutor(max_workers=4) as pool:
-        for vid, m in zip(variant[order].tolist(), method[order].tolist(), strict=True):
+        for vid, m, kin in candidates:
             if len(saved) >= limit and best is not None:
                 break
             try:
-                sc = variant_scenario(scenario, space, theta[int(vid)], int(vid), {**meta, "method": m})
+                sc = variant_scenario(scenario, space, theta[int(vid)], int(vid), {**meta, "method": m}, kin)
             except ScenarioError as exc:
                 problems[int(vid)] = str(exc)
                 continue
@@ -121,6 +130,16 @@ def write_variants(
                 saved.append(pool.submit(sc.save, folder / f"variant_{int(vid):04d}.json", force))
         paths = [str(f.result()) for f in saved]
     return paths, problems, best
+
+
+def _kinematics(
+    space: SearchSpace, theta: np.ndarray, variants: np.ndarray, limit: int
+) -> Iterator[tuple[np.ndarray, ...]]:
+    """The trajectory arrays of ``variants`` in order, computed a block at a time as they are asked for (the first
+    block: the ``limit`` files and a quarter more, for variants outside the physical limits)."""
+    block = max(1, limit + limit // 4)
+    for lo in range(0, len(variants), block):
+        yield from space.variant_kinematics(theta[variants[lo : lo + block]])
 
 
 def write_video(

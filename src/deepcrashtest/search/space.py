@@ -24,7 +24,13 @@ import numpy as np
 
 from deepcrashtest.errors import UserError
 from deepcrashtest.scenario import Scenario, SplineParams, Trajectory
-from deepcrashtest.search.spline import control_points, ego_spline, evaluate_paths, trajectory_from_path
+from deepcrashtest.search.spline import (
+    control_points,
+    ego_spline,
+    evaluate_paths,
+    path_kinematics,
+    trajectory_from_path,
+)
 
 
 @dataclass(frozen=True)
@@ -141,6 +147,13 @@ class SearchSpace:
     def variant_trajectory(self, theta: np.ndarray) -> Trajectory:
         """The ego trajectory of one variant (x, y, yaw, speed at the original sample times)."""
         return trajectory_from_path(self.spline, self.control_points(theta)[0], np.asarray(self.t))
+
+    def variant_kinematics(self, theta: np.ndarray) -> list[tuple[np.ndarray, ...]]:
+        """Per variant of ``theta`` (B, D): its trajectory's arrays t, x, y (m), yaw (rad), speed (m/s), as
+        :meth:`variant_trajectory` builds them, computed for all at once (``Trajectory.from_arrays(*arrays)``)."""
+        t = np.asarray(self.t, dtype=float)
+        xy, yaw, speed = path_kinematics(self.spline, self.control_points(theta), t)
+        return [(t, xy[b, :, 0], xy[b, :, 1], yaw[b], speed[b]) for b in range(len(xy))]
 
     def names(self) -> list[str]:
         """Column names of theta, for results.csv."""

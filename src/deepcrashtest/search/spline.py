@@ -118,17 +118,24 @@ def trajectory_from_path(sp: SplineParams, ctrl: np.ndarray, t: np.ndarray, min_
     Speed is |d(x, y)/dt|; yaw is the direction of motion, unwrapped, held over samples slower
     than ``min_speed_mps`` (a standing vehicle keeps its heading).
     """
+    xy, yaw, speed = path_kinematics(sp, np.asarray(ctrl, dtype=float)[None], t, min_speed_mps)
+    return Trajectory.from_arrays(t, xy[0, :, 0], xy[0, :, 1], yaw[0], speed[0])
+
+
+def path_kinematics(
+    sp: SplineParams, ctrl: np.ndarray, t: np.ndarray, min_speed_mps: float = 0.05
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`trajectory_from_path`'s arrays for ``B`` control-point sets ``ctrl`` (B, M, 2) at once: positions
+    (B, K, 2) in metres, yaw (B, K) in radians and speed (B, K) in m/s at times ``t`` (K,); each path's are the bits
+    it gets alone (every step is element by element or runs along a path)."""
     xy = evaluate_paths(sp, ctrl, t)
     vel = evaluate_paths(sp, ctrl, t, nu=1)
-    speed = np.hypot(vel[:, 0], vel[:, 1])
-    yaw = np.arctan2(vel[:, 1], vel[:, 0])
+    speed = np.hypot(vel[..., 0], vel[..., 1])
+    yaw = np.arctan2(vel[..., 1], vel[..., 0])
     moving = speed >= min_speed_mps
-    if moving.any():
-        idx = np.where(moving, np.arange(len(t)), 0)
-        idx = np.maximum.accumulate(idx)
-        first = int(np.argmax(moving))
-        idx[:first] = first
-        yaw = yaw[idx]
-    else:
-        yaw = np.zeros(len(t))
-    return Trajectory.from_arrays(t, xy[:, 0], xy[:, 1], np.unwrap(yaw), speed)
+    k = np.arange(len(t))
+    idx = np.maximum.accumulate(np.where(moving, k, 0), axis=1)  # the last moving sample so far
+    first = np.argmax(moving, axis=1)[:, None]
+    idx = np.where(k < first, first, idx)  # before the first moving sample: its heading
+    yaw = np.where(moving.any(axis=1)[:, None], np.take_along_axis(yaw, idx, axis=1), 0.0)
+    return xy, np.unwrap(yaw, axis=-1), speed

@@ -27,6 +27,7 @@ from deepcrashtest.sim.loop import Contact, LoopOutput, is_replay_controller, ru
 from deepcrashtest.sim.memory import retain_freed_memory
 from deepcrashtest.sim.reference import PathSet, build_pathset
 from deepcrashtest.sim.replay_batch import replay_batch_available, run_replay_batch
+from deepcrashtest.sim.rollout import PackedPaths
 from deepcrashtest.sim.vehicle import VehicleLimits
 from deepcrashtest.sim.world import World, build_world
 
@@ -156,6 +157,15 @@ def _ego_variants(
     return paths, np.arange(B, dtype=np.intp), off, init
 
 
+def _packed(
+    world: World, variants: tuple[PathSet, np.ndarray, np.ndarray, np.ndarray]
+) -> tuple[PackedPaths, np.ndarray, np.ndarray, np.ndarray]:
+    """The variants with their path set packed for the replay batch's roll-out, once for every chunk; the path set
+    itself is dropped (the roll-out reads only the packed tables and profiles)."""
+    paths, q, off, init = variants
+    return PackedPaths.pack(paths, float(world.wheelbase[0])), q, off, init
+
+
 def _check_batch_inputs(ego_offsets: Any, ego_paths: Any) -> tuple[np.ndarray, np.ndarray | None]:
     off = np.asarray(ego_offsets, dtype=float)
     if off.ndim != 2 or off.shape[1] != 2 or len(off) == 0:
@@ -253,16 +263,15 @@ def _run_chunk(c: int) -> LoopOutput:
     size = job["chunk"]
     lo, hi = c * size, min((c + 1) * size, job["B"])
     paths, q, off, init = job["variants"]
-    ctrl = resolve_controller(job["controller"])
-    if is_replay_controller(ctrl) and job["fast"] and replay_batch_available(job["world"]):
-        return run_replay_batch(job["world"], paths, q[lo:hi], off[lo:hi], init[lo:hi])
+    if job["fast"]:  # the packed paths serve every chunk: released after the batch's only one
+        return run_replay_batch(job["world"], paths, q[lo:hi], off[lo:hi], init[lo:hi], release=size >= job["B"])
     return run_loop(
         job["world"],
         paths,
         q[lo:hi],
         off[lo:hi],
         init[lo:hi],
-        ctrl,
+        resolve_controller(job["controller"]),
         _rng(job["seed"], c),
         physics_mode=False,
         seed=job["seed"],
@@ -302,15 +311,14 @@ def simulate_batch(
     retain_freed_memory()
     off, paths = _check_batch_inputs(ego_offsets, ego_paths)
     world = _world(scenario, _dt(scenario, dt), duration)
-    resolve_controller(controller)  # fail early on a bad spec
+    ctrl = resolve_controller(controller)  # fail early on a bad spec
     B = len(off)
     _JOB.clear()
     if chunk_size < 1:
         raise UserError(f"chunk_size must be >= 1 (got {chunk_size})")
-    variants = _ego_variants(world, off, paths)
-    _JOB.update(
-        world=world, variants=variants, controller=controller, seed=seed, B=B, chunk=chunk_size, fast=not stepwise
-    )
+    fast = not stepwise and is_replay_controller(ctrl) and replay_batch_available(world)
+    variants = _packed(world, _ego_variants(world, off, paths)) if fast else _ego_variants(world, off, paths)
+    _JOB.update(world=world, variants=variants, controller=controller, seed=seed, B=B, chunk=chunk_size, fast=fast)
     chunks = list(range((B + chunk_size - 1) // chunk_size))
     try:
         if workers > 1 and len(chunks) > 1:

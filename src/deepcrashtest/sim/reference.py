@@ -235,17 +235,21 @@ def build_pathset(
     extension = EXTENSION_M + v_end * max(0.0, times[-1] - times[end])
     paths, lengths = _resample_paths(pos, seg, s_span, end_heading, extension)
     T = len(times)
-    s_ref = np.empty((len(xys), T))
+    # (Q, T) views of time-major (T, Q) arrays: the roll-out reads them a step at a time (no transposed copies)
+    s_ref = np.empty((T, len(xys))).T
     s_ref[:, : start + 1] = 0.0
     s_ref[:, start : end + 1] = s_span
     s_ref[:, end:] = s_span[:, -1:] + v_end[:, None] * (times[end:] - times[end])
-    v_ref = np.empty((len(xys), T))
+    v_ref = np.empty((T, len(xys))).T
     v_ref[:, :start] = speed[:, :1]
     v_ref[:, start : end + 1] = speed
     v_ref[:, end:] = v_end[:, None]
     heading0 = float(np.asarray(yaw_label, float)[0])  # at rest: the trajectory's own heading (as _reference)
     head0 = np.arctan2(vel[0, :, 1], vel[0, :, 0])
     init = np.column_stack([pos[0, :, 0], pos[0, :, 1], np.where(moving[:, 0], head0, heading0), speed[:, 0]])
+    # the interpolated samples (~50 MB per 1,000 variants) are not needed for the headings and curvatures: freed
+    # first, their memory holds those (a fresh worker's page faults follow its peak of memory)
+    del pos, vel, seg, s_span, speed, moving
     return PathSet.from_padded(paths, lengths, s_ref, v_ref, dt), init
 
 
@@ -294,10 +298,10 @@ def _continue_straight(
     n = int(count.max()) if len(count) else 0
     if n <= 0:
         return
-    m = np.arange(1, n + 1)
-    rows, k = np.nonzero(m[None, :] <= count[:, None])
-    steps = (m[k] * PATH_DS_M)[:, None]
-    paths[rows, end[rows] + m[k]] = origin[rows] + steps * step[rows]
+    steps = (np.arange(1, n + 1) * PATH_DS_M)[:, None]  # (n, 1) metres along each tail
+    # one slice per path (each tail's points are consecutive): no (total points,) index and value temporaries
+    for b, (e, c) in enumerate(zip(end.tolist(), count.tolist(), strict=True)):
+        paths[b, e + 1 : e + 1 + c] = origin[b] + steps[:c] * step[b]
 
 
 def _continue_straight_units(
@@ -374,7 +378,7 @@ class PathSet:
     path: np.ndarray  # (Q, P, 2)
     heading: np.ndarray  # (Q, P)
     curvature: np.ndarray  # (Q, P)
-    s_ref: np.ndarray  # (Q, T)
+    s_ref: np.ndarray  # (Q, T); build_pathset's: views of time-major (T, Q) arrays, as the roll-out reads them
     v_ref: np.ndarray  # (Q, T)
     a_ref: np.ndarray  # (Q, T)
     yaw_ref: np.ndarray | None = None

@@ -37,7 +37,7 @@ from deepcrashtest.sim.boxes import (
 )
 from deepcrashtest.sim.loop import NEAR_M, TTC_EVERY, LoopOutput, PreContact, batch_delta_v
 from deepcrashtest.sim.reference import PathSet
-from deepcrashtest.sim.rollout import rollout
+from deepcrashtest.sim.rollout import PackedPaths, rollout
 from deepcrashtest.sim.vehicle import VehicleLimits, velocity_xy, yaw_rate
 from deepcrashtest.sim.world import World
 
@@ -61,20 +61,23 @@ def replay_batch_available(world: World, limits: VehicleLimits | None = None) ->
 
 def run_replay_batch(
     world: World,
-    ego_paths: PathSet,
+    ego_paths: PathSet | PackedPaths,
     ego_q: np.ndarray,
     ego_offset: np.ndarray,
     ego_init: np.ndarray,
     limits: VehicleLimits | None = None,
+    release: bool = False,
 ) -> LoopOutput:
-    """The outcomes of ``run_loop(..., ReplayController(), physics_mode=False)`` for ``B`` ego variants."""
+    """The outcomes of ``run_loop(..., ReplayController(), physics_mode=False)`` for ``B`` ego variants.
+
+    ``release``: ``ego_paths`` (packed) serves no other batch; their memory is released once the egos have run."""
     lim = limits or VehicleLimits()
     seg = agent_timeline(world, lim).whole()
     if seg is None:
         raise ValueError("the agents' run is not kept in memory (replay_batch_available is False)")
     B = len(ego_init)
     out = LoopOutput.empty(B)
-    ego, steer, cos_sin = _rollout(world, ego_paths, ego_q, ego_offset, ego_init, lim)
+    ego, steer, cos_sin = _rollout(world, ego_paths, ego_q, ego_offset, ego_init, lim, release)
     # agents at each evaluation index i: i = 0 the start, i = k + 1 the candidate states of step k
     ag = np.concatenate([seg.state[:1], seg.new])
     pres = np.concatenate([seg.pres[:1], seg.pres_next]).astype(bool)
@@ -92,11 +95,19 @@ def run_replay_batch(
 
 
 def _rollout(
-    world: World, paths: PathSet, q: np.ndarray, offset: np.ndarray, init: np.ndarray, lim: VehicleLimits
+    world: World,
+    paths: PathSet | PackedPaths,
+    q: np.ndarray,
+    offset: np.ndarray,
+    init: np.ndarray,
+    lim: VehicleLimits,
+    release: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
     """Ego states (T, B, 4: x, y, yaw, speed), steering angles (T, B) and the cosine and sine of the yaw (T, B)
     over the whole grid."""
     run = rollout(paths, q, offset, init, float(world.wheelbase[0]), world.dt, len(world.times) - 1, lim)
+    if release and isinstance(paths, PackedPaths):
+        paths.release()  # before the states are stacked: their copy takes the tables' memory
     return np.stack([run.x, run.y, run.yaw, run.v], axis=-1), run.steer, (run.cos_yaw, run.sin_yaw)
 
 

@@ -44,8 +44,35 @@ class EgoRun:
         return np.column_stack([self.x[i, r], self.y[i, r], self.yaw[i, r], self.v[i, r]])
 
 
+@dataclass
+class PackedPaths:
+    """A :class:`PathSet` as the roll-out reads it, for one wheelbase: the follower's path tables packed point-major
+    (:func:`_path_table`, (P * Q, 6)) and the (Q, T) station, speed and acceleration profiles. Holding this instead
+    of the path set lets the paths' own arrays (points, headings, curvatures: ~37 MB per 1,000 variants) go before
+    the roll-out allocates its states: a fresh worker's page faults follow its peak of memory."""
+
+    table: np.ndarray
+    shape: tuple[int, int]  # (Q, P): references, points per path
+    wheelbase: float
+    s_ref: np.ndarray
+    v_ref: np.ndarray
+    a_ref: np.ndarray
+
+    @classmethod
+    def pack(cls, paths: PathSet, wheelbase: float) -> PackedPaths:
+        """The tables of ``paths`` for an ego of ``wheelbase`` (m)."""
+        Q, P = paths.path.shape[:2]
+        return cls(_path_table(paths, wheelbase), (Q, P), wheelbase, paths.s_ref, paths.v_ref, paths.a_ref)
+
+    def release(self) -> None:
+        """Drop the tables and profiles (no roll-out reads them any more: a batch's only chunk has rolled out), so
+        that what is computed next reuses their memory instead of touching fresh pages."""
+        self.table = np.empty((0, 6))
+        self.s_ref = self.v_ref = self.a_ref = np.empty((0, 0))
+
+
 def rollout(
-    paths: PathSet,
+    paths: PathSet | PackedPaths,
     q: np.ndarray,
     offset: np.ndarray,
     init: np.ndarray,
@@ -55,7 +82,12 @@ def rollout(
     limits: VehicleLimits,
 ) -> EgoRun:
     """Drive ``B`` egos (initial states ``init`` (B, 4), zero steering) along ``paths[q]`` (translated by
-    ``offset`` (B, 2), m) for ``steps`` grid steps; the grid has ``steps + 1`` indices."""
+    ``offset`` (B, 2), m) for ``steps`` grid steps; the grid has ``steps + 1`` indices. ``paths``: a path set, or
+    one already packed for this ``wheelbase``."""
+    if isinstance(paths, PathSet):
+        paths = PackedPaths.pack(paths, wheelbase)
+    elif paths.wheelbase != wheelbase:
+        raise ValueError(f"paths packed for a wheelbase of {paths.wheelbase} m, not {wheelbase} m")
     B = len(init)
     T = steps + 1
     run = EgoRun(*(np.empty((T, B)) for _ in range(7)))
@@ -63,8 +95,8 @@ def rollout(
     X[0], Y[0], YAW[0], V[0] = (np.asarray(init[:, c], float) for c in range(4))
     STEER[0] = 0.0
     q = np.asarray(q, np.intp)
-    Q, P = paths.path.shape[:2]
-    table = _path_table(paths, wheelbase)
+    Q, P = paths.shape
+    table = paths.table
     identity = len(q) == paths.s_ref.shape[0] and bool((q == np.arange(len(q))).all())
     profiles = (paths.s_ref, paths.v_ref, paths.a_ref)
     s_tab, v_tab, a_tab = (np.ascontiguousarray(a.T if identity else a[q].T) for a in profiles)

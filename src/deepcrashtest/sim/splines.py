@@ -123,7 +123,10 @@ def _grouped(span: np.ndarray, values: np.ndarray, c: np.ndarray, k: int) -> np.
     v = np.zeros((len(spans), g, k + 1))
     v[group, slot] = values
     window = np.lib.stride_tricks.sliding_window_view(c, k + 1, axis=0)  # (m - k, C, k + 1), no copy
-    out = np.matmul(v, window[spans - k].transpose(0, 2, 1))  # (intervals, g, C)
+    lo = int(spans[0]) - k
+    # consecutive intervals (the usual case: samples everywhere): their windows as a slice, not a gathered copy
+    rows = window[lo : lo + len(spans)] if int(spans[-1]) - k - lo == len(spans) - 1 else window[spans - k]
+    out = np.matmul(v, rows.transpose(0, 2, 1))  # (intervals, g, C)
     return out.reshape(len(spans) * g, -1)[group * g + slot]
 
 
