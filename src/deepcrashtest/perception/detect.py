@@ -52,6 +52,10 @@ DEFAULT_DETECTOR = "yolo26n"
 #: (:mod:`deepcrashtest.perception.yolo_onnx`, ``coarse``; ``coarse=0`` turns it off). Chosen on the crash
 #: clips' contact frames (bench/labels, 18 clips): labelled road users detected 15/42 -> 31/42 (384: 30/42).
 YOLO_COARSE = 320
+#: yolo26n's fine pass leaves out this fraction of its input's top rows (whole 32-px rows; the sky of a dashcam
+#: frame) while the last call's boxes all start below that band (``perception.yolo_onnx.SKY_MARGIN``);
+#: ``sky=0`` turns it off.
+YOLO_SKY = 0.2
 #: onnxruntime threads of one yolo26n call (``threads=0``: onnxruntime's default, one per core). extract
 #: runs the detector in its own thread beside decoding, ego-motion and encoding, which keep the other core
 #: busy; a second onnxruntime thread then costs CPU without saving time (measured on highway_lane_challenge
@@ -108,7 +112,7 @@ def _make_yolo26n(opts: str) -> Detector:
     from deepcrashtest.perception.models import yolo26n_path
     from deepcrashtest.perception.yolo_onnx import OnnxYoloDetector
 
-    kwargs: dict[str, Any] = {"coarse": YOLO_COARSE, "threads": YOLO_THREADS}
+    kwargs: dict[str, Any] = {"coarse": YOLO_COARSE, "threads": YOLO_THREADS, "sky": YOLO_SKY}
     items = list(filter(None, opts.split(",")))
     int8 = "int8" in items  # the int8 copy (tools/quantize_yolo.py)
     for item in (i for i in items if i != "int8"):
@@ -124,8 +128,10 @@ def _make_yolo26n(opts: str) -> Detector:
                 kwargs["coarse"] = int(value) or None
             elif key == "threads":
                 kwargs["threads"] = max(0, int(value))
+            elif key == "sky":
+                kwargs["sky"] = min(0.5, max(0.0, float(value)))
             else:
-                raise UserError(f"unknown yolo26n option {key!r} (int8, area, size, score, coarse, threads)")
+                raise UserError(f"unknown yolo26n option {key!r} (int8, area, size, score, coarse, threads, sky)")
         except ValueError:
             raise UserError(f"bad yolo26n option {item!r}") from None
     det = OnnxYoloDetector(yolo26n_path(int8), masks=False, **kwargs)
