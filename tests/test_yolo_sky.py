@@ -10,7 +10,7 @@ import pytest
 
 from conftest import DATA, need
 from deepcrashtest.perception.boxes import iou_matrix
-from deepcrashtest.perception.detect import YOLO_SKY, make_detector
+from deepcrashtest.perception.detect import make_detector
 from deepcrashtest.video.source import open_video
 
 HIGHWAY = DATA / "dashcam_udacity" / "highway_lane_challenge.mp4"
@@ -27,8 +27,7 @@ def _highway_frame(index: int) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def sky(yolo_ok):
-    assert YOLO_SKY > 0
-    return make_detector("yolo26n")
+    return make_detector("yolo26n:sky=0.2")
 
 
 def test_kept_rows_see_the_whole_images_pixels(sky):
