@@ -341,7 +341,14 @@ class EgoMotionEstimator:
     them too left the essential matrix of blurred 10 fps clips without still points and its rotations
     noisy (ccd_000080: pitch swinging +-0.1 rad between frames, the camera attitude from them dropped the
     fidelity IoU 0.72 / 0.64 -> 0.43 / 0.22). ``extract`` does not pass it (it changed dad_000487's ego
-    speed and lost that clip's crash; README, ego speed on real dashcam clips)."""
+    speed and lost that clip's crash; README, ego speed on real dashcam clips).
+    ``road_flow_share``: in a pair whose scene moves, a road point moving less than this share of the
+    scene's parallax is not road (see :meth:`_solve`). 0.05: half the 0.5th percentile of the share on KITTI
+    odometry seq00 / seq06 road points (0.081 / 0.086; ``bench/road_scale_scatter.py --flow-shares``), so
+    it drops none of them; on ccd_000014 45 % of the road-region points move less than 0.1 of it.
+    ``max_travel_dev_deg``: a pair whose camera motion points further than this from the direction of travel
+    gives no road scale (:meth:`_off_travel`). 30: about 3x the largest deviation on KITTI odometry seq00 /
+    seq06 (10.9 / 0.8 deg over 159 / 50 pairs, seq00's turns included), so it drops none of them."""
 
     def __init__(
         self,
@@ -369,6 +376,8 @@ class EgoMotionEstimator:
         accel_tau_s: float = 1.5,
         max_rate_hz: float | None = MAX_RATE_HZ,
         still_mask: np.ndarray | None = None,
+        road_flow_share: float = 0.05,
+        max_travel_dev_deg: float = 30.0,
     ) -> None:
         if scale_method != "homography":
             raise ValueError(f"scale_method must be 'homography' (got {scale_method!r})")
@@ -391,6 +400,8 @@ class EgoMotionEstimator:
         self.speed_noise_rel = speed_noise_rel
         self.max_road_m = max_road_m
         self.coarse_corners = coarse_corners
+        self.road_flow_share = road_flow_share
+        self.max_travel_dev_deg = max_travel_dev_deg
         self._scale_f = 1.0
         self._K: np.ndarray | None = None
         self._down = _down_vector(camera.pitch_rad, camera.roll_rad)
@@ -568,14 +579,26 @@ class EgoMotionEstimator:
             n = self._normal - (self._normal @ tr) * tr
             self._normal = n / np.linalg.norm(n)
 
+    def _off_travel(self, R: np.ndarray, t: np.ndarray) -> bool:
+        """Whether the camera's motion of a pair (``X1 = R X0 + |T| t``) points more than ``max_travel_dev_deg``
+        away from the direction of travel learned so far (the optical axis before any). A car moves along its
+        heading; on 10 fps dashcam clips a third of the essential matrices put the camera moving sideways
+        (75-113 deg off; ccd_000014) and their road planes gave readings of 2-20 km/h at 58."""
+        c = -R.T @ t
+        ref = self._travel if self._travel is not None else np.array([0.0, 0.0, 1.0])
+        cos = float(c @ ref) / max(float(np.linalg.norm(c) * np.linalg.norm(ref)), 1e-12)
+        return cos < math.cos(math.radians(self.max_travel_dev_deg))
+
     def _solve(
-        self, p0: np.ndarray, p1: np.ndarray, h: int, moving: bool = False
+        self, p0: np.ndarray, p1: np.ndarray, h: int, moving: bool = False, parallax: float = 0.0
     ) -> tuple[float, float, int, np.ndarray, np.ndarray, PlaneFit | None] | None:
         """Keyframe pair -> (metres or NaN, yaw change rad, road inliers, R, t, plane fit) or None.
 
-        ``moving``: the scene's parallax is well above the stopped threshold; road points that stay
-        still (< 0.1 work px) are then burned-in text or bonnet, not road, and leave the scale fit
-        (on ccd_000755 they decided the fit, which then swung with a few rows of dashboard mask)."""
+        ``moving``: the scene's parallax (``parallax``, work px, :func:`scene_parallax`) is well above the
+        stopped threshold; road points that move less than ``road_flow_share`` of it (and at least 0.1 work
+        px) are then burned-in text, bonnet, dashboard reflections or a road user moving with the ego, not
+        road, and leave the scale fit (on ccd_000755 they decided the fit, which then swung with a few rows
+        of dashboard mask; on ccd_000014 they were most of the road points and read 6-20 km/h at 58)."""
         assert self._K is not None
         K = self._K
         scene = ~self._road_region(p0[:, 0], p0[:, 1], h)
@@ -595,9 +618,12 @@ class EgoMotionEstimator:
             return None
         t = t.ravel()
         dyaw = _rotation_yaw(R.T, self._normal)
+        aside = self._off_travel(R, t)
         self._learn_travel(R, t, dyaw)
+        if aside:  # a car does not move sideways: a degenerate essential matrix, its road scale is none
+            return float("nan"), dyaw, 0, R, t, None
         if moving:
-            ok = ok & (np.linalg.norm(p1 - p0, axis=1) >= 0.1)
+            ok = ok & (np.linalg.norm(p1 - p0, axis=1) >= max(0.1, self.road_flow_share * parallax))
         ok_road = ok & self._off_overlay(p0)
         road = ok_road & self._road_region(p0[:, 0], p0[:, 1], h)
         if road.sum() < 2 * MIN_ROAD_POINTS:  # a narrow or textureless lane: take the shoulders too
@@ -673,7 +699,7 @@ class EgoMotionEstimator:
             elif baseline >= self.min_parallax_px or span >= self.max_keyframe_s:
                 keyframe = True
                 moving = parallax >= 5.0 * self.static_flow_px
-                res = self._solve(self._undistort(q0), self._undistort(q1), h, moving)
+                res = self._solve(self._undistort(q0), self._undistort(q1), h, moving, parallax * self._scale_f)
                 if res is None:
                     valid = False
                     self._invalid += 1
