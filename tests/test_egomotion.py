@@ -245,9 +245,10 @@ def test_ego_yaw_follows_a_calibrated_focal_length():
 def test_speed_filter_logs_every_reading_and_what_it_did_with_it():
     """CCD 53 (10 fps, default camera): the speed filter's log (``bench/speed_filter_readings.py``) holds
     every road-scale or stopped reading the estimator fed it, in order, with its outcome. On this clip the
-    filter starts on 19 km/h and fuses 26 / 25 (frames 1-4); frames 36-38 read 10 / 8 / 3 km/h (1-sigma
-    0.2-0.6), each gated, until the fourth in a row re-starts it (frame 39, 3 km/h): the first-reading hold
-    and re-start that README's ego-speed notes measure."""
+    filter starts on 19 km/h and fuses 26 / 25 (frames 1-4); frame 37 reads 9 km/h (1-sigma 0.5) and is
+    gated: the first-reading hold that README's ego-speed notes measure. (Frames 36 and 38-40 read 10 / 3 / 3 /
+    4 km/h and re-started the filter at frame 39 while their pairs' essential matrices put the camera moving
+    > 30 deg off its travel; such pairs give no reading now, ``max_travel_dev_deg``.)"""
     imgs = _frames(DATA / "crash_ccd" / "ccd_000053.mp4", 42)
     h, w = imgs[0].shape[:2]
     est = EgoMotionEstimator(default_camera(w, h), mask_bottom_rows=detect_dashboard_rows(imgs[::4]))
@@ -259,7 +260,7 @@ def test_speed_filter_logs_every_reading_and_what_it_did_with_it():
     fed = [(i, z) for i, z in raws if z is not None]
     assert [(s + 1, z) for s, z, _, _ in log] == [(i, pytest.approx(z)) for i, z in fed]
     assert log[0][3] == "start" and {o for *_, o in log} <= {"start", "fused", "gated", "restart"}
-    assert [o for *_, o in log if o != "fused"] == ["start", "gated", "gated", "gated", "restart"]
+    assert [o for *_, o in log if o != "fused"] == ["start", "gated"]
     assert all(v > 0 for _, _, v, _ in log)
 
 
