@@ -414,3 +414,23 @@ def test_one_frame_video_and_crash_at_frame_0_say_what_to_give(capsys, tmp_path)
     rc, _, err = cli(capsys, "extract", clips[2], "-o", tmp_path / "c", "--crash", "0", "--no-lanes", "--no-report")
     assert_clear_error(rc, err, "frame 0 is the first frame")
     assert "give 1..1" in err
+
+
+@pytest.mark.parametrize(
+    ("yaml_text", "fragment"),
+    [
+        ("fx: -5\ncx: 80\ncy: 45\n", "(fx: Input should be greater than 0;"),
+        ("hfov_deg: 60\nheight_m: -1\n", "height_m"),
+    ],
+)
+def test_camera_file_out_of_range_is_one_line(capsys, tmp_path, yaml_text, fragment):
+    """A camera YAML that parses but breaks the Camera's bounds (negative focal length or height) is refused
+    in one line naming the field (pydantic's own text spans four lines), before the real clip is read."""
+    from conftest import DATA, need
+
+    cam = tmp_path / "cam.yaml"
+    cam.write_text(yaml_text)
+    clip = need(DATA / "crash_ccd" / "ccd_000053.mp4")
+    rc, _, err = cli(capsys, "extract", clip, "-o", tmp_path / "x", "--camera", cam, "--max-frames", 2)
+    assert_clear_error(rc, err, fragment)
+    assert not (tmp_path / "x").exists()
