@@ -383,3 +383,54 @@ def test_along_road_without_samples_is_no_lane_evidence():
     frame = RoadFrame.from_path(np.column_stack([np.linspace(0, 50, 20), np.zeros(20)]), 2.0, heading=0.0)
     assert along_road(frame, np.zeros((0, 2)), 0.0) is False
     assert along_road(frame, np.array([[10.0, 1.0], [20.0, 1.0]]), 0.0) is True
+
+
+def test_one_frame_video_and_crash_at_frame_0_say_what_to_give(capsys, tmp_path):
+    """A 1-frame clip cut from a real crash clip: extract exits 2 with one line that says why and what
+    works (--no-geometry, which then writes its tracks); --crash 0 on a 2-frame clip names frame 0 as the
+    first frame (not "outside the video") and the range to give."""
+    from itertools import islice
+
+    import av
+
+    from conftest import DATA, need
+
+    with av.open(str(need(DATA / "crash_ccd" / "ccd_000053.mp4"))) as c:
+        frames = [f.to_ndarray(format="bgr24")[::4, ::4] for f in islice(c.decode(video=0), 2)]
+    clips = {}
+    for n in (1, 2):
+        clips[n] = tmp_path / f"{n}.mp4"
+        with av.open(str(clips[n]), "w") as c:
+            s = c.add_stream("libx264", rate=10)
+            s.height, s.width = frames[0].shape[:2]
+            for img in frames[:n]:
+                c.mux(s.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="bgr24")))
+            c.mux(s.encode())
+    rc, _, err = cli(capsys, "extract", clips[1], "-o", tmp_path / "a", "--no-lanes", "--no-report")
+    assert_clear_error(rc, err, "fewer than 2 frames")
+    assert "--no-geometry" in err and not (tmp_path / "a").exists()
+    rc, _, err = cli(capsys, "extract", clips[1], "-o", tmp_path / "b", "--no-geometry")
+    assert rc == 0 and (tmp_path / "b" / "tracks.csv").is_file(), err
+    rc, _, err = cli(capsys, "extract", clips[2], "-o", tmp_path / "c", "--crash", "0", "--no-lanes", "--no-report")
+    assert_clear_error(rc, err, "frame 0 is the first frame")
+    assert "give 1..1" in err
+
+
+@pytest.mark.parametrize(
+    ("yaml_text", "fragment"),
+    [
+        ("fx: -5\ncx: 80\ncy: 45\n", "(fx: Input should be greater than 0;"),
+        ("hfov_deg: 60\nheight_m: -1\n", "height_m"),
+    ],
+)
+def test_camera_file_out_of_range_is_one_line(capsys, tmp_path, yaml_text, fragment):
+    """A camera YAML that parses but breaks the Camera's bounds (negative focal length or height) is refused
+    in one line naming the field (pydantic's own text spans four lines), before the real clip is read."""
+    from conftest import DATA, need
+
+    cam = tmp_path / "cam.yaml"
+    cam.write_text(yaml_text)
+    clip = need(DATA / "crash_ccd" / "ccd_000053.mp4")
+    rc, _, err = cli(capsys, "extract", clip, "-o", tmp_path / "x", "--camera", cam, "--max-frames", 2)
+    assert_clear_error(rc, err, fragment)
+    assert not (tmp_path / "x").exists()

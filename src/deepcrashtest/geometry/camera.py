@@ -24,10 +24,11 @@ from typing import Any
 import cv2
 import numpy as np
 import yaml
+from pydantic import ValidationError
 
 from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import require_file
-from deepcrashtest.scenario import Camera
+from deepcrashtest.scenario import Camera, format_validation_error
 
 DEFAULT_HFOV_DEG = 90.0
 DASHCAM_HEIGHT_M = 1.3  # a windscreen-mounted dashcam in a passenger car
@@ -93,6 +94,8 @@ def camera_from_yaml(path: str | Path, width: int | None = None, height: int | N
             if w <= 0 or h <= 0:
                 raise UserError(f"{p}: hfov_deg needs the frame width and height")
             return camera_from_fov(w, h, float(data["hfov_deg"]), intrinsics_source="user", **extra)
+    except ValidationError as exc:  # a ValueError whose text spans lines: one line naming the fields
+        raise UserError(f"{p}: bad camera parameters ({format_validation_error(exc)})") from None
     except (KeyError, TypeError, ValueError) as exc:
         raise UserError(f"{p}: bad camera parameters ({exc})") from None
     raise UserError(f"{p}: needs fx, cx, cy (pixels) or hfov_deg")

@@ -144,7 +144,8 @@ def _user_crash(
         else int(round(raw.video_time(raw.ego.trajectory.t[-1]) * fps))
     )
     if not 0 < spec.frame <= last:
-        raise UserError(f"--crash {spec.text!r}: frame {spec.frame} is outside the video (1..{last})")
+        where = "is the first frame (a crash needs one before it)" if spec.frame == 0 else "is outside the video"
+        raise UserError(f"--crash {spec.text!r}: frame {spec.frame} {where}; give 1..{last}")
     if spec.pair is not None:
         seen = set(int(v) for v in tracks["track_id"].unique()) if len(tracks) else set()
         for vid in spec.pair:

@@ -217,5 +217,8 @@ def _calibration_frames(
         if item[0].time - buffer[0][0].time >= calib_seconds and len(buffer) >= 3:
             break
     if len(buffer) < 2:
-        raise UserError("the video has fewer than 2 frames")
+        raise UserError(
+            "the video has fewer than 2 frames: a scenario needs the motion between frames "
+            "(--no-geometry writes the tracks alone)"
+        )
     return buffer, it
