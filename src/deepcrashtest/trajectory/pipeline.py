@@ -54,6 +54,7 @@ from deepcrashtest.scenario import (
     Trajectory,
     Vehicle,
     format_validation_error,
+    kinematics,
 )
 from deepcrashtest.trajectory.agentheading import replayable_yaws, with_observed_yaw
 from deepcrashtest.trajectory.collision import MOVING_MPS, first_contact, headings, vehicle_box
@@ -67,6 +68,7 @@ from deepcrashtest.trajectory.road import along_road, build_road, extend_head_on
 from deepcrashtest.trajectory.roadframe import RoadFrame
 from deepcrashtest.trajectory.smoothing import eval_xy, fit_xy_spline, smooth_track, spline_params
 from deepcrashtest.trajectory.stepback import plan_step_back, step_back_prefix
+from deepcrashtest.trajectory.traction import retimed_within
 
 __all__ = ["headings", "process_scenario"]
 
@@ -136,6 +138,7 @@ def _process_scenario(raw: Scenario, seed: int, params: Stage2Params | None) -> 
     agents = [d for a in run.raw.agents if (d := agent_dense(a, run.t0, ego_frame, run.p, run.warnings)) is not None]
     t_max = _step_back_phase(run, ego, agents)
     crash = _crash_phase(run, ego, agents, t_max)
+    _traction_phase(run, ego, crash)
     vehicles = _final_phase(run, ego, crash)
     vehicles[0] = _with_measured_yaw(vehicles[0], run, t_max)
     observed = [vehicles[0], *_with_observed_yaws(vehicles[1:], crash.agents, t_max - run.t0)]
@@ -351,6 +354,28 @@ def _crash_phase(run: _Run, ego: Dense, agents: list[Dense], t_max: float) -> Cr
         run.warnings.append(f"agent {d.id}: fewer than 2 samples after processing; dropped")
     out.agents = [d for d in out.agents if d not in short]
     return out
+
+
+def _traction_phase(run: _Run, ego: Dense, crash: CrashOutcome) -> None:
+    """Every moving road user whose processed path asks more than its kinematics' acceleration or braking
+    re-timed along itself within them (``trajectory.traction``); the crash pair's samples from the collision
+    time on are held (the crash keeps its time and place). A warning names each one moved."""
+    c = crash.collision
+    margin = ContactParams().kin_margin
+    for d in [ego, *crash.agents]:
+        if d.static:
+            continue
+        pin = c.time_s if c is not None and d.id in c.participants else None
+        xy = retimed_within(d.t, d.xy, kinematics(d.vehicle.category), margin, pin)
+        if xy is d.xy:
+            continue
+        moved = float(np.hypot(*(xy - d.xy).T).max())
+        d.xy = xy
+        label = "ego" if d is ego else f"agent {d.id}"
+        run.warnings.append(
+            f"{label}: its processed path asked for more acceleration or braking than a {d.vehicle.category} has; "
+            f"re-timed along itself within {margin:.2f} x its limits (moved up to {moved:.2f} m)"
+        )
 
 
 def _final_phase(run: _Run, ego: Dense, crash: CrashOutcome) -> list[Vehicle]:

@@ -1,0 +1,76 @@
+"""Every processed road user within its traction and braking: a path that asks more is re-timed along itself.
+
+Stage 2 changes each path's speed after the raw ego's re-timing (``trajectory.egotraction``): its smoothing
+(Savitzky-Golay + two-level spline), the crash correction (whose fallback, where no correction within the
+steering limits exists, bounds only the acceleration it adds on each axis) and the lead-in. On a copy of
+ccd_000053 filmed off a screen the raw ego, re-timed within 3.4 m/s^2, came out of the smoothing at
+4.12 m/s^2, 1.6 s before the crash; the simulator's vehicle (``Kinematics.max_accel_mps2``, 4 m/s^2) lags
+such a path. Here a path whose speed changes faster than its kinematics allow (between its samples) has its
+distance along the path replaced by the closest one (least squares, SciPy's bounded ``lsq_linear``) whose
+acceleration stays within ``margin`` x those limits; its samples from ``pin_s`` on (a crash pair's contact
+and the overlap after it) are held where they are (weighted ``PIN_WEIGHT`` times), so the crash keeps its
+time and place. The path itself (its shape) is unchanged. Times in seconds, positions in metres (world frame),
+accelerations in m/s^2.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import lsq_linear
+
+from deepcrashtest.scenario import Kinematics
+from deepcrashtest.trajectory.egotraction import along_path
+
+PIN_WEIGHT = 1e3
+"""Weight of a pinned sample's distance against 1 for the others: pinned samples move by millimetres."""
+
+
+def arc_length(xy: np.ndarray) -> np.ndarray:
+    """Cumulative distance (m, N) along the points ``xy`` (N, 2), 0 at the first."""
+    return np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
+
+
+def along_accel(t: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Acceleration (m/s^2, N-2) at the inner samples of the distances ``s`` (m) at times ``t`` (s): the change
+    of the speed between the two neighbouring intervals over half their summed length."""
+    if len(t) < 3:
+        return np.zeros(0)
+    v = np.diff(s) / np.diff(t)
+    return np.diff(v) / (0.5 * (t[2:] - t[:-2]))
+
+
+def bounded_distances(
+    t: np.ndarray, s: np.ndarray, a_max: float, b_max: float, weight: np.ndarray | None = None
+) -> np.ndarray:
+    """The distances (m, N) at the increasing times ``t`` (s, N) closest to ``s`` (weighted least squares,
+    ``weight`` (N,) or all 1) whose first speed is >= 0 and whose :func:`along_accel` lies in
+    [-``b_max``, ``a_max``] (m/s^2); never decreasing."""
+    n = len(t)
+    A = np.hstack([np.ones((n, 1)), (t - t[0])[:, None], np.maximum(t[:, None] - t[None, 1:-1], 0.0)])
+    half = 0.5 * (t[2:] - t[:-2])
+    lb = np.concatenate([[-np.inf, 0.0], -b_max * half])
+    ub = np.concatenate([[np.inf, np.inf], a_max * half])
+    w = np.ones(n) if weight is None else weight
+    x = lsq_linear(A * w[:, None], s * w, bounds=(lb, ub), method="bvls").x
+    return np.maximum.accumulate(A @ x)
+
+
+def exceeds(t: np.ndarray, xy: np.ndarray, kin: Kinematics) -> bool:
+    """Whether the path ``xy`` (m, N x 2) at times ``t`` (s) speeds up faster than ``kin.max_accel_mps2`` or
+    brakes harder than ``kin.max_brake_mps2`` anywhere between its samples."""
+    acc = along_accel(t, arc_length(xy))
+    return bool(len(acc)) and (acc.max() > kin.max_accel_mps2 or acc.min() < -kin.max_brake_mps2)
+
+
+def retimed_within(
+    t: np.ndarray, xy: np.ndarray, kin: Kinematics, margin: float, pin_s: float | None = None
+) -> np.ndarray:
+    """The path ``xy`` (m, N x 2) at times ``t`` (s) re-timed along itself within ``margin`` x ``kin``'s
+    acceleration and braking, its samples from ``pin_s`` (s) on held (module docstring); ``xy`` itself when
+    it keeps within ``kin`` already."""
+    if len(t) < 4 or not exceeds(t, xy, kin):
+        return xy
+    s = arc_length(xy)
+    weight = np.where(t >= pin_s - 1e-6, PIN_WEIGHT, 1.0) if pin_s is not None else None
+    s_new = bounded_distances(t, s, margin * kin.max_accel_mps2, margin * kin.max_brake_mps2, weight)
+    return along_path(xy, s, s_new)
