@@ -2,14 +2,14 @@
 
 Stage 2 changes each path's speed after the raw ego's re-timing (``trajectory.egotraction``): its smoothing
 (Savitzky-Golay + two-level spline), the crash correction (whose fallback, where no correction within the
-steering limits exists, bounds only the acceleration it adds on each axis) and the lead-in. On a copy of
-ccd_000053 filmed off a screen the raw ego, re-timed within 3.4 m/s^2, came out of the smoothing at
-4.12 m/s^2, 1.6 s before the crash; the simulator's vehicle (``Kinematics.max_accel_mps2``, 4 m/s^2) lags
-such a path. Here a path whose speed changes faster than its kinematics allow (between its samples) has its
-distance along the path replaced by the closest one (least squares, SciPy's bounded ``lsq_linear``) whose
-acceleration stays within ``margin`` x those limits; its samples from ``pin_s`` on (a crash pair's contact
-and the overlap after it) are held where they are (weighted ``PIN_WEIGHT`` times), so the crash keeps its
-time and place. The path itself (its shape) is unchanged. Times in seconds, positions in metres (world frame),
+steering limits exists, bounds only the acceleration it adds on each axis), the lead-in and the final spline.
+On a copy of ccd_000053 filmed off a screen the raw ego, re-timed within 3.4 m/s^2, came out of the smoothing
+at 4.12 m/s^2, 1.6 s before the crash; the simulator's vehicle (``Kinematics.max_accel_mps2``, 4 m/s^2) lags
+such a path. Here the distance along such a path is replaced by the closest one (least squares, SciPy's
+bounded ``lsq_linear``) whose acceleration between samples stays within ``margin`` x those limits; its
+samples from ``pin_s`` on (a crash pair's contact and the overlap after it) are held where they are
+(weighted ``PIN_WEIGHT`` times, their own speed changes left as they are: the impact's), so the crash keeps
+its time and place. The path's shape is unchanged. Times in seconds, positions in metres (world frame),
 accelerations in m/s^2.
 """
 
@@ -40,14 +40,14 @@ def along_accel(t: np.ndarray, s: np.ndarray) -> np.ndarray:
 
 
 def bounded_distances(
-    t: np.ndarray, s: np.ndarray, a_max: float, b_max: float, weight: np.ndarray | None = None
+    t: np.ndarray, s: np.ndarray, a_max: float, b_max: float, weight: np.ndarray | None = None, free_s: float = np.inf
 ) -> np.ndarray:
     """The distances (m, N) at the increasing times ``t`` (s, N) closest to ``s`` (weighted least squares,
     ``weight`` (N,) or all 1) whose first speed is >= 0 and whose :func:`along_accel` lies in
-    [-``b_max``, ``a_max``] (m/s^2); never decreasing."""
+    [-``b_max``, ``a_max``] (m/s^2) up to ``free_s`` (s; after it unbounded); never decreasing."""
     n = len(t)
     A = np.hstack([np.ones((n, 1)), (t - t[0])[:, None], np.maximum(t[:, None] - t[None, 1:-1], 0.0)])
-    half = 0.5 * (t[2:] - t[:-2])
+    half = np.where(t[1:-1] > free_s + 1e-6, np.inf, 0.5 * (t[2:] - t[:-2]))
     lb = np.concatenate([[-np.inf, 0.0], -b_max * half])
     ub = np.concatenate([[np.inf, np.inf], a_max * half])
     w = np.ones(n) if weight is None else weight
@@ -73,6 +73,9 @@ def retimed_within(
     if len(t) < 4:
         return xy
     s = arc_length(xy)
-    weight = np.where(t >= pin_s - 1e-6, PIN_WEIGHT, 1.0) if pin_s is not None else None
-    s_new = bounded_distances(t, s, margin * kin.max_accel_mps2, margin * kin.max_brake_mps2, weight)
+    if pin_s is None:
+        s_new = bounded_distances(t, s, margin * kin.max_accel_mps2, margin * kin.max_brake_mps2)
+    else:  # the held samples as they are, their own speed changes too (the impact's)
+        weight = np.where(t >= pin_s - 1e-6, PIN_WEIGHT, 1.0)
+        s_new = bounded_distances(t, s, margin * kin.max_accel_mps2, margin * kin.max_brake_mps2, weight, pin_s)
     return along_path(xy, s, s_new)
