@@ -24,6 +24,8 @@ Steps (times in seconds, world frame in metres):
    samples (t, x, y, yaw, speed) are that spline and its derivative at the sample times, with
    ``observed`` false on extrapolated and stepped-back samples; the ego's yaw is the camera's measured
    one (the raw ego's, lightly smoothed; held before the video), through which every agent was placed.
+   A path whose sampled speed changes faster than its road user's kinematics allow is re-timed along
+   itself within them first (``trajectory.traction``; the crash pair held from the collision on).
 7. Road (``trajectory.road``).
 
 Time: the raw ego's first sample is video time 0; scenario time = video time + t_max.
