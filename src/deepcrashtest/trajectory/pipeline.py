@@ -394,6 +394,14 @@ def _exceeds(v: Vehicle, kin: Kinematics) -> bool:
     return exceeds(np.asarray(v.trajectory.t), np.asarray(v.trajectory.speed), kin)
 
 
+def _exceeding_s(v: Vehicle, kin: Kinematics) -> np.ndarray:
+    """Times (s) of the samples between which the vehicle's speed changes faster than ``kin`` allows."""
+    t, speed = np.asarray(v.trajectory.t), np.asarray(v.trajectory.speed)
+    acc = np.diff(speed) / np.diff(t)
+    bad = np.nonzero((acc > kin.max_accel_mps2) | (acc < -kin.max_brake_mps2))[0]
+    return np.concatenate([t[bad], t[bad + 1]])
+
+
 def _traction_fit(d: Dense, run: _Run, cls: str | None, pin_s: float | None, allow_reverse: bool = False) -> Vehicle:
     """:func:`_final_vehicle`; where its speed changes faster than the road user's kinematics allow (stage 2's
     smoothing or crash correction asked for more), the path is re-timed along itself within each of
@@ -404,9 +412,9 @@ def _traction_fit(d: Dense, run: _Run, cls: str | None, pin_s: float | None, all
     kin = kinematics(d.vehicle.category)
     if d.static or not _exceeds(v, kin):
         return v
-    xy0, label = d.xy, "ego" if cls is None else f"agent {d.id}"
+    xy0, label, around = d.xy, "ego" if cls is None else f"agent {d.id}", _exceeding_s(v, kin)
     for margin in TRACTION_MARGINS:
-        d.xy = retimed_within(d.t, xy0, kin, margin, pin_s)
+        d.xy = retimed_within(d.t, xy0, kin, margin, pin_s, around)
         try:
             fit = _final_vehicle(d, run.p, cls, allow_reverse)
         except UserError:  # a guard: the re-timed path is smoother; if not, the first fit is kept

@@ -23,6 +23,9 @@ from deepcrashtest.trajectory.egotraction import along_path
 
 PIN_WEIGHT = 1e3
 """Weight of a pinned sample's distance against 1 for the others: pinned samples move by millimetres."""
+WINDOW_S = 1.5
+"""Only the samples within this many seconds of where a path asks too much are re-timed (the speed change
+is spread over them; the whole path's least squares cost 20-80 s CPU on the highway clip's long tracks)."""
 
 
 def arc_length(xy: np.ndarray) -> np.ndarray:
@@ -66,16 +69,30 @@ def exceeds(t: np.ndarray, speed: np.ndarray, kin: Kinematics) -> bool:
 
 
 def retimed_within(
-    t: np.ndarray, xy: np.ndarray, kin: Kinematics, margin: float, pin_s: float | None = None
+    t: np.ndarray,
+    xy: np.ndarray,
+    kin: Kinematics,
+    margin: float,
+    pin_s: float | None = None,
+    around_s: np.ndarray | None = None,
 ) -> np.ndarray:
     """The path ``xy`` (m, N x 2) at times ``t`` (s) re-timed along itself within ``margin`` x ``kin``'s
-    acceleration and braking, its samples from ``pin_s`` (s) on held (module docstring)."""
+    acceleration and braking, its samples from ``pin_s`` (s) on held (module docstring). ``around_s``: only
+    within ``WINDOW_S`` of these times (s), the samples beyond held (the whole path: None)."""
     if len(t) < 4:
         return xy
     s = arc_length(xy)
-    if pin_s is None:
-        s_new = bounded_distances(t, s, margin * kin.max_accel_mps2, margin * kin.max_brake_mps2)
-    else:  # the held samples as they are, their own speed changes too (the impact's)
-        weight = np.where(t >= pin_s - 1e-6, PIN_WEIGHT, 1.0)
-        s_new = bounded_distances(t, s, margin * kin.max_accel_mps2, margin * kin.max_brake_mps2, weight, pin_s)
+    weight = np.ones(len(t)) if pin_s is None else np.where(t >= pin_s - 1e-6, PIN_WEIGHT, 1.0)
+    lo, hi = 0, len(t)
+    if around_s is not None and len(around_s):
+        lo = max(0, int(np.searchsorted(t, np.min(around_s) - WINDOW_S)) - 2)
+        hi = min(len(t), int(np.searchsorted(t, np.max(around_s) + WINDOW_S)) + 2)
+        weight[lo : lo + 2 if lo else 0] = PIN_WEIGHT  # held where it joins the rest: position and speed
+        weight[hi - 2 if hi < len(t) else hi : hi] = PIN_WEIGHT
+    free = np.inf if pin_s is None else pin_s  # the held samples' own speed changes (the impact's) are left
+    part = slice(lo, hi)
+    s_new = s.copy()
+    s_new[part] = bounded_distances(
+        t[part], s[part], margin * kin.max_accel_mps2, margin * kin.max_brake_mps2, weight[part], free
+    )
     return along_path(xy, s, s_new)
