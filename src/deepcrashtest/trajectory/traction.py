@@ -1,0 +1,98 @@
+"""Every processed road user within its traction and braking: a path that asks more is re-timed along itself.
+
+Stage 2 changes each path's speed after the raw ego's re-timing (``trajectory.egotraction``): its smoothing
+(Savitzky-Golay + two-level spline), the crash correction (whose fallback, where no correction within the
+steering limits exists, bounds only the acceleration it adds on each axis), the lead-in and the final spline.
+On a copy of ccd_000053 filmed off a screen the raw ego, re-timed within 3.4 m/s^2, came out of the smoothing
+at 4.12 m/s^2, 1.6 s before the crash; the simulator's vehicle (``Kinematics.max_accel_mps2``, 4 m/s^2) lags
+such a path. Here the distance along such a path is replaced by the closest one (least squares, SciPy's
+bounded ``lsq_linear``) whose acceleration between samples stays within ``margin`` x those limits; its
+samples from ``pin_s`` on (a crash pair's contact and the overlap after it) are held where they are
+(weighted ``PIN_WEIGHT`` times, their own speed changes left as they are: the impact's), so the crash keeps
+its time and place. The path's shape is unchanged. Times in seconds, positions in metres (world frame),
+accelerations in m/s^2.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import lsq_linear
+
+from deepcrashtest.scenario import Kinematics
+from deepcrashtest.trajectory.egotraction import along_path
+
+PIN_WEIGHT = 1e3
+"""Weight of a pinned sample's distance against 1 for the others: pinned samples move by millimetres."""
+WINDOW_S = 1.5
+"""Only the samples within this many seconds of where a path asks too much are re-timed (the speed change
+is spread over them; the whole path's least squares cost 20-80 s CPU on the highway clip's long tracks)."""
+
+
+def arc_length(xy: np.ndarray) -> np.ndarray:
+    """Cumulative distance (m, N) along the points ``xy`` (N, 2), 0 at the first."""
+    return np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
+
+
+def along_accel(t: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Acceleration (m/s^2, N-2) at the inner samples of the distances ``s`` (m) at times ``t`` (s): the change
+    of the speed between the two neighbouring intervals over half their summed length."""
+    if len(t) < 3:
+        return np.zeros(0)
+    v = np.diff(s) / np.diff(t)
+    return np.diff(v) / (0.5 * (t[2:] - t[:-2]))
+
+
+def bounded_distances(
+    t: np.ndarray, s: np.ndarray, a_max: float, b_max: float, weight: np.ndarray | None = None, free_s: float = np.inf
+) -> np.ndarray:
+    """The distances (m, N) at the increasing times ``t`` (s, N) closest to ``s`` (weighted least squares,
+    ``weight`` (N,) or all 1) whose first speed is >= 0 and whose :func:`along_accel` lies in
+    [-``b_max``, ``a_max``] (m/s^2) up to ``free_s`` (s; after it unbounded); never decreasing."""
+    n = len(t)
+    A = np.hstack([np.ones((n, 1)), (t - t[0])[:, None], np.maximum(t[:, None] - t[None, 1:-1], 0.0)])
+    half = np.where(t[1:-1] > free_s + 1e-6, np.inf, 0.5 * (t[2:] - t[:-2]))
+    lb = np.concatenate([[-np.inf, 0.0], -b_max * half])
+    ub = np.concatenate([[np.inf, np.inf], a_max * half])
+    w = np.ones(n) if weight is None else weight
+    x = lsq_linear(A * w[:, None], s * w, bounds=(lb, ub), method="bvls").x
+    return np.maximum.accumulate(A @ x)
+
+
+def exceeds(t: np.ndarray, speed: np.ndarray, kin: Kinematics) -> bool:
+    """Whether the speeds ``speed`` (m/s) at times ``t`` (s) rise faster than ``kin.max_accel_mps2`` or fall
+    faster than ``kin.max_brake_mps2`` between any two consecutive samples (``np.gradient``'s values are
+    weighted means of these, so they keep within the limits too)."""
+    if len(t) < 2:
+        return False
+    acc = np.diff(speed) / np.diff(t)
+    return bool(acc.max() > kin.max_accel_mps2 or acc.min() < -kin.max_brake_mps2)
+
+
+def retimed_within(
+    t: np.ndarray,
+    xy: np.ndarray,
+    kin: Kinematics,
+    margin: float,
+    pin_s: float | None = None,
+    around_s: np.ndarray | None = None,
+) -> np.ndarray:
+    """The path ``xy`` (m, N x 2) at times ``t`` (s) re-timed along itself within ``margin`` x ``kin``'s
+    acceleration and braking, its samples from ``pin_s`` (s) on held (module docstring). ``around_s``: only
+    within ``WINDOW_S`` of these times (s), the samples beyond held (the whole path: None)."""
+    if len(t) < 4:
+        return xy
+    s = arc_length(xy)
+    weight = np.ones(len(t)) if pin_s is None else np.where(t >= pin_s - 1e-6, PIN_WEIGHT, 1.0)
+    lo, hi = 0, len(t)
+    if around_s is not None and len(around_s):
+        lo = max(0, int(np.searchsorted(t, np.min(around_s) - WINDOW_S)) - 2)
+        hi = min(len(t), int(np.searchsorted(t, np.max(around_s) + WINDOW_S)) + 2)
+        weight[lo : lo + 2 if lo else 0] = PIN_WEIGHT  # held where it joins the rest: position and speed
+        weight[hi - 2 if hi < len(t) else hi : hi] = PIN_WEIGHT
+    free = np.inf if pin_s is None else pin_s  # the held samples' own speed changes (the impact's) are left
+    part = slice(lo, hi)
+    s_new = s.copy()
+    s_new[part] = bounded_distances(
+        t[part], s[part], margin * kin.max_accel_mps2, margin * kin.max_brake_mps2, weight[part], free
+    )
+    return along_path(xy, s, s_new)

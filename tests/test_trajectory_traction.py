@@ -1,0 +1,73 @@
+"""Every processed road user within its traction and braking (``trajectory.traction``), on real KITTI tracks.
+
+KITTI tracking 0002 (a training sequence: real 3D labels + ORB-SLAM3 poses): stage 2's smoothed car 16 sped up
+at 9.1 m/s^2 and braked at 12.7 m/s^2 (label depth noise), more than the simulator's vehicle can (4 / 9 m/s^2),
+so its replay lagged its path. Times in seconds, positions in metres, accelerations in m/s^2.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from deepcrashtest.scenario import VEHICLE_KINEMATICS, Scenario, kinematics
+from deepcrashtest.trajectory.traction import along_accel, arc_length, retimed_within
+
+
+@pytest.fixture(scope="module")
+def kitti2_raw(kitti_root) -> Scenario:
+    from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
+
+    return scenario_from_kitti(kitti_root, 2, road_users=True)
+
+
+def _speed_changes(sc: Scenario) -> dict[int, tuple[float, float]]:
+    """Per vehicle: its largest rise and fall of the sampled speed between consecutive samples (m/s^2)."""
+    out = {}
+    for v in sc.vehicles():
+        a = v.trajectory.arrays()
+        if len(a["t"]) >= 2:
+            acc = np.diff(a["speed"]) / np.diff(a["t"])
+            out[v.id] = (float(acc.max()), float(-acc.min()))
+    return out
+
+
+def test_every_processed_road_user_keeps_within_its_traction_and_braking(kitti2_raw):
+    """KITTI 0002 through stage 2: no processed path asks more than its road user's kinematics (main: car 16
+    +9.1 / -12.7 m/s^2); car 16 is re-timed along its own path (a warning says so), by decimetres."""
+    from deepcrashtest.trajectory.pipeline import process_scenario
+
+    sc = process_scenario(kitti2_raw)
+    for vid, (rise, fall) in _speed_changes(sc).items():
+        kin = kinematics(sc.vehicle(vid).category)
+        assert rise <= kin.max_accel_mps2 and fall <= kin.max_brake_mps2, (vid, rise, fall)
+    note = next(w for w in sc.warnings if w.startswith("agent 16: its processed path asked for more"))
+    assert float(note.split("moved up to ")[1].split(" m")[0]) < 0.5
+
+
+def test_a_retimed_path_keeps_its_shape_and_its_pinned_end(kitti2_raw):
+    """Car 16's raw (label) track re-timed within 0.85 x a car's limits, held from 2 s before its end: the
+    held samples stay within a centimetre, every sample lies on the original path, and the distances along
+    it change within the limits (the label track itself: up to 16 m/s^2)."""
+    a = kitti2_raw.vehicle(16).trajectory.arrays()
+    t, xy = a["t"], np.column_stack([a["x"], a["y"]])
+    s = arc_length(xy)
+    assert np.abs(along_accel(t, s)).max() > VEHICLE_KINEMATICS.max_brake_mps2  # 16 m/s^2: worth re-timing
+    pin = float(t[-1] - 2.0)
+    new = retimed_within(t, xy, VEHICLE_KINEMATICS, 0.85, pin)
+    held = t >= pin
+    assert np.hypot(*(new[held] - xy[held]).T).max() < 0.01
+    acc = along_accel(t[~held], arc_length(new[~held]))
+    assert acc.max() <= 0.85 * VEHICLE_KINEMATICS.max_accel_mps2 + 0.05
+    assert acc.min() >= -0.85 * VEHICLE_KINEMATICS.max_brake_mps2 - 0.05
+    seg = _distance_to_polyline(new, xy)
+    assert seg.max() < 1e-6  # re-timed along itself: the path's shape is kept
+
+
+def _distance_to_polyline(p: np.ndarray, line: np.ndarray) -> np.ndarray:
+    """Distance (m) of each point of ``p`` (N, 2) to the polyline ``line`` (M, 2)."""
+    a, b = line[:-1], line[1:]
+    ab = b - a
+    w = np.clip(np.einsum("nmk,mk->nm", p[:, None] - a[None], ab) / np.maximum(np.sum(ab * ab, 1), 1e-12), 0, 1)
+    closest = a[None] + w[..., None] * ab[None]
+    return np.hypot(*(p[:, None] - closest).transpose(2, 0, 1)).min(axis=1)
