@@ -318,13 +318,19 @@ class _SpeedFilter:
         self.log.append((F, xp, Pp, x, P))
         return max(0.0, float(x[0]))
 
-    def smoothed(self) -> np.ndarray:
-        """RTS-smoothed speeds of every step so far (m/s, >= 0)."""
+    def smoothed(self, cut: int | None = None) -> np.ndarray:
+        """RTS-smoothed speeds of every step so far (m/s, >= 0). ``cut``: a step after which the
+        smoother starts afresh, so that no later reading moves the speeds up to that step (a crash's
+        readings after it do not spread the crash's slowing to before it)."""
         if not self.log:
             return np.zeros(0)
         xs = [self.log[-1][3]]
         Ps = [self.log[-1][4]]
         for k in range(len(self.log) - 2, -1, -1):
+            if k == cut:
+                xs.append(self.log[k][3])
+                Ps.append(self.log[k][4])
+                continue
             F1, xp1, Pp1 = self.log[k + 1][:3]
             xk, Pk = self.log[k][3], self.log[k][4]
             C = Pk @ F1.T @ np.linalg.pinv(Pp1)
@@ -812,9 +818,11 @@ class EgoMotionEstimator:
         x, y = last.x + last.speed * dt * math.cos(mid), last.y + last.speed * dt * math.sin(mid)
         return EgoState(self._frame - 1, time, last.speed, last.yaw_rate, x, y, yaw, last.valid)
 
-    def result(self) -> EgoMotion:
+    def result(self, cut_time: float | None = None) -> EgoMotion:
         """All frames so far as arrays (smoothed speeds, path integrated from them), with warnings
-        about static, dark or featureless input."""
+        about static, dark or featureless input. ``cut_time`` (s, the frames' time): the speeds up to
+        this time are smoothed from the readings up to it only (e.g. a crash's time: what the crash
+        does to the speed afterwards is not carried back before it)."""
         s = self._states
         warnings: list[str] = []
         decided = self._pairs - self._kf_frames  # frames after the last keyframe are still open
@@ -831,7 +839,10 @@ class EgoMotionEstimator:
                 f"ego-motion: the road gave no metric scale in {self._unscaled} of {self._pairs} frame pairs "
                 "(road hidden, textureless or dashboard not masked); speeds there are held"
             )
-        speed = np.r_[0.0, self._filter.smoothed()] if s else np.zeros(0)
+        cut = None
+        if cut_time is not None and s:  # state k + 1 is filter step k
+            cut = int(np.searchsorted([e.time for e in s], cut_time, side="right")) - 2
+        speed = np.r_[0.0, self._filter.smoothed(cut)] if s else np.zeros(0)
         dt = np.asarray(self._dt)
         dyaw = np.asarray(self._dyaw)
         yaw = np.cumsum(dyaw)
