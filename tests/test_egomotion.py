@@ -344,7 +344,8 @@ def test_speeds_before_a_cut_ignore_the_readings_after_it():
     """ccd_000053 (10 fps, crash at labelled frame 33): with ``speed_hold_accel=1`` its road-scale readings
     after the crash were fused and the RTS smoother carried the crash's slowing back before it (fidelity IoU
     0.73 -> 0.53). ``result(cut_time)`` smooths the speeds up to the cut from the readings up to it only: they
-    are those of the stream stopped at the cut, while the uncut result moved them."""
+    are those of the stream stopped at the cut, while the uncut result moved them. With a lone reading before
+    the cut, nothing is cut."""
     imgs = _frames(DATA / "crash_ccd" / "ccd_000053.mp4", 60)
     h, w = imgs[0].shape[:2]
     est = EgoMotionEstimator(
@@ -358,3 +359,5 @@ def test_speeds_before_a_cut_ignore_the_readings_after_it():
     whole, cut = est.result().speed[: crash + 1], est.result(cut_time=crash / 10.0).speed[: crash + 1]
     assert np.allclose(cut, stopped, atol=1e-9)
     assert np.max(np.abs(whole - stopped)) > 0.5
+    # one reading (the filter's start, step 0 = state 1) up to the cut: not cut, the later readings count
+    assert np.array_equal(est.result(cut_time=0.15).speed, est.result().speed)

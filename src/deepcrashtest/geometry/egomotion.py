@@ -318,6 +318,10 @@ class _SpeedFilter:
         self.log.append((F, xp, Pp, x, P))
         return max(0.0, float(x[0]))
 
+    def confirmed(self, step: int) -> bool:
+        """Whether two readings or more (not gated) were taken up to filter step ``step``."""
+        return sum(1 for k, _, _, outcome in self.readings if k <= step and outcome != "gated") >= 2
+
     def smoothed(self, cut: int | None = None) -> np.ndarray:
         """RTS-smoothed speeds of every step so far (m/s, >= 0). ``cut``: a step after which the
         smoother starts afresh, so that no later reading moves the speeds up to that step (a crash's
@@ -822,7 +826,12 @@ class EgoMotionEstimator:
         """All frames so far as arrays (smoothed speeds, path integrated from them), with warnings
         about static, dark or featureless input. ``cut_time`` (s, the frames' time): the speeds up to
         this time are smoothed from the readings up to it only (e.g. a crash's time: what the crash
-        does to the speed afterwards is not carried back before it)."""
+        does to the speed afterwards is not carried back before it). Only when two readings or more
+        were taken up to the cut: a lone first reading is the filter's start, not a confirmed speed (a
+        later reading that disagrees can overturn it), and the readings after the cut are then the
+        nearest evidence of the speed before it (ccd_000132: one reading at frame 1, the next 0.9 s
+        after its crash; cut anyway, its fidelity IoU fell 0.69 -> 0.59; ccd_000053, three readings
+        before its crash: 0.73 -> 0.82. Chosen on these two fidelity clips)."""
         s = self._states
         warnings: list[str] = []
         decided = self._pairs - self._kf_frames  # frames after the last keyframe are still open
@@ -842,6 +851,7 @@ class EgoMotionEstimator:
         cut = None
         if cut_time is not None and s:  # state k + 1 is filter step k
             cut = int(np.searchsorted([e.time for e in s], cut_time, side="right")) - 2
+            cut = cut if self._filter.confirmed(cut) else None
         speed = np.r_[0.0, self._filter.smoothed(cut)] if s else np.zeros(0)
         dt = np.asarray(self._dt)
         dyaw = np.asarray(self._dyaw)
