@@ -247,12 +247,10 @@ def test_speed_filter_logs_every_reading_and_what_it_did_with_it():
     every road-scale or stopped reading the estimator fed it, in order, with its outcome. On this clip the
     filter starts on 19 km/h and fuses 26 / 25 (frames 1-4); frames 36-38 read 10 / 8 / 3 km/h (1-sigma
     0.2-0.6), each gated, until the fourth in a row re-starts it (frame 39, 3 km/h): the first-reading hold
-    and re-start that README's ego-speed notes measure. ``speed_hold_accel=0`` (the default before the cut at
-    the crash): with the default 1 the held speed's variance grows and frames 36-37 are fused."""
+    and re-start that README's ego-speed notes measure."""
     imgs = _frames(DATA / "crash_ccd" / "ccd_000053.mp4", 42)
     h, w = imgs[0].shape[:2]
-    rows = detect_dashboard_rows(imgs[::4])
-    est = EgoMotionEstimator(default_camera(w, h), mask_bottom_rows=rows, speed_hold_accel=0.0)
+    est = EgoMotionEstimator(default_camera(w, h), mask_bottom_rows=detect_dashboard_rows(imgs[::4]))
     raws = []
     for i, img in enumerate(imgs):
         state = est.update(img, i / 10.0)
@@ -314,8 +312,8 @@ def test_sparse_readings_are_fused_not_held_against():
     """KITTI odometry seq00 frames 0-159 (calibrated camera) with only every 10th road-scale reading given to
     the speed filter, as sparse as on city dashcam clips: the readings err 2.8 % (median) and their stated
     sigma covers that, yet without ``speed_hold_accel`` the held speed's variance hardly grew between them and
-    5 of the 16 were gated (output median speed error 9.4 %). With ``speed_hold_accel=1`` (the default since the
-    cut at the crash: README) none is gated and the output errs 4.4 % (every reading: 2.2 %)."""
+    5 of the 16 were gated (output median speed error 9.4 %). With ``speed_hold_accel=1`` (an option, not the
+    default: README) none is gated and the output errs 4.4 % (every reading: 2.2 %)."""
     from deepcrashtest.datasets.kitti.files import KITTI_CAMERA_HEIGHT_M, read_poses
     from deepcrashtest.eval.egomotion import egomotion_errors, frame_times, read_odometry_calib
     from deepcrashtest.scenario import Camera

@@ -380,14 +380,15 @@ class EgoMotionEstimator:
     rose 0.73 -> 0.79 (its 3-10 km/h readings at frames 36-40 were sideways pairs) but ccd_000132's fell 0.69
     -> 0.61 (its one late reading, 1 km/h, was one; the speed stays at its first, 9 km/h) and the processed
     IoU mean 0.6476 -> 0.6470.
-    ``speed_hold_accel``: the speed filter's ``hold_accel`` (m/s^2, see ``_SpeedFilter``; 0: off).
+    ``speed_hold_accel``: the speed filter's ``hold_accel`` (m/s^2, see ``_SpeedFilter``; 0, the default: off).
     1 was chosen on KITTI odometry seq00 with every 5th / 10th reading kept (``bench/road_scale_scatter.py
     --keep 5 --keep 10``): output median speed error 4.7 / 9.4 % -> 4.1 / 4.4 % (0.5: 4.8 / 5.3 %), gated
     readings 6 / 5 -> 0; seq06 (10 / 5 readings) 0.76 / 0.31 -> 0.77 / 0.61 %; with a reading every frame the
-    filter never holds (KITTI as before). Alone it lowered ccd_000053's fidelity IoU 0.73 -> 0.53 (its readings
-    of 10 / 9 km/h at frames 36-37, after its crash at frame 33, are now fused and the smoother carried the
-    slowing back before the crash); with extract's cut at the crash (:meth:`result`'s ``cut_time``) it is the
-    default: 20 fidelity clips 18/18, IoU means processed 0.648 -> 0.652, replay 0.621 -> 0.625."""
+    filter never holds (KITTI as before). Not the default: on the fidelity clips ccd_000053's IoU fell 0.73 ->
+    0.53 (its readings of 10 / 9 km/h at frames 36-37, after its crash at frame 33, are now fused and the
+    smoother carries the slowing back before the crash). Still not the default with extract's cut at the crash
+    (:meth:`result`'s ``cut_time``; 20 fidelity clips held): a phone-filmed copy of ccd_000053 then fused a late
+    reading, ramped 5 -> 13.7 m/s before its crash and its replay missed the crash (README)."""
 
     def __init__(
         self,
@@ -417,7 +418,7 @@ class EgoMotionEstimator:
         still_mask: np.ndarray | None = None,
         road_flow_share: float = 0.0,
         max_travel_dev_deg: float = 180.0,
-        speed_hold_accel: float = 1.0,
+        speed_hold_accel: float = 0.0,
     ) -> None:
         if scale_method != "homography":
             raise ValueError(f"scale_method must be 'homography' (got {scale_method!r})")
