@@ -338,3 +338,26 @@ def test_sparse_readings_are_fused_not_held_against():
     outcomes = [o for *_, o in est._filter.readings]
     assert len(outcomes) >= 12 and "gated" not in outcomes  # measured 16 readings
     assert egomotion_errors(est.result(), poses, times)["speed_error_median_pct"] < 6.0  # measured 4.36
+
+
+def test_speeds_before_a_cut_ignore_the_readings_after_it():
+    """ccd_000053 (10 fps, crash at labelled frame 33): with ``speed_hold_accel=1`` its road-scale readings
+    after the crash were fused and the RTS smoother carried the crash's slowing back before it (fidelity IoU
+    0.73 -> 0.53). ``result(cut_time)`` smooths the speeds up to the cut from the readings up to it only: they
+    are those of the stream stopped at the cut, while the uncut result moved them. With a lone reading before
+    the cut, nothing is cut."""
+    imgs = _frames(DATA / "crash_ccd" / "ccd_000053.mp4", 60)
+    h, w = imgs[0].shape[:2]
+    est = EgoMotionEstimator(
+        default_camera(w, h), mask_bottom_rows=detect_dashboard_rows(imgs[::4]), speed_hold_accel=1.0
+    )
+    crash = 33
+    for i, img in enumerate(imgs):
+        est.update(img, i / 10.0)
+        if i == crash:
+            stopped = est.result().speed
+    whole, cut = est.result().speed[: crash + 1], est.result(cut_time=crash / 10.0).speed[: crash + 1]
+    assert np.allclose(cut, stopped, atol=1e-9)
+    assert np.max(np.abs(whole - stopped)) > 0.5
+    # one reading (the filter's start, step 0 = state 1) up to the cut: not cut, the later readings count
+    assert np.array_equal(est.result(cut_time=0.15).speed, est.result().speed)

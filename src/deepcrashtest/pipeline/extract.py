@@ -37,7 +37,7 @@ from deepcrashtest.perception.detections import Detector, in_picture
 from deepcrashtest.perception.global_motion import GlobalMotion  # no pandas: the crash modules load in the background
 from deepcrashtest.perception.lanes import LaneState, draw_lanes
 from deepcrashtest.perception.track import FrameTracks, detect_ahead, frame_records, records_table, track_detected
-from deepcrashtest.pipeline.geometry_pass import GeometryResult, TrackRows, extract_geometry
+from deepcrashtest.pipeline.geometry_pass import GeometryResult, TrackRows, cut_at_crash, extract_geometry
 from deepcrashtest.pipeline.threads import Worker, prefetch
 from deepcrashtest.scenario import Camera, VideoSource
 from deepcrashtest.trajectory.params import Stage2Params
@@ -195,6 +195,7 @@ def _run_pass(
 
         motion = plan.motion
         geo.scenario, crash_info = crash_for_raw(geo.scenario, df, motion.arrays(), crash_spec, motion.area)
+        geo = _cut_at_crash(geo, crash_info)
     with atomic_path(paths["tracks_csv"], force=force) as tmp:
         df.to_csv(tmp, index=False, float_format="%.3f")
     result = _summary(plan, meta, df, elapsed)
@@ -202,6 +203,20 @@ def _run_pass(
     if geo is not None:
         result.update(_finish_scenario(geo, paths, force, seed, report, result["warnings"], stage2, plan.kept))
     return result
+
+
+def _cut_at_crash(geo: GeometryResult, crash_info: dict[str, Any]) -> GeometryResult:
+    """``geo`` with the ego speeds before the crash found (if any) smoothed from readings before it only
+    (:func:`~deepcrashtest.pipeline.geometry_pass.cut_at_crash`), the crash kept as it was found."""
+    if not crash_info.get("found") or geo.scenario.collision is None:
+        return geo
+    cut = cut_at_crash(geo, float(crash_info["video_time_s"]))
+    if cut is geo:
+        return geo
+    params = {**geo.scenario.provenance.parameters, **cut.scenario.provenance.parameters}
+    prov = cut.scenario.provenance.model_copy(update={"parameters": params})
+    cut.scenario = cut.scenario.evolve(collision=geo.scenario.collision, provenance=prov)
+    return cut
 
 
 def _parse_crash(text: str) -> CrashSpec:

@@ -68,6 +68,8 @@ class GeometryResult:
     dashboard_rows: int
     horizon_source: str
     calibration: SelfCalibration | None = None
+    #: the same geometry with the ego speeds cut at a time (s): see :func:`cut_at_crash`
+    rebuild: Callable[[float | None, float], GeometryResult | None] | None = None
 
 
 def estimate_camera(
@@ -149,8 +151,7 @@ def extract_geometry(
                 all_tracks.append(trk)
             if on_frame is not None:
                 on_frame(frame, trk, lane_states.get(int(frame.index)))
-    ego = ego_est.result()
-    ego.frame = np.array(indices, dtype=int)  # the estimator counts 0..n-1: use the video's indices
+    ego = _ego_result(ego_est, indices)
     lane_tl = lane_det.timeline() if lane_det is not None else None
     if all_rows:
         all_tracks.append(records_table(all_rows))
@@ -158,22 +159,54 @@ def extract_geometry(
 
     tracks = pd.concat(all_tracks, ignore_index=True) if all_tracks else pd.DataFrame(columns=list(TRACK_COLUMNS))
     calibration = None
+    scale = (1.0, 1.0)
     if cam.intrinsics_source == "default" and len(tracks):  # no calibration given: the video calibrates it
         from deepcrashtest.geometry.selfcalib import self_calibrate
 
         calibration = self_calibrate(tracks, cam, size, ego, ego_scaled_by_height=True)
-        # speeds scale with focal length x height, rotations (seen as focal x angle) with the focal length
-        ego = rescaled(ego, calibration.ego_scale, cam.fy / calibration.camera.fy)
+        scale = (calibration.ego_scale, cam.fy / calibration.camera.fy)
         cam = calibration.camera
         horizon_source = cam.pitch_source
-    from deepcrashtest.geometry.world_tracks import raw_scenario_from_tracks  # SciPy's signal: imported late
 
-    sc = raw_scenario_from_tracks(tracks, meta, cam, ego, lane_tl, localizer, name=name, seed=seed)
-    params = {**sc.provenance.parameters, "dashboard_rows": rows, "horizon_source": horizon_source}
-    if calibration is not None:
-        params["self_calibration"] = calibration.summary()
-    sc = sc.evolve(provenance=sc.provenance.model_copy(update={"parameters": params}))
-    return GeometryResult(sc, cam, ego, lane_tl, lane_states, rows, horizon_source, calibration)
+    def build(cut_time: float | None, min_change: float = 0.0) -> GeometryResult | None:
+        ego_cut = ego if cut_time is None else _ego_result(ego_est, indices, cut_time)
+        # speeds scale with focal length x height, rotations (seen as focal x angle) with the focal length
+        ego_cut = rescaled(ego_cut, *scale) if calibration is not None else ego_cut
+        if cut_time is not None and np.max(np.abs(ego_cut.speed - ego.speed * scale[0]), initial=0.0) <= min_change:
+            return None
+        from deepcrashtest.geometry.world_tracks import raw_scenario_from_tracks  # SciPy's signal: imported late
+
+        sc = raw_scenario_from_tracks(tracks, meta, cam, ego_cut, lane_tl, localizer, name=name, seed=seed)
+        params = {**sc.provenance.parameters, "dashboard_rows": rows, "horizon_source": horizon_source}
+        if calibration is not None:
+            params["self_calibration"] = calibration.summary()
+        if cut_time is not None:
+            params["ego_speed_cut_s"] = round(float(cut_time), 4)
+        sc = sc.evolve(provenance=sc.provenance.model_copy(update={"parameters": params}))
+        geo = GeometryResult(sc, cam, ego_cut, lane_tl, lane_states, rows, horizon_source, calibration)
+        geo.rebuild = build
+        return geo
+
+    geo = build(None)
+    assert geo is not None
+    return geo
+
+
+def _ego_result(est: EgoMotionEstimator, indices: list[int], cut_time: float | None = None) -> EgoMotion:
+    """The estimator's ego-motion (speeds smoothed apart before and after ``cut_time``, s) at the video's
+    frame indices (the estimator counts 0..n-1)."""
+    ego = est.result(cut_time)
+    ego.frame = np.array(indices, dtype=int)
+    return ego
+
+
+def cut_at_crash(geo: GeometryResult, crash_time: float, min_change: float = 0.05) -> GeometryResult:
+    """``geo`` again with the ego speeds up to ``crash_time`` (s, video time) smoothed from the readings up
+    to it only (:meth:`EgoMotionEstimator.result`'s ``cut_time``): the speed smoother otherwise carries the
+    crash's slowing, read after it, back before it (ccd_000053). Unchanged (``geo`` itself) when no speed
+    moves by more than ``min_change`` (m/s) or ``geo`` cannot be rebuilt."""
+    cut = None if geo.rebuild is None else geo.rebuild(crash_time, min_change)
+    return geo if cut is None else cut
 
 
 class _RateGate:
