@@ -71,7 +71,7 @@ from deepcrashtest.trajectory.road import along_road, build_road, extend_head_on
 from deepcrashtest.trajectory.roadframe import RoadFrame
 from deepcrashtest.trajectory.smoothing import eval_xy, fit_xy_spline, smooth_track, spline_params
 from deepcrashtest.trajectory.stepback import plan_step_back, step_back_prefix
-from deepcrashtest.trajectory.traction import exceeds, retimed_within
+from deepcrashtest.trajectory.traction import exceeding_s, retimed_within
 
 __all__ = ["headings", "process_scenario"]
 
@@ -141,7 +141,7 @@ def _process_scenario(raw: Scenario, seed: int, params: Stage2Params | None) -> 
     agents = [d for a in run.raw.agents if (d := agent_dense(a, run.t0, ego_frame, run.p, run.warnings)) is not None]
     t_max = _step_back_phase(run, ego, agents)
     crash = _crash_phase(run, ego, agents, t_max)
-    vehicles = _final_phase(run, ego, crash)
+    vehicles = _final_phase(run, ego, crash, t_max)
     vehicles[0] = _with_measured_yaw(vehicles[0], run, t_max)
     observed = [vehicles[0], *_with_observed_yaws(vehicles[1:], crash.agents, t_max - run.t0)]
     vehicles = replayable_yaws(observed, vehicles, crash.collision, run.warnings)
@@ -358,18 +358,19 @@ def _crash_phase(run: _Run, ego: Dense, agents: list[Dense], t_max: float) -> Cr
     return out
 
 
-def _final_phase(run: _Run, ego: Dense, crash: CrashOutcome) -> list[Vehicle]:
+def _final_phase(run: _Run, ego: Dense, crash: CrashOutcome, t_max: float) -> list[Vehicle]:
     """Final splines and samples; the ego first. An agent whose path cannot be made physically
-    possible (a monocular depth jump) is dropped with a warning instead of sinking the scenario."""
+    possible (a monocular depth jump) is dropped with a warning instead of sinking the scenario.
+    ``t_max`` (s): the end of the step-back lead-in, which the traction fit leaves as it is."""
     c = crash.collision
     pins = {i: c.time_s for i in c.participants} if c is not None else {}
     try:
-        vehicles = [_traction_fit(ego, run, None, pins.get(ego.id))]
+        vehicles = [_traction_fit(ego, run, None, _Holds(pins.get(ego.id), t_max))]
     except UserError:  # a slow, noisy ego-motion track whose every fit runs briefly backwards
-        vehicles = [_forward_only_ego(ego, run, pins.get(ego.id))]
+        vehicles = [_forward_only_ego(ego, run, _Holds(pins.get(ego.id), t_max))]
     for d in crash.agents:
         try:
-            vehicles.append(_traction_fit(d, run, d.cls, pins.get(d.id)))
+            vehicles.append(_traction_fit(d, run, d.cls, _Holds(pins.get(d.id), t_max)))
         except (UserError, ValidationError) as exc:  # a guard: an invalid agent is dropped, never an internal error
             bad = f"agent {d.id}: {format_validation_error(exc)}" if isinstance(exc, ValidationError) else exc
             run.warnings.append(f"{bad}; dropped")
@@ -394,32 +395,36 @@ MAX_RETIME_M = 0.5
 0.55 m, lost 0.035 of reprojection IoU (0.61 -> 0.57) and 0.05 in its replay (chosen on the fidelity clips)."""
 
 
-def _exceeds(v: Vehicle, kin: Kinematics) -> bool:
-    """Whether the vehicle's sampled speed changes faster than ``kin`` allows (:func:`traction.exceeds`)."""
-    return exceeds(np.asarray(v.trajectory.t), np.asarray(v.trajectory.speed), kin)
+@dataclass(frozen=True)
+class _Holds:
+    """What the traction fit leaves as it is: samples from ``pin_s`` (s) on (a crash pair's contact; None: no
+    pin) and up to ``lead_s`` (s; the step-back lead-in from rest, built within the limits at
+    ``stepback_accel_mps2``: its final spline's rounding where the lead-in meets the video is not re-timed)."""
+
+    pin_s: float | None
+    lead_s: float
 
 
-def _exceeding_s(v: Vehicle, kin: Kinematics) -> np.ndarray:
-    """Times (s) of the samples between which the vehicle's speed changes faster than ``kin`` allows."""
-    t, speed = np.asarray(v.trajectory.t), np.asarray(v.trajectory.speed)
-    acc = np.diff(speed) / np.diff(t)
-    bad = np.nonzero((acc > kin.max_accel_mps2) | (acc < -kin.max_brake_mps2))[0]
-    return np.concatenate([t[bad], t[bad + 1]])
+def _exceeding_s(v: Vehicle, kin: Kinematics, lead_s: float) -> np.ndarray:
+    """Times (s) of the samples after ``lead_s`` between which the vehicle's speed changes faster than ``kin``
+    allows (:func:`traction.exceeding_s`)."""
+    return exceeding_s(np.asarray(v.trajectory.t), np.asarray(v.trajectory.speed), kin, lead_s)
 
 
-def _traction_fit(d: Dense, run: _Run, cls: str | None, pin_s: float | None, allow_reverse: bool = False) -> Vehicle:
+def _traction_fit(d: Dense, run: _Run, cls: str | None, holds: _Holds, allow_reverse: bool = False) -> Vehicle:
     """:func:`_final_vehicle`; where its speed changes faster than the road user's kinematics allow (stage 2's
     smoothing or crash correction asked for more), the path is re-timed along itself within each of
-    ``TRACTION_MARGINS`` x its limits in turn (``trajectory.traction``; samples from ``pin_s`` s on held: the
-    crash keeps its time and place) until its fit keeps within them. Where none does within ``MAX_RETIME_M``
-    the first fit is kept. Warns either way."""
+    ``TRACTION_MARGINS`` x its limits in turn (``trajectory.traction``; ``holds``' samples held: the crash
+    keeps its time and place, the lead-in its ramp) until its fit keeps within them. Where none does within
+    ``MAX_RETIME_M`` the first fit is kept. Warns either way."""
     v = _final_vehicle(d, run.p, cls, allow_reverse)
     kin = kinematics(d.vehicle.category)
-    if d.static or not _exceeds(v, kin):
+    around = np.zeros(0) if d.static else _exceeding_s(v, kin, holds.lead_s)
+    if not len(around):
         return v
-    xy0, label, around = d.xy, "ego" if cls is None else f"agent {d.id}", _exceeding_s(v, kin)
+    xy0, label = d.xy, "ego" if cls is None else f"agent {d.id}"
     for margin in TRACTION_MARGINS:
-        d.xy = retimed_within(d.t, xy0, kin, margin, pin_s, around)
+        d.xy = retimed_within(d.t, xy0, kin, margin, holds.pin_s, around, holds.lead_s)
         try:
             fit = _final_vehicle(d, run.p, cls, allow_reverse)
         except UserError:  # a guard: the re-timed path is smoother; if not, the first fit is kept
@@ -427,7 +432,7 @@ def _traction_fit(d: Dense, run: _Run, cls: str | None, pin_s: float | None, all
         moved = float(np.hypot(*(d.xy - xy0).T).max())
         if moved > MAX_RETIME_M:  # smaller margins move it further
             break
-        if not _exceeds(fit, kin):
+        if not len(_exceeding_s(fit, kin, holds.lead_s)):
             run.warnings.append(
                 f"{label}: its processed path asked for more acceleration or braking than a {d.vehicle.category} "
                 f"has; re-timed along itself within {margin:.2f} x its limits (moved up to {moved:.2f} m)"
@@ -441,14 +446,14 @@ def _traction_fit(d: Dense, run: _Run, cls: str | None, pin_s: float | None, all
     return v
 
 
-def _forward_only_ego(ego: Dense, run: _Run, pin_s: float | None) -> Vehicle:
+def _forward_only_ego(ego: Dense, run: _Run, holds: _Holds) -> Vehicle:
     """The ego of a crawling, noisy monocular track: its backward steps along its overall travel are
     held in place (a dashcam car crawling does not reverse and drive on; the replay's vehicle cannot
     follow a path that turns back on itself); if a fit still runs backwards, it is kept as it is."""
     x, y = _hold_backward_steps(ego.xy[:, 0], ego.xy[:, 1], run.warnings, min_m=0.0)
     ego.xy = np.column_stack([x, y])
     try:
-        return _traction_fit(ego, run, None, pin_s)
+        return _traction_fit(ego, run, None, holds)
     except UserError:
         run.warnings.append("ego: its processed path runs briefly backwards (a slow, noisy ego-motion track); kept")
         return _final_vehicle(ego, run.p, None, allow_reverse=True)

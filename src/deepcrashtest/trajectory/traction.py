@@ -43,14 +43,23 @@ def along_accel(t: np.ndarray, s: np.ndarray) -> np.ndarray:
 
 
 def bounded_distances(
-    t: np.ndarray, s: np.ndarray, a_max: float, b_max: float, weight: np.ndarray | None = None, free_s: float = np.inf
+    t: np.ndarray,
+    s: np.ndarray,
+    a_max: float,
+    b_max: float,
+    weight: np.ndarray | None = None,
+    free_s: float = np.inf,
+    lead_s: float = -np.inf,
 ) -> np.ndarray:
     """The distances (m, N) at the increasing times ``t`` (s, N) closest to ``s`` (weighted least squares,
     ``weight`` (N,) or all 1) whose first speed is >= 0 and whose :func:`along_accel` lies in
-    [-``b_max``, ``a_max``] (m/s^2) up to ``free_s`` (s; after it unbounded); never decreasing."""
+    [-``b_max``, ``a_max``] (m/s^2) after ``lead_s`` and up to ``free_s`` (s; elsewhere unbounded); never
+    decreasing."""
     n = len(t)
     A = np.hstack([np.ones((n, 1)), (t - t[0])[:, None], np.maximum(t[:, None] - t[None, 1:-1], 0.0)])
-    half = np.where(t[1:-1] > free_s + 1e-6, np.inf, 0.5 * (t[2:] - t[:-2]))
+    inner = t[1:-1]
+    unbounded = (inner > free_s + 1e-6) | (inner < lead_s + 1e-6)
+    half = np.where(unbounded, np.inf, 0.5 * (t[2:] - t[:-2]))
     lb = np.concatenate([[-np.inf, 0.0], -b_max * half])
     ub = np.concatenate([[np.inf, np.inf], a_max * half])
     w = np.ones(n) if weight is None else weight
@@ -58,14 +67,15 @@ def bounded_distances(
     return np.maximum.accumulate(A @ x)
 
 
-def exceeds(t: np.ndarray, speed: np.ndarray, kin: Kinematics) -> bool:
-    """Whether the speeds ``speed`` (m/s) at times ``t`` (s) rise faster than ``kin.max_accel_mps2`` or fall
-    faster than ``kin.max_brake_mps2`` between any two consecutive samples (``np.gradient``'s values are
-    weighted means of these, so they keep within the limits too)."""
+def exceeding_s(t: np.ndarray, speed: np.ndarray, kin: Kinematics, lead_s: float = -np.inf) -> np.ndarray:
+    """Times (s) of the consecutive samples between which the speeds ``speed`` (m/s) at times ``t`` (s) rise
+    faster than ``kin.max_accel_mps2`` or fall faster than ``kin.max_brake_mps2`` (``np.gradient``'s values
+    are weighted means of these, so they keep within the limits too); only intervals from ``lead_s`` on."""
     if len(t) < 2:
-        return False
+        return np.zeros(0)
     acc = np.diff(speed) / np.diff(t)
-    return bool(acc.max() > kin.max_accel_mps2 or acc.min() < -kin.max_brake_mps2)
+    bad = np.nonzero(((acc > kin.max_accel_mps2) | (acc < -kin.max_brake_mps2)) & (t[:-1] >= lead_s - 1e-6))[0]
+    return np.concatenate([t[bad], t[bad + 1]])
 
 
 def retimed_within(
@@ -75,14 +85,17 @@ def retimed_within(
     margin: float,
     pin_s: float | None = None,
     around_s: np.ndarray | None = None,
+    lead_s: float = -np.inf,
 ) -> np.ndarray:
     """The path ``xy`` (m, N x 2) at times ``t`` (s) re-timed along itself within ``margin`` x ``kin``'s
     acceleration and braking, its samples from ``pin_s`` (s) on held (module docstring). ``around_s``: only
-    within ``WINDOW_S`` of these times (s), the samples beyond held (the whole path: None)."""
+    within ``WINDOW_S`` of these times (s), the samples beyond held (the whole path: None). ``lead_s``: the
+    samples up to it (s; the step-back lead-in from rest, built within the limits) held as they are."""
     if len(t) < 4:
         return xy
     s = arc_length(xy)
     weight = np.ones(len(t)) if pin_s is None else np.where(t >= pin_s - 1e-6, PIN_WEIGHT, 1.0)
+    weight[t <= lead_s + 1e-6] = PIN_WEIGHT
     lo, hi = 0, len(t)
     if around_s is not None and len(around_s):
         lo = max(0, int(np.searchsorted(t, np.min(around_s) - WINDOW_S)) - 2)
@@ -93,6 +106,6 @@ def retimed_within(
     part = slice(lo, hi)
     s_new = s.copy()
     s_new[part] = bounded_distances(
-        t[part], s[part], margin * kin.max_accel_mps2, margin * kin.max_brake_mps2, weight[part], free
+        t[part], s[part], margin * kin.max_accel_mps2, margin * kin.max_brake_mps2, weight[part], free, lead_s
     )
     return along_path(xy, s, s_new)
