@@ -421,11 +421,13 @@ def test_one_frame_video_and_crash_at_frame_0_say_what_to_give(capsys, tmp_path)
     [
         ("fx: -5\ncx: 80\ncy: 45\n", "(fx: Input should be greater than 0;"),
         ("hfov_deg: 60\nheight_m: -1\n", "height_m"),
+        ("fx: 800\ncx: 5000\ncy: 300\n", "lies outside the"),
     ],
 )
 def test_camera_file_out_of_range_is_one_line(capsys, tmp_path, yaml_text, fragment):
     """A camera YAML that parses but breaks the Camera's bounds (negative focal length or height) is refused
-    in one line naming the field (pydantic's own text spans four lines), before the real clip is read."""
+    in one line naming the field (pydantic's own text spans four lines), before the real clip is read; so is
+    a principal point outside the video's frame (it was accepted, and the ego's speed came out 0)."""
     from conftest import DATA, need
 
     cam = tmp_path / "cam.yaml"

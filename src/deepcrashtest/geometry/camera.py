@@ -423,6 +423,11 @@ def camera_for_video(
     """
     if yaml_path is not None:
         cam = camera_from_yaml(yaml_path, width, height)
+        if not (0 <= cam.cx <= width and 0 <= cam.cy <= height):
+            raise UserError(
+                f"{yaml_path}: principal point (cx, cy) = ({cam.cx:g}, {cam.cy:g}) px lies outside the "
+                f"{width}x{height} frame (a camera file for another resolution?)"
+            )
     elif chessboard is not None:
         cam, _, _ = calibrate_chessboard(chessboard)
         first = next(p for p in sorted(Path(chessboard).iterdir()) if p.suffix.lower() in {".jpg", ".jpeg", ".png"})
