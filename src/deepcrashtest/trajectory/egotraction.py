@@ -30,6 +30,11 @@ MIN_TRAVEL_M = 1.0
 """An ego that travels less than this (metres) is left alone (a parked camera's noise)."""
 
 
+def arc_length(xy: np.ndarray) -> np.ndarray:
+    """Cumulative distance (m, N) along the points ``xy`` (N, 2), 0 at the first."""
+    return np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
+
+
 def along_path(xy: np.ndarray, s: np.ndarray, s_new: np.ndarray) -> np.ndarray:
     """Points (M, 2) at distances ``s_new`` (M,) along the path ``xy`` (N, 2) whose samples lie at the
     non-decreasing distances ``s`` (N,); continued straight along the end steps beyond its ends."""
@@ -67,7 +72,7 @@ def ego_within_traction(
     kin = kin or kinematics(raw.ego.category)
     e = raw.ego.trajectory.arrays()
     t, xy = e["t"], np.column_stack([e["x"], e["y"]])
-    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))]) if len(t) > 1 else np.zeros(len(t))
+    s = arc_length(xy)
     if len(t) < 5 or s[-1] < MIN_TRAVEL_M:
         return raw, 0.0
     m = int(np.ceil((t[-1] - t[0]) / GRID_S - 1e-9)) + 1

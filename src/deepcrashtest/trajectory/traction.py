@@ -19,18 +19,13 @@ import numpy as np
 from scipy.optimize import lsq_linear
 
 from deepcrashtest.scenario import Kinematics
-from deepcrashtest.trajectory.egotraction import along_path
+from deepcrashtest.trajectory.egotraction import along_path, arc_length
 
 PIN_WEIGHT = 1e3
 """Weight of a pinned sample's distance against 1 for the others: pinned samples move by millimetres."""
 WINDOW_S = 1.5
 """Only the samples within this many seconds of where a path asks too much are re-timed (the speed change
 is spread over them; the whole path's least squares cost 20-80 s CPU on the highway clip's long tracks)."""
-
-
-def arc_length(xy: np.ndarray) -> np.ndarray:
-    """Cumulative distance (m, N) along the points ``xy`` (N, 2), 0 at the first."""
-    return np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
 
 
 def along_accel(t: np.ndarray, s: np.ndarray) -> np.ndarray:
