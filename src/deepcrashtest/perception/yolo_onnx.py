@@ -55,6 +55,12 @@ COCO80 = (
 ).split()
 
 
+def _stride_size(h: int, w: int, scale: float) -> tuple[int, int]:
+    """A network input (rows, columns) for an ``h`` x ``w`` image scaled by ``scale``: each side rounded to
+    whole 32-px strides, at least one."""
+    return (max(32, int(round(h * scale / 32)) * 32), max(32, int(round(w * scale / 32)) * 32))
+
+
 #: ``sky``: the fine pass leaves the top rows out only when the coarse pass's candidates all start this fraction
 #: of the image height below them (a road user reaching up into that band, e.g. a near truck: the whole image).
 SKY_MARGIN = 0.1
@@ -116,14 +122,12 @@ class OnnxYoloDetector:
         if not self.dynamic:
             return self.input_hw
         r = self.long_side / max(h, w) if self.long_side else float(np.sqrt(self.input_area / (h * w)))
-        return (max(32, int(round(h * r / 32)) * 32), max(32, int(round(w * r / 32)) * 32))
+        return _stride_size(h, w, r)
 
     def _coarse_pass(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The whole image at ``coarse`` px (long side): every candidate's (boxes, scores, class indices)."""
         h, w = image.shape[:2]
-        s = (self.coarse or 0) / max(h, w)
-        hw = (max(32, int(round(h * s / 32)) * 32), max(32, int(round(w * s / 32)) * 32))
-        _out, pred, r, px, py = self._run(image, hw)
+        _out, pred, r, px, py = self._run(image, _stride_size(h, w, (self.coarse or 0) / max(h, w)))
         boxes, score, cls, _keep = self._candidates(pred, r, px, py, (h, w))
         return boxes, score, cls
 
