@@ -14,6 +14,8 @@ import numpy as np
 from scipy.interpolate import splev, splprep
 from scipy.spatial import cKDTree
 
+from deepcrashtest.trajectory.alongpath import arc_length
+
 _EPS = 1e-9
 
 
@@ -31,7 +33,7 @@ class RoadFrame:
         p = p[keep]
         if len(p) < 2:
             raise ValueError("a road frame needs two distinct points")
-        s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))])
+        s = arc_length(p)
         return cls(p, s)
 
     @classmethod
@@ -46,7 +48,7 @@ class RoadFrame:
         """
         p = np.asarray(xy, dtype=float)
         p = p[np.r_[True, np.hypot(*np.diff(p, axis=0).T) > 1e-3]] if len(p) > 1 else p
-        u = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))]) if len(p) > 1 else np.zeros(1)
+        u = arc_length(p)
         if u[-1] < 1.0:
             d = np.array([np.cos(heading), np.sin(heading)])
             return cls.from_polyline(np.vstack([p[0], p[0] + min_length_m * d]))

@@ -19,7 +19,7 @@ import numpy as np
 from scipy.optimize import lsq_linear
 
 from deepcrashtest.scenario import Kinematics
-from deepcrashtest.trajectory.egotraction import along_path, arc_length
+from deepcrashtest.trajectory.alongpath import along_path, arc_length
 
 PIN_WEIGHT = 1e3
 """Weight of a pinned sample's distance against 1 for the others: pinned samples move by millimetres."""
