@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from deepcrashtest.scenario import VEHICLE_KINEMATICS, Scenario, kinematics
-from deepcrashtest.trajectory.traction import along_accel, arc_length, retimed_within
+from deepcrashtest.trajectory.alongpath import along_accel, arc_length
+from deepcrashtest.trajectory.traction import retimed_within
 
 
 @pytest.fixture(scope="module")

@@ -1,13 +1,17 @@
-"""Distance along a path: its cumulative arc length and the points at given distances along it.
+"""Distance along a path: its cumulative arc length, the points at given distances along it, and the closest
+distances at given times whose acceleration stays within bounds.
 
-The most basic module of ``trajectory/`` (NumPy only): the road frame's stations, the ego's and every road
-user's re-timing along its own path (``egotraction``, ``traction``) all measure distance here. Positions in
-metres (world frame: x forward, y left).
+The most basic module of ``trajectory/`` (NumPy and SciPy only): the road frame's stations and the re-timing
+of the raw ego (``egotraction``, on a uniform 0.1 s grid) and of every processed road user (``traction``, at
+its own sample times, with weights and held ranges) along its own path all go through here; the bounded
+least squares is SciPy's ``lsq_linear`` (bvls). Positions in metres (world frame: x forward, y left), times
+in seconds, accelerations in m/s^2.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.optimize import lsq_linear
 
 
 def arc_length(xy: np.ndarray) -> np.ndarray:
@@ -28,3 +32,37 @@ def along_path(xy: np.ndarray, s: np.ndarray, s_new: np.ndarray) -> np.ndarray:
         out[lo] = pts[0] + (s_new[lo] - ss[0])[:, None] * u0
         out[hi] = pts[-1] + (s_new[hi] - ss[-1])[:, None] * u1
     return out
+
+
+def along_accel(t: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Acceleration (m/s^2, N-2) at the inner samples of the distances ``s`` (m) at times ``t`` (s): the change
+    of the speed between the two neighbouring intervals over half their summed length."""
+    if len(t) < 3:
+        return np.zeros(0)
+    v = np.diff(s) / np.diff(t)
+    return np.diff(v) / (0.5 * (t[2:] - t[:-2]))
+
+
+def bounded_distances(
+    t: np.ndarray,
+    s: np.ndarray,
+    a_max: float,
+    b_max: float,
+    weight: np.ndarray | None = None,
+    free_s: float = np.inf,
+    lead_s: float = -np.inf,
+) -> np.ndarray:
+    """The distances (m, N) at the increasing times ``t`` (s, N) closest to ``s`` (weighted least squares,
+    ``weight`` (N,) or all 1) whose first speed is >= 0 and whose :func:`along_accel` lies in
+    [-``b_max``, ``a_max``] (m/s^2) after ``lead_s`` and up to ``free_s`` (s; elsewhere unbounded); never
+    decreasing."""
+    n = len(t)
+    A = np.hstack([np.ones((n, 1)), (t - t[0])[:, None], np.maximum(t[:, None] - t[None, 1:-1], 0.0)])
+    inner = t[1:-1]
+    unbounded = (inner > free_s + 1e-6) | (inner < lead_s + 1e-6)
+    half = np.where(unbounded, np.inf, 0.5 * (t[2:] - t[:-2]))
+    lb = np.concatenate([[-np.inf, 0.0], -b_max * half])
+    ub = np.concatenate([[np.inf, np.inf], a_max * half])
+    w = np.ones(n) if weight is None else weight
+    x = lsq_linear(A * w[:, None], s * w, bounds=(lb, ub), method="bvls").x
+    return np.maximum.accumulate(A @ x)

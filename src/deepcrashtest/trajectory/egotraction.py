@@ -8,40 +8,26 @@ and then jumps to the next measurement (ccd_000053 upscaled to 1920x1080: 1.4 ->
 1-1.4 m behind it and missed the crash the scenario was made to have.
 
 Here the ego's distance along its (raw) path, smoothed as stage 2 smooths it, is replaced by the closest one
-(least squares, SciPy's bounded ``lsq_linear``) whose acceleration stays within ``margin`` x those limits
-(the rest is the replay's path follower's headroom), and every agent is moved with the ego at its time:
-the agents were placed relative to the camera and stay where the camera saw them (the raw scenario's
-reprojection is unchanged; the error of a held speed is the ego's, common to everything it placed). An
-ego that already keeps within the limits is unchanged. Times in seconds, positions in metres (world
-frame), accelerations in m/s^2.
+(least squares on a 0.1 s grid, ``alongpath.bounded_distances``, as every processed road user's in ``traction``)
+whose acceleration stays within ``margin`` x those limits (the rest is the replay's path follower's headroom),
+and every agent is moved with the ego at its time: the agents were placed relative to the camera and stay where
+the camera saw them (the raw scenario's reprojection is unchanged; the error of a held speed is the ego's,
+common to everything it placed). An ego that already keeps within the limits is unchanged. Times in seconds,
+positions in metres (world frame), accelerations in m/s^2.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import lsq_linear
 
 from deepcrashtest.scenario import Kinematics, Scenario, kinematics
-from deepcrashtest.trajectory.alongpath import along_path, arc_length
+from deepcrashtest.trajectory.alongpath import along_path, arc_length, bounded_distances
 from deepcrashtest.trajectory.egoheading import carry_with_ego, smooth_series
 
 GRID_S = 0.1
 """Spacing (s) of the re-timed profile's samples: its acceleration is constant between them."""
 MIN_TRAVEL_M = 1.0
 """An ego that travels less than this (metres) is left alone (a parked camera's noise)."""
-
-
-def bounded_profile(s: np.ndarray, dt: float, a_max: float, b_max: float) -> np.ndarray:
-    """The distances (M,) closest to ``s`` (M,) (least squares), sampled every ``dt`` s, whose second
-    differences / dt^2 lie in [-``b_max``, ``a_max``] and whose first speed is >= 0."""
-    m = len(s)
-    k = np.arange(m)[:, None]
-    j = np.arange(1, m - 1)[None, :]
-    A = np.hstack([np.ones((m, 1)), k * dt, dt * dt * np.maximum(k - j, 0)])
-    lb = np.concatenate([[-np.inf, 0.0], np.full(m - 2, -b_max)])
-    ub = np.concatenate([[np.inf, np.inf], np.full(m - 2, a_max)])
-    x = lsq_linear(A, s, bounds=(lb, ub), method="bvls").x
-    return np.maximum.accumulate(A @ x)  # never backwards
 
 
 def ego_within_traction(
@@ -64,7 +50,7 @@ def ego_within_traction(
     acc = np.diff(sg, 2) / dt**2
     if m < 4 or (acc.max() <= a_max and acc.min() >= -b_max):
         return raw, 0.0
-    ds = np.interp(t, tg, bounded_profile(sg, dt, a_max, b_max) - sg)
+    ds = np.interp(t, tg, bounded_distances(tg, sg, a_max, b_max) - sg)
     shift = along_path(xy, s, s + ds) - xy
     largest = float(np.hypot(*shift.T).max())
     warnings.append(

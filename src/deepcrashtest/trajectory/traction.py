@@ -5,61 +5,26 @@ Stage 2 changes each path's speed after the raw ego's re-timing (``trajectory.eg
 steering limits exists, bounds only the acceleration it adds on each axis), the lead-in and the final spline.
 On a copy of ccd_000053 filmed off a screen the raw ego, re-timed within 3.4 m/s^2, came out of the smoothing
 at 4.12 m/s^2, 1.6 s before the crash; the simulator's vehicle (``Kinematics.max_accel_mps2``, 4 m/s^2) lags
-such a path. Here the distance along such a path is replaced by the closest one (least squares, SciPy's
-bounded ``lsq_linear``) whose acceleration between samples stays within ``margin`` x those limits; its
-samples from ``pin_s`` on (a crash pair's contact and the overlap after it) are held where they are
-(weighted ``PIN_WEIGHT`` times, their own speed changes left as they are: the impact's), so the crash keeps
-its time and place. The path's shape is unchanged. Times in seconds, positions in metres (world frame),
-accelerations in m/s^2.
+such a path. Here the distance along such a path is replaced by the closest one (least squares,
+``alongpath.bounded_distances``, as the raw ego's in ``egotraction``) whose acceleration between samples
+stays within ``margin`` x those limits; its samples from ``pin_s`` on (a crash pair's contact and the overlap
+after it) are held where they are (weighted ``PIN_WEIGHT`` times, their own speed changes left as they are:
+the impact's), so the crash keeps its time and place. The path's shape is unchanged. Times in seconds,
+positions in metres (world frame), accelerations in m/s^2.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import lsq_linear
 
 from deepcrashtest.scenario import Kinematics
-from deepcrashtest.trajectory.alongpath import along_path, arc_length
+from deepcrashtest.trajectory.alongpath import along_path, arc_length, bounded_distances
 
 PIN_WEIGHT = 1e3
 """Weight of a pinned sample's distance against 1 for the others: pinned samples move by millimetres."""
 WINDOW_S = 1.5
 """Only the samples within this many seconds of where a path asks too much are re-timed (the speed change
 is spread over them; the whole path's least squares cost 20-80 s CPU on the highway clip's long tracks)."""
-
-
-def along_accel(t: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """Acceleration (m/s^2, N-2) at the inner samples of the distances ``s`` (m) at times ``t`` (s): the change
-    of the speed between the two neighbouring intervals over half their summed length."""
-    if len(t) < 3:
-        return np.zeros(0)
-    v = np.diff(s) / np.diff(t)
-    return np.diff(v) / (0.5 * (t[2:] - t[:-2]))
-
-
-def bounded_distances(
-    t: np.ndarray,
-    s: np.ndarray,
-    a_max: float,
-    b_max: float,
-    weight: np.ndarray | None = None,
-    free_s: float = np.inf,
-    lead_s: float = -np.inf,
-) -> np.ndarray:
-    """The distances (m, N) at the increasing times ``t`` (s, N) closest to ``s`` (weighted least squares,
-    ``weight`` (N,) or all 1) whose first speed is >= 0 and whose :func:`along_accel` lies in
-    [-``b_max``, ``a_max``] (m/s^2) after ``lead_s`` and up to ``free_s`` (s; elsewhere unbounded); never
-    decreasing."""
-    n = len(t)
-    A = np.hstack([np.ones((n, 1)), (t - t[0])[:, None], np.maximum(t[:, None] - t[None, 1:-1], 0.0)])
-    inner = t[1:-1]
-    unbounded = (inner > free_s + 1e-6) | (inner < lead_s + 1e-6)
-    half = np.where(unbounded, np.inf, 0.5 * (t[2:] - t[:-2]))
-    lb = np.concatenate([[-np.inf, 0.0], -b_max * half])
-    ub = np.concatenate([[np.inf, np.inf], a_max * half])
-    w = np.ones(n) if weight is None else weight
-    x = lsq_linear(A * w[:, None], s * w, bounds=(lb, ub), method="bvls").x
-    return np.maximum.accumulate(A @ x)
 
 
 def exceeding_s(t: np.ndarray, speed: np.ndarray, kin: Kinematics, lead_s: float = -np.inf) -> np.ndarray:
