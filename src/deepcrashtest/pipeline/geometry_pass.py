@@ -68,8 +68,68 @@ class GeometryResult:
     dashboard_rows: int
     horizon_source: str
     calibration: SelfCalibration | None = None
-    #: the same geometry with the ego speeds cut at a time (s): see :func:`cut_at_crash`
-    rebuild: Callable[[float | None, float], GeometryResult | None] | None = None
+    #: the same geometry with the ego speeds cut at a crash: see :func:`cut_at_crash`
+    speed_cut: SpeedCut | None = None
+
+
+@dataclass(frozen=True)
+class SpeedCut:
+    """The geometry stage's last step kept so that it can run again with the ego speeds cut at a crash
+    (:meth:`cut`): the pass's ego-motion estimator, its uncut ego-motion, the self-calibration's scale and what
+    builds the raw scenario from them (the tracks, the video, the camera, the lanes, the localiser)."""
+
+    estimator: EgoMotionEstimator
+    indices: list[int]  #: the video's frame index of each frame the estimator measured
+    ego: EgoMotion  #: uncut, as measured (before the self-calibration's scale)
+    tracks: pd.DataFrame
+    meta: VideoSource | Mapping[str, Any]
+    camera: Camera
+    lanes: LaneTimelineResult | None
+    lane_states: dict[int, LaneState]
+    localizer: Localizer | None
+    dashboard_rows: int
+    horizon_source: str
+    calibration: SelfCalibration | None
+    #: the self-calibration's (length, focal ratio) for :func:`rescaled`; (1, 1) without one
+    scale: tuple[float, float]
+    name: str
+    seed: int
+
+    def cut(self, crash_time: float, min_change: float) -> GeometryResult | None:
+        """The geometry with the ego speeds up to ``crash_time`` (s, video time) smoothed from the readings up
+        to it only; None when no speed moves by more than ``min_change`` (m/s)."""
+        ego = self._scaled(_ego_result(self.estimator, self.indices, crash_time))
+        if np.max(np.abs(ego.speed - self.ego.speed * self.scale[0]), initial=0.0) <= min_change:
+            return None
+        return self.result(ego, crash_time)
+
+    def result(self, ego: EgoMotion | None = None, cut_time: float | None = None) -> GeometryResult:
+        """The geometry with the ego-motion ``ego`` (None: the uncut one, scaled), cut at ``cut_time`` (s)."""
+        ego = self._scaled(self.ego) if ego is None else ego
+        from deepcrashtest.geometry.world_tracks import raw_scenario_from_tracks  # SciPy's signal: imported late
+
+        sc = raw_scenario_from_tracks(
+            self.tracks, self.meta, self.camera, ego, self.lanes, self.localizer, name=self.name, seed=self.seed
+        )
+        params = {
+            **sc.provenance.parameters,
+            "dashboard_rows": self.dashboard_rows,
+            "horizon_source": self.horizon_source,
+        }
+        if self.calibration is not None:
+            params["self_calibration"] = self.calibration.summary()
+        if cut_time is not None:
+            params["ego_speed_cut_s"] = round(float(cut_time), 4)
+        sc = sc.evolve(provenance=sc.provenance.model_copy(update={"parameters": params}))
+        return GeometryResult(
+            sc, self.camera, ego, self.lanes, self.lane_states, self.dashboard_rows, self.horizon_source,
+            self.calibration, self,
+        )  # fmt: skip
+
+    def _scaled(self, ego: EgoMotion) -> EgoMotion:
+        """``ego`` under the self-calibrated camera: speeds scale with focal length x height, rotations (seen as
+        focal x angle) with the focal length."""
+        return rescaled(ego, *self.scale) if self.calibration is not None else ego
 
 
 def estimate_camera(
@@ -168,28 +228,12 @@ def extract_geometry(
         cam = calibration.camera
         horizon_source = cam.pitch_source
 
-    def build(cut_time: float | None, min_change: float = 0.0) -> GeometryResult | None:
-        ego_cut = ego if cut_time is None else _ego_result(ego_est, indices, cut_time)
-        # speeds scale with focal length x height, rotations (seen as focal x angle) with the focal length
-        ego_cut = rescaled(ego_cut, *scale) if calibration is not None else ego_cut
-        if cut_time is not None and np.max(np.abs(ego_cut.speed - ego.speed * scale[0]), initial=0.0) <= min_change:
-            return None
-        from deepcrashtest.geometry.world_tracks import raw_scenario_from_tracks  # SciPy's signal: imported late
-
-        sc = raw_scenario_from_tracks(tracks, meta, cam, ego_cut, lane_tl, localizer, name=name, seed=seed)
-        params = {**sc.provenance.parameters, "dashboard_rows": rows, "horizon_source": horizon_source}
-        if calibration is not None:
-            params["self_calibration"] = calibration.summary()
-        if cut_time is not None:
-            params["ego_speed_cut_s"] = round(float(cut_time), 4)
-        sc = sc.evolve(provenance=sc.provenance.model_copy(update={"parameters": params}))
-        geo = GeometryResult(sc, cam, ego_cut, lane_tl, lane_states, rows, horizon_source, calibration)
-        geo.rebuild = build
-        return geo
-
-    geo = build(None)
-    assert geo is not None
-    return geo
+    cut = SpeedCut(
+        estimator=ego_est, indices=indices, ego=ego, tracks=tracks, meta=meta, camera=cam, lanes=lane_tl,
+        lane_states=lane_states, localizer=localizer, dashboard_rows=rows, horizon_source=horizon_source,
+        calibration=calibration, scale=scale, name=name, seed=seed,
+    )  # fmt: skip
+    return cut.result()
 
 
 def _ego_result(est: EgoMotionEstimator, indices: list[int], cut_time: float | None = None) -> EgoMotion:
@@ -205,7 +249,7 @@ def cut_at_crash(geo: GeometryResult, crash_time: float, min_change: float = 0.0
     to it only (:meth:`EgoMotionEstimator.result`'s ``cut_time``): the speed smoother otherwise carries the
     crash's slowing, read after it, back before it (ccd_000053). Unchanged (``geo`` itself) when no speed
     moves by more than ``min_change`` (m/s) or ``geo`` cannot be rebuilt."""
-    cut = None if geo.rebuild is None else geo.rebuild(crash_time, min_change)
+    cut = None if geo.speed_cut is None else geo.speed_cut.cut(crash_time, min_change)
     return geo if cut is None else cut
 
 
