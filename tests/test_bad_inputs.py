@@ -385,10 +385,9 @@ def test_along_road_without_samples_is_no_lane_evidence():
     assert along_road(frame, np.array([[10.0, 1.0], [20.0, 1.0]]), 0.0) is True
 
 
-def test_one_frame_video_and_crash_at_frame_0_say_what_to_give(capsys, tmp_path):
-    """A 1-frame clip cut from a real crash clip: extract exits 2 with one line that says why and what
-    works (--no-geometry, which then writes its tracks); --crash 0 on a 2-frame clip names frame 0 as the
-    first frame (not "outside the video") and the range to give."""
+@pytest.fixture(scope="module")
+def ccd53_small() -> list[np.ndarray]:
+    """The first 25 frames of a real crash clip (CCD 000053, 10 fps) at a quarter of its size (320x180 px)."""
     from itertools import islice
 
     import av
@@ -396,16 +395,34 @@ def test_one_frame_video_and_crash_at_frame_0_say_what_to_give(capsys, tmp_path)
     from conftest import DATA, need
 
     with av.open(str(need(DATA / "crash_ccd" / "ccd_000053.mp4"))) as c:
-        frames = [f.to_ndarray(format="bgr24")[::4, ::4] for f in islice(c.decode(video=0), 2)]
-    clips = {}
-    for n in (1, 2):
-        clips[n] = tmp_path / f"{n}.mp4"
-        with av.open(str(clips[n]), "w") as c:
-            s = c.add_stream("libx264", rate=10)
-            s.height, s.width = frames[0].shape[:2]
-            for img in frames[:n]:
-                c.mux(s.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="bgr24")))
-            c.mux(s.encode())
+        return [f.to_ndarray(format="bgr24")[::4, ::4] for f in islice(c.decode(video=0), 25)]
+
+
+def write_clip(path: Path, frames: list[np.ndarray], times_s: list[float] | None = None) -> Path:
+    """An H.264 clip of ``frames`` (BGR) at 10 fps, or at the frame times ``times_s`` (s, whole milliseconds)."""
+    from fractions import Fraction
+
+    import av
+
+    with av.open(str(path), "w") as c:
+        s = c.add_stream("libx264", rate=10)
+        s.height, s.width = frames[0].shape[:2]
+        if times_s is not None:
+            s.codec_context.time_base = Fraction(1, 1000)
+        for i, img in enumerate(frames):
+            frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="bgr24")
+            if times_s is not None:
+                frame.pts, frame.time_base = round(times_s[i] * 1000), Fraction(1, 1000)
+            c.mux(s.encode(frame))
+        c.mux(s.encode())
+    return path
+
+
+def test_one_frame_video_and_crash_at_frame_0_say_what_to_give(capsys, tmp_path, ccd53_small):
+    """A 1-frame clip cut from a real crash clip: extract exits 2 with one line that says why and what
+    works (--no-geometry, which then writes its tracks); --crash 0 on a 2-frame clip names frame 0 as the
+    first frame (not "outside the video") and the range to give."""
+    clips = {n: write_clip(tmp_path / f"{n}.mp4", ccd53_small[:n]) for n in (1, 2)}
     rc, _, err = cli(capsys, "extract", clips[1], "-o", tmp_path / "a", "--no-lanes", "--no-report")
     assert_clear_error(rc, err, "fewer than 2 frames")
     assert "--no-geometry" in err and not (tmp_path / "a").exists()
@@ -414,6 +431,52 @@ def test_one_frame_video_and_crash_at_frame_0_say_what_to_give(capsys, tmp_path)
     rc, _, err = cli(capsys, "extract", clips[2], "-o", tmp_path / "c", "--crash", "0", "--no-lanes", "--no-report")
     assert_clear_error(rc, err, "frame 0 is the first frame")
     assert "give 1..1" in err
+
+
+def test_batch_names_the_video_that_failed(capsys, tmp_path, ccd53_small):
+    """A batch over a folder with a 1-frame clip: the input fails (exit 1, the batch goes on) and its manifest
+    error names the file (it said only "the video has fewer than 2 frames")."""
+    (tmp_path / "in").mkdir()
+    clip = write_clip(tmp_path / "in" / "one_frame.mp4", ccd53_small[:1])
+    rc, _, err = cli(capsys, "batch", tmp_path / "in", "-o", tmp_path / "out", "--workers", 1)
+    assert rc == 1, err
+    entry = json.loads((tmp_path / "out" / "manifest.json").read_text())["items"]["one_frame"]
+    assert entry["status"] == "failed" and str(clip) in entry["error"] and "fewer than 2 frames" in entry["error"]
+
+
+def test_dashboard_rows_beyond_the_frame_refused_within_it_cut_with_a_warning(capsys, tmp_path, ccd53_small):
+    """``--dashboard-rows`` on a real 320x180 clip: 180 or more would hide the whole frame (a value for
+    another resolution): one line, exit 2, no folder (it was cut to 60 silently); 100 is cut to a third of
+    the frame (60), and the run says so in one warning (it said nothing)."""
+    clip = write_clip(tmp_path / "c.mp4", ccd53_small)
+    rc, _, err = cli(capsys, "extract", clip, "-o", tmp_path / "a", "--dashboard-rows", 180)
+    assert_clear_error(rc, err, "--dashboard-rows 180 hides the whole 320x180 frame")
+    assert not (tmp_path / "a").exists()
+    rc, out, err = cli(
+        capsys, "extract", clip, "-o", tmp_path / "b", "--dashboard-rows", 100, "--no-lanes", "--no-report"
+    )
+    assert rc == 0, err
+    notes = [line for line in out.splitlines() if "--dashboard-rows" in line]
+    assert notes == ["warning: --dashboard-rows 100 cut to 60 (a third of the 180-row frame: the geometry needs the "
+                     "road below the horizon)"]  # fmt: skip
+    raw = Scenario.load(tmp_path / "b" / "scenario_raw.json")
+    assert raw.provenance.parameters["dashboard_rows"] == 60
+
+
+def test_variable_frame_rate_is_said_with_its_range(capsys, tmp_path, ccd53_small):
+    """A real clip re-timed to 30 fps for 10 frames, then 10 fps: the summary line says the rate is variable
+    with its range (it showed only the container's mean, 15.8 fps); the same frames at a constant 30 fps
+    (timestamps rounded to milliseconds: 33 or 34 ms apart) keep the plain rate."""
+    vfr = [i / 30 for i in range(10)] + [9 / 30 + i / 10 for i in range(1, 11)]
+    clips = {"vfr": vfr, "cfr": [i / 30 for i in range(20)]}
+    lines = {}
+    for name, times in clips.items():
+        clip = write_clip(tmp_path / f"{name}.mp4", ccd53_small[:20], times)
+        rc, out, err = cli(capsys, "extract", clip, "-o", tmp_path / name, "--no-geometry")
+        assert rc == 0, err
+        lines[name] = out.splitlines()[0]
+    assert "(320x180 @ variable 10.0-30.3 fps, mean 15.785)" in lines["vfr"], lines["vfr"]  # FFmpeg's mean
+    assert "(320x180 @ 27.248 fps)" in lines["cfr"], lines["cfr"]  # FFmpeg's mean of a short clip
 
 
 @pytest.mark.parametrize(

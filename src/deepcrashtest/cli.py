@@ -312,8 +312,10 @@ def _extract_summary(r: dict[str, Any]) -> None:
         for w in r["warnings"]:
             typer.echo(f"warning: {w}")
         return
+    rates = r.get("fps_video_range")
+    rate = f"variable {rates[0]:.1f}-{rates[1]:.1f} fps, mean {r['fps_video']}" if rates else f"{r['fps_video']} fps"
     typer.echo(
-        f"{r['frames']} frames ({r['width']}x{r['height']} @ {r['fps_video']} fps), {r['tracks']} tracks, "
+        f"{r['frames']} frames ({r['width']}x{r['height']} @ {rate}), {r['tracks']} tracks, "
         f"mean track length {r['mean_track_length_frames']} frames, {r['fps_achieved']} fps achieved"
     )
     typer.echo(f"wrote {r['tracks_csv']}" + (f" and {r['annotated_mp4']}" if r["annotated_mp4"] else ""))

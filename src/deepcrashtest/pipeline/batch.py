@@ -143,7 +143,7 @@ def run_batch(
             # an unfinished earlier attempt may have left files in this input's own folder: replace them
             result = process_video(item, out / name, cfg, engine, workers, force=True)
         except Exception as exc:  # a bad input must not stop the batch
-            entry.update(status="failed", error=f"{type(exc).__name__}: {exc}", result=None)
+            entry.update(status="failed", error=_named_error(exc, item), result=None)
             if not isinstance(exc, UserError):
                 entry["traceback"] = traceback.format_exc(limit=4)
         else:
@@ -159,6 +159,13 @@ def run_batch(
         "skipped": skipped,
         "errors": {n: e["error"] for n, e in manifest["items"].items() if e["status"] == "failed"},
     }
+
+
+def _named_error(exc: Exception, item: Path) -> str:
+    """The manifest's error of a failed input: the error's kind and text, led by the input's path where the
+    text does not name it (a 1-frame video's "fewer than 2 frames" named no file)."""
+    text = str(exc) if str(item) in str(exc) else f"{item}: {exc}"
+    return f"{type(exc).__name__}: {text}"
 
 
 def check_options(cfg: SearchConfig, engine: str, workers: int) -> None:

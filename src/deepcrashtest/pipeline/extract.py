@@ -201,6 +201,7 @@ def _run_pass(
     result = _summary(plan, meta, df, elapsed)
     result["crash_detection"] = crash_info
     if geo is not None:
+        result["warnings"] += _dashboard_note(dashboard_rows, geo.dashboard_rows, meta.height)
         result.update(_finish_scenario(geo, paths, force, seed, report, result["warnings"], stage2, plan.kept))
     return result
 
@@ -346,6 +347,7 @@ class _Pass:
         records: list[tuple[object, ...]] = []
         with open_video(self.src_path, self.fps) as source, contextlib.ExitStack() as stack:
             meta = source.meta
+            _check_dashboard_rows(dashboard_rows, meta)
             ensure_output_dir(self.paths["tracks_csv"].parent)
             frames = _in_range(source, self.frame_range)
             if self.watch_shots:
@@ -446,6 +448,26 @@ class _Pass:
         )
 
 
+def _check_dashboard_rows(rows: int | None, meta: VideoMeta) -> None:
+    """Refuse ``--dashboard-rows`` that would hide the whole frame: a value meant for another resolution (as a
+    principal point outside the frame is refused), not one to cut down quietly."""
+    if rows is not None and rows >= meta.height:
+        raise UserError(
+            f"--dashboard-rows {rows} hides the whole {meta.width}x{meta.height} frame of {meta.path} "
+            f"(give fewer than {meta.height} rows; a value for another resolution?)"
+        )
+
+
+def _dashboard_note(asked: int | None, used: int, height: int) -> list[str]:
+    """The warning for a ``--dashboard-rows`` the geometry cut to the bottom third of the frame (none if kept)."""
+    if asked is None or used >= asked:
+        return []
+    return [
+        f"--dashboard-rows {asked} cut to {used} (a third of the {height}-row frame: the geometry needs the road "
+        "below the horizon)"
+    ]
+
+
 def _summary(plan: _Pass, meta: VideoMeta, df: pd.DataFrame, elapsed: float) -> dict[str, Any]:
     """The run's summary (what ``--json`` prints) before stage 2."""
     n_frames = min(meta.decoded_frames, plan.max_frames) if plan.max_frames else meta.decoded_frames
@@ -463,6 +485,7 @@ def _summary(plan: _Pass, meta: VideoMeta, df: pd.DataFrame, elapsed: float) -> 
         "detector": plan.det.name,
         "detect_every": plan.detect_every,
         "fps_video": round(meta.fps, 3),
+        "fps_video_range": [round(r, 3) for r in meta.rate_range] if meta.rate_range else None,
         "width": meta.width,
         "height": meta.height,
         "frames": int(n_frames),

@@ -53,6 +53,9 @@ class VideoMeta:
     sha256: str | None
     decoded_frames: int = 0
     warnings: list[str] = field(default_factory=list)
+    #: (lowest, highest) frame rate (1/s) between consecutive decoded frames' timestamps when they vary by more
+    #: than the timestamps' rounding (a variable-frame-rate video; ``fps`` is then the mean); None: constant
+    rate_range: tuple[float, float] | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -183,6 +186,7 @@ class PyAVSource(VideoSource):
         index = 0
         last_t = -np.inf
         pts_ok = self._fps_override is None
+        gaps = _FrameGaps(float(self._stream.time_base or 0.0))
         while raw is not None:
             t = float(raw.time - self._start) if pts_ok and raw.time is not None else np.nan
             if not t > last_t:  # missing or non-increasing timestamps (broken muxers): index / fps from here on
@@ -193,6 +197,8 @@ class PyAVSource(VideoSource):
                     )
                 pts_ok = False
                 t = index / self.meta.fps
+            elif index > 0:
+                self.meta.rate_range = gaps.add(t - last_t)
             last_t = t
             image = raw.to_ndarray(format="bgr24")
             self.meta.decoded_frames = index + 1
@@ -215,6 +221,21 @@ class PyAVSource(VideoSource):
             self._container.close()
         except Exception:  # noqa: BLE001 - closing twice or after an error is harmless
             pass
+
+
+class _FrameGaps:
+    """The shortest and longest interval (s) between consecutive frames' timestamps; ``add`` returns the
+    (lowest, highest) frame rate (1/s) once they differ by more than their rounding, else None: a constant
+    rate's intervals rounded to the stream's time base (``tick``, s) differ by at most one tick, and many
+    recorders round timestamps to milliseconds whatever the container's time base (30 fps: 33 or 34 ms)."""
+
+    def __init__(self, tick: float) -> None:
+        self.tick = tick
+        self.lo, self.hi = np.inf, 0.0
+
+    def add(self, gap: float) -> tuple[float, float] | None:
+        self.lo, self.hi = min(self.lo, gap), max(self.hi, gap)
+        return (1.0 / self.hi, 1.0 / self.lo) if self.hi - self.lo > max(self.tick, 1e-3) + 1e-6 else None
 
 
 def _duration_s(container: Any, stream: Any) -> float:
