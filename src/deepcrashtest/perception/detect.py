@@ -34,6 +34,7 @@ two-wheeler into part of that two-wheeler (one road user) before tracking.
 from __future__ import annotations
 
 import importlib.util
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -83,31 +84,57 @@ def make_detector(spec: str) -> Detector:
         return _make_yolo26n(opts)
     if name not in ("ssd", "ssd-mobilenet"):
         raise UserError(f"unknown detector {spec!r}: use {DETECTOR_HELP}")
-    kwargs: dict[str, object] = {}
-    for item in filter(None, opts.split(",")):
-        key, _, value = item.partition("=")
-        try:
-            if key == "tiles":
-                kwargs["tiles"] = int(value)
-            elif key == "score":
-                kwargs["score_threshold"] = float(value)
-            elif key == "input":
-                w, h = value.lower().split("x")
-                kwargs["input_size"] = (int(w), int(h))
-            elif key == "band":
-                kwargs["band_centre"] = float(value)
-            elif key == "tile":
-                kwargs["tile_frac"] = float(value)
-            elif key == "tile_every":
-                kwargs["tile_every"] = int(value)
-            elif key in ("bicycle", "person"):
-                kwargs[key + "s"] = value not in ("0", "false", "no")
-            else:
-                known = "tiles, score, input, band, tile, tile_every, bicycle, person"
-                raise UserError(f"unknown ssd-mobilenet option {key!r} ({known})")
-        except ValueError:
-            raise UserError(f"bad ssd-mobilenet option {item!r}") from None
+    kwargs = _options(filter(None, opts.split(",")), "ssd-mobilenet", _SSD_OPTIONS)
     return SsdMobileNetDetector(**kwargs)  # type: ignore[arg-type]
+
+
+def _size(value: str) -> tuple[int, int]:
+    w, h = value.lower().split("x")
+    return int(w), int(h)
+
+
+def _yes(value: str) -> bool:
+    return value not in ("0", "false", "no")
+
+
+#: The ssd-mobilenet options: key -> (keyword argument, parser of the value).
+_SSD_OPTIONS: dict[str, tuple[str, Callable[[str], object]]] = {
+    "tiles": ("tiles", int),
+    "score": ("score_threshold", float),
+    "input": ("input_size", _size),
+    "band": ("band_centre", float),
+    "tile": ("tile_frac", float),
+    "tile_every": ("tile_every", int),
+    "bicycle": ("bicycles", _yes),
+    "person": ("persons", _yes),
+}
+#: The yolo26n options besides ``int8`` (the int8 copy): key -> (keyword argument, parser of the value).
+_YOLO_OPTIONS: dict[str, tuple[str, Callable[[str], object]]] = {
+    "area": ("input_area", int),
+    "size": ("long_side", int),
+    "score": ("score_threshold", float),
+    "coarse": ("coarse", lambda v: int(v) or None),
+    "threads": ("threads", lambda v: max(0, int(v))),
+    "sky": ("sky", lambda v: min(0.5, max(0.0, float(v)))),
+}
+
+
+def _options(
+    items: Iterable[str], detector: str, table: dict[str, tuple[str, Callable[[str], object]]], known: str = ""
+) -> dict[str, object]:
+    """A detector's ``key=value`` options as its keyword arguments, by ``table``; an unknown key (the known
+    ones: ``known`` and the table's) or a value its parser refuses (ValueError) is one UserError."""
+    kwargs: dict[str, object] = {}
+    for item in items:
+        key, _, value = item.partition("=")
+        if key not in table:
+            raise UserError(f"unknown {detector} option {key!r} ({known}{', '.join(table)})")
+        name, parse = table[key]
+        try:
+            kwargs[name] = parse(value)
+        except ValueError:
+            raise UserError(f"bad {detector} option {item!r}") from None
+    return kwargs
 
 
 def _make_yolo26n(opts: str) -> Detector:
@@ -118,25 +145,7 @@ def _make_yolo26n(opts: str) -> Detector:
     kwargs: dict[str, Any] = {"coarse": YOLO_COARSE, "threads": YOLO_THREADS, "sky": YOLO_SKY}
     items = list(filter(None, opts.split(",")))
     int8 = "int8" in items  # the int8 copy (tools/quantize_yolo.py)
-    for item in (i for i in items if i != "int8"):
-        key, _, value = item.partition("=")
-        try:
-            if key == "size":
-                kwargs["long_side"] = int(value)
-            elif key == "area":
-                kwargs["input_area"] = int(value)
-            elif key == "score":
-                kwargs["score_threshold"] = float(value)
-            elif key == "coarse":
-                kwargs["coarse"] = int(value) or None
-            elif key == "threads":
-                kwargs["threads"] = max(0, int(value))
-            elif key == "sky":
-                kwargs["sky"] = min(0.5, max(0.0, float(value)))
-            else:
-                raise UserError(f"unknown yolo26n option {key!r} (int8, area, size, score, coarse, threads, sky)")
-        except ValueError:
-            raise UserError(f"bad yolo26n option {item!r}") from None
+    kwargs |= _options((i for i in items if i != "int8"), "yolo26n", _YOLO_OPTIONS, "int8, ")
     det = OnnxYoloDetector(yolo26n_path(int8), masks=False, **kwargs)
     det.name = ("yolo26n(int8," if int8 else "yolo26n(") + (
         f"size={det.long_side}" if det.long_side else f"area={det.input_area}"
