@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import json
 import os
 import shutil
 import stat
@@ -104,6 +105,15 @@ def require_file(path: str | os.PathLike[str], what: str = "file") -> Path:
     if not os.access(p, os.R_OK):
         raise UserError(f"{p}: {what} is not readable (permission denied)")
     return p
+
+
+def read_json(path: Path) -> Any:
+    """The JSON value in the file ``path`` (UTF-8; checked with :func:`require_file`); a file that is not JSON
+    is a one-line UserError naming it."""
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise UserError(f"{path}: not a JSON file ({exc})") from None
 
 
 def sha256_file(path: str | os.PathLike[str], chunk: int = 1 << 20) -> str:

@@ -24,14 +24,13 @@ not see has ``contact_frame: null`` and no participants.
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from deepcrashtest.errors import UserError
-from deepcrashtest.fileio import require_file
+from deepcrashtest.fileio import read_json, require_file
 from deepcrashtest.scenario import ROAD_USER_CATEGORIES
 
 LABEL_FORMAT = "deepcrashtest-crash-labels"
@@ -124,10 +123,7 @@ def _label(clip: str, data: Any, where: str) -> CrashLabel:
 def load_crash_labels(path: str | os.PathLike[str]) -> dict[str, CrashLabel]:
     """Read a crash-label file; returns ``{clip name: CrashLabel}``. Bad files: one-line UserError."""
     p = require_file(path, "crash label file")
-    try:
-        data = json.loads(p.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise UserError(f"{p}: not a JSON file ({exc})") from None
+    data = read_json(p)
     if not isinstance(data, dict) or data.get("format") != LABEL_FORMAT or not isinstance(data.get("clips"), dict):
         raise UserError(f"{p}: not a crash label file (expected format {LABEL_FORMAT!r} with 'clips')")
     return {str(k): _label(str(k), v, f"{p}: clips.{k}") for k, v in data["clips"].items()}

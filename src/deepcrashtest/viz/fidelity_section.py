@@ -2,22 +2,18 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 from deepcrashtest.errors import UserError
-from deepcrashtest.fileio import require_file
+from deepcrashtest.fileio import read_json, require_file
 from deepcrashtest.viz.report import Section, esc, fmt, table
 
 
 def load_fidelity(path: str | Path) -> dict[str, Any]:
     """A ``fidelity.json`` written by ``deepcrashtest evaluate fidelity``."""
     p = require_file(path, "fidelity result")
-    try:
-        data = json.loads(p.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise UserError(f"{p}: not a JSON file ({exc})") from None
+    data = read_json(p)
     if not isinstance(data, dict) or "reprojection" not in data or "crash" not in data:
         raise UserError(f"{p}: not a fidelity result (no reprojection/crash)")
     return data

@@ -667,15 +667,10 @@ BESIDE_FIDELITY = ("fidelity.json", "fidelity/fidelity.json")
 def load_sim_metrics(path: str | Path) -> dict[str, Any]:
     """Metrics from a JSON file: a metrics object, or ``deepcrashtest simulate --json`` output (``metrics`` key;
     its ``collisions`` list is kept under ``collisions``)."""
-    import json
-
-    from deepcrashtest.fileio import require_file
+    from deepcrashtest.fileio import read_json, require_file
 
     p = require_file(path, "simulation metrics file")
-    try:
-        data = json.loads(p.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise UserError(f"{p}: not a JSON file ({exc})") from None
+    data = read_json(p)
     m = data.get("metrics", data) if isinstance(data, dict) else data
     if not isinstance(m, dict):
         raise UserError(f"{p}: expected a JSON object of simulation metrics")
