@@ -419,6 +419,7 @@ class EgoMotionEstimator:
         road_flow_share: float = 0.0,
         max_travel_dev_deg: float = 180.0,
         speed_hold_accel: float = 0.0,
+        fixed_flow_share: float = 0.1,
     ) -> None:
         if scale_method != "homography":
             raise ValueError(f"scale_method must be 'homography' (got {scale_method!r})")
@@ -443,6 +444,7 @@ class EgoMotionEstimator:
         self.coarse_corners = coarse_corners
         self.road_flow_share = road_flow_share
         self.max_travel_dev_deg = max_travel_dev_deg
+        self.fixed_flow_share = fixed_flow_share
         self._scale_f = 1.0
         self._K: np.ndarray | None = None
         self._down = _down_vector(camera.pitch_rad, camera.roll_rad)
@@ -632,6 +634,23 @@ class EgoMotionEstimator:
         cos = float(c @ ref) / max(float(np.linalg.norm(c) * np.linalg.norm(ref)), 1e-12)
         return cos < math.cos(math.radians(self.max_travel_dev_deg))
 
+    def _camera_fixed(self, p0: np.ndarray, p1: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """Whether each work-px point pair (``p0`` -> ``p1``, N x 2) stays put in the image while the camera's
+        rotation ``R`` (``X1 = R X0 + |T| t``) moves every scene point by at least ``_FIXED_MIN_ROT_PX``: a point
+        fixed to the camera (dashboard, its reflection in the windscreen, burned-in text), not scene. A scene
+        point at any depth moves by the rotation's flow plus a translation flow along its epipolar line; staying
+        put takes the two to cancel, which the road's translation flow (radial from the direction of travel) does
+        not do for a whole patch. Still means moving less than ``fixed_flow_share`` of the rotation's own flow."""
+        if self.fixed_flow_share <= 0.0 or not len(p0):
+            return np.zeros(len(p0), bool)
+        assert self._K is not None
+        K = self._K
+        x0 = np.column_stack([p0, np.ones(len(p0))]) @ np.linalg.inv(K).T
+        a = x0 @ (K @ R).T
+        rot = np.linalg.norm(a[:, :2] / a[:, 2:3] - p0, axis=1)  # the flow of a point at infinite depth
+        still = np.linalg.norm(p1 - p0, axis=1)
+        return (rot >= _FIXED_MIN_ROT_PX) & (still < self.fixed_flow_share * rot)
+
     def _solve(
         self, p0: np.ndarray, p1: np.ndarray, h: int, moving: bool = False, parallax: float = 0.0
     ) -> tuple[float, float, int, np.ndarray, np.ndarray, PlaneFit | None] | None:
@@ -667,7 +686,7 @@ class EgoMotionEstimator:
             return float("nan"), dyaw, 0, R, t, None
         if moving:
             ok = ok & (np.linalg.norm(p1 - p0, axis=1) >= max(0.1, self.road_flow_share * parallax))
-        ok_road = ok & self._off_overlay(p0)
+        ok_road = ok & self._off_overlay(p0) & ~self._camera_fixed(p0, p1, R)
         road = ok_road & self._road_region(p0[:, 0], p0[:, 1], h)
         if road.sum() < 2 * MIN_ROAD_POINTS:  # a narrow or textureless lane: take the shoulders too
             road = ok_road & self._road_region(p0[:, 0], p0[:, 1], h, width_factor=3.0)
@@ -952,6 +971,10 @@ def _group_medians(group: np.ndarray, values: np.ndarray, min_count: int) -> lis
     lo, hi = v[starts + (counts - 1) // 2], v[starts + counts // 2]
     return [float(x) for x in np.where(counts % 2 == 1, lo, (lo + hi) / v.dtype.type(2))]
 
+
+#: Rotation flow (work px) from which :meth:`EgoMotionEstimator._camera_fixed` tells a still point from scene:
+#: 4x the 0.5 px forward-backward tracking tolerance.
+_FIXED_MIN_ROT_PX = 3.0
 
 #: Margin (px) around the road points of the region :meth:`EgoMotionEstimator._track` warps: an 11-px LK
 #: window at pyramid level 2 reaches 4 x 6 = 24 px, plus the Scharr kernel and the pyramid's border rows.
