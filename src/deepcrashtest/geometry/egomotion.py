@@ -388,7 +388,21 @@ class EgoMotionEstimator:
     0.53 (its readings of 10 / 9 km/h at frames 36-37, after its crash at frame 33, are now fused and the
     smoother carries the slowing back before the crash). Still not the default with extract's cut at the crash
     (:meth:`result`'s ``cut_time``; 20 fidelity clips held): a phone-filmed copy of ccd_000053 then fused a late
-    reading, ramped 5 -> 13.7 m/s before its crash and its replay missed the crash (README)."""
+    reading, ramped 5 -> 13.7 m/s before its crash and its replay missed the crash (README).
+    ``fixed_flow_share``: a road point that moves less than this share of the flow the pair's rotation alone gives
+    it (where that flow is >= ``_FIXED_MIN_ROT_PX``) is fixed to the camera, not road, and leaves the road-plane fit
+    (:meth:`_camera_fixed`); 0 (default): off. Measured, not made the default: at 0.1 (a third of the 0.5th
+    percentile of the ratio on KITTI odometry road points, seq06 / seq00 0.27 / 0.34; ccd_000014: 57 % of its
+    road-region points under 0.1, the dashboard and its reflection at the bottom left of a camera that shakes by
+    5-20 px a frame) KITTI odometry is unchanged (seq00 2.16 % / 0.349 deg/100 m, seq06 0.81 % / 0.572) and on
+    ccd_000014 at the camera its overlay implies (2,400 px, 0.92 m) the road-scale readings go from median 19.6
+    km/h (6 readings, 10-90 % 5.7-49.4) to 57.2 (4 readings, 38-62) against the overlay's 57-59, ego speed -13 %
+    -> +2 % (``bench/ego_speed_overlays.py --fx 2400 --height 0.92``); but in a fresh fidelity extract of the
+    20 clips ccd_000755's crash came 0.26 s late (its ego 3 % faster; processed IoU 0.61 -> 0.41), ccd_000053
+    0.82 -> 0.77 (its flagged points are codec-block corners on a blank road, the ego 10 % faster), means
+    0.652 / 0.625 -> 0.642 / 0.615 (dad_000493 0.35 -> 0.41). Extract's ccd_000014 stays 28-30 km/h: at the
+    default camera it keeps one reading (21 km/h x 1.55), and the readings do not follow the assumed focal
+    length (README, ego speed on real dashcam clips)."""
 
     def __init__(
         self,
@@ -419,7 +433,7 @@ class EgoMotionEstimator:
         road_flow_share: float = 0.0,
         max_travel_dev_deg: float = 180.0,
         speed_hold_accel: float = 0.0,
-        fixed_flow_share: float = 0.1,
+        fixed_flow_share: float = 0.0,
     ) -> None:
         if scale_method != "homography":
             raise ValueError(f"scale_method must be 'homography' (got {scale_method!r})")
@@ -972,8 +986,10 @@ def _group_medians(group: np.ndarray, values: np.ndarray, min_count: int) -> lis
     return [float(x) for x in np.where(counts % 2 == 1, lo, (lo + hi) / v.dtype.type(2))]
 
 
-#: Rotation flow (work px) from which :meth:`EgoMotionEstimator._camera_fixed` tells a still point from scene:
-#: 4x the 0.5 px forward-backward tracking tolerance.
+#: Rotation flow (work px) from which :meth:`EgoMotionEstimator._camera_fixed` tells a still point from scene
+#: (6x the 0.5 px forward-backward tracking tolerance). Chosen on KITTI odometry seq00: at 2 px two of its 13,005
+#: road points with that much rotation flow (2.4 px, moving 0.21-0.24 px) counted as fixed and moved its yaw drift
+#: 0.349 -> 0.475 deg/100 m; from 3 px none does. ccd_000014's dashboard points see 5-15 px.
 _FIXED_MIN_ROT_PX = 3.0
 
 #: Margin (px) around the road points of the region :meth:`EgoMotionEstimator._track` warps: an 11-px LK
