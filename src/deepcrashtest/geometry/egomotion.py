@@ -400,9 +400,9 @@ class EgoMotionEstimator:
     -> +2 % (``bench/ego_speed_overlays.py --fx 2400 --height 0.92``); but in a fresh fidelity extract of the
     20 clips ccd_000755's crash came 0.26 s late (its ego 3 % faster; processed IoU 0.61 -> 0.41), ccd_000053
     0.82 -> 0.77 (its flagged points are codec-block corners on a blank road, the ego 10 % faster), means
-    0.652 / 0.625 -> 0.642 / 0.615 (dad_000493 0.35 -> 0.41). Extract's ccd_000014 stays 28-30 km/h: at the
-    default camera it keeps one reading (21 km/h x 1.55), and the readings do not follow the assumed focal
-    length (README, ego speed on real dashcam clips)."""
+    0.652 / 0.625 -> 0.642 / 0.615 (dad_000493 0.35 -> 0.41). Extract's ccd_000014 reads 34 -> 28 km/h (main
+    34 -> 30): at the default camera it keeps one reading (21 km/h x 1.55), and the readings do not follow the
+    assumed focal length (README, ego speed on real dashcam clips)."""
 
     def __init__(
         self,
