@@ -361,3 +361,67 @@ def test_speeds_before_a_cut_ignore_the_readings_after_it():
     assert np.max(np.abs(whole - stopped)) > 0.5
     # one reading (the filter's start, step 0 = state 1) up to the cut: not cut, the later readings count
     assert np.array_equal(est.result(cut_time=0.15).speed, est.result().speed)
+
+
+def _fixed_in_fits(est: EgoMotionEstimator, frames: list[tuple[np.ndarray, float]]) -> tuple[int, int, int]:
+    """Run ``est`` over (image, time) ``frames``; returns (road-plane fits, road points of those fits, fitted
+    road points that stay put: moving less than 0.1 of the rotation's flow where that flow is >= 3 work px)."""
+    from deepcrashtest.geometry import egomotion
+
+    fit = egomotion.fit_plane_motion
+    counts = [0, 0, 0]
+
+    def fit_logged(x0, p1, K, R, *a, **kw):  # type: ignore[no-untyped-def]
+        p0 = x0[:, :2] * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
+        q = x0 @ (K @ R).T
+        rot = np.linalg.norm(q[:, :2] / q[:, 2:3] - p0, axis=1)
+        still = np.linalg.norm(p1 - p0, axis=1)
+        counts[0] += 1
+        counts[1] += len(p0)
+        counts[2] += int(np.sum((rot >= 3.0) & (still < 0.1 * rot)))
+        return fit(x0, p1, K, R, *a, **kw)
+
+    egomotion.fit_plane_motion = fit_logged  # type: ignore[assignment]
+    try:
+        for img, t in frames:
+            est.update(img, t)
+    finally:
+        egomotion.fit_plane_motion = fit  # type: ignore[assignment]
+    return counts[0], counts[1], counts[2]
+
+
+def test_road_scale_fits_leave_out_points_fixed_to_the_camera():
+    """CCD 14 (10 fps, 58 km/h, a shaking camera: rotation flows of 5-20 px a frame pair; extract's camera
+    estimate, frames 0-43 before the crash): the road region holds points fixed to the camera (the dashboard and
+    its reflection at the bottom left) that stay put while the rotation moves every scene point by many pixels.
+    Without ``fixed_flow_share`` (0, the default) 17 of them entered its road-plane fits (most of the points of
+    its low readings: 9 / 6 km/h at the default camera); with the option at 0.1 none does (29 fits, 753 points)."""
+    video = DATA / "crash_ccd" / "ccd_000014.mp4"
+    imgs = _frames(video, 44)
+    cam, rows, _ = estimate_camera(_two_seconds(video, 10.0), default_camera(1280, 720))
+    frames = [(img, i / 10.0) for i, img in enumerate(imgs)]
+    _, _, fixed_before = _fixed_in_fits(EgoMotionEstimator(cam, mask_bottom_rows=rows, fixed_flow_share=0.0), frames)
+    est = EgoMotionEstimator(cam, mask_bottom_rows=rows, fixed_flow_share=0.1)
+    fits, points, fixed = _fixed_in_fits(est, frames)
+    assert fixed_before >= 10 and fixed == 0
+    assert fits >= 1 and points >= 12
+
+
+def test_no_kitti_road_point_counts_as_fixed_to_the_camera():
+    """KITTI odometry seq06 (calibrated camera): no road point stays put against the rotation's flow, so the
+    camera-fixed test (``fixed_flow_share=0.1``) leaves its road-plane fits and speeds as they were (50 fits,
+    3,302 points)."""
+    from deepcrashtest.datasets.kitti.files import KITTI_CAMERA_HEIGHT_M
+    from deepcrashtest.eval.egomotion import frame_times, read_odometry_calib
+    from deepcrashtest.scenario import Camera
+
+    folder = need(DATA / "kitti_odometry" / "seq06_frames0000-0050")
+    images = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in sorted((folder / "image_0").glob("*.png"))]
+    K, times = read_odometry_calib(folder), frame_times(folder, len(images))
+    cam = Camera(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2], height_m=KITTI_CAMERA_HEIGHT_M)
+    frames = [(img, float(t)) for img, t in zip(images, times, strict=True)]
+    on, off = EgoMotionEstimator(cam, fixed_flow_share=0.1), EgoMotionEstimator(cam)
+    fits, points, fixed = _fixed_in_fits(on, frames)
+    _fixed_in_fits(off, frames)
+    assert fits >= 40 and points >= 40 * 12 and fixed == 0
+    assert np.array_equal(on.result().speed, off.result().speed)

@@ -388,7 +388,21 @@ class EgoMotionEstimator:
     0.53 (its readings of 10 / 9 km/h at frames 36-37, after its crash at frame 33, are now fused and the
     smoother carries the slowing back before the crash). Still not the default with extract's cut at the crash
     (:meth:`result`'s ``cut_time``; 20 fidelity clips held): a phone-filmed copy of ccd_000053 then fused a late
-    reading, ramped 5 -> 13.7 m/s before its crash and its replay missed the crash (README)."""
+    reading, ramped 5 -> 13.7 m/s before its crash and its replay missed the crash (README).
+    ``fixed_flow_share``: a road point that moves less than this share of the flow the pair's rotation alone gives
+    it (where that flow is >= ``_FIXED_MIN_ROT_PX``) is fixed to the camera, not road, and leaves the road-plane fit
+    (:meth:`_camera_fixed`); 0 (default): off. Measured, not made the default: at 0.1 (a third of the 0.5th
+    percentile of the ratio on KITTI odometry road points, seq06 / seq00 0.27 / 0.34; ccd_000014: 57 % of its
+    road-region points under 0.1, the dashboard and its reflection at the bottom left of a camera that shakes by
+    5-20 px a frame) KITTI odometry is unchanged (seq00 2.16 % / 0.349 deg/100 m, seq06 0.81 % / 0.572) and on
+    ccd_000014 at the camera its overlay implies (2,400 px, 0.92 m) the road-scale readings go from median 19.6
+    km/h (6 readings, 10-90 % 5.7-49.4) to 57.2 (4 readings, 38-62) against the overlay's 57-59, ego speed -13 %
+    -> +2 % (``bench/ego_speed_overlays.py --fx 2400 --height 0.92``); but in a fresh fidelity extract of the
+    20 clips ccd_000755's crash came 0.26 s late (its ego 3 % faster; processed IoU 0.61 -> 0.41), ccd_000053
+    0.82 -> 0.77 (its flagged points are codec-block corners on a blank road, the ego 10 % faster), means
+    0.652 / 0.625 -> 0.642 / 0.615 (dad_000493 0.35 -> 0.41). Extract's ccd_000014 reads 34 -> 28 km/h (main
+    34 -> 30): at the default camera it keeps one reading (21 km/h x 1.55), and the readings do not follow the
+    assumed focal length (README, ego speed on real dashcam clips)."""
 
     def __init__(
         self,
@@ -419,6 +433,7 @@ class EgoMotionEstimator:
         road_flow_share: float = 0.0,
         max_travel_dev_deg: float = 180.0,
         speed_hold_accel: float = 0.0,
+        fixed_flow_share: float = 0.0,
     ) -> None:
         if scale_method != "homography":
             raise ValueError(f"scale_method must be 'homography' (got {scale_method!r})")
@@ -443,6 +458,7 @@ class EgoMotionEstimator:
         self.coarse_corners = coarse_corners
         self.road_flow_share = road_flow_share
         self.max_travel_dev_deg = max_travel_dev_deg
+        self.fixed_flow_share = fixed_flow_share
         self._scale_f = 1.0
         self._K: np.ndarray | None = None
         self._down = _down_vector(camera.pitch_rad, camera.roll_rad)
@@ -632,6 +648,23 @@ class EgoMotionEstimator:
         cos = float(c @ ref) / max(float(np.linalg.norm(c) * np.linalg.norm(ref)), 1e-12)
         return cos < math.cos(math.radians(self.max_travel_dev_deg))
 
+    def _camera_fixed(self, p0: np.ndarray, p1: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """Whether each work-px point pair (``p0`` -> ``p1``, N x 2) stays put in the image while the camera's
+        rotation ``R`` (``X1 = R X0 + |T| t``) moves every scene point by at least ``_FIXED_MIN_ROT_PX``: a point
+        fixed to the camera (dashboard, its reflection in the windscreen, burned-in text), not scene. A scene
+        point at any depth moves by the rotation's flow plus a translation flow along its epipolar line; staying
+        put takes the two to cancel, which the road's translation flow (radial from the direction of travel) does
+        not do for a whole patch. Still means moving less than ``fixed_flow_share`` of the rotation's own flow."""
+        if self.fixed_flow_share <= 0.0 or not len(p0):
+            return np.zeros(len(p0), bool)
+        assert self._K is not None
+        K = self._K
+        x0 = np.column_stack([p0, np.ones(len(p0))]) @ np.linalg.inv(K).T
+        a = x0 @ (K @ R).T
+        rot = np.linalg.norm(a[:, :2] / a[:, 2:3] - p0, axis=1)  # the flow of a point at infinite depth
+        still = np.linalg.norm(p1 - p0, axis=1)
+        return (rot >= _FIXED_MIN_ROT_PX) & (still < self.fixed_flow_share * rot)
+
     def _solve(
         self, p0: np.ndarray, p1: np.ndarray, h: int, moving: bool = False, parallax: float = 0.0
     ) -> tuple[float, float, int, np.ndarray, np.ndarray, PlaneFit | None] | None:
@@ -667,7 +700,7 @@ class EgoMotionEstimator:
             return float("nan"), dyaw, 0, R, t, None
         if moving:
             ok = ok & (np.linalg.norm(p1 - p0, axis=1) >= max(0.1, self.road_flow_share * parallax))
-        ok_road = ok & self._off_overlay(p0)
+        ok_road = ok & self._off_overlay(p0) & ~self._camera_fixed(p0, p1, R)
         road = ok_road & self._road_region(p0[:, 0], p0[:, 1], h)
         if road.sum() < 2 * MIN_ROAD_POINTS:  # a narrow or textureless lane: take the shoulders too
             road = ok_road & self._road_region(p0[:, 0], p0[:, 1], h, width_factor=3.0)
@@ -952,6 +985,12 @@ def _group_medians(group: np.ndarray, values: np.ndarray, min_count: int) -> lis
     lo, hi = v[starts + (counts - 1) // 2], v[starts + counts // 2]
     return [float(x) for x in np.where(counts % 2 == 1, lo, (lo + hi) / v.dtype.type(2))]
 
+
+#: Rotation flow (work px) from which :meth:`EgoMotionEstimator._camera_fixed` tells a still point from scene
+#: (6x the 0.5 px forward-backward tracking tolerance). Chosen on KITTI odometry seq00: at 2 px two of its 13,005
+#: road points with that much rotation flow (2.4 px, moving 0.21-0.24 px) counted as fixed and moved its yaw drift
+#: 0.349 -> 0.475 deg/100 m; from 3 px none does. ccd_000014's dashboard points see 5-15 px.
+_FIXED_MIN_ROT_PX = 3.0
 
 #: Margin (px) around the road points of the region :meth:`EgoMotionEstimator._track` warps: an 11-px LK
 #: window at pyramid level 2 reaches 4 x 6 = 24 px, plus the Scharr kernel and the pyramid's border rows.
