@@ -133,6 +133,31 @@ GRID: dict[tuple[str, str], list] = {
 #: px)): 0018's column 611.4 -> 602.9 px (true 600.4), 0019 606.7 -> 595.3 (600.4), 0004 605.2 -> 602.7 (609.6), 0011
 #: 622.0 -> 624.3 (609.6); unknown-camera MOTA 60.98 -> 60.65 (0019 -3.4, 0011 -1.6, 0004 -1.0, 0018 +0.4), as axis9
 #: found.
+#: Round mono12 (by hand, one setting at a time, 18 tuning sequences, both cameras with `bench/mono_variants.py`; start
+#: KITTI camera 65.37, unknown camera 60.98), all dropped. The road not one plane: a drop-vs-range profile from the
+#: tracks themselves (``MonoConfig.road_profile``: each box's road drop ``below Z_h / fy`` against its box-height
+#: depth, one offset per track, piecewise linear 12-80 m; `bench/road_profile_mono.py`: on 0004/0005/0007/0011 the
+#: labels' drop read against the path's per-frame horizon rises 5-12 % from 12-20 m to 45-60 m and the profile finds
+#: about half to all of it; mean |log| gap to the labels 0.087 flat, 0.085 with it): 65.13 (unknown 61.02); knot
+#: sigma 0.3: 65.11 (60.95); with the bottom-edge cue weighted up (road_height_rel 0.2 / 0.1): 58.09 / 44.44 (58.37 /
+#: 48.03; without the profile 57.72 / 43.34, 58.34 / 48.33); the per-frame horizon's depths with the hull factor
+#: (``horizon_hull``) 65.22 (60.99), with the profile 64.79 (60.86); each frame's pitch change from the ORB-SLAM3
+#: poses (EgoMotion.tilt from the poses' pitch, as extract's image rotations give it) 65.37 (60.99): the boxes'
+#: per-frame horizon already carries it. Why the bottom edge cannot be weighted up by range: against the labels
+#: (cars matched to detected boxes, the path's own horizon) its log depth error spreads (MAD) 5.7 / 6.5 / 7.9 / 7.8
+#: / 12.6 / 12.8 / 15.8 / 19.5 % at 0-10 / 10-15 / 15-20 / 20-30 / 30-40 / 40-50 / 50-60 / 60-80 m, the height cue's
+#: 4.2-5.9 % at every range, the two correlated 0.6-0.8 (within a track both spread only 1.3-4.4 %: the errors are
+#: per track, the track's height and the road under it). Near the camera the centre lies 4.1 / 2.6 % too far at 0-10
+#: / 10-15 m although the near face is within 1 %: the tracks' lengths are 12-14 % (log) longer than the labels'
+#: (heights within 1.5 %); the centre offset alone from a shorter length (x 0.87 / 0.93) 62.85 / 64.32 (57.86 /
+#: 59.53): the 2 m gate is won or lost at 30-60 m, where the offset is already right. The road under each box from
+#: the ego's own path (its elevation as the poses' pitch integrated along the path, the box's ground contact Z further
+#: on; what extract's image-rotation tilt would give on video): 62.06 (59.85), with road_height_rel 0.2 53.66 (56.54):
+#: against the labels it widens the bottom-edge cue's spread (MAD 8.2 / 9.3 / 14.3 / 16.6 % at 0-10 / 10-15 / 40-50 /
+#: 50-60 m against 5.7 / 6.5 / 12.8 / 15.8 % flat; either sign of the pitch), so it was not kept. The width cue is
+#: nearly independent of the height cue (correlation -0.2 to 0.26 by range against 0.6-0.8 for the bottom edge) but
+#: spreads 7-15 % (the track's width and heading): weighted up, width_sigma_rel 0.15 / 0.12: 64.71 / 61.83 (59.63 /
+#: 56.29).
 #: Tried and dropped: the KITTI labels' median car length/width (3.9 / 1.62 m) as priors 54.32,
 #: width cue at 12 % 56.70; a per-track range scale from the track's motion against the ego's
 #: (parked cars fitted as a point) 36.4-45.7 (slow cars in queues look parked at the wrong scale,

@@ -130,6 +130,16 @@ class MonoConfig:
     # detected boxes cut at the bottom and a side (no depth cue: a car the ego passes) at a track's ends are
     # carried by the motion model for at most this long (s)
     carry_cut_s: float = 0.5
+    # the road's drop below the camera as a function of range (not one plane through the ego), estimated from the
+    # tracks themselves (:func:`road_profile`): off; round mono12, 18 training sequences: KITTI camera 65.37 -> 65.13,
+    # unknown camera 60.98 -> 61.02 (with the bottom-edge cue weighted up, road_height_rel 0.2: 58.09 / 58.37)
+    road_profile: bool = False
+    road_ref_m: float = 12.0  # the profile is 0 (the camera's height) up to this range (m) ...
+    road_knots_m: tuple[float, ...] = (20.0, 30.0, 45.0, 60.0, 80.0)  # ... piecewise linear through these (flat past)
+    road_knot_sigma: float = 0.1  # prior 1-sigma of each knot's log drop (pulls it to the camera's height)
+    road_min_rows: int = 200  # fewer usable rows: no profile
+    # the per-frame horizon's depths with the roof's far edge removed (hull_factor); off (round mono12: 65.22 / 60.99)
+    horizon_hull: bool = False
 
 
 def class_size(category: str) -> tuple[float, float, float]:
@@ -154,13 +164,39 @@ class _Cues:
     cut_u: np.ndarray
 
 
-def _cues(b: np.ndarray, camera: Camera, image_size: tuple[int, int], vh: np.ndarray, cfg: MonoConfig) -> _Cues:
+@dataclass(frozen=True)
+class RoadProfile:
+    """The road's drop below the camera against range: ``log(drop / camera height)`` at ``knots_m`` (m), linear
+    between them, 0 at and before the first knot, flat past the last."""
+
+    knots_m: tuple[float, ...]
+    log_drop: tuple[float, ...]
+
+    def ratio(self, z: np.ndarray) -> np.ndarray:
+        """Road drop over the camera's height at depths ``z`` (m)."""
+        return np.exp(np.interp(np.nan_to_num(z, nan=0.0), self.knots_m, self.log_drop))
+
+
+def _bottom_depth(below: np.ndarray, camera: Camera, road: RoadProfile | None) -> np.ndarray:
+    """Depth (m) of a ground contact ``below`` px under the horizon: ``fy h / below`` on a flat road, else the
+    fixed point of ``Z = fy h ratio(Z) / below`` (a few iterations: the ratio changes slowly with range)."""
+    z = camera.fy * camera.height_m / np.maximum(below, 1e-3)
+    if road is not None:
+        for _ in range(4):
+            z = camera.fy * camera.height_m * road.ratio(z) / np.maximum(below, 1e-3)
+    return z
+
+
+def _cues(
+    b: np.ndarray, camera: Camera, image_size: tuple[int, int], vh: np.ndarray, cfg: MonoConfig,
+    road: RoadProfile | None = None,
+) -> _Cues:  # fmt: skip
     img_w, img_h = image_size
     below = b[:, 3] - vh
     cut_bottom = b[:, 3] >= img_h - 2
     cut_top = b[:, 1] <= 1
     cut_u = (b[:, 0] <= 1) | (b[:, 2] >= img_w - 2)
-    z_b = np.where((below > 2.0) & ~cut_bottom, camera.fy * camera.height_m / np.maximum(below, 1e-3), np.nan)
+    z_b = np.where((below > 2.0) & ~cut_bottom, _bottom_depth(below, camera, road), np.nan)
     r_b = np.hypot(cfg.bottom_sigma_px / np.maximum(below, 1e-3), cfg.road_height_rel)
     return _Cues(
         z_bottom=z_b,
@@ -312,14 +348,17 @@ def frame_horizon(
     camera: Camera,
     vh: float | np.ndarray,
     shrink: float = 2.0,
+    road: RoadProfile | None = None,
 ) -> np.ndarray:
     """Per-row horizon (px): the frame's pitch wobble estimated from all its boxes.
 
     Each uncut box whose depth ``z_size`` (m) is known from its track's size implies a horizon row
     ``v_bottom - fy h / z_size``; the frame's median offset from ``vh`` (shrunk towards 0 by
     ``n / (n + shrink)`` for n boxes, then a 3-frame running median) is added to ``vh``. ``vh``: one
-    row, or one per box (the camera's pitch at each box's frame)."""
-    implied = v_bottom - camera.fy * camera.height_m / z_size
+    row, or one per box (the camera's pitch at each box's frame). ``road``: the road's drop against range (None:
+    the camera's height everywhere)."""
+    drop = camera.height_m if road is None else camera.height_m * road.ratio(z_size)
+    implied = v_bottom - camera.fy * drop / z_size
     ok = np.isfinite(implied)
     vh = np.broadcast_to(np.asarray(vh, dtype=float), implied.shape)
     uniq, inv = np.unique(frames, return_inverse=True)
@@ -364,15 +403,7 @@ def _fuse_depth(
 ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """Fused depth of the visible face (m) and its relative sigma, per row."""
     length, width, height = size
-    z_h = camera.fy * height / cues.box_h[rows]
-    if cfg.hull_height:
-        for _ in range(3):  # the roof's far edge: the box is taller than the near face (fixed point)
-            z_h = (
-                camera.fy
-                * height
-                * hull_factor(height, length, width, camera.height_m, z_h, cues.bearing[rows])
-                / cues.box_h[rows]
-            )
+    z_h = _height_depth(cues, rows, ("", length, width, height), camera, cfg)
     r_h = np.hypot(h_rel, cfg.height_sigma_px / cues.box_h[rows])
     z_h[cues.cut_v[rows]] = np.nan
     app = w_scale * _apparent_width(length, width, cues.bearing[rows])
@@ -463,9 +494,10 @@ def _rows(tracks: pd.DataFrame, ego: EgoMotion) -> _Rows:
 
 def _sizes_and_cues(
     r: _Rows, camera: Camera, image_size: tuple[int, int], vh: np.ndarray, cfg: MonoConfig
-) -> tuple[list, _Cues, np.ndarray]:
-    """Each track's size (:func:`_track_size`), the rows' cues and horizon rows (px): ``vh`` (per row)
-    moved by the per-frame horizon of the boxes (:func:`frame_horizon`)."""
+) -> tuple[list, _Cues, np.ndarray, RoadProfile | None]:
+    """Each track's size (:func:`_track_size`), the rows' cues, horizon rows (px): ``vh`` (per row)
+    moved by the per-frame horizon of the boxes (:func:`frame_horizon`), and the road profile the cues
+    read the bottom edges on (:func:`road_profile`, where ``cfg.road_profile``; else None)."""
     cats = r.df["category"].to_numpy(dtype=str)
     track_cat = [track_category(Counter(cats[a:b].tolist())) for a, b in r.spans]
     cues = _cues(r.boxes, camera, image_size, vh, cfg)
@@ -479,15 +511,93 @@ def _sizes_and_cues(
         ]
 
     if not cfg.frame_horizon:
-        return sizes(True), cues, vh
+        return sizes(True), cues, vh, None
     first = sizes(False)  # the detector's classes first: the horizon must not depend on the class choice
     z_size = np.full(len(r.df), np.nan)
     for (a, b), sz in zip(r.spans, first, strict=True):
-        z_size[a:b] = camera.fy * sz[3] / cues.box_h[a:b]
+        rows = np.arange(a, b)
+        z_size[a:b] = (
+            _height_depth(cues, rows, sz, camera, cfg) if cfg.horizon_hull else camera.fy * sz[3] / cues.box_h[a:b]
+        )
     z_size[~r.detected | cues.cut_v] = np.nan
     vh_rows = frame_horizon(r.frames, r.boxes[:, 3], z_size, camera, vh, cfg.horizon_shrink)
     cues = _cues(r.boxes, camera, image_size, vh_rows, cfg)
-    return sizes(True), cues, vh_rows
+    road = road_profile(r, cues, first, camera, cfg) if cfg.road_profile else None
+    if road is not None:
+        vh_rows = frame_horizon(r.frames, r.boxes[:, 3], z_size, camera, vh, cfg.horizon_shrink, road)
+        cues = _cues(r.boxes, camera, image_size, vh_rows, cfg, road)
+    return sizes(True), cues, vh_rows, road
+
+
+def road_profile_of(
+    tracks: pd.DataFrame, camera: Camera, ego: EgoMotion, image_size: tuple[int, int], config: MonoConfig
+) -> RoadProfile | None:
+    """The road profile :func:`localize_tracks` reads the bottom edges on with ``config`` (at the clip's
+    horizon; None: ``road_profile`` off or too few rows)."""
+    r = _rows(tracks, ego)
+    return _sizes_and_cues(r, camera, image_size, np.full(len(r.df), camera.horizon_v()), config)[3]
+
+
+def _height_depth(cues: _Cues, rows: np.ndarray, size: tuple, camera: Camera, cfg: MonoConfig) -> np.ndarray:
+    """Depth (m) of the near face of ``rows`` from their box heights with the track's ``size`` (class, length,
+    width, height, ...), the roof's far edge removed (:func:`hull_factor`, fixed point) where ``hull_height``."""
+    _, length, width, height = size[:4]
+    z_h = camera.fy * height / cues.box_h[rows]
+    if cfg.hull_height:
+        for _ in range(3):  # the roof's far edge: the box is taller than the near face (fixed point)
+            hull = hull_factor(height, length, width, camera.height_m, z_h, cues.bearing[rows])
+            z_h = camera.fy * height * hull / cues.box_h[rows]
+    return z_h
+
+
+def road_profile(r: _Rows, cues: _Cues, sizes: list, camera: Camera, cfg: MonoConfig) -> RoadProfile | None:
+    """The road's drop below the camera against range, from the tracks themselves (None: too few rows).
+
+    Each detected uncut box with a bottom-edge cue reads the road's drop under it as ``below Z_h / fy`` (``below``
+    its bottom row under the horizon, px; ``Z_h`` its depth from its box height with its track's height,
+    :func:`_height_depth`). A track's height is wrong by one factor, the same in all its frames, so the log drops
+    are fitted as one offset per track (removed by subtracting each track's mean) plus a profile ``f(Z)``:
+    piecewise linear through ``road_knots_m``, 0 up to ``road_ref_m`` (the camera's height there), each knot
+    pulled to 0 by ``road_knot_sigma``. Only tracks seen over a range of depths inform it (a far road higher
+    or lower than the camera's, or a crest, makes a receding car's bottom rows creep against its box
+    heights). Each row weighs ``1 / sqrt(n)`` for a track of n rows; rows off the first fit by more than 0.15
+    (log) are dropped once."""
+    knots = np.array((cfg.road_ref_m, *cfg.road_knots_m))
+    y_parts, b_parts, w_parts = [], [], []
+    for (a, b), size in zip(r.spans, sizes, strict=True):
+        rows = np.arange(a, b)
+        rows = rows[r.detected[rows] & ~cues.cut_v[rows] & np.isfinite(cues.z_bottom[rows])]
+        if len(rows) < 3:
+            continue
+        z_h = _height_depth(cues, rows, size, camera, cfg)
+        below = camera.fy * camera.height_m / cues.z_bottom[rows]
+        y = np.log(np.maximum(below * z_h / camera.fy, 1e-3) / camera.height_m)
+        basis = _hat_basis(z_h, knots)
+        y_parts.append(y - y.mean())
+        b_parts.append(basis - basis.mean(axis=0))
+        w_parts.append(np.full(len(rows), 1.0 / math.sqrt(len(rows))))
+    if not y_parts or sum(len(y) for y in y_parts) < cfg.road_min_rows:
+        return None
+    y, basis, w = np.concatenate(y_parts), np.vstack(b_parts), np.concatenate(w_parts)
+    keep = np.ones(len(y), bool)
+    for _ in range(2):
+        f = _ridge(basis[keep], y[keep], w[keep], cfg.road_knot_sigma, 0.05)
+        keep = np.abs(y - basis @ f) < 0.15
+    return RoadProfile(tuple(float(k) for k in knots), (0.0, *(float(v) for v in f)))
+
+
+def _hat_basis(z: np.ndarray, knots: np.ndarray) -> np.ndarray:
+    """(n, len(knots) - 1) weights of the knots after the first for piecewise-linear interpolation at ``z``
+    (the first knot's value is fixed at 0; flat before it and past the last)."""
+    eye = np.eye(len(knots))
+    return np.column_stack([np.interp(z, knots, eye[k]) for k in range(1, len(knots))])
+
+
+def _ridge(basis: np.ndarray, y: np.ndarray, w: np.ndarray, prior_sigma: float, row_sigma: float) -> np.ndarray:
+    """Weighted least squares ``basis f = y`` (rows' 1-sigma ``row_sigma / w``) with a 0-mean prior on each f."""
+    a = np.vstack([basis * (w / row_sigma)[:, None], np.eye(basis.shape[1]) / prior_sigma])
+    rhs = np.r_[y * w / row_sigma, np.zeros(basis.shape[1])]
+    return np.linalg.lstsq(a, rhs, rcond=None)[0]
 
 
 def _measurements(
@@ -593,14 +703,14 @@ def localize_tracks(
     out: dict[str, list[np.ndarray]] = {c: [] for c in OUTPUT_COLUMNS}
     if len(r.df) == 0:
         return pd.DataFrame({c: [] for c in OUTPUT_COLUMNS})
-    sizes, cues, vh_rows = _sizes_and_cues(r, camera, image_size, np.full(len(r.df), vh), cfg)
+    sizes, cues, vh_rows, _ = _sizes_and_cues(r, camera, image_size, np.full(len(r.df), vh), cfg)
     if pitch_change is not None:  # each frame's depth cues against the horizon of its pitch: cy - fy tan(pitch)
         base = math.atan2(camera.cy - vh, camera.fy)
         pitched = camera.cy - camera.fy * np.tan(base + np.asarray(pitch_change, dtype=float)[r.ego_i])
         # the sizes (and classes) stay those of the clip's horizon: they pool a track's frames, and a class
         # flip moves the whole track (ccd_000014's car with a roof box became a car, 4 m nearer, and its
         # crash no longer replayed)
-        _, cues, vh_rows = _sizes_and_cues(r, camera, image_size, pitched, cfg)
+        _, cues, vh_rows, _ = _sizes_and_cues(r, camera, image_size, pitched, cfg)
     for (s0, s1), size in zip(r.spans, sizes, strict=True):
         rows = np.arange(s0, s1)
         meas, covs, rng = _measurements(rows, size, cues, r, ego, camera, cfg)
