@@ -39,3 +39,18 @@ def test_jerky_variant_refused_with_the_scenarios_own_message(kitti8_raw, long_n
         assert ("acceleration" in got) != long_name  # a name error comes first, as the whole validation says
         found += 1
     assert found >= 3
+
+
+def test_raw_scenario_keeps_a_jerky_variant(kitti8_raw):
+    """A raw scenario has no physics check: the same kind of variant is written, as the whole validation allows."""
+    sc = kitti8_raw.evolve(stage="raw", agents=[], collision=None)
+    space = SearchSpace.for_scenario(sc)
+    rng = np.random.default_rng(3)
+    jerky = [
+        th
+        for th in (np.concatenate([[0.0, 0.0], rng.normal(0.0, 3.0, space.dim - 2)]) for _ in range(40))
+        if space.variant_trajectory(th).accel_problem("ego") is not None
+        and max(space.variant_trajectory(th).speed) < 60
+    ]
+    assert jerky
+    assert variant_scenario(sc, space, jerky[0], 7, {"seed": 0}).stage == "raw"
