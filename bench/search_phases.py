@@ -17,7 +17,8 @@ idle machine with a core per worker (~2.5 s for main's measured idle 2.55 s), fr
 Prints one JSON line: per side, the parent's CPU by phase (the minimum over ``--repeat`` runs), the parent's
 and the children's CPU in all, the critical path; the slowest worker's CPU and the wall seconds (in all, before
 the workers start, after they finish) per run.
-Usage: python bench/search_phases.py [--sequence 3] [--starts 500] [--baseline-src OTHER/src] [--repeat 3]
+Usage: python bench/search_phases.py [--sequence 3 | --scene SCENARIO.json] [--starts 500]
+       [--baseline-src OTHER/src] [--repeat 3]
 """
 
 from __future__ import annotations
@@ -140,6 +141,7 @@ def main() -> None:
     ap.add_argument("--baseline-src", default=None, help="another checkout's src/: its CLI timed alternately")
     ap.add_argument("--repeat", type=int, default=3, help="runs per side (the minimum of each figure counts)")
     ap.add_argument("--sequence", type=int, default=3, help="KITTI tracking sequence")
+    ap.add_argument("--scene", default=None, help="a scenario.json to search instead (e.g. a crash clip's extract)")
     ap.add_argument("--starts", type=int, default=500, help="random starts (as search_speed.py)")
     ap.add_argument("--noise-variants", type=int, default=4, help="noisy paths per start")
     args = ap.parse_args()
@@ -150,16 +152,17 @@ def main() -> None:
     if args.baseline_src:
         srcs["baseline"] = Path(args.baseline_src).resolve()
     with tempfile.TemporaryDirectory() as tmp:
-        scen_dir = Path(tmp) / "scenario"
-        make = "import sys, deepcrashtest.cli as c; sys.exit(c.main())"
-        subprocess.run(
-            [sys.executable, "-c", make, "scenario", "from-kitti", "--data", str(KITTI)]
-            + ["--sequence", str(args.sequence), "-o", str(scen_dir)],
-            check=True,
-            env=_env(ROOT / "src"),
-            stdout=subprocess.DEVNULL,
-        )
-        cmd = ["search", str(scen_dir / "scenario.json"), "--method", "random", "--no-video", "--json"]
+        scen = Path(args.scene) if args.scene else Path(tmp) / "scenario" / "scenario.json"
+        if not args.scene:
+            make = "import sys, deepcrashtest.cli as c; sys.exit(c.main())"
+            subprocess.run(
+                [sys.executable, "-c", make, "scenario", "from-kitti", "--data", str(KITTI)]
+                + ["--sequence", str(args.sequence), "-o", str(scen.parent)],
+                check=True,
+                env=_env(ROOT / "src"),
+                stdout=subprocess.DEVNULL,
+            )
+        cmd = ["search", str(scen), "--method", "random", "--no-video", "--json"]
         cmd += ["--starts", str(args.starts), "--noise-variants", str(args.noise_variants)]
         for name, src in srcs.items():  # compile once (bytecode cached), untimed
             _run(src, [*cmd, "-o", str(Path(tmp) / f"warm_{name}")])
@@ -168,7 +171,8 @@ def main() -> None:
         for rep in range(args.repeat):
             for name, src in srcs.items():  # alternating: both sides see the same load
                 runs[name].append(_run(src, [*cmd, "-o", str(Path(tmp) / f"{name}{rep}")]))
-    out: dict = {"scenario": f"kitti_{args.sequence:04d}", "variants": args.starts * args.noise_variants + 1}
+    label = Path(args.scene).parent.name if args.scene else f"kitti_{args.sequence:04d}"
+    out: dict = {"scenario": label, "variants": args.starts * args.noise_variants + 1}
     for name, rs in runs.items():
         out[name] = {
             "phases_cpu_s": {

@@ -17,7 +17,12 @@ one run, is the robust figure; ``search_cpu_s`` is the CPU time the search proce
 ``load_average`` (1-minute, before and after) says how shared the machine was. The CLI runs with Python's
 bytecode cache on (``PYTHONDONTWRITEBYTECODE`` dropped, the modules compiled once before the timed runs), as
 an installed package runs: without it every run compiles each module again (~0.2 s of CPU here).
-Usage: python bench/search_speed.py [--sequence 3] [--starts 500] [--noise-variants 4] [--workers N] [--stepwise 256]
+``--scene`` (repeatable: ``kitti:N``, ``kitti8crash``, a scenario.json path) measures several scenes, a JSON
+line each, and prints the per-scene CPU ratio table (search / simulate_batch; the goal: <= 2 for any scene) on
+stderr; with ``--baseline-src`` the outputs (results.csv, variant files, summary.json but its timings) are
+compared byte for byte.
+Usage: python bench/search_speed.py [--sequence 3] [--scene SPEC ...] [--starts 500] [--noise-variants 4]
+       [--workers N] [--stepwise 256]
        [--baseline-src OTHER_CHECKOUT/src] [--repeat 1]  (before/after: both CLIs alternately, same run)
 """
 
@@ -98,9 +103,140 @@ def _stepwise(world, paths: np.ndarray) -> dict:
     }
 
 
+def _scene(spec: str, tmp: Path, env: dict[str, str]) -> tuple[str, Path]:
+    """A scene to search: ``kitti:N`` (sequence N from labels, through the CLI), ``kitti8crash`` (KITTI 0008
+    with the oncoming car 10 moved to meet the ego, as ``search_common.crash_scenario``) or a scenario.json
+    path (e.g. a crash clip's extract). Returns its label and the written scenario file."""
+    if spec.startswith("kitti:"):
+        seq = int(spec.removeprefix("kitti:"))
+        scen_dir = tmp / f"kitti{seq}"
+        subprocess.run(
+            _cli("scenario", "from-kitti", "--data", str(KITTI), "--sequence", str(seq), "-o", str(scen_dir)),
+            check=True,
+            env=env,
+            stdout=subprocess.DEVNULL,
+        )
+        return f"kitti_{seq:04d}", scen_dir / "scenario.json"
+    if spec == "kitti8crash":
+        sys.path.insert(0, str(ROOT / "bench"))
+        from search_common import crash_scenario
+
+        return "kitti_0008_crash", crash_scenario().save(tmp / "kitti8crash.json", False)
+    path = Path(spec)
+    return path.parent.name or path.stem, path
+
+
+def _measure(label: str, scen: Path, args: argparse.Namespace, tmp: Path, workers: int) -> dict:
+    """One scene: the search CLI (and the baseline's, alternately) against ``simulate_batch`` in one run."""
+    cmd = ["search", str(scen), "--method", "random", "--no-video"]
+    cmd += ["--starts", str(args.starts), "--noise-variants", str(args.noise_variants), "--json"]
+    if args.workers:
+        cmd += ["--workers", str(args.workers)]
+    srcs = {"search": ROOT / "src"}
+    if args.baseline_src:
+        srcs["baseline"] = Path(args.baseline_src).resolve()
+    load_before = os.getloadavg()[0]
+    runs: dict[str, list[tuple[float, float]]] = {k: [] for k in srcs}
+    summaries: dict[str, dict] = {}
+    for rep in range(args.repeat):
+        for name, src in srcs.items():  # alternating, so that both see the same load
+            out_dir = tmp / f"{label}_{name}{rep}"
+            summaries[name], wall, cpu = _time_cli(cmd + ["-o", str(out_dir)], src)
+            runs[name].append((wall, cpu))
+    summary = summaries["search"]
+    written = sorted(p.name for p in (tmp / f"{label}_search0").iterdir())
+    same = _same_outputs(tmp / f"{label}_search0", tmp / f"{label}_baseline0") if "baseline" in srcs else None
+    sc = Scenario.load(scen)
+    space = SearchSpace.for_scenario(sc)
+    theta = space.reference_grid(np.random.default_rng([0, 1]), args.starts, args.noise_variants)
+    world = prepare(sc)
+    simulate_batch(world, np.zeros((2, 2)), ego_paths=space.paths(theta[:2]))  # warm-up: imports, agents
+    paths = space.paths(theta)
+    c0, kids0 = time.process_time(), resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    simulate_batch(world, np.zeros((len(theta), 2)), ego_paths=paths, workers=workers, chunk_size=1024)
+    sim_s = time.perf_counter() - t0
+    kids1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    sim_cpu = time.process_time() - c0 + kids1.ru_utime + kids1.ru_stime - kids0.ru_utime - kids0.ru_stime
+    steps = _stepwise(world, paths[: args.stepwise]) if args.stepwise else {}
+    n = int(summary["simulations"])
+    search_s = min(w for w, _ in runs["search"])
+    search_cpu = min(c for _, c in runs["search"])
+    base: dict = {}
+    if "baseline" in runs:
+        b_wall, b_cpu = min(w for w, _ in runs["baseline"]), min(c for _, c in runs["baseline"])
+        base = {
+            "baseline_src": str(srcs["baseline"]),
+            "baseline_wall_s": round(b_wall, 2),
+            "baseline_cpu_s": round(b_cpu, 2),
+            "baseline_variants_per_s": round(n / b_wall, 1),
+            "speedup_wall": round(b_wall / search_s, 2),
+            "speedup_cpu": round(b_cpu / search_cpu, 2),
+            "baseline_ratio_cpu_search_to_simulator": round(b_cpu / sim_cpu, 2),
+            "same_outputs_as_baseline": same,
+        }
+    return {
+        "scenario": label,
+        "agents": len(sc.agents),
+        "variants": n,
+        "workers": summary["workers"],
+        "search_wall_s": round(search_s, 2),
+        "search_cpu_s": round(search_cpu, 2),
+        "search_variants_per_s": round(n / search_s, 1),
+        **base,
+        "search_inner_variants_per_s": summary["variants_per_s"],
+        "simulate_batch_variants_per_s": round(len(theta) / sim_s, 1),
+        "ratio_simulator_to_search": round((len(theta) / sim_s) / (n / search_s), 2),
+        "simulate_batch_cpu_s": round(sim_cpu, 2),
+        "ratio_cpu_search_to_simulator": round(search_cpu / sim_cpu, 2),
+        **steps,
+        "outputs": written,
+        "load_average": [round(load_before, 1), round(os.getloadavg()[0], 1)],
+    }
+
+
+def _same_outputs(a: Path, b: Path) -> bool:
+    """Whether two search output folders hold byte-identical results.csv and variant files, and summary.json
+    files equal but for the timings and the output paths."""
+    names = ["results.csv"] + [f"safe_variants/{p.name}" for p in sorted((a / "safe_variants").glob("*.json"))]
+    same_names = sorted(p.name for p in (a / "safe_variants").glob("*")) == sorted(
+        p.name for p in (b / "safe_variants").glob("*")
+    )
+    same_files = all(filecmp.cmp(a / f, b / f, shallow=False) for f in names)
+
+    def _summary(folder: Path) -> dict:
+        s = json.loads((folder / "summary.json").read_text())
+        for k in ("elapsed_s", "variants_per_s", "outputs"):
+            s.pop(k, None)
+        return s
+
+    return same_names and same_files and _summary(a) == _summary(b)
+
+
+def _table(rows: list[dict]) -> str:
+    """The per-scene ratio table (CPU seconds: search's whole process and workers / simulate_batch's)."""
+    head = f"{'scene':<20} {'agents':>6} {'variants':>8} {'search cpu s':>12} {'sim cpu s':>9} {'cpu ratio':>9}"
+    head += f" {'search /s wall':>14} {'sim /s wall':>11}"
+    lines = [head]
+    for r in rows:
+        lines.append(
+            f"{r['scenario']:<20} {r['agents']:>6} {r['variants']:>8} {r['search_cpu_s']:>12.2f} "
+            f"{r['simulate_batch_cpu_s']:>9.2f} {r['ratio_cpu_search_to_simulator']:>9.2f} "
+            f"{r['search_variants_per_s']:>14.1f} {r['simulate_batch_variants_per_s']:>11.1f}"
+            + (f"  baseline cpu ratio {r['baseline_ratio_cpu_search_to_simulator']:.2f}" if "speedup_cpu" in r else "")
+        )
+    return "\n".join(lines)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--sequence", type=int, default=3)
+    ap.add_argument("--sequence", type=int, default=3, help="KITTI sequence (without --scene)")
+    ap.add_argument(
+        "--scene",
+        action="append",
+        default=None,
+        help="kitti:N, kitti8crash or a scenario.json path; repeat for several (a JSON line each and a table)",
+    )
     ap.add_argument("--starts", type=int, default=500)
     ap.add_argument("--noise-variants", type=int, default=4)
     ap.add_argument("--workers", type=int, default=None, help="default: the cores (as the CLI)")
@@ -113,90 +249,20 @@ def main() -> None:
         return
     workers = args.workers or len(os.sched_getaffinity(0))
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        scen_dir = Path(tmp) / "scenario"
-        subprocess.run(
-            _cli("scenario", "from-kitti", "--data", str(KITTI), "--sequence", str(args.sequence), "-o", str(scen_dir)),
-            check=True,
-            env=env,
-            stdout=subprocess.DEVNULL,
-        )
-        scen = scen_dir / "scenario.json"
-        cmd = ["search", str(scen), "--method", "random", "--no-video"]
-        cmd += ["--starts", str(args.starts), "--noise-variants", str(args.noise_variants), "--json"]
-        if args.workers:
-            cmd += ["--workers", str(args.workers)]
-        srcs = {"search": ROOT / "src"}
+        _compile(ROOT / "src")
         if args.baseline_src:
-            srcs["baseline"] = Path(args.baseline_src).resolve()
-        for src in srcs.values():
-            _compile(src)
-        load_before = os.getloadavg()[0]
-        runs: dict[str, list[tuple[float, float]]] = {k: [] for k in srcs}
-        summaries: dict[str, dict] = {}
-        for rep in range(args.repeat):
-            for name, src in srcs.items():  # alternating, so that both see the same load
-                out_dir = Path(tmp) / f"{name}{rep}"
-                summaries[name], wall, cpu = _time_cli(cmd + ["-o", str(out_dir)], src)
-                runs[name].append((wall, cpu))
-        summary = summaries["search"]
-        written = sorted(p.name for p in (Path(tmp) / "search0").iterdir())
-        same_csv = (
-            filecmp.cmp(Path(tmp) / "search0" / "results.csv", Path(tmp) / "baseline0" / "results.csv", shallow=False)
-            if "baseline" in srcs
-            else None
-        )
-        sc = Scenario.load(scen)
-        space = SearchSpace.for_scenario(sc)
-        theta = space.reference_grid(np.random.default_rng([0, 1]), args.starts, args.noise_variants)
-        world = prepare(sc)
-        simulate_batch(world, np.zeros((2, 2)), ego_paths=space.paths(theta[:2]))  # warm-up: imports, agents
-        paths = space.paths(theta)
-        c0, kids0 = time.process_time(), resource.getrusage(resource.RUSAGE_CHILDREN)
-        t0 = time.perf_counter()
-        simulate_batch(world, np.zeros((len(theta), 2)), ego_paths=paths, workers=workers, chunk_size=1024)
-        sim_s = time.perf_counter() - t0
-        kids1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-        sim_cpu = time.process_time() - c0 + kids1.ru_utime + kids1.ru_stime - kids0.ru_utime - kids0.ru_stime
-        steps = _stepwise(world, paths[: args.stepwise]) if args.stepwise else {}
-    n = int(summary["simulations"])
-    search_s = min(w for w, _ in runs["search"])
-    base: dict = {}
-    if "baseline" in runs:
-        b_wall, b_cpu = min(w for w, _ in runs["baseline"]), min(c for _, c in runs["baseline"])
-        base = {
-            "baseline_src": str(srcs["baseline"]),
-            "baseline_wall_s": round(b_wall, 2),
-            "baseline_cpu_s": round(b_cpu, 2),
-            "baseline_variants_per_s": round(n / b_wall, 1),
-            "speedup_wall": round(b_wall / search_s, 2),
-            "speedup_cpu": round(b_cpu / min(c for _, c in runs["search"]), 2),
-            "same_results_csv_as_baseline": same_csv,
-        }
-    print(
-        json.dumps(
-            {
-                "scenario": f"kitti_{args.sequence:04d}",
-                "agents": len(sc.agents),
-                "variants": n,
-                "workers": summary["workers"],
-                "search_wall_s": round(search_s, 2),
-                "search_cpu_s": round(min(c for _, c in runs["search"]), 2),
-                "search_variants_per_s": round(n / search_s, 1),
-                **base,
-                "search_inner_variants_per_s": summary["variants_per_s"],
-                "simulate_batch_variants_per_s": round(len(theta) / sim_s, 1),
-                "ratio_simulator_to_search": round((len(theta) / sim_s) / (n / search_s), 2),
-                "simulate_batch_cpu_s": round(sim_cpu, 2),
-                "ratio_cpu_search_to_simulator": round(min(c for _, c in runs["search"]) / sim_cpu, 2),
-                **steps,
-                "outputs": written,
-                "cpus": os.cpu_count(),
-                "load_average": [round(load_before, 1), round(os.getloadavg()[0], 1)],
-                "note": "wall times on a possibly shared machine; the ratio is measured in one run",
-            }
-        )
-    )
+            _compile(Path(args.baseline_src).resolve())
+        for spec in args.scene or [f"kitti:{args.sequence}"]:
+            label, scen = _scene(spec, Path(tmp), env)
+            row = _measure(label, scen, args, Path(tmp), workers)
+            row["cpus"] = os.cpu_count()
+            row["note"] = "wall times on a possibly shared machine; the ratio is measured in one run"
+            print(json.dumps(row), flush=True)
+            rows.append(row)
+    if len(rows) > 1:
+        print(_table(rows), file=sys.stderr)
 
 
 if __name__ == "__main__":

@@ -368,6 +368,17 @@ class Trajectory(_Model):
         i = int(a.argmax())
         return float(a[i]), i + 1
 
+    def accel_problem(self, label: str) -> str | None:
+        """Why a processed Scenario refuses this trajectory as road user ``label``'s (its largest |dv/dt| above
+        ``MAX_ACCEL_MPS2`` m/s^2), or None: the text of the Scenario's own check."""
+        amax, i = self.max_abs_accel()
+        if amax > MAX_ACCEL_MPS2:
+            return (
+                f"{label}.trajectory: |acceleration| {amax:.1f} m/s^2 at sample {i} exceeds the "
+                f"physical limit {MAX_ACCEL_MPS2} m/s^2"
+            )
+        return None
+
     def state_at(self, t: float) -> dict[str, float]:
         """Linearly interpolated state at time ``t`` (clamped to the trajectory's span)."""
         a = self.arrays()
@@ -535,12 +546,9 @@ class Scenario(_Model):
             raise ValueError(f"vehicle ids must be unique (duplicated: {dup})")
         if self.stage == "processed":
             for label, veh in [("ego", self.ego)] + [(f"agents[id={a.id}]", a) for a in self.agents]:
-                amax, i = veh.trajectory.max_abs_accel()
-                if amax > MAX_ACCEL_MPS2:
-                    raise ValueError(
-                        f"{label}.trajectory: |acceleration| {amax:.1f} m/s^2 at sample {i} exceeds the "
-                        f"physical limit {MAX_ACCEL_MPS2} m/s^2"
-                    )
+                problem = veh.trajectory.accel_problem(label)
+                if problem is not None:
+                    raise ValueError(problem)
         if self.collision is not None:
             for field in ("agent_id", "other_id"):
                 vid = getattr(self.collision, field)
