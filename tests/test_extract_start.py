@@ -19,29 +19,3 @@ def test_the_pass_is_set_up_without_pandas_or_the_crash_detection():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().splitlines()[-1] == "[]"
-
-
-def test_the_run_keeps_numpys_blas_on_one_thread(tmp_path, monkeypatch):
-    """OpenBLAS's second thread spun and the main thread waited for it (``blas_thread_server`` / ``exec_blas``:
-    ~5 % of the process CPU in ``perf``, stage 2's CPU 0.78 -> 0.33 s on the highway clip) for the run's small
-    matrices: ``extract`` runs them on one thread and gives the caller's setting back."""
-    from pathlib import Path
-
-    from threadpoolctl import threadpool_info, threadpool_limits
-
-    import deepcrashtest.pipeline.extract as ex
-
-    seen: list[int] = []
-    table = ex.records_table
-
-    def spy(records):  # called on the main thread after the pass, inside the run
-        seen.extend(i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas")
-        return table(records)
-
-    monkeypatch.setattr(ex, "records_table", spy)
-    sample = Path(__file__).resolve().parents[1] / "examples" / "highway_sample.mp4"
-    with threadpool_limits(limits=2, user_api="blas"):
-        ex.run_extract(sample, tmp_path / "ex", max_frames=6, geometry=False, shots=False)
-        after = [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
-    assert seen and set(seen) == {1}
-    assert after and set(after) == {2}

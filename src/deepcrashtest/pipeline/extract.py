@@ -137,8 +137,7 @@ def run_extract(
             staged = {key: stage / path.name for key, path in paths.items()}
             plan = _Pass(src_path, out, staged, det, detect_every, max_frames, fps, False, frame_range, seed, watch)
             plan.imports = imports
-            with _blas_threads(1):
-                result = _run_pass(plan, camera, dashboard_rows, geometry, lanes, report, crash_spec, stage2)
+            result = _run_pass(plan, camera, dashboard_rows, geometry, lanes, report, crash_spec, stage2)
     except _Compilation as comp:  # nothing was written: one extraction per shot instead
         from deepcrashtest.video.shots import detect_shots
 
@@ -280,20 +279,6 @@ def _opencv_threads(n: int) -> Iterator[None]:
         yield
     finally:
         cv2.setNumThreads(before)
-
-
-@contextlib.contextmanager
-def _blas_threads(n: int) -> Iterator[None]:
-    """The BLAS libraries loaded so far (NumPy's OpenBLAS) on ``n`` threads for the run, then restored.
-
-    perf on the highway clip: OpenBLAS's worker thread spinning (``blas_thread_server``) and the calling
-    thread waiting for it (``exec_blas``) took ~5 % of the process's CPU, most of it on the main thread
-    (ego-motion, tracks), for the small matrices (a few to a few hundred rows) of the pass and stage 2.
-    """
-    from threadpoolctl import threadpool_limits
-
-    with threadpool_limits(limits=n, user_api="blas"):
-        yield
 
 
 def _check_options(detect_every: int, max_frames: int | None) -> None:
