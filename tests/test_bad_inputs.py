@@ -144,6 +144,29 @@ def test_special_files_are_not_regular_files(capsys, tmp_path, special):
 @pytest.mark.parametrize(
     "command",
     [
+        ["schema", "-o", "{fifo}"],
+        ["scenario", "build", "{raw}", "-o", "{fifo}"],
+        ["report", "{sc}", "-o", "{fifo}"],
+        ["simulate", "{sc}", "--duration", "1", "--video", "{fifo}"],
+    ],
+    ids=lambda c: "-".join(c[:2]) if c[0] == "scenario" else c[0],
+)
+def test_force_never_replaces_a_device_or_fifo(capsys, good, tmp_path, command):
+    """Found by bench/fuzz_cli.py: ``-o /dev/null --force`` renamed the output onto /dev/null, replacing the
+    device with a regular file (as root). A FIFO stands in for the device here: refused, left as it was."""
+    sc = good.save(tmp_path / "sc.json")
+    raw = raw_scenario([CLASS_CASES["D0T1"]]).save(tmp_path / "raw.json")
+    fifo = tmp_path / "out.pipe"
+    os.mkfifo(fifo)
+    args = [a.format(sc=sc, raw=raw, fifo=fifo) for a in command]
+    rc, _, err = cli(capsys, *args, "--force")
+    assert_clear_error(rc, err, "not a regular file")
+    assert stat.S_ISFIFO(fifo.stat().st_mode)
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
         ["simulate", "{sc}"],
         ["search", "{sc}", "-o", "{out}"],
         ["scenario", "build", "{sc}", "-o", "{out}/p.json"],
@@ -192,6 +215,33 @@ def test_batch_checks_every_option_before_the_first_input(capsys, good, tmp_path
     rc, _, err = cli(capsys, "batch", tmp_path / "in", "-o", tmp_path / "out", *option)
     assert_clear_error(rc, err, fragment)
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    ("option", "fragment"),
+    [
+        (["--starts", "1000000000000"], "--starts x --noise-variants"),
+        (["--noise-variants", "1000000000000"], "--starts x --noise-variants"),
+        (["--box-lateral", "1e308"], "--box-lateral must be 0-1000 m"),
+        (["--box-longitudinal", "1e308"], "--box-longitudinal must be 0-1000 m"),
+        (["--box-lateral", "-0.5"], "--box-lateral"),
+        (["--box-longitudinal", "-1"], "--box-longitudinal"),
+        (["--noise-sigma", "1e308"], "--noise-sigma must be 0-100 m"),
+        (["--noise-sigma", "-1"], "--noise-sigma"),
+        (["--workers", "1000000000000"], "--workers must be 1-1024"),
+    ],
+)
+def test_search_refuses_huge_and_non_finite_option_values(capsys, good, tmp_path, option, fragment):
+    """Found by bench/fuzz_cli.py: the huge values ended in a MemoryError, an OverflowError, 'Maximum allowed size
+    exceeded' or RuntimeWarnings before one line; now one line before any work, and no output folder."""
+    sc = good.save(tmp_path / "sc.json")
+    args = ["search", sc, "-o", tmp_path / "out", "--starts", "2", "--noise-variants", "1", "--no-video"]
+    rc, _, err = cli(capsys, *args, *option)
+    assert_clear_error(rc, err, fragment)
+    assert not (tmp_path / "out").exists()
+    if option[0] == "--workers":  # batch: the same rule, before the first input
+        rc, _, err = cli(capsys, "batch", tmp_path, "-o", tmp_path / "out", *option)
+        assert_clear_error(rc, err, fragment)
 
 
 def test_view_refuses_a_bad_host_or_a_port_in_use(capsys, good, tmp_path):

@@ -34,6 +34,8 @@ def check_writable(path: str | os.PathLike[str], force: bool = False) -> Path:
     p = Path(path)
     if p.exists() and p.is_dir():
         raise UserError(f"{p}: is a directory, expected a file path")
+    if p.exists() and not stat.S_ISREG(p.stat().st_mode):  # renaming onto /dev/null would replace the device
+        raise UserError(f"{p}: not a regular file (a device, FIFO or socket), expected a file path to write")
     if p.exists() and not force:
         raise UserError(f"{p}: already exists (use --force to overwrite)")
     if p.parent.exists() and not p.parent.is_dir():
