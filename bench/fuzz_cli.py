@@ -116,8 +116,9 @@ def after_extraction(fz: Fuzz, sc: Path, work: Path) -> None:
     fz.run("evaluate", "fidelity", sc, "--no-video-out", "-o", work / "fidelity", "--json")
 
 
-def part_scenarios(fz: Fuzz, examples: int, seed_value: int, tmp: Path) -> dict[str, int]:
-    """Part 1: Hypothesis scenarios (half processed, half raw) through the commands."""
+def part_scenarios(fz: Fuzz, examples: int, seed_value: int, tmp: Path, keep: Path | None) -> dict[str, int]:
+    """Part 1: Hypothesis scenarios (half processed, half raw) through the commands; the input of each failure
+    is written into ``keep`` (when given)."""
     counts = {"processed": 0, "raw": 0}
     cfg = settings(
         max_examples=max(1, examples // 2),
@@ -134,12 +135,16 @@ def part_scenarios(fz: Fuzz, examples: int, seed_value: int, tmp: Path) -> dict[
         path = work / ("scenario.json" if stage == "processed" else "scenario_raw.json")
         path.write_text(json.dumps(data))
         write_tracks(data, work / "tracks.csv")
+        before = len(fz.failures)
         if stage == "raw":
             rc, _ = fz.run("scenario", "build", path, "-o", work / "scenario.json", "--json")
             if rc != 0:
                 return
             path = work / "scenario.json"
         after_extraction(fz, path, work)
+        if keep is not None and len(fz.failures) > before:  # the input of a failure, to reproduce it
+            keep.mkdir(parents=True, exist_ok=True)
+            (keep / f"{stage}_{counts[stage]:04d}.json").write_text(json.dumps(data))
         shutil.rmtree(work, ignore_errors=True)
 
     @seed(seed_value)
@@ -258,6 +263,7 @@ def main() -> None:
     ap.add_argument("--examples", type=int, default=40, help="scenarios (half processed, half raw)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--part", choices=("scenarios", "options", "both"), default="both")
+    ap.add_argument("--keep", type=Path, default=None, help="write the scenario of each failure into this folder")
     ap.add_argument("--verbose", action="store_true", help="also list the runs that ended with exit 0")
     args = ap.parse_args()
     fz = Fuzz()
@@ -265,7 +271,7 @@ def main() -> None:
     result: dict[str, Any] = {}
     with tempfile.TemporaryDirectory(prefix="fuzz_cli_") as tmp, contextlib.chdir(tmp):  # -o "" is the cwd
         if args.part in ("scenarios", "both"):
-            result["scenarios"] = part_scenarios(fz, args.examples, args.seed, Path(tmp))
+            result["scenarios"] = part_scenarios(fz, args.examples, args.seed, Path(tmp), args.keep)
             result["scenario_runs"] = fz.runs
         if args.part in ("options", "both"):
             result["option_runs"] = part_options(fz, Path(tmp))

@@ -129,6 +129,34 @@ def test_values_at_the_bounds_simulate_and_export(capsys, good, tmp_path):
     assert cli(capsys, "export", path, "--format", "openscenario", "-o", tmp_path / "x")[0] == 0
 
 
+def _standing_ego(good: Scenario, start_delay_s: float) -> dict[str, Any]:
+    """``good`` as a file whose ego is one sample at t = 0 (no agents, no crash): nobody moves."""
+    data = json.loads(good.to_json())
+    traj = data["ego"]["trajectory"]
+    for key in list(traj):
+        if isinstance(traj[key], list):
+            traj[key] = traj[key][:1]
+    data["ego"].update(spline=None, start_delay_s=start_delay_s, last_frame=data["ego"]["first_frame"])
+    data["agents"], data["collision"] = [], None
+    return data
+
+
+def test_nobody_moving_exports_and_an_ego_after_its_samples_is_one_line(capsys, good, tmp_path):
+    """Found by bench/fuzz_cli.py on schema-valid scenarios: a scenario where nobody moves ended in "ValueError:
+    no maneuver group added to the act" (OpenSCENARIO; now an Init-only file) and an ego whose start delay lies
+    after its only sample in "IndexError" (CommonRoad; now one line naming the ego's span)."""
+    still = tmp_path / "still.json"
+    still.write_text(json.dumps(_standing_ego(good, 0.0)))
+    rc, _, err = cli(capsys, "export", still, "--format", "openscenario", "-o", tmp_path / "x")
+    assert rc == 0, err
+    assert "<Init>" in (tmp_path / "x" / "scenario.xosc").read_text()
+    late = tmp_path / "late.json"
+    late.write_text(json.dumps(_standing_ego(good, 0.5)))
+    rc, _, err = cli(capsys, "export", late, "--format", "commonroad", "-o", tmp_path / "y")
+    assert_clear_error(rc, err, "ego trajectory spans no CommonRoad time step")
+    assert not (tmp_path / "y").exists()
+
+
 @pytest.mark.parametrize("special", ["fifo", "/dev/zero", "/dev/urandom"])
 def test_special_files_are_not_regular_files(capsys, tmp_path, special):
     """Item 13: a FIFO or a device is "not a regular file", not "is empty" (and nothing hangs)."""

@@ -214,9 +214,15 @@ def build_commonroad(sc: Scenario, dt: float = COMMONROAD_DT_S) -> tuple[Any, An
     if not (0.0 < dt <= 1.0):
         raise UserError(f"CommonRoad dt must be in (0, 1] s (got {dt})")
     cr = CRScenario(dt, ScenarioID(country_id="ZAM", map_name="DeepCrashTest", map_id=1, configuration_id=1))
+    ego = resample(sc.ego, dt)
+    if len(ego["step"]) == 0:
+        raise UserError(
+            f"ego trajectory spans no CommonRoad time step (samples {sc.ego.trajectory.t[0]:g}-"
+            f"{sc.ego.trajectory.t[-1]:g} s, start delay {sc.ego.start_delay_s:g} s, step {dt:g} s)"
+        )
     cr.add_objects(_lanelet_network(sc))
     skipped: list[int] = []
-    last_step = 0
+    last_step = int(ego["step"][-1])
     for agent in sc.agents:
         states = resample(agent, dt)
         if len(states["step"]) < 2:
@@ -224,7 +230,6 @@ def build_commonroad(sc: Scenario, dt: float = COMMONROAD_DT_S) -> tuple[Any, An
             continue
         last_step = max(last_step, int(states["step"][-1]))
         cr.add_objects(_obstacle(agent, states))
-    last_step = max(last_step, int(resample(sc.ego, dt)["step"][-1]))
     return cr, _planning_problem(sc, dt, last_step), skipped
 
 
