@@ -149,12 +149,38 @@ def test_nobody_moving_exports_and_an_ego_after_its_samples_is_one_line(capsys, 
     still.write_text(json.dumps(_standing_ego(good, 0.0)))
     rc, _, err = cli(capsys, "export", still, "--format", "openscenario", "-o", tmp_path / "x")
     assert rc == 0, err
-    assert "<Init>" in (tmp_path / "x" / "scenario.xosc").read_text()
+    import scenariogeneration
+    import xmlschema
+
+    schemas = Path(scenariogeneration.__file__).resolve().parents[1] / "schemas"
+    xmlschema.XMLSchema(str(schemas / "OpenSCENARIO_1_2.xsd")).validate(str(tmp_path / "x" / "scenario.xosc"))
     late = tmp_path / "late.json"
     late.write_text(json.dumps(_standing_ego(good, 0.5)))
     rc, _, err = cli(capsys, "export", late, "--format", "commonroad", "-o", tmp_path / "y")
     assert_clear_error(rc, err, "ego trajectory spans no CommonRoad time step")
     assert not (tmp_path / "y").exists()
+
+
+def test_search_around_an_ego_whose_samples_jump_across_the_world_is_one_line(capsys, good, tmp_path):
+    """Found by bench/fuzz_cli.py: samples alternating between x = +-99 km (inside the schema's +-100 km) made the
+    least-squares ego spline overshoot past 100 km: "ValidationError ... for SplineParams" at exit 1."""
+    data = json.loads(good.to_json())
+    t = [0.0, 0.01, 0.02, 0.03, 5.0]
+    data["ego"]["trajectory"] = {
+        "t": t,
+        "x": [99_000.0, -99_000.0, 99_000.0, -99_000.0, 99_000.0],
+        "y": [0.0] * 5,
+        "yaw": [0.0] * 5,
+        "speed": [10.0] * 5,
+    }
+    data["ego"].update(spline=None, last_frame=50)
+    path = tmp_path / "jumps.json"
+    path.write_text(json.dumps(data))
+    assert cli(capsys, "scenario", "validate", path)[0] == 0
+    rc, _, err = cli(capsys, "search", path, "-o", tmp_path / "s", "--starts", "2", "--noise-variants", "1",
+                     "--no-video", "--workers", "1")  # fmt: skip
+    assert_clear_error(rc, err, "fitted spline leaves the world")
+    assert not (tmp_path / "s").exists()
 
 
 @pytest.mark.parametrize("special", ["fifo", "/dev/zero", "/dev/urandom"])
