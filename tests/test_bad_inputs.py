@@ -183,6 +183,23 @@ def test_search_around_an_ego_whose_samples_jump_across_the_world_is_one_line(ca
     assert not (tmp_path / "s").exists()
 
 
+def test_commonroad_export_of_a_200_km_road_stays_small(capsys, good, tmp_path):
+    """Found by bench/fuzz_cli.py: a schema-valid road of ~200 km (waypoints at x = +-99 km) was sampled every
+    metre into each lanelet (2 minutes of CPU); now at most MAX_LANELET_VERTICES samples per boundary."""
+    from deepcrashtest.export.commonroad import MAX_LANELET_VERTICES
+
+    data = json.loads(good.to_json())
+    data["road"].update(centerline_x=[-99_000.0, 99_000.0], centerline_y=[0.0, 0.0])
+    path = tmp_path / "long_road.json"
+    path.write_text(json.dumps(data))
+    rc, _, err = cli(capsys, "export", path, "--format", "commonroad", "-o", tmp_path / "cr")
+    assert rc == 0, err
+    xml = (tmp_path / "cr" / "commonroad.xml").read_text()
+    lanelets = xml.count("<lanelet ")
+    assert lanelets == good.road.lane_count
+    assert xml.count("<point>") <= lanelets * 3 * (MAX_LANELET_VERTICES + 2) + 200  # + the obstacles' shapes
+
+
 @pytest.mark.parametrize("special", ["fifo", "/dev/zero", "/dev/urandom"])
 def test_special_files_are_not_regular_files(capsys, tmp_path, special):
     """Item 13: a FIFO or a device is "not a regular file", not "is empty" (and nothing hangs)."""
