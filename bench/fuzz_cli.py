@@ -264,16 +264,26 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--part", choices=("scenarios", "options", "both"), default="both")
     ap.add_argument("--keep", type=Path, default=None, help="write the scenario of each failure into this folder")
+    ap.add_argument("--replay", type=Path, default=None, help="run the commands on the *.json of this folder only")
     ap.add_argument("--verbose", action="store_true", help="also list the runs that ended with exit 0")
     args = ap.parse_args()
     fz = Fuzz()
     t0 = time.process_time()
     result: dict[str, Any] = {}
     with tempfile.TemporaryDirectory(prefix="fuzz_cli_") as tmp, contextlib.chdir(tmp):  # -o "" is the cwd
-        if args.part in ("scenarios", "both"):
+        if args.replay is not None:  # the kept inputs of earlier failures
+            for k, path in enumerate(sorted(args.replay.glob("*.json"))):
+                work = Path(tmp) / f"replay_{k}"
+                work.mkdir()
+                data = json.loads(path.read_text())
+                write_tracks(data, work / "tracks.csv")
+                sc = work / "scenario.json"
+                sc.write_text(json.dumps(data))
+                after_extraction(fz, sc, work)
+        elif args.part in ("scenarios", "both"):
             result["scenarios"] = part_scenarios(fz, args.examples, args.seed, Path(tmp), args.keep)
             result["scenario_runs"] = fz.runs
-        if args.part in ("options", "both"):
+        if args.replay is None and args.part in ("options", "both"):
             result["option_runs"] = part_options(fz, Path(tmp))
     result.update(
         runs=fz.runs,
