@@ -216,7 +216,54 @@ def part_options(fz: Fuzz, tmp: Path) -> int:
                 else:
                     fz.run("evaluate", "fidelity", sc, "--no-video-out", "-o", out, opt, v, "--json")
     odd_paths(fz, d, sc, raw, tmp)
+    odd_other_commands(fz, d, tmp)
     return fz.runs - start
+
+
+def odd_other_commands(fz: Fuzz, d: Path, tmp: Path) -> None:
+    """Odd values of the other commands' options (extract on a 3-frame image folder; the KITTI commands on the
+    shared data when present, else on a missing folder; view and batch only where refused before any work)."""
+    import cv2
+    import numpy as np
+
+    frames = tmp / "frames"
+    frames.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(frames / f"{k:06d}.png"), np.full((48, 64, 3), 40 * k, np.uint8))
+    fast = ["--no-lanes", "--no-report", "--max-frames", "3", "--fps", "10"]
+    extract_opts = {
+        "--fps": FLOATS,
+        "--detect-every": INTS,
+        "--max-frames": INTS,
+        "--hfov": FLOATS + ["179.9", "180", "360"],
+        "--camera-height": FLOATS,
+        "--dashboard-rows": INTS + ["48", "47"],
+        "--crash": ["", "-1", "x", "1:ego", "2:ego,ego", "1:7,8", "999999999999", "1:", ":", "1e3"],
+        "--detector": ["", "nosuch", "/no/such/model.onnx"],
+    }
+    for k, (opt, values) in enumerate(extract_opts.items()):
+        for j, v in enumerate(values):
+            base = list(fast)
+            if opt in base:
+                i = base.index(opt)
+                del base[i : i + 2]
+            fz.run("extract", frames, "-o", tmp / f"x_{k}_{j}", *base, opt, v, "--json")
+    kitti = ROOT.parent / "shared" / "data" / "kitti_tracking"
+    data = kitti if kitti.is_dir() else tmp / "no_kitti"
+    for v in ("", "-1", "abc", "99999999999999999999", "nan", ",", "3,-8", "9999"):
+        fz.run("evaluate", "kitti", "--data", data, "--sequences", v, "--json")
+    for v in ("-1", "99999999999999999999", "9999"):
+        fz.run("scenario", "from-kitti", "--data", data, "--sequence", v, "-o", tmp / "fk", "--json")
+    for opt, v in (("--match", "nosuch"), ("--boxes", "nosuch"), ("--camera", "nosuch"), ("--detections", "")):
+        fz.run("evaluate", "kitti", "--data", data, "--sequences", "9999", opt, v, "--mono", "--json")
+    for v in ("-1", "0", "1", "99999999999999999999"):
+        fz.run("evaluate", "egomotion", "--data", tmp / "no_odometry", "--max-frames", v, "--json")
+    for v in ("-1", "0", "65536", "99999999999999999999", "", "abc"):
+        fz.run("view", d / "scenario.json", "--port", v)
+    for opt, values in (("--workers", INTS), ("--starts", INTS), ("--duration", FLOATS), ("--engine", ["", "x"])):
+        for v in values:
+            if (opt, v) not in (("--duration", "1e308"), ("--duration", "1e-12")):  # valid: would run the batch
+                fz.run("batch", d, "-o", tmp / "batch", opt, v, "--json")
 
 
 def odd_paths(fz: Fuzz, d: Path, sc: Path, raw: Path, tmp: Path) -> None:

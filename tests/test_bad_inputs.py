@@ -200,6 +200,29 @@ def test_commonroad_export_of_a_200_km_road_stays_small(capsys, good, tmp_path):
     assert xml.count("<point>") <= lanelets * 3 * (MAX_LANELET_VERTICES + 2) + 200  # + the obstacles' shapes
 
 
+@pytest.mark.parametrize(
+    ("option", "fragment"),
+    [
+        (["--fps", "1e-12"], "--fps must be 0.01-10000"),
+        (["--fps", "1e308"], "--fps must be 0.01-10000"),
+        (["--fps", "10", "--camera-height", "inf"], "camera height must be > 0 and <= 100 m"),
+        (["--fps", "10", "--camera-height", "1e308"], "camera height must be > 0 and <= 100 m"),
+    ],
+)
+def test_extract_refuses_absurd_frame_rates_and_camera_heights(capsys, tmp_path, option, fragment):
+    """Found by bench/fuzz_cli.py: --fps 1e-12 / 1e308 ended in the video writer's ValueError / OverflowError and
+    --camera-height inf in "Out of range float values are not JSON compliant"; now one line, no output folder."""
+    import cv2
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(frames / f"{k:06d}.png"), np.full((48, 64, 3), 40 * k, np.uint8))
+    rc, _, err = cli(capsys, "extract", frames, "-o", tmp_path / "x", "--no-lanes", "--no-report", *option, "--json")
+    assert_clear_error(rc, err, fragment)
+    assert not (tmp_path / "x").exists()
+
+
 @pytest.mark.parametrize("special", ["fifo", "/dev/zero", "/dev/urandom"])
 def test_special_files_are_not_regular_files(capsys, tmp_path, special):
     """Item 13: a FIFO or a device is "not a regular file", not "is empty" (and nothing hangs)."""

@@ -259,11 +259,12 @@ def extract(
     from deepcrashtest.fileio import require_file
     from deepcrashtest.geometry.camera import camera_for_video
     from deepcrashtest.pipeline.extract import run_extract
+    from deepcrashtest.video.source import MAX_FPS, MIN_FPS
 
     if not video.is_dir():
         require_file(video, "video")
-    if fps is not None and not fps > 0:
-        raise UserError(f"--fps must be a positive number (got {fps})")
+    if fps is not None and not MIN_FPS <= fps <= MAX_FPS:  # NaN too
+        raise UserError(f"--fps must be {MIN_FPS:g}-{MAX_FPS:g} frames per second (got {fps})")
     if dashboard_rows is not None and dashboard_rows < 0:
         raise UserError(f"--dashboard-rows must be >= 0 (got {dashboard_rows})")
     if camera is not None:
