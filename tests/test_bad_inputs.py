@@ -203,8 +203,8 @@ def test_commonroad_export_of_a_200_km_road_stays_small(capsys, good, tmp_path):
 @pytest.mark.parametrize(
     ("option", "fragment"),
     [
-        (["--fps", "1e-12"], "--fps must be 0.01-10000"),
-        (["--fps", "1e308"], "--fps must be 0.01-10000"),
+        (["--fps", "1e-12"], "--fps must be a positive number of frames per second, 0.01-10000"),
+        (["--fps", "1e308"], "--fps must be a positive number of frames per second, 0.01-10000"),
         (["--fps", "10", "--camera-height", "inf"], "camera height must be > 0 and <= 100 m"),
         (["--fps", "10", "--camera-height", "1e308"], "camera height must be > 0 and <= 100 m"),
     ],

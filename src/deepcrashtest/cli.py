@@ -264,7 +264,7 @@ def extract(
     if not video.is_dir():
         require_file(video, "video")
     if fps is not None and not MIN_FPS <= fps <= MAX_FPS:  # NaN too
-        raise UserError(f"--fps must be {MIN_FPS:g}-{MAX_FPS:g} frames per second (got {fps})")
+        raise UserError(f"--fps must be a positive number of frames per second, {MIN_FPS:g}-{MAX_FPS:g} (got {fps})")
     if dashboard_rows is not None and dashboard_rows < 0:
         raise UserError(f"--dashboard-rows must be >= 0 (got {dashboard_rows})")
     if camera is not None:

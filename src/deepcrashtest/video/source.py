@@ -100,7 +100,7 @@ def open_video(path: str | Path, fps: float | None = None) -> VideoSource:
     """
     p = Path(path)
     if fps is not None and not (np.isfinite(fps) and MIN_FPS <= fps <= MAX_FPS):
-        raise UserError(f"--fps must be {MIN_FPS:g}-{MAX_FPS:g} frames per second (got {fps})")
+        raise UserError(f"--fps must be a positive number of frames per second, {MIN_FPS:g}-{MAX_FPS:g} (got {fps})")
     if p.is_dir():
         return ImageFolderSource(p, fps)
     return PyAVSource(p, fps)
