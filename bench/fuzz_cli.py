@@ -5,10 +5,13 @@ a temporary folder, with a small tracks.csv beside them, and run in-process thro
 ``scenario build`` (raw), ``simulate``, ``search`` (a few variants), ``export --format openscenario|commonroad|csv``,
 ``report`` and ``evaluate fidelity`` (no labels, no video). Part 2 (options): every option of those commands with odd
 values (negative, zero, huge, NaN, inf, empty, missing and unwritable paths, the input's own folder, outputs that
-exist with and without ``--force``) on one small real scenario. The property: exit 0, or exit 2 with exactly one
-line on stderr; never an internal error (exit 1) or a traceback. Prints one JSON line: runs per part, exit codes,
-failures (0 is the goal) with the command line of each.
-Usage: python bench/fuzz_cli.py [--examples 40] [--seed 0] [--part scenarios|options|both]
+exist with and without ``--force``) on one small hand-built scenario (tests/trajectory_cases.py). The property:
+exit 0, or exit 2 with exactly one line on stderr; never an internal error (exit 1) or a traceback. Prints one JSON
+line: runs per part, exit codes, failures (0 is the goal) with the command line of each.
+Part 2 also runs odd values of extract (a 3-frame image folder), evaluate kitti / egomotion, scenario from-kitti,
+view and batch options (only those refused before any work, for view and batch).
+Usage: python bench/fuzz_cli.py [--examples 40] [--seed 0] [--part scenarios|options|both] [--keep DIR]
+       [--replay DIR] [--verbose]   (--keep: write each failing scenario there; --replay: rerun those files)
 """
 
 from __future__ import annotations
