@@ -223,6 +223,17 @@ def test_extract_refuses_absurd_frame_rates_and_camera_heights(capsys, tmp_path,
     assert not (tmp_path / "x").exists()
 
 
+def test_an_output_onto_its_own_input_is_refused_even_with_force(capsys, good, tmp_path):
+    """Found by bench/fuzz_cli.py: ``simulate sc.json --video sc.json --force`` and ``report sc.json -o sc.json
+    --force`` replaced the scenario with a video / an HTML page; now one line, the input left as it was."""
+    sc = good.save(tmp_path / "sc.json")
+    before = sc.read_bytes()
+    for args in (["simulate", sc, "--duration", "1", "--video", sc], ["report", sc, "-o", sc]):
+        rc, _, err = cli(capsys, *args, "--force")
+        assert_clear_error(rc, err, "is also an input of this command")
+        assert sc.read_bytes() == before
+
+
 @pytest.mark.parametrize("special", ["fifo", "/dev/zero", "/dev/urandom"])
 def test_special_files_are_not_regular_files(capsys, tmp_path, special):
     """Item 13: a FIFO or a device is "not a regular file", not "is empty" (and nothing hangs)."""

@@ -359,12 +359,13 @@ def simulate(
     as_json: bool = JsonOpt,
 ) -> None:
     """Replay a Scenario in the built-in simulator and report the outcome."""
-    from deepcrashtest.fileio import check_writable
+    from deepcrashtest.fileio import check_not_input, check_writable
     from deepcrashtest.sim import replay_error
     from deepcrashtest.sim import simulate as run_sim
 
     sc = _load(scenario)
     if video is not None:
+        check_not_input(video, scenario)
         check_writable(video, force)
     res = run_sim(sc, controller=controller, dt=dt, seed=seed, duration=duration)
     out: dict[str, Any] = {
@@ -778,8 +779,10 @@ def report(
     as_json: bool = JsonOpt,
 ) -> None:
     """Write one self-contained report.html of a scenario (+ video, simulation, search beside it)."""
+    from deepcrashtest.fileio import check_not_input
     from deepcrashtest.viz.report import build_report
 
+    check_not_input(output, scenario, video, sim, search_table)
     emit(build_report(scenario, output, video=video, sim=sim, search=search_table, force=force), as_json)
 
 

@@ -43,6 +43,15 @@ def check_writable(path: str | os.PathLike[str], force: bool = False) -> Path:
     return p  # missing parent folders are made when the file is written (atomic_path), not before the work
 
 
+def check_not_input(output: str | os.PathLike[str], *inputs: str | os.PathLike[str] | None) -> None:
+    """Refuse an output path that is one of the command's input files (``--force`` or not: the output would
+    replace what it is made from)."""
+    out = Path(output)
+    for item in inputs:
+        if item is not None and out.exists() and Path(item).exists() and os.path.samefile(out, item):
+            raise UserError(f"{out}: is also an input of this command; write the output to another path")
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike[str], force: bool = False, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success rename it onto ``path``.
