@@ -129,6 +129,111 @@ def test_values_at_the_bounds_simulate_and_export(capsys, good, tmp_path):
     assert cli(capsys, "export", path, "--format", "openscenario", "-o", tmp_path / "x")[0] == 0
 
 
+def _standing_ego(good: Scenario, start_delay_s: float) -> dict[str, Any]:
+    """``good`` as a file whose ego is one sample at t = 0 (no agents, no crash): nobody moves."""
+    data = json.loads(good.to_json())
+    traj = data["ego"]["trajectory"]
+    for key in list(traj):
+        if isinstance(traj[key], list):
+            traj[key] = traj[key][:1]
+    data["ego"].update(spline=None, start_delay_s=start_delay_s, last_frame=data["ego"]["first_frame"])
+    data["agents"], data["collision"] = [], None
+    return data
+
+
+def test_nobody_moving_exports_and_an_ego_after_its_samples_is_one_line(capsys, good, tmp_path):
+    """Found by bench/fuzz_cli.py on schema-valid scenarios: a scenario where nobody moves ended in "ValueError:
+    no maneuver group added to the act" (OpenSCENARIO; now an Init-only file) and an ego whose start delay lies
+    after its only sample in "IndexError" (CommonRoad; now one line naming the ego's span)."""
+    still = tmp_path / "still.json"
+    still.write_text(json.dumps(_standing_ego(good, 0.0)))
+    rc, _, err = cli(capsys, "export", still, "--format", "openscenario", "-o", tmp_path / "x")
+    assert rc == 0, err
+    import scenariogeneration
+    import xmlschema
+
+    schemas = Path(scenariogeneration.__file__).resolve().parents[1] / "schemas"
+    xmlschema.XMLSchema(str(schemas / "OpenSCENARIO_1_2.xsd")).validate(str(tmp_path / "x" / "scenario.xosc"))
+    late = tmp_path / "late.json"
+    late.write_text(json.dumps(_standing_ego(good, 0.5)))
+    rc, _, err = cli(capsys, "export", late, "--format", "commonroad", "-o", tmp_path / "y")
+    assert_clear_error(rc, err, "ego trajectory spans no CommonRoad time step")
+    assert not (tmp_path / "y").exists()
+
+
+def test_search_around_an_ego_whose_samples_jump_across_the_world_is_one_line(capsys, good, tmp_path):
+    """Found by bench/fuzz_cli.py: samples alternating between x = +-99 km (inside the schema's +-100 km) made the
+    least-squares ego spline overshoot past 100 km: "ValidationError ... for SplineParams" at exit 1."""
+    data = json.loads(good.to_json())
+    t = [0.0, 0.01, 0.02, 0.03, 5.0]
+    data["ego"]["trajectory"] = {
+        "t": t,
+        "x": [99_000.0, -99_000.0, 99_000.0, -99_000.0, 99_000.0],
+        "y": [0.0] * 5,
+        "yaw": [0.0] * 5,
+        "speed": [10.0] * 5,
+    }
+    data["ego"].update(spline=None, last_frame=50)
+    path = tmp_path / "jumps.json"
+    path.write_text(json.dumps(data))
+    assert cli(capsys, "scenario", "validate", path)[0] == 0
+    rc, _, err = cli(capsys, "search", path, "-o", tmp_path / "s", "--starts", "2", "--noise-variants", "1",
+                     "--no-video", "--workers", "1")  # fmt: skip
+    assert_clear_error(rc, err, "fitted spline leaves the world")
+    assert not (tmp_path / "s").exists()
+
+
+def test_commonroad_export_of_a_200_km_road_stays_small(capsys, good, tmp_path):
+    """Found by bench/fuzz_cli.py: a schema-valid road of ~200 km (waypoints at x = +-99 km) was sampled every
+    metre into each lanelet (2 minutes of CPU); now at most MAX_LANELET_VERTICES samples per boundary."""
+    from deepcrashtest.export.commonroad import MAX_LANELET_VERTICES
+
+    data = json.loads(good.to_json())
+    data["road"].update(centerline_x=[-99_000.0, 99_000.0], centerline_y=[0.0, 0.0])
+    path = tmp_path / "long_road.json"
+    path.write_text(json.dumps(data))
+    rc, _, err = cli(capsys, "export", path, "--format", "commonroad", "-o", tmp_path / "cr")
+    assert rc == 0, err
+    xml = (tmp_path / "cr" / "commonroad.xml").read_text()
+    lanelets = xml.count("<lanelet ")
+    assert lanelets == good.road.lane_count
+    assert xml.count("<point>") <= lanelets * 3 * (MAX_LANELET_VERTICES + 2) + 200  # + the obstacles' shapes
+
+
+@pytest.mark.parametrize(
+    ("option", "fragment"),
+    [
+        (["--fps", "1e-12"], "--fps must be a positive number of frames per second, 0.01-10000"),
+        (["--fps", "1e308"], "--fps must be a positive number of frames per second, 0.01-10000"),
+        (["--fps", "10", "--camera-height", "inf"], "camera height must be > 0 and <= 100 m"),
+        (["--fps", "10", "--camera-height", "1e308"], "camera height must be > 0 and <= 100 m"),
+    ],
+)
+def test_extract_refuses_absurd_frame_rates_and_camera_heights(capsys, tmp_path, option, fragment):
+    """Found by bench/fuzz_cli.py: --fps 1e-12 / 1e308 ended in the video writer's ValueError / OverflowError and
+    --camera-height inf in "Out of range float values are not JSON compliant"; now one line, no output folder."""
+    import cv2
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(frames / f"{k:06d}.png"), np.full((48, 64, 3), 40 * k, np.uint8))
+    rc, _, err = cli(capsys, "extract", frames, "-o", tmp_path / "x", "--no-lanes", "--no-report", *option, "--json")
+    assert_clear_error(rc, err, fragment)
+    assert not (tmp_path / "x").exists()
+
+
+def test_an_output_onto_its_own_input_is_refused_even_with_force(capsys, good, tmp_path):
+    """Found by bench/fuzz_cli.py: ``simulate sc.json --video sc.json --force`` and ``report sc.json -o sc.json
+    --force`` replaced the scenario with a video / an HTML page; now one line, the input left as it was."""
+    sc = good.save(tmp_path / "sc.json")
+    before = sc.read_bytes()
+    for args in (["simulate", sc, "--duration", "1", "--video", sc], ["report", sc, "-o", sc]):
+        rc, _, err = cli(capsys, *args, "--force")
+        assert_clear_error(rc, err, "is also an input of this command")
+        assert sc.read_bytes() == before
+
+
 @pytest.mark.parametrize("special", ["fifo", "/dev/zero", "/dev/urandom"])
 def test_special_files_are_not_regular_files(capsys, tmp_path, special):
     """Item 13: a FIFO or a device is "not a regular file", not "is empty" (and nothing hangs)."""
@@ -139,6 +244,29 @@ def test_special_files_are_not_regular_files(capsys, tmp_path, special):
         path = Path(special)
     rc, _, err = cli(capsys, "scenario", "validate", path)
     assert_clear_error(rc, err, "not a regular file")
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["schema", "-o", "{fifo}"],
+        ["scenario", "build", "{raw}", "-o", "{fifo}"],
+        ["report", "{sc}", "-o", "{fifo}"],
+        ["simulate", "{sc}", "--duration", "1", "--video", "{fifo}"],
+    ],
+    ids=lambda c: "-".join(c[:2]) if c[0] == "scenario" else c[0],
+)
+def test_force_never_replaces_a_device_or_fifo(capsys, good, tmp_path, command):
+    """Found by bench/fuzz_cli.py: ``-o /dev/null --force`` renamed the output onto /dev/null, replacing the
+    device with a regular file (as root). A FIFO stands in for the device here: refused, left as it was."""
+    sc = good.save(tmp_path / "sc.json")
+    raw = raw_scenario([CLASS_CASES["D0T1"]]).save(tmp_path / "raw.json")
+    fifo = tmp_path / "out.pipe"
+    os.mkfifo(fifo)
+    args = [a.format(sc=sc, raw=raw, fifo=fifo) for a in command]
+    rc, _, err = cli(capsys, *args, "--force")
+    assert_clear_error(rc, err, "not a regular file")
+    assert stat.S_ISFIFO(fifo.stat().st_mode)
 
 
 @pytest.mark.parametrize(
@@ -192,6 +320,33 @@ def test_batch_checks_every_option_before_the_first_input(capsys, good, tmp_path
     rc, _, err = cli(capsys, "batch", tmp_path / "in", "-o", tmp_path / "out", *option)
     assert_clear_error(rc, err, fragment)
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    ("option", "fragment"),
+    [
+        (["--starts", "1000000000000"], "--starts x --noise-variants"),
+        (["--noise-variants", "1000000000000"], "--starts x --noise-variants"),
+        (["--box-lateral", "1e308"], "--box-lateral must be 0-1000 m"),
+        (["--box-longitudinal", "1e308"], "--box-longitudinal must be 0-1000 m"),
+        (["--box-lateral", "-0.5"], "--box-lateral"),
+        (["--box-longitudinal", "-1"], "--box-longitudinal"),
+        (["--noise-sigma", "1e308"], "--noise-sigma must be 0-100 m"),
+        (["--noise-sigma", "-1"], "--noise-sigma"),
+        (["--workers", "1000000000000"], "--workers must be 1-1024"),
+    ],
+)
+def test_search_refuses_huge_and_non_finite_option_values(capsys, good, tmp_path, option, fragment):
+    """Found by bench/fuzz_cli.py: the huge values ended in a MemoryError, an OverflowError, 'Maximum allowed size
+    exceeded' or RuntimeWarnings before one line; now one line before any work, and no output folder."""
+    sc = good.save(tmp_path / "sc.json")
+    args = ["search", sc, "-o", tmp_path / "out", "--starts", "2", "--noise-variants", "1", "--no-video"]
+    rc, _, err = cli(capsys, *args, *option)
+    assert_clear_error(rc, err, fragment)
+    assert not (tmp_path / "out").exists()
+    if option[0] == "--workers":  # batch: the same rule, before the first input
+        rc, _, err = cli(capsys, "batch", tmp_path, "-o", tmp_path / "out", *option)
+        assert_clear_error(rc, err, fragment)
 
 
 def test_view_refuses_a_bad_host_or_a_port_in_use(capsys, good, tmp_path):

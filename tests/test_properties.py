@@ -73,3 +73,23 @@ def test_a_path_of_thousands_of_kilometres_is_refused_not_resampled():
     sc = Scenario.from_dict(data, origin="test")
     with pytest.raises(ScenarioError, match=f"vehicle {sc.agents[0].id}: a path of .* km"):
         simulate(sc, duration=min(sc.duration(), 4.0))
+
+
+def test_cli_commands_after_extraction_on_fuzzed_scenarios(tmp_path):
+    """bench/fuzz_cli.py in small (seeded): a few schema-valid odd scenarios, processed and raw, through every
+    command after extraction (validate, build, simulate, search, export x3, report, fidelity): exit 0 or one
+    line with exit 2, never an internal error."""
+    import importlib.util
+    from pathlib import Path
+
+    bench = Path(__file__).resolve().parents[1] / "bench" / "fuzz_cli.py"
+    spec = importlib.util.spec_from_file_location("fuzz_cli", bench)
+    assert spec is not None and spec.loader is not None
+    fuzz_cli = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(fuzz_cli)
+    fz = fuzz_cli.Fuzz()
+    examples = int(os.environ.get("DCT_FUZZ_CLI_EXAMPLES", "4"))
+    counts = fuzz_cli.part_scenarios(fz, examples, 0, tmp_path, None)
+    assert counts == {"processed": examples // 2, "raw": examples // 2}
+    assert fz.failures == []
+    assert fz.codes[0] > 0  # some commands ran to the end, not only refusals

@@ -259,11 +259,12 @@ def extract(
     from deepcrashtest.fileio import require_file
     from deepcrashtest.geometry.camera import camera_for_video
     from deepcrashtest.pipeline.extract import run_extract
+    from deepcrashtest.video.source import MAX_FPS, MIN_FPS
 
     if not video.is_dir():
         require_file(video, "video")
-    if fps is not None and not fps > 0:
-        raise UserError(f"--fps must be a positive number (got {fps})")
+    if fps is not None and not MIN_FPS <= fps <= MAX_FPS:  # NaN too
+        raise UserError(f"--fps must be a positive number of frames per second, {MIN_FPS:g}-{MAX_FPS:g} (got {fps})")
     if dashboard_rows is not None and dashboard_rows < 0:
         raise UserError(f"--dashboard-rows must be >= 0 (got {dashboard_rows})")
     if camera is not None:
@@ -358,12 +359,13 @@ def simulate(
     as_json: bool = JsonOpt,
 ) -> None:
     """Replay a Scenario in the built-in simulator and report the outcome."""
-    from deepcrashtest.fileio import check_writable
+    from deepcrashtest.fileio import check_not_input, check_writable
     from deepcrashtest.sim import replay_error
     from deepcrashtest.sim import simulate as run_sim
 
     sc = _load(scenario)
     if video is not None:
+        check_not_input(video, scenario)
         check_writable(video, force)
     res = run_sim(sc, controller=controller, dt=dt, seed=seed, duration=duration)
     out: dict[str, Any] = {
@@ -777,8 +779,10 @@ def report(
     as_json: bool = JsonOpt,
 ) -> None:
     """Write one self-contained report.html of a scenario (+ video, simulation, search beside it)."""
+    from deepcrashtest.fileio import check_not_input
     from deepcrashtest.viz.report import build_report
 
+    check_not_input(output, scenario, video, sim, search_table)
     emit(build_report(scenario, output, video=video, sim=sim, search=search_table, force=force), as_json)
 
 

@@ -34,11 +34,22 @@ def check_writable(path: str | os.PathLike[str], force: bool = False) -> Path:
     p = Path(path)
     if p.exists() and p.is_dir():
         raise UserError(f"{p}: is a directory, expected a file path")
+    if p.exists() and not stat.S_ISREG(p.stat().st_mode):  # renaming onto /dev/null would replace the device
+        raise UserError(f"{p}: not a regular file (a device, FIFO or socket), expected a file path to write")
     if p.exists() and not force:
         raise UserError(f"{p}: already exists (use --force to overwrite)")
     if p.parent.exists() and not p.parent.is_dir():
         raise UserError(f"{p.parent}: exists and is not a directory")
     return p  # missing parent folders are made when the file is written (atomic_path), not before the work
+
+
+def check_not_input(output: str | os.PathLike[str], *inputs: str | os.PathLike[str] | None) -> None:
+    """Refuse an output path that is one of the command's input files (``--force`` or not: the output would
+    replace what it is made from)."""
+    out = Path(output)
+    for item in inputs:
+        if item is not None and out.exists() and Path(item).exists() and os.path.samefile(out, item):
+            raise UserError(f"{out}: is also an input of this command; write the output to another path")
 
 
 @contextlib.contextmanager

@@ -5,8 +5,8 @@
   speed) at the steps inside its span.
 * Lanelet network: one lanelet per lane of ``Scenario.road``, same layout as the OpenDRIVE export
   (:func:`deepcrashtest.geometry.road.boundary_offsets` around the same reference line,
-  sampled every ``LANELET_STEP_M`` metres). Lanelet id ``1 + lane index`` (0 = rightmost); neighbours
-  are linked as adjacent in the same direction.
+  sampled every ``LANELET_STEP_M`` metres; at most ``MAX_LANELET_VERTICES`` samples on a long road).
+  Lanelet id ``1 + lane index`` (0 = rightmost); neighbours are linked as adjacent in the same direction.
 * Agents: dynamic obstacles (id ``OBSTACLE_ID_BASE + vehicle id``), rectangle shape of the
   vehicle's length x width, initial state at the first step of their span, a trajectory
   prediction over the remaining steps. Agents whose span holds fewer than two steps are left out
@@ -42,6 +42,7 @@ from deepcrashtest.scenario import Scenario, Vehicle, wrap_angle
 
 COMMONROAD_DT_S = 0.1
 LANELET_STEP_M = 1.0
+MAX_LANELET_VERTICES = 5_000  # per boundary: a road longer than 5 km is sampled more coarsely (export time)
 OBSTACLE_ID_BASE = 1000
 GOAL_LENGTH_M = 10.0
 GOAL_AHEAD_M = 15.0
@@ -98,7 +99,9 @@ def resample(vehicle: Vehicle, dt: float = COMMONROAD_DT_S) -> dict[str, np.ndar
 def _lanelet_network(sc: Scenario) -> Any:
     from commonroad.scenario.lanelet import Lanelet, LaneletNetwork, LaneletType, LineMarking
 
-    pts, hdg = sample_reference_line(reference_line(sc.road), LANELET_STEP_M)
+    segments = reference_line(sc.road)
+    length = sum(seg.length for seg in segments)
+    pts, hdg = sample_reference_line(segments, max(LANELET_STEP_M, length / MAX_LANELET_VERTICES))
     normal = np.column_stack([-np.sin(hdg), np.cos(hdg)])
     offsets = boundary_offsets(sc.road)
     n = sc.road.lane_count
@@ -214,9 +217,15 @@ def build_commonroad(sc: Scenario, dt: float = COMMONROAD_DT_S) -> tuple[Any, An
     if not (0.0 < dt <= 1.0):
         raise UserError(f"CommonRoad dt must be in (0, 1] s (got {dt})")
     cr = CRScenario(dt, ScenarioID(country_id="ZAM", map_name="DeepCrashTest", map_id=1, configuration_id=1))
+    ego = resample(sc.ego, dt)
+    if len(ego["step"]) == 0:
+        raise UserError(
+            f"ego trajectory spans no CommonRoad time step (samples {sc.ego.trajectory.t[0]:g}-"
+            f"{sc.ego.trajectory.t[-1]:g} s, start delay {sc.ego.start_delay_s:g} s, step {dt:g} s)"
+        )
     cr.add_objects(_lanelet_network(sc))
     skipped: list[int] = []
-    last_step = 0
+    last_step = int(ego["step"][-1])
     for agent in sc.agents:
         states = resample(agent, dt)
         if len(states["step"]) < 2:
@@ -224,7 +233,6 @@ def build_commonroad(sc: Scenario, dt: float = COMMONROAD_DT_S) -> tuple[Any, An
             continue
         last_step = max(last_step, int(states["step"][-1]))
         cr.add_objects(_obstacle(agent, states))
-    last_step = max(last_step, int(resample(sc.ego, dt)["step"][-1]))
     return cr, _planning_problem(sc, dt, last_step), skipped
 
 

@@ -178,6 +178,7 @@ def build_openscenario(sc: Scenario, road_file: str = "road.xodr", ego_free: boo
     entities = xosc.Entities()
     init = xosc.Init()
     act = xosc.Act("replay", _time_trigger("replay_start", 0.0))
+    groups = 0
     for veh in sc.vehicles():
         name = entity_name(veh, sc.ego.id)
         is_ego = veh.id == sc.ego.id
@@ -213,10 +214,12 @@ def build_openscenario(sc: Scenario, road_file: str = "road.xodr", ego_free: boo
         group.add_actor(name)
         group.add_maneuver(maneuver)
         act.add_maneuver_group(group)
-    story = xosc.Story("crash")
-    story.add_act(act)
+        groups += 1
     board = xosc.StoryBoard(init, _time_trigger("end", sc.duration(), "stop"))
-    board.add_story(story)
+    if groups:  # nobody moves (single samples, or --ego-free alone): the Init is the scenario, no Story
+        story = xosc.Story("crash")
+        story.add_act(act)
+        board.add_story(story)
     return xosc.Scenario(
         sc.name,
         "deepcrashtest",

@@ -33,6 +33,7 @@ from deepcrashtest.scenario import Camera, format_validation_error
 DEFAULT_HFOV_DEG = 90.0
 DASHCAM_HEIGHT_M = 1.3  # a windscreen-mounted dashcam in a passenger car
 KITTI_HEIGHT_M = 1.65
+MAX_CAMERA_HEIGHT_M = 100.0  # Camera.height_m's schema limit
 _CAMERA_KEYS = {"fx", "fy", "cx", "cy", "distortion", "height_m", "pitch_rad", "roll_rad", "forward_offset_m"}
 
 
@@ -439,7 +440,7 @@ def camera_for_video(
     else:
         cam = default_camera(width, height, area=area)
     if height_m is not None:
-        if not height_m > 0:
-            raise UserError(f"camera height must be > 0 m (got {height_m})")
+        if not 0 < height_m <= MAX_CAMERA_HEIGHT_M:  # NaN and inf too (the Camera model's limit)
+            raise UserError(f"camera height must be > 0 and <= {MAX_CAMERA_HEIGHT_M:g} m (got {height_m})")
         cam = cam.model_copy(update={"height_m": float(height_m), "height_source": "user"})
     return cam

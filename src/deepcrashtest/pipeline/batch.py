@@ -170,14 +170,13 @@ def _named_error(exc: Exception, item: Path) -> str:
 
 def check_options(cfg: SearchConfig, engine: str, workers: int) -> None:
     """Refuse bad search options (method, counts, seed, engine, workers, controller) as one UserError."""
-    from deepcrashtest.search.evaluate import ENGINES
+    from deepcrashtest.search.evaluate import ENGINES, check_workers
     from deepcrashtest.sim.controllers import resolve_controller
 
     cfg.check()
     if engine not in ENGINES:
         raise UserError(f"--engine must be one of {', '.join(ENGINES)} (got {engine!r})")
-    if workers < 1:
-        raise UserError(f"--workers must be >= 1 (got {workers})")
+    check_workers(workers)
     resolve_controller(cfg.controller)
 
 

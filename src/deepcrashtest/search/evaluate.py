@@ -32,6 +32,13 @@ REPLAY_CHUNK = 2048
 #: Per-variant outcome columns returned by the simulator, in results.csv order.
 OUTCOME_FIELDS = ("collided", "collision_time", "min_distance", "min_ttc", "robustness", "aeb_time", "delta_v_ego")
 ENGINES = ("local", "ray")
+MAX_WORKERS = 1024  # processes: more than any machine's cores (the process pool's queues take a C int)
+
+
+def check_workers(workers: int) -> None:
+    """Refuse a ``--workers`` value outside 1-MAX_WORKERS (one-line UserError)."""
+    if not 1 <= workers <= MAX_WORKERS:
+        raise UserError(f"--workers must be 1-{MAX_WORKERS} (got {workers})")
 
 
 def simulate_chunk(
@@ -108,8 +115,7 @@ class Evaluator:
             raise UserError(f"--engine must be one of {', '.join(ENGINES)} (got {self.engine!r})")
         if self.chunk is not None and self.chunk < 1:
             raise UserError(f"chunk size must be >= 1 (got {self.chunk})")
-        if self.workers < 1:
-            raise UserError(f"--workers must be >= 1 (got {self.workers})")
+        check_workers(self.workers)
         self._json = self.scenario.model_dump_json()
 
     # ------------------------------------------------------------------ engines

@@ -22,6 +22,9 @@ from deepcrashtest.search.space import SearchSpace
 from deepcrashtest.ui import progress_bar
 
 METHODS = ("random", "cem", "both")
+MAX_VARIANTS = 1_000_000  # simulations of one method (~15 min at 1,000 variants/s; more is a typo, not a search)
+MAX_BOX_M = 1_000.0  # metres: a start box side beyond 1 km moves the ego off its road, no perturbation
+MAX_NOISE_SIGMA_M = 100.0  # metres: the std of the control-point noise
 OUTPUT_FILES = ("results.csv", "summary.json", "starts.png", "safe_variants", "best_vs_original.mp4")
 NO_CRASH_NOTE = (
     "the ego does not collide in the original scenario: there is no crash to avoid, so every variant in which "
@@ -54,8 +57,22 @@ class SearchConfig:
             raise UserError(f"--method must be one of {', '.join(METHODS)} (got {self.method!r})")
         if self.starts < 1 or self.noise_variants < 1:
             raise UserError(f"--starts and --noise-variants must be >= 1 (got {self.starts}, {self.noise_variants})")
+        if self.starts * self.noise_variants > MAX_VARIANTS:
+            raise UserError(
+                f"--starts x --noise-variants must be at most {MAX_VARIANTS:,} variants "
+                f"(got {self.starts} x {self.noise_variants})"
+            )
+        if self.cem_budget is not None and not 1 <= self.cem_budget <= MAX_VARIANTS:
+            raise UserError(f"cem_budget must be 1-{MAX_VARIANTS:,} simulations (got {self.cem_budget})")
         if self.boundary_directions < 0 or self.max_scenarios < 0:
             raise UserError("--boundary-directions and --max-scenarios must be >= 0")
+        for name, value, top in (
+            ("--box-lateral", self.box_lateral, MAX_BOX_M),
+            ("--box-longitudinal", self.box_longitudinal, MAX_BOX_M),
+            ("--noise-sigma", self.noise_sigma, MAX_NOISE_SIGMA_M),
+        ):
+            if not (math.isfinite(value) and 0.0 <= value <= top):
+                raise UserError(f"{name} must be 0-{top:g} m (got {value})")
         if self.duration is not None and not (math.isfinite(self.duration) and self.duration > 0):
             raise UserError(f"--duration must be a positive number of seconds (got {self.duration})")
 

@@ -14,7 +14,7 @@ import functools
 import numpy as np
 
 from deepcrashtest.errors import UserError
-from deepcrashtest.scenario import SplineParams, Trajectory, Vehicle
+from deepcrashtest.scenario import MAX_COORD_M, SplineParams, Trajectory, Vehicle
 from deepcrashtest.sim.splines import BSpline, lsq_spline
 
 #: Spacing of the interior knots of a fitted ego spline, seconds (one control point per ~second).
@@ -36,6 +36,12 @@ def fit_spline(t: np.ndarray, xy: np.ndarray, knot_spacing_s: float = DEFAULT_KN
     interior = np.linspace(t[0], t[-1], n_interior + 2)[1:-1]
     knots = np.concatenate([np.full(degree + 1, t[0]), interior, np.full(degree + 1, t[-1])])
     c = lsq_spline(t, xy, knots, degree).c
+    reach = float(np.abs(c).max())
+    if not reach <= MAX_COORD_M:  # samples that jump far apart: the least-squares fit overshoots them
+        raise UserError(
+            f"ego trajectory: its fitted spline leaves the world's +-{MAX_COORD_M:g} m (a control point at "
+            f"{reach:.0f} m); the ego's samples jump too far for the search to bend its path"
+        )
     return SplineParams(knots=knots.tolist(), cx=c[:, 0].tolist(), cy=c[:, 1].tolist(), degree=degree)
 
 

@@ -89,14 +89,18 @@ class VideoSource:
         self.close()
 
 
+MIN_FPS = 0.01  # frames per second: one frame in 100 s (the H.264 writer's rate is a fraction over <= 1001)
+MAX_FPS = 10_000.0  # the Scenario schema's limit of source.fps
+
+
 def open_video(path: str | Path, fps: float | None = None) -> VideoSource:
     """Open a video file or a folder of numbered images (``fps`` required for folders).
 
     For video files ``fps`` overrides the container's frame rate (frame times become index / fps).
     """
     p = Path(path)
-    if fps is not None and not (np.isfinite(fps) and fps > 0):
-        raise UserError(f"--fps must be a positive number (got {fps})")
+    if fps is not None and not (np.isfinite(fps) and MIN_FPS <= fps <= MAX_FPS):
+        raise UserError(f"--fps must be a positive number of frames per second, {MIN_FPS:g}-{MAX_FPS:g} (got {fps})")
     if p.is_dir():
         return ImageFolderSource(p, fps)
     return PyAVSource(p, fps)
