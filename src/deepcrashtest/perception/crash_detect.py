@@ -159,7 +159,10 @@ class CrashFinding:
 
 def jolt_score(frames: np.ndarray, shifts: np.ndarray, fps: float) -> dict[int, float]:
     """Per frame 0..1: how much the camera's image motion jumps there (robust z-score of the
-    second difference of the shift, saturating at z = 8)."""
+    second difference of the shift, saturating at z = 8). A repeated frame (its shift NaN,
+    :class:`GlobalMotion`) is left out: the motion between new frames is that of the next new frame."""
+    new = np.isfinite(shifts).all(axis=1) if len(shifts) else np.zeros(0, bool)
+    frames, shifts = frames[new], shifts[new]
     if len(frames) < 4:
         return {}
     acc = np.zeros(len(frames))
@@ -356,16 +359,20 @@ def knee_frame(s: pd.DataFrame, fps: float) -> int | None:
     that rate, and not more than ``KNEE_MAX_LATER_GROWTH``
     in log size over the next half second: a detector's box jumping to a larger one is not it): the
     other road user is at the bumper."""
-    ls = s["log_size"].to_numpy(float)
+    ls_all = s["log_size"].to_numpy(float)
+    # A resampled clip repeats frames (10 -> 30 fps: each one three times) and its boxes with them: the box
+    # "stops growing" between any two repeats. Only frames whose box changed count, the half second in them.
+    kept = np.r_[True, np.diff(ls_all) != 0.0]
+    ls, frames, near = ls_all[kept], s.index.to_numpy()[kept], s["near"].to_numpy(float)[kept]
     g = np.diff(ls)
-    n_prev = max(2, int(round(0.5 * fps)))
+    n_prev = max(2, int(round(0.5 * fps * len(ls) / max(len(ls_all), 1))))
     for k in range(n_prev, len(g) - 1):
         prev = g[k - n_prev : k]
         changed = prev[prev != 0.0]  # a resampled clip repeats frames: no growth there (ccd_000340 at 15 fps)
         rate = float(np.median(changed)) if len(changed) else 0.0
         stays = ls[k + 1 : k + 1 + n_prev].max() - ls[k] < KNEE_MAX_LATER_GROWTH  # not a box jump
-        if rate > 0.02 and s["near"].iloc[k] >= 0.3 and g[k] < rate / 3 and g[k + 1] < rate / 3 and stays:
-            return int(s.index[k])
+        if rate > 0.02 and near[k] >= 0.3 and g[k] < rate / 3 and g[k + 1] < rate / 3 and stays:
+            return int(frames[k])
     return None
 
 
@@ -422,8 +429,17 @@ def ego_best(s: pd.DataFrame, fps: float) -> tuple[float, int, dict[str, float]]
     if len(fell) and int(fell[0]) < frame:  # a pedestrian struck off their feet: contact before knee or jolt
         ev["later_frame"], frame = frame, int(fell[0])
     if "reaches_border" in s and bool(s.loc[frame, "reaches_border"]):
-        frame += 1  # the box jumped onto the image border there: the road user fills the view, not yet touching
+        frame = _next_new_frame(s, frame)  # the box jumped onto the border there: filling the view, not touching
     return score, frame, ev
+
+
+def _next_new_frame(s: pd.DataFrame, frame: int) -> int:
+    """The next frame after ``frame`` whose box differs from it (``log_size``): the next frame of the video,
+    or of a resampled clip the next one that is no repeat of it; ``frame + 1`` at the track's end."""
+    idx = s.index.to_numpy()
+    ls = s["log_size"].to_numpy(float)
+    later = np.flatnonzero((idx > frame) & (ls != ls[int(np.searchsorted(idx, frame))]))
+    return int(idx[later[0]]) if len(later) else frame + 1
 
 
 def _extended(w: WorldTrack, frames: float) -> WorldTrack:
