@@ -105,3 +105,18 @@ def test_footprint_gap_of_a_scooter_at_a_cars_rear():
     assert np.allclose(near[0], 1 - 0.3 / 2.5) and np.allclose(near[1], 1 - 1.0 / 2.5) and np.allclose(near[2], 1.0)
     disc = WorldTrack(f, behind.x, behind.y, 0.3)  # without its footprint: centre distance less half widths
     assert np.allclose(close_3d(car, disc, f, 10.0), 1 - (3.4 - 0.9 - 0.3) / 2.5)
+
+
+def test_a_box_cut_by_the_image_bottom_has_no_footprint(yolo_ok, tmp_path) -> None:
+    """dad_000512: the ego's own bonnet is detected as a "car" (a box along the image bottom all along).
+    Its ground position and heading are not seen; with a 4.4 m footprint turned across it reached the
+    scooters' crash and took its place (the pair bonnet + scooter). Kept a disc of its half width, the
+    crash is the two scooters."""
+    from deepcrashtest.pipeline.extract import run_extract
+
+    label = load_crash_labels(DAD_LABELS)["dad_000512"]
+    out = tmp_path / "out"
+    run_extract(need(DATA / label.video), out, annotate=False, report=False, shots=False)
+    found = json.loads((out / "scenario_raw.json").read_text())["provenance"]["parameters"]["crash_detection"]
+    assert found["found"] and sorted(found["pair"]) == _labelled_pair(label, pd.read_csv(out / "tracks.csv"))
+    assert label.contact_frame is not None and abs(found["frame"] - label.contact_frame) / label.fps <= DT_S
