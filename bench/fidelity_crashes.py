@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -108,7 +109,7 @@ def redetect_motion(name: str, video: Path, max_frames: int | None) -> tuple[Any
     """The camera's global motion of ``video`` for the automatic crash detection (cached)."""
     from crash_detect_bench import global_motion  # the same cache as the crash detection bench
 
-    return global_motion(video, Path("/tmp/crashdet_motion"), max_frames)
+    return global_motion(video, Path(os.environ.get("CRASHDET_MOTION", "/tmp/crashdet_motion")), max_frames)
 
 
 def restage(out: Path, label: CrashLabel, labelled: bool, motion: tuple[Any, Any] | None = None) -> str | None:

@@ -1,6 +1,6 @@
 """Robustness of the video pipeline on realistic variants of the crash clips (issue 16).
 
-Makes variants of shared crash clips into ``/tmp/robust/videos`` (never into the repository):
+Makes variants of shared crash clips into ``$ROBUST_DIR/videos`` (default ``/tmp/robust``) (never into the repository):
 downscaled 640x360, upscaled 1920x1080, resampled to 15/25/30 fps, re-encoded at crf 35, letterboxed,
 pillarboxed, filmed off a screen by a phone (perspective, blur, gamma, moire, noise), a portrait 9:16
 crop, a burned-in text overlay, a 2-shot compilation, 10 frames around the crash, a frozen stretch;
@@ -12,12 +12,17 @@ Usage::
     python bench/robust_variants.py make '{"ccd_000053": ["down", "up", "fps15", "fps25", "fps30", "crf35",
         "letterbox", "pillarbox", "phone", "portrait", "text", "compil", "short", "frozen"]}'
     TAG=r1 python bench/robust_variants.py run ccd_000053_down640 ccd_000053_fps30 ...
+    TAG=r1 python bench/robust_variants.py score ccd_000053_compil ...   # score out_r1 again, no extract
+
+``ROBUST_DIR`` (default ``/tmp/robust``) is the folder of the videos, labels and outputs (one per user).
+A compilation's extraction (``shot_NN`` folders) is scored on the shot whose tracks cover the contact.
 
 Each ``run`` row (JSON lines, also appended to ``/tmp/robust/results_TAG.jsonl``): exit code, whether
 stderr held a traceback, reproduced / same pair / dt (s) / IoU processed and replay.
 """
 
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -26,7 +31,8 @@ import cv2
 import numpy as np
 
 DATA = Path("/work/shared/data")
-OUT = Path("/tmp/robust/videos")
+ROOT = Path(os.environ.get("ROBUST_DIR", "/tmp/robust"))  # own folder per user of the script
+OUT = ROOT / "videos"
 OUT.mkdir(parents=True, exist_ok=True)
 LAB = {}
 for f in ("dad_crashes.json", "ccd_crashes.json"):
@@ -168,6 +174,7 @@ def make(base, which):
         variant(f"{base}_text", base, [tx(f, i) for i, f in enumerate(fr)], fps)
     if "compil" in which:  # first 30 frames of another clip, a hard cut, then this clip
         other = {"ccd": "ccd_000330", "dad": "dad_000528"}[base[:3]]
+        other = "ccd_000053" if other == base else other
         o = [cv2.resize(f, (W, H)) for f in read(other)[:30]]
         variant(f"{base}_compil", base, o + fr, fps, frame_map=lambda k: k + len(o))
     if "short" in which:
@@ -186,67 +193,94 @@ def make_main(argv):
     plan = json.loads(argv[0])
     for base, which in plan.items():
         make(base, which)
-    p = Path("/tmp/robust/labels.json")
+    p = ROOT / "labels.json"
     old = json.load(open(p))["clips"] if p.exists() else {}
     old.update(LAB_OUT)
     p.write_text(json.dumps({"format": "deepcrashtest-crash-labels", "version": 1, "clips": old}, indent=1))
 
 
-def run_main(names):
-    import os
+def _crash_shot(out, name):
+    """The extraction folder to score: ``out`` itself, or for a compilation the shot folder
+    (``shot_NN``) whose tracks cover the labelled contact frame (else its last shot); None if none."""
+    if (out / "scenario.json").is_file():
+        return out
+    shots = sorted(p for p in out.glob("shot_*") if (p / "scenario.json").is_file())
+    if not shots:
+        return None
+    labels = json.load(open(ROOT / "labels.json"))["clips"]
+    contact = labels.get(name, {}).get("contact_frame")
+    for p in shots:
+        lines = (p / "tracks.csv").read_text().splitlines()[1:]
+        frames = [int(float(ln.split(",")[0])) for ln in lines if ln]
+        if contact is not None and frames and min(frames) <= contact <= max(frames):
+            return p
+    return shots[-1]
+
+
+def run_main(names, extract=True):
+    """Extract each variant with the CLI (``extract=False``: score the extraction already in ``out_TAG``)
+    and score its fidelity; one JSON row each."""
     import subprocess
     import time
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
-    from deepcrashtest.pipeline.fidelity import run_fidelity
-
     wt = Path(__file__).resolve().parents[1]
     tag = os.environ.get("TAG", "r1")
-    res_path = Path(f"/tmp/robust/results_{tag}.jsonl")
+    res_path = ROOT / f"results_{tag}.jsonl"
     for name in names:
         video = OUT / f"{name}.mp4"
-        out = Path(f"/tmp/robust/out_{tag}/{name}")
-        t0 = time.time()
-        cmd = [sys.executable, "-m", "deepcrashtest.cli", "extract", str(video), "-o", str(out), "--force"]
-        p = subprocess.run(
-            ["nice", "-n", "10", *cmd], env=dict(os.environ, PYTHONPATH=str(wt / "src")), capture_output=True, text=True
-        )
-        row = {
-            "variant": name,
-            "rc": p.returncode,
-            "extract_s": round(time.time() - t0, 1),
-            "traceback": "Traceback" in p.stderr,
-            "stderr_tail": p.stderr.strip().splitlines()[-3:],
-        }
-        if (out / "scenario.json").is_file():
-            _, s = run_fidelity(
-                out / "scenario.json",
-                out / "fidelity",
-                video=video,
-                tracks=out / "tracks.csv",
-                labels="/tmp/robust/labels.json",
-                clip=name,
-                make_video=False,
-                force=True,
-            )
-            c, rep = s["crash"], s["reprojection"]
-            fc = c["first_contact"]
+        out = ROOT / f"out_{tag}" / name
+        row = {"variant": name}
+        if extract:
+            t0 = time.time()
+            cmd = [sys.executable, "-m", "deepcrashtest.cli", "extract", str(video), "-o", str(out), "--force"]
+            env = dict(os.environ, PYTHONPATH=os.environ.get("SRC", str(wt / "src")))  # SRC: another checkout's
+            p = subprocess.run(["nice", "-n", "10", *cmd], env=env, capture_output=True, text=True)
             row.update(
-                reproduced=c.get("reproduced"),
-                same_pair=c.get("same_pair"),
-                dt=c.get("dt_s"),
-                first=None if fc is None else fc["participants"],
-                label_ids=c.get("label", {}).get("scenario_ids"),
-                iou_p=rep["processed"]["mean_iou"],
-                iou_s=rep["simulated"]["mean_iou"],
-                notes=s["notes"],
+                rc=p.returncode,
+                extract_s=round(time.time() - t0, 1),
+                traceback="Traceback" in p.stderr,
+                stderr_tail=p.stderr.strip().splitlines()[-3:],
             )
+        shot = _crash_shot(out, name)
+        if shot is not None:
+            row["shot"] = shot.name if shot != out else None
+            row.update(_score(shot, video, name))
         print(json.dumps(row), flush=True)
         with open(res_path, "a") as f:
             f.write(json.dumps(row) + "\n")
 
 
+def _score(shot, video, name):
+    """The fidelity row of one extraction folder (``scenario.json``, ``tracks.csv``) against the labels."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
+    from deepcrashtest.pipeline.fidelity import run_fidelity
+
+    _, s = run_fidelity(
+        shot / "scenario.json",
+        shot / "fidelity",
+        video=video,
+        tracks=shot / "tracks.csv",
+        labels=str(ROOT / "labels.json"),
+        clip=name,
+        make_video=False,
+        force=True,
+    )
+    c, rep = s["crash"], s["reprojection"]
+    fc = c["first_contact"]
+    return dict(
+        reproduced=c.get("reproduced"),
+        same_pair=c.get("same_pair"),
+        dt=c.get("dt_s"),
+        first=None if fc is None else fc["participants"],
+        label_ids=c.get("label", {}).get("scenario_ids"),
+        iou_p=rep["processed"]["mean_iou"],
+        iou_s=rep["simulated"]["mean_iou"],
+        notes=s["notes"],
+    )
+
+
 if __name__ == "__main__":
-    if len(sys.argv) < 3 or sys.argv[1] not in ("make", "run"):
+    if len(sys.argv) < 3 or sys.argv[1] not in ("make", "run", "score"):
         sys.exit(__doc__)
-    (make_main if sys.argv[1] == "make" else run_main)(sys.argv[2:])
+    cmd, args = sys.argv[1], sys.argv[2:]
+    make_main(args) if cmd == "make" else run_main(args, extract=cmd == "run")

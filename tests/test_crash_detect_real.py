@@ -87,6 +87,21 @@ def test_ego_crash_found_from_tracks_of_a_real_clip(yolo_ok):
     assert abs(found.frame - label.contact_frame) <= 2 and found.confidence >= 0.5
 
 
+def test_ego_crash_of_a_clip_resampled_to_30_fps_is_found_at_the_same_time(yolo_ok):
+    """ccd_000031 (a minivan at the bumper in snow, contact frame 32) as a 10 fps clip re-encoded at 30 fps
+    gives it: every frame and box three times. Its crash is found at the same moment (frame 31 -> 93): two
+    repeats in a row are no knee where the box "stops growing" (it was found at frame 15, 1.7 s early), and
+    the frame after a box's jump onto the border is the next new one."""
+    video, label = _label("ccd_000031")
+    tracks, _motion = _tracks_to_contact(video, label.contact_frame)
+    one = detect_crash(tracks, 1280, 720, 10.0)
+    thrice = pd.concat([tracks.assign(frame=tracks["frame"] * 3 + k, time=tracks["time"] + k / 30) for k in range(3)])
+    three = detect_crash(thrice.sort_values(["frame", "track_id"]), 1280, 720, 30.0)
+    assert one is not None and three is not None
+    assert one.pair == three.pair and one.pair[0] == EGO
+    assert three.frame == 3 * one.frame and abs(one.frame - label.contact_frame) <= 2
+
+
 def test_a_box_jumping_onto_the_image_border_is_not_the_contact(yolo_ok):
     """ccd_001143 (a bus cuts in; the ego is against its side from frame 33): at frame 30 the bus's box
     jumps onto the left and top image borders and the bus fills the view, moving the image the camera's

@@ -101,6 +101,23 @@ def test_camera_jolt_is_measured_inside_black_bars():
     assert np.abs(dy[1]).mean() < 0.7 * np.abs(dy[0]).mean()  # what the bars did
 
 
+def test_camera_jolt_of_a_clip_resampled_to_30_fps_is_that_of_the_clip(tmp_path):
+    """ccd_000330 (rear-end, contact frame 38) re-encoded at 30 fps, each frame three times: the camera's
+    jolts fall on the same frames of the clip as at 10 fps (a repeat has no motion of its own; the whole
+    motion of the next new frame against the repeats' nil made every third frame a "jolt": 0.3 s early)."""
+    from deepcrashtest.perception.crash_detect import GlobalMotion, jolt_score
+
+    src = _frames(need(CCD / "ccd_000330.mp4"), 50)
+    jolts = []
+    for fps, frames in ((10, src), (30, [f for f in src for _ in range(3)])):
+        motion = GlobalMotion()
+        with av.open(str(_write(tmp_path / f"{fps}.mp4", frames, fps))) as c:
+            for k, f in enumerate(c.decode(video=0)):
+                motion.update(k, f.to_ndarray(format="bgr24"))
+        jolts.append({f // (fps // 10) for f, s in jolt_score(*motion.arrays(), fps).items() if s >= 0.3})
+    assert jolts[1] == jolts[0] and min(jolts[0]) >= 37  # the jolt at the contact, none before
+
+
 def test_extract_gives_the_camera_the_picture_area_of_its_own_pass(tmp_path):
     """``extract`` finds the black bars from the first frames of its one decoding pass (no second
     decoding) and hands the picture area to a camera callable, as the CLI's ``camera_for_video``."""

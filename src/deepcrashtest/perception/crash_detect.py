@@ -137,12 +137,16 @@ EXIT_WIDTH_SHARE = 0.5
 
 @dataclass(frozen=True)
 class WorldTrack:
-    """A road user's ground position per video frame (world x, y metres) and its half width (m)."""
+    """A road user's ground position per video frame (world x, y metres) and its half width (m); with
+    its half length (m) and heading per frame (``yaw``, rad CCW from world x, unwrapped) its footprint
+    is a rectangle, else a disc of its half width."""
 
     frames: np.ndarray
     x: np.ndarray
     y: np.ndarray
     half_width: float
+    half_length: float | None = None
+    yaw: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -159,7 +163,10 @@ class CrashFinding:
 
 def jolt_score(frames: np.ndarray, shifts: np.ndarray, fps: float) -> dict[int, float]:
     """Per frame 0..1: how much the camera's image motion jumps there (robust z-score of the
-    second difference of the shift, saturating at z = 8)."""
+    second difference of the shift, saturating at z = 8). A repeated frame (its shift NaN,
+    :class:`GlobalMotion`) is left out: the motion between new frames is that of the next new frame."""
+    new = np.isfinite(shifts).all(axis=1) if len(shifts) else np.zeros(0, bool)
+    frames, shifts = frames[new], shifts[new]
     if len(frames) < 4:
         return {}
     acc = np.zeros(len(frames))
@@ -356,16 +363,20 @@ def knee_frame(s: pd.DataFrame, fps: float) -> int | None:
     that rate, and not more than ``KNEE_MAX_LATER_GROWTH``
     in log size over the next half second: a detector's box jumping to a larger one is not it): the
     other road user is at the bumper."""
-    ls = s["log_size"].to_numpy(float)
+    ls_all = s["log_size"].to_numpy(float)
+    # A resampled clip repeats frames (10 -> 30 fps: each one three times) and its boxes with them: the box
+    # "stops growing" between any two repeats. Only frames whose box changed count, the half second in them.
+    kept = np.r_[True, np.diff(ls_all) != 0.0]
+    ls, frames, near = ls_all[kept], s.index.to_numpy()[kept], s["near"].to_numpy(float)[kept]
     g = np.diff(ls)
-    n_prev = max(2, int(round(0.5 * fps)))
+    n_prev = max(2, int(round(0.5 * fps * len(ls) / max(len(ls_all), 1))))
     for k in range(n_prev, len(g) - 1):
         prev = g[k - n_prev : k]
         changed = prev[prev != 0.0]  # a resampled clip repeats frames: no growth there (ccd_000340 at 15 fps)
         rate = float(np.median(changed)) if len(changed) else 0.0
         stays = ls[k + 1 : k + 1 + n_prev].max() - ls[k] < KNEE_MAX_LATER_GROWTH  # not a box jump
-        if rate > 0.02 and s["near"].iloc[k] >= 0.3 and g[k] < rate / 3 and g[k + 1] < rate / 3 and stays:
-            return int(s.index[k])
+        if rate > 0.02 and near[k] >= 0.3 and g[k] < rate / 3 and g[k + 1] < rate / 3 and stays:
+            return int(frames[k])
     return None
 
 
@@ -422,17 +433,32 @@ def ego_best(s: pd.DataFrame, fps: float) -> tuple[float, int, dict[str, float]]
     if len(fell) and int(fell[0]) < frame:  # a pedestrian struck off their feet: contact before knee or jolt
         ev["later_frame"], frame = frame, int(fell[0])
     if "reaches_border" in s and bool(s.loc[frame, "reaches_border"]):
-        frame += 1  # the box jumped onto the image border there: the road user fills the view, not yet touching
+        frame = _next_new_frame(s, frame)  # the box jumped onto the border there: filling the view, not touching
     return score, frame, ev
+
+
+def _next_new_frame(s: pd.DataFrame, frame: int) -> int:
+    """The next frame after ``frame`` whose box differs from it (``log_size``): the next frame of the video,
+    or of a resampled clip the next one that is no repeat of it; ``frame + 1`` at the track's end."""
+    idx = s.index.to_numpy()
+    ls = s["log_size"].to_numpy(float)
+    later = np.flatnonzero((idx > frame) & (ls != ls[int(np.searchsorted(idx, frame))]))
+    return int(idx[later[0]]) if len(later) else frame + 1
 
 
 def _extended(w: WorldTrack, frames: float) -> WorldTrack:
     """``w`` carried ``frames`` frames before its first and after its last position at its constant
-    velocity there (over its first/last few positions)."""
+    velocity there (over its first/last few positions), its heading held."""
     f, x, y = w.frames, w.x, w.y
+    yaw = None if w.yaw is None else np.r_[w.yaw[0], w.yaw, w.yaw[-1]]
     if len(f) < 2:
         return WorldTrack(
-            np.r_[f[0] - frames, f, f[-1] + frames], np.r_[x[0], x, x[-1]], np.r_[y[0], y, y[-1]], w.half_width
+            np.r_[f[0] - frames, f, f[-1] + frames],
+            np.r_[x[0], x, x[-1]],
+            np.r_[y[0], y, y[-1]],
+            w.half_width,
+            w.half_length,
+            yaw,
         )
     k = min(len(f) - 1, 4)
     v0 = np.array([x[k] - x[0], y[k] - y[0]]) / max(f[k] - f[0], 1e-6)
@@ -442,7 +468,42 @@ def _extended(w: WorldTrack, frames: float) -> WorldTrack:
         np.r_[x[0] - v0[0] * frames, x, x[-1] + v1[0] * frames],
         np.r_[y[0] - v0[1] * frames, y, y[-1] + v1[1] * frames],
         w.half_width,
+        w.half_length,
+        yaw,
     )
+
+
+def _footprint(w: WorldTrack, grid: np.ndarray) -> np.ndarray | None:
+    """The road user's ground rectangle at the frames ``grid``: corners (N, 4, 2) world x, y (m); None
+    without a half length and headings."""
+    if w.half_length is None or w.yaw is None:
+        return None
+    x, y, yaw = (np.interp(grid, w.frames, v) for v in (w.x, w.y, w.yaw))
+    dx = np.array([1.0, -1.0, -1.0, 1.0]) * w.half_length
+    dy = np.array([1.0, 1.0, -1.0, -1.0]) * w.half_width
+    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+    return np.stack([x[:, None] + c * dx - s * dy, y[:, None] + s * dx + c * dy], axis=-1)
+
+
+def _vertex_edge_gap(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Per frame the least distance (m) from a corner of rectangles ``p`` to an edge of ``q`` (N, 4, 2)."""
+    a, b = q[:, None, :, :], np.roll(q, -1, axis=1)[:, None, :, :]
+    v = p[:, :, None, :]
+    ab = b - a
+    t = np.clip(((v - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-12), 0, 1)
+    return np.linalg.norm(v - (a + t[..., None] * ab), axis=-1).min(axis=(1, 2))
+
+
+def rect_gap(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Per frame the ground gap (m) between two rectangles (corners (N, 4, 2)): 0 where they overlap
+    (no separating axis among their edges' directions), else the least corner-to-edge distance."""
+    separated = np.zeros(len(p), bool)
+    for r in (p, q):
+        for k in (0, 1):
+            axis = r[:, k + 1] - r[:, k]
+            pa, pb = (np.einsum("nij,nj->ni", z, axis) for z in (p, q))
+            separated |= (pa.max(1) < pb.min(1)) | (pb.max(1) < pa.min(1))
+    return np.where(separated, np.minimum(_vertex_edge_gap(p, q), _vertex_edge_gap(q, p)), 0.0)
 
 
 def close_3d(a: WorldTrack, b: WorldTrack, frames: np.ndarray, fps: float) -> np.ndarray:
@@ -457,11 +518,16 @@ def close_3d(a: WorldTrack, b: WorldTrack, frames: np.ndarray, fps: float) -> np
     if hi < lo or not len(frames):
         return np.full(len(frames), np.nan)
     grid = np.arange(np.ceil(lo), np.floor(hi) + 1)
-    d = np.hypot(
-        np.interp(grid, a.frames, a.x) - np.interp(grid, b.frames, b.x),
-        np.interp(grid, a.frames, a.y) - np.interp(grid, b.frames, b.y),
-    )
-    gap = pd.Series(np.maximum(d - a.half_width - b.half_width, 0.0), index=grid.astype(int))
+    fa, fb = _footprint(a, grid), _footprint(b, grid)
+    if fa is not None and fb is not None:
+        ground = rect_gap(fa, fb)  # a two-wheeler at a car's rear is half the car's length from its centre
+    else:
+        d = np.hypot(
+            np.interp(grid, a.frames, a.x) - np.interp(grid, b.frames, b.x),
+            np.interp(grid, a.frames, a.y) - np.interp(grid, b.frames, b.y),
+        )
+        ground = np.maximum(d - a.half_width - b.half_width, 0.0)
+    gap = pd.Series(ground, index=grid.astype(int))
     k = max(1, int(round(CLOSE_3D_WINDOW_S * fps)))
     gap = gap.rolling(k + 1, min_periods=1).min()
     g = gap.reindex(frames.astype(int)).to_numpy(float)
@@ -633,7 +699,7 @@ def crash_candidates(
     ids = sorted(per)
     cats = _categories(tracks)
     first = int(tracks["frame"].min()) if len(tracks) else 0
-    world = world or {}
+    world = {k: _ground_seen(w, per.get(k), width, height) for k, w in (world or {}).items()}
     for i, ta in enumerate(ids):
         for tb in ids[i + 1 :]:
             if cats.get(ta) == cats.get(tb) == "pedestrian":
@@ -646,6 +712,16 @@ def crash_candidates(
                 score, frame, pair, ev = _best(s, (ta, tb))
                 cands.append((score * (1 - 0.5 * ego_near), frame, pair, ev))
     return sorted(cands, key=lambda c: -c[0])
+
+
+def _ground_seen(w: WorldTrack, g: pd.DataFrame | None, width: int, height: int) -> WorldTrack:
+    """``w`` as a disc of its half width (no footprint) when its box is cut by the image's bottom in most
+    of its frames: where it meets the ground is not seen, so neither its distance nor its heading is (the
+    ego's own bonnet detected as a "car", dad_000512: its 4.4 m footprint turned across reached the
+    scooters' crash)."""
+    if g is None or float((g["y2"] >= height - _border(width)).mean()) <= 0.5:
+        return w
+    return WorldTrack(w.frames, w.x, w.y, w.half_width)
 
 
 def in_picture(

@@ -112,13 +112,15 @@ def _bars(record: dict[str, Any], picture: tuple[int, int, int, int] | None, w: 
 
 
 def world_tracks(raw: Scenario) -> dict[int, WorldTrack]:
-    """Every agent's ground position (world x, y m) per video frame (fractional), for closeness in 3D."""
+    """Every agent's ground footprint (world x, y m, heading rad, half width and length m) per video frame
+    (fractional), for closeness in 3D."""
     fps = float(raw.source.fps)
     out = {}
     for a in raw.agents:
         tr = a.trajectory
         frames = np.asarray([raw.video_time(t) for t in tr.t], float) * fps
-        out[a.id] = WorldTrack(frames, np.asarray(tr.x, float), np.asarray(tr.y, float), a.width / 2)
+        xy = np.asarray(tr.x, float), np.asarray(tr.y, float)
+        out[a.id] = WorldTrack(frames, *xy, a.width / 2, a.length / 2, np.asarray(tr.yaw, float))
     return out
 
 
