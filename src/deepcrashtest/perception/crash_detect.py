@@ -41,9 +41,10 @@ stopped: the jolt is the same crash going on), else the
 frame later when that frame is where the box jumps onto the image border (the road user filling the
 view: its box stops growing and it moves the image the jolt is measured on).
 
-The crash is the best-scoring (pair, frame); the contact frame is the first frame of that pair's
-evidence peak. ``confidence`` is the combined score (0..1). None when nothing scores above
-``min_score``.
+The crash is the best-scoring (pair, frame); among pairs of road users within ``TIE_MARGIN`` of the
+best pair, the one whose score holds longest over ``CONTACT_HOLD_S`` after its contact (:func:`ranked`).
+The contact frame is the first frame of that pair's evidence peak. ``confidence`` is the combined score
+(0..1). None when nothing scores above ``min_score``.
 """
 
 from __future__ import annotations
