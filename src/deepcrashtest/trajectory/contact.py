@@ -24,6 +24,7 @@ acceleration), so an iteration costs one evaluation of the corrected paths, not 
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
@@ -509,9 +510,19 @@ def _solve(
     ``budget`` is spent.
     """
     pb = _problem(movers, fixed, bases, eq, ineq, cp, strict_kin, budget)
-    paths = pb.paths
-    z = np.zeros(int(paths.offs[-1]))
-    res = None
+    with _one_blas_thread():
+        return _rounds(pb, np.zeros(int(pb.paths.offs[-1])), eq, ineq, rounds)
+
+
+def _rounds(
+    pb: _Problem,
+    z: np.ndarray,
+    eq: list[tuple[int, int, float, float]],
+    ineq: list[tuple[int, int, np.ndarray, float]],
+    rounds: int,
+) -> tuple[list[np.ndarray], bool, str]:
+    """:func:`_solve`'s SLSQP runs from ``z``, each from the last one's end, until one succeeds."""
+    paths, res, ok = pb.paths, None, False
     for _ in range(rounds):
         try:
             options = {"maxiter": MAX_ITER, "ftol": 1e-8}
@@ -524,6 +535,22 @@ def _solve(
         if ok:
             break
     return paths.deltas(z), ok, "" if res is None else str(res.message)
+
+
+@functools.cache
+def _blas_controller() -> Any:
+    from threadpoolctl import ThreadpoolController
+
+    return ThreadpoolController()
+
+
+def _one_blas_thread() -> Any:
+    """A context with every BLAS library loaded (NumPy's and SciPy's own OpenBLAS) on one thread.
+
+    SLSQP's result depends on the BLAS thread count (OPENBLAS_NUM_THREADS, else the machine's cores): a
+    multi-threaded OpenBLAS splits some of its reductions by thread; the phone-filmed ccd_000053's crash
+    correction found another optimum with 1 thread than with 2. One thread: the same on every machine."""
+    return _blas_controller().limit(limits=1, user_api="blas")
 
 
 def _cost_hessian(
