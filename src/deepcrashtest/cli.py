@@ -259,12 +259,11 @@ def extract(
     from deepcrashtest.fileio import require_file
     from deepcrashtest.geometry.camera import camera_for_video
     from deepcrashtest.pipeline.extract import run_extract
-    from deepcrashtest.video.source import MAX_FPS, MIN_FPS
+    from deepcrashtest.video.source import check_fps
 
     if not video.is_dir():
         require_file(video, "video")
-    if fps is not None and not MIN_FPS <= fps <= MAX_FPS:  # NaN too
-        raise UserError(f"--fps must be a positive number of frames per second, {MIN_FPS:g}-{MAX_FPS:g} (got {fps})")
+    check_fps(fps)
     if dashboard_rows is not None and dashboard_rows < 0:
         raise UserError(f"--dashboard-rows must be >= 0 (got {dashboard_rows})")
     if camera is not None:

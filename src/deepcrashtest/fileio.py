@@ -119,8 +119,8 @@ def require_file(path: str | os.PathLike[str], what: str = "file") -> Path:
 
 
 def read_json(path: Path) -> Any:
-    """The JSON value in the file ``path`` (UTF-8; checked with :func:`require_file`); a file that is not JSON
-    is a one-line UserError naming it."""
+    """The JSON value in the file ``path`` (UTF-8; the caller checks it exists with :func:`require_file`); a
+    file that is not JSON is a one-line UserError naming it."""
     try:
         return json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:

@@ -81,6 +81,7 @@ def kinematics(category: str) -> Kinematics:
 
 
 #: Physical ranges: a value outside them is a broken file, not a scenario (stated, never clipped).
+MAX_CAMERA_HEIGHT_M = 100.0  # metres above the road (Camera.height_m)
 MAX_COORD_M = 1e5  # |x|, |y| of any position, metres (100 km from the ego's start)
 MAX_TIME_S = 1e4  # |t| of any time, seconds
 MAX_YAW_RAD = 1e4  # |yaw| (unwrapped heading), radians
@@ -224,7 +225,9 @@ class Camera(_Model):
     distortion: list[Distortion] = Field(
         default_factory=list, description="OpenCV distortion coefficients k1,k2,p1,p2[,k3]"
     )
-    height_m: PositiveFloat = Field(default=1.3, le=100.0, description="Camera height above the road, metres")
+    height_m: PositiveFloat = Field(
+        default=1.3, le=MAX_CAMERA_HEIGHT_M, description="Camera height above the road, metres"
+    )
     pitch_rad: FiniteFloat = Field(
         default=0.0, ge=-math.pi / 2, le=math.pi / 2, description="Downward pitch of the optical axis, radians"
     )

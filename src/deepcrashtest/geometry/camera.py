@@ -28,12 +28,11 @@ from pydantic import ValidationError
 
 from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import require_file
-from deepcrashtest.scenario import Camera, format_validation_error
+from deepcrashtest.scenario import MAX_CAMERA_HEIGHT_M, Camera, format_validation_error
 
 DEFAULT_HFOV_DEG = 90.0
 DASHCAM_HEIGHT_M = 1.3  # a windscreen-mounted dashcam in a passenger car
 KITTI_HEIGHT_M = 1.65
-MAX_CAMERA_HEIGHT_M = 100.0  # Camera.height_m's schema limit
 _CAMERA_KEYS = {"fx", "fy", "cx", "cy", "distortion", "height_m", "pitch_rad", "roll_rad", "forward_offset_m"}
 
 

@@ -777,9 +777,7 @@ def _categories(tracks: pd.DataFrame) -> dict[int, str]:
     return {int(str(k)): str(v) for k, v in top.items()}
 
 
-def _best(
-    s: pd.DataFrame, pair: tuple[int, int], fps: float = 10.0
-) -> tuple[float, int, tuple[int, int], dict[str, float]]:
+def _best(s: pd.DataFrame, pair: tuple[int, int], fps: float) -> tuple[float, int, tuple[int, int], dict[str, float]]:
     """The pair's peak score and its contact frame: the first frame reaching ``PAIR_PEAK_SHARE`` of the
     peak; its evidence there, with ``hold``: the mean score over ``CONTACT_HOLD_S`` from that frame on (a
     frame without both tracks counts 0)."""

@@ -90,7 +90,14 @@ class VideoSource:
 
 
 MIN_FPS = 0.01  # frames per second: one frame in 100 s (the H.264 writer's rate is a fraction over <= 1001)
-MAX_FPS = 10_000.0  # the Scenario schema's limit of source.fps
+MAX_FPS = 10_000.0  # the Scenario schema's limit of source.fps (video/ stays free of pydantic)
+
+
+def check_fps(fps: float | None) -> None:
+    """Refuse a frame rate (``--fps``, 1/s) outside ``MIN_FPS``-``MAX_FPS`` (the Scenario's limit of
+    ``source.fps``), NaN and inf too, in one line; None (the container's rate) passes."""
+    if fps is not None and not (np.isfinite(fps) and MIN_FPS <= fps <= MAX_FPS):
+        raise UserError(f"--fps must be a positive number of frames per second, {MIN_FPS:g}-{MAX_FPS:g} (got {fps})")
 
 
 def open_video(path: str | Path, fps: float | None = None) -> VideoSource:
@@ -99,8 +106,7 @@ def open_video(path: str | Path, fps: float | None = None) -> VideoSource:
     For video files ``fps`` overrides the container's frame rate (frame times become index / fps).
     """
     p = Path(path)
-    if fps is not None and not (np.isfinite(fps) and MIN_FPS <= fps <= MAX_FPS):
-        raise UserError(f"--fps must be a positive number of frames per second, {MIN_FPS:g}-{MAX_FPS:g} (got {fps})")
+    check_fps(fps)
     if p.is_dir():
         return ImageFolderSource(p, fps)
     return PyAVSource(p, fps)
