@@ -13,7 +13,7 @@ its chessboard calibration and is checked against a plausible range. One more li
 much the scene grows in the image over each reading (:func:`scene_expansion`, no focal length needed).
 
 Run: PYTHONPATH=src python bench/ego_speed_overlays.py [--data DIR] [--clips a,b] [--tracks DIR] [--set NAME=X]
-[--overlay-mask] [--fx PX] [--height M] [--draw DIR]
+[--overlay-mask] [--fx PX] [--height M] [--horizon ROW] [--jitter N] [--draw DIR]
 ``--tracks DIR``: ``DIR/<clip>/tracks.csv`` from an earlier extract masks the road users (as extract does)
 and self-calibrates the unknown camera from them as extract does (one more line: the speed rescaled by the
 measured over the assumed focal length x camera height);
@@ -21,11 +21,16 @@ measured over the assumed focal length x camera height);
 ``--overlay-mask``: with ``still_mask`` from :func:`~deepcrashtest.geometry.camera.static_overlay_mask` of the
 first 2 s (not used by extract yet); ``--fx`` / ``--height``: the labelled clips' camera with this focal length
 (px) / height (m) instead of the unknown-dashcam default (to check a focal length measured elsewhere: the
-speed should follow focal x height); ``--draw DIR``: ``DIR/<clip>_NNN.png`` per frame, the tracked points
-(red: in the road region whose motion gives the metric scale, green: scene), the horizon row the estimator
-uses (yellow) and the masked dashboard rows (magenta). One more line per labelled clip: the time base
-(identical consecutive frames), the dashboard rows, the horizon the estimator learned from its direction of
-travel against the boxes' (with ``--tracks``), and the pairs that gave a road scale.
+speed should follow focal x height); ``--horizon ROW``: the labelled clips' camera pitched to this horizon row
+(px) and held there (``with_horizon(camera, ROW, "user")``: the estimator's road normal then does not follow its
+learned direction of travel); ``--jitter N`` (with ``--fx`` and ``--height``): the labelled clips again at focal
+lengths 1..N % either side with the height scaled to keep ``fx * height``, and the spread of the mean speeds (a
+measurement that followed the camera only through ``fx * height`` would not move); ``--draw DIR``:
+``DIR/<clip>_NNN.png`` per frame, the tracked points (red: in the road region whose motion gives the metric
+scale, green: scene), the horizon row the estimator uses (yellow) and the masked dashboard rows (magenta). One
+more line per labelled clip: the time base (identical consecutive frames), the dashboard rows, the horizon the
+estimator learned from its direction of travel against the boxes' (with ``--tracks``), and the pairs that gave a
+road scale.
 """
 
 from __future__ import annotations
@@ -66,6 +71,22 @@ def overlay_speeds(entry: dict[str, Any], n: int) -> np.ndarray:
     return out
 
 
+def read_frames(video: Path, count: int) -> tuple[list[np.ndarray], float]:
+    """The first ``count`` decoded frames of ``video`` (BGR, cv2's decode order) and its frame rate (fps)."""
+    import cv2
+
+    cap = cv2.VideoCapture(str(video))
+    fps = float(cap.get(cv2.CAP_PROP_FPS))
+    images = []
+    while len(images) < count:
+        ok, img = cap.read()
+        if not ok:
+            break
+        images.append(img)
+    cap.release()
+    return images, fps
+
+
 def run_clip(
     video: Path,
     chessboard: bool,
@@ -75,23 +96,15 @@ def run_clip(
     overlay_mask: bool = False,
     camera: tuple[float | None, float | None] = (None, None),
     draw: Path | None = None,
+    horizon: float | None = None,
 ) -> ClipRun:
-    import cv2
     import pandas as pd
 
     from deepcrashtest.geometry.camera import calibrate_chessboard, default_camera, static_overlay_mask
     from deepcrashtest.geometry.egomotion import EgoMotionEstimator
     from deepcrashtest.pipeline.geometry_pass import estimate_camera
 
-    cap = cv2.VideoCapture(str(video))
-    fps = float(cap.get(cv2.CAP_PROP_FPS))
-    images = []
-    while len(images) <= last_frame:
-        ok, img = cap.read()
-        if not ok:
-            break
-        images.append(img)
-    cap.release()
+    images, fps = read_frames(video, last_frame + 1)
     h, w = images[0].shape[:2]
     cam = default_camera(w, h)
     fx, height = camera
@@ -103,6 +116,10 @@ def run_clip(
         calib, _, _ = calibrate_chessboard(video.parent / "camera_calibration")
         cam = calib.model_copy(update={"height_m": cam.height_m})
     cam, rows, _ = estimate_camera(images[: int(2 * fps) + 1], cam)
+    if horizon is not None and not chessboard:
+        from deepcrashtest.geometry.camera import with_horizon
+
+        cam = with_horizon(cam, horizon, "user")  # held: the road normal is not learned from the travel
     boxes = pd.read_csv(tracks) if tracks is not None and tracks.exists() else None
     overlay = static_overlay_mask(images[: int(2 * fps) + 1]) if overlay_mask else None
     est = EgoMotionEstimator(cam, mask_bottom_rows=rows, still_mask=overlay, **options)
@@ -218,6 +235,26 @@ def report_labelled(name: str, entry: dict[str, Any], r: ClipRun) -> None:
         print(f"{'':22} overlay 0 km/h on {int(zero.sum())} frames: mean speed there {np.mean(s[zero]):.2f} m/s")
 
 
+def report_jitter(name: str, entry: dict[str, Any], runs: list[tuple[float, ClipRun]]) -> None:
+    """One line per run of a focal-length jitter (``--jitter``) and the spread of the mean speeds: each run keeps
+    focal length x height (what the road plane's metric scale follows), so a measurement that depended on the
+    camera only through it would read the same every time."""
+    means = []
+    for f, r in runs:
+        truth = overlay_speeds(entry, len(r.speed))
+        lab = np.isfinite(truth) & (np.arange(len(r.speed)) > 0)
+        means.append(float(np.mean(r.speed[lab])) * 3.6)
+        print(
+            f"{'':22} fx {f:6.0f} px, height {r.height_m:.3f} m: mean {means[-1]:5.1f} km/h, road-scale readings on "
+            f"{int(np.isfinite(r.raw[lab]).sum())} frames"
+        )
+    truth_mean = float(np.nanmean(overlay_speeds(entry, len(runs[0][1].speed))[1:])) * 3.6
+    print(
+        f"{name:22} jitter: mean speed median {np.median(means):.1f} km/h, range {min(means):.1f}-{max(means):.1f} "
+        f"over {len(runs)} cameras of the same fx*h (overlay {truth_mean:.1f} km/h)"
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--data", default=str(DATA))
@@ -229,6 +266,10 @@ def main() -> None:
     )
     ap.add_argument("--fx", type=float, default=None, help="focal length (px) of the labelled clips' camera")
     ap.add_argument("--height", type=float, default=None, help="camera height (m) of the labelled clips' camera")
+    ap.add_argument("--horizon", type=float, default=None, help="horizon row (px) held by the labelled clips' camera")
+    ap.add_argument(
+        "--jitter", type=int, default=0, help="with --fx/--height: also runs at fx x (1 +- k %%), k = 1..N, fx*h kept"
+    )
     ap.add_argument("--draw", default="", help="folder for PNGs of the tracked points, one per frame")
     args = ap.parse_args()
     import cv2
@@ -256,8 +297,18 @@ def main() -> None:
             args.overlay_mask,
             (args.fx, args.height),
             draw,
+            args.horizon,
         )
         report_labelled(name, entry, clip)
+        if args.jitter and args.fx and args.height:
+            runs = []
+            for k in range(-args.jitter, args.jitter + 1):
+                fk = args.fx * (1.0 + 0.01 * k)
+                cam = (fk, args.height * args.fx / fk)
+                r = clip if k == 0 else run_clip(Path(args.data) / entry["video"], False, last, tracks, options,
+                                                  args.overlay_mask, cam, None, args.horizon)  # fmt: skip
+                runs.append((fk, r))
+            report_jitter(name, entry, runs)
     for name, entry in labels["plausibility"].items():
         if wanted and name not in wanted:
             continue
