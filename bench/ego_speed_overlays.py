@@ -23,7 +23,11 @@ first 2 s (not used by extract yet); ``--fx`` / ``--height``: the labelled clips
 (px) / height (m) instead of the unknown-dashcam default (to check a focal length measured elsewhere: the
 speed should follow focal x height); ``--horizon ROW``: the labelled clips' camera pitched to this horizon row
 (px) and held there (``with_horizon(camera, ROW, "user")``: the estimator's road normal then does not follow its
-learned direction of travel); ``--jitter N`` (with ``--fx`` and ``--height``): the labelled clips again at focal
+learned direction of travel); ``--early`` (with ``--tracks``): the estimator
+measures with the focal length and height the self-calibration reads from the first 2 s of boxes (horizon row
+kept), and the speed is rescaled by the whole clip's self-calibration over that camera (the "self-calibrated"
+line, which with ``--fx`` / ``--height`` too rescales to the whole clip's calibration); ``--jitter N`` (with
+``--fx`` and ``--height``): the labelled clips again at focal
 lengths 1..N % either side with the height scaled to keep ``fx * height``, and the spread of the mean speeds (a
 measurement that followed the camera only through ``fx * height`` would not move); ``--draw DIR``:
 ``DIR/<clip>_NNN.png`` per frame, the tracked points (red: in the road region whose motion gives the metric
@@ -97,11 +101,13 @@ def run_clip(
     camera: tuple[float | None, float | None] = (None, None),
     draw: Path | None = None,
     horizon: float | None = None,
+    early: bool = False,
 ) -> ClipRun:
     import pandas as pd
 
-    from deepcrashtest.geometry.camera import calibrate_chessboard, default_camera, static_overlay_mask
+    from deepcrashtest.geometry.camera import calibrate_chessboard, default_camera, static_overlay_mask, with_horizon
     from deepcrashtest.geometry.egomotion import EgoMotionEstimator
+    from deepcrashtest.geometry.selfcalib import self_calibrate
     from deepcrashtest.pipeline.geometry_pass import estimate_camera
 
     images, fps = read_frames(video, last_frame + 1)
@@ -117,10 +123,13 @@ def run_clip(
         cam = calib.model_copy(update={"height_m": cam.height_m})
     cam, rows, _ = estimate_camera(images[: int(2 * fps) + 1], cam)
     if horizon is not None and not chessboard:
-        from deepcrashtest.geometry.camera import with_horizon
-
         cam = with_horizon(cam, horizon, "user")  # held: the road normal is not learned from the travel
+    base = with_horizon(default_camera(w, h), cam.horizon_v(), cam.pitch_source)  # what extract starts from
     boxes = pd.read_csv(tracks) if tracks is not None and tracks.exists() else None
+    if early and boxes is not None and not chessboard:  # the camera the first 2 s of boxes self-calibrate
+        first = self_calibrate(boxes[boxes.frame <= int(2 * fps)], base, (w, h)).camera
+        cam = with_horizon(cam.model_copy(update={"fx": first.fx, "fy": first.fy, "height_m": first.height_m}),
+                           cam.horizon_v(), cam.pitch_source)  # fmt: skip
     overlay = static_overlay_mask(images[: int(2 * fps) + 1]) if overlay_mask else None
     est = EgoMotionEstimator(cam, mask_bottom_rows=rows, still_mask=overlay, **options)
     t0 = time.process_time()
@@ -143,10 +152,8 @@ def run_clip(
     run = ClipRun(ego.speed, cam.fx, cam.height_m, cpu_ms, np.asarray(raw), factors, images=images)
     run.readings = est._filter.readings  # noqa: SLF001 (a diagnosis of the estimator's own state)
     if boxes is not None and len(boxes) and cam.intrinsics_source == "default":
-        from deepcrashtest.geometry.selfcalib import self_calibrate
-
-        cal = self_calibrate(boxes, cam, (w, h), ego, ego_scaled_by_height=True)
-        run.ego_scale = cal.ego_scale
+        cal = self_calibrate(boxes, base, (w, h), ego, ego_scaled_by_height=True)  # the whole clip's, as extract
+        run.ego_scale = cal.camera.fy * cal.height_m / (cam.fy * cam.height_m)  # what the estimator assumed
         run.calibration = f"height {cal.height_m:.2f} m, focal {cal.fy:.0f} px, horizon row {cal.horizon_v:.0f}"
     return run
 
@@ -270,6 +277,7 @@ def main() -> None:
     ap.add_argument(
         "--jitter", type=int, default=0, help="with --fx/--height: also runs at fx x (1 +- k %%), k = 1..N, fx*h kept"
     )
+    ap.add_argument("--early", action="store_true", help="camera from the first 2 s of boxes (with --tracks)")
     ap.add_argument("--draw", default="", help="folder for PNGs of the tracked points, one per frame")
     args = ap.parse_args()
     import cv2
@@ -298,6 +306,7 @@ def main() -> None:
             (args.fx, args.height),
             draw,
             args.horizon,
+            args.early,
         )
         report_labelled(name, entry, clip)
         if args.jitter and args.fx and args.height:
@@ -306,7 +315,7 @@ def main() -> None:
                 fk = args.fx * (1.0 + 0.01 * k)
                 cam = (fk, args.height * args.fx / fk)
                 r = clip if k == 0 else run_clip(Path(args.data) / entry["video"], False, last, tracks, options,
-                                                  args.overlay_mask, cam, None, args.horizon)  # fmt: skip
+                                                  args.overlay_mask, cam, None, args.horizon, args.early)  # fmt: skip
                 runs.append((fk, r))
             report_jitter(name, entry, runs)
     for name, entry in labels["plausibility"].items():
