@@ -174,6 +174,29 @@ def test_evolve_equals_a_whole_revalidation_and_still_checks_the_physics(kitti8_
         kitti8_raw.evolve(stage="processed", agents=[], ego={**kitti8_raw.ego.model_dump(), "trajectory": spike})
 
 
+def test_evolve_of_a_processed_scenario_checks_the_physics_of_what_changed_only(kitti8_raw):
+    """evolve of a processed scenario (KITTI 0008, its smooth agents) skips the physics check of the vehicles it
+    shares (checked when that scenario was validated), still refuses a changed agent's trajectory, and a raw
+    scenario made processed has every vehicle checked."""
+    smooth = [a for a in kitti8_raw.agents if a.trajectory.accel_problem("a") is None]
+    jerky = [a for a in kitti8_raw.agents if a.trajectory.accel_problem("a") is not None]
+    assert len(smooth) >= 3 and jerky  # label tracks: some jump above the limit
+    sc = kitti8_raw.evolve(stage="processed", agents=smooth, collision=None)
+    fast = sc.evolve(name="renamed")
+    assert fast.agents[0] is sc.agents[0]
+    assert fast.to_json() == Scenario.from_dict({**sc.model_dump(), "name": "renamed"}).to_json()
+    k = max(range(len(smooth)), key=lambda i: len(smooth[i].trajectory))
+    arr = smooth[k].trajectory.arrays()
+    arr["speed"][3] += 5.0  # ~50 m/s^2 in a changed agent
+    spiky = smooth[k].model_copy(update={"trajectory": Trajectory.from_arrays(**arr)})
+    with pytest.raises(
+        ScenarioError, match=rf"agents\[id={smooth[k].id}\].trajectory: \|acceleration\| \d+\.\d m/s\^2 at sample 4"
+    ):
+        sc.evolve(agents=[*smooth[:k], spiky, *smooth[k + 1 :]])
+    with pytest.raises(ScenarioError, match="acceleration"):  # raw -> processed: the shared agents checked too
+        kitti8_raw.evolve(stage="processed", agents=[*smooth, jerky[0]], collision=None)
+
+
 def _text_loop(v: str) -> str:
     """The per-character check ``scenario._text`` replaced (the reference)."""
     for i, ch in enumerate(v):

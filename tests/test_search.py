@@ -202,6 +202,8 @@ def test_results_csv_text_is_pandas_to_csv(searched):
     df = pd.read_csv(out / "results.csv")
     df.loc[0, "min_ttc"] = np.inf
     assert csv_text(df) == df.to_csv(index=False, float_format="%.6g")
+    for fmt in ("%.3f", "%+.2e", "%.3f m"):  # one row format per line; a format of more than one conversion: per cell
+        assert csv_text(df, fmt) == df.to_csv(index=False, float_format=fmt)
     df["method"] = df["method"].astype(object)
     df.loc[1, "method"] = 'a "quoted", name'  # needs quoting: pandas writes it
     assert csv_text(df) == df.to_csv(index=False, float_format="%.6g")

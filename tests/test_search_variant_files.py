@@ -8,7 +8,7 @@ import pytest
 
 from deepcrashtest.errors import ScenarioError
 from deepcrashtest.scenario import Scenario
-from deepcrashtest.search.outputs import variant_scenario
+from deepcrashtest.search.outputs import SharedAgentsJson, variant_scenario
 from deepcrashtest.search.space import SearchSpace
 
 
@@ -54,3 +54,21 @@ def test_raw_scenario_keeps_a_jerky_variant(kitti8_raw):
     ]
     assert jerky
     assert variant_scenario(sc, space, jerky[0], 7, {"seed": 0}).stage == "raw"
+
+
+def test_variant_file_text_is_the_scenarios_own_json(kitti8_raw):
+    """The variant files' text with the agents serialised once is ``Scenario.to_json()`` character for character
+    (KITTI 0008, a search variant and a scenario without them); with other agents it is serialised whole."""
+    sc = kitti8_raw.evolve(name="k8")
+    texts = SharedAgentsJson(sc)
+    assert texts.fragment is not None and texts.fragment.startswith("[")
+    space = SearchSpace.for_scenario(sc)
+    theta = np.concatenate([[1.0, -0.5], np.full(space.dim - 2, 0.1)])
+    variant = variant_scenario(sc, space, theta, 3, {"seed": 0})
+    assert variant.agents[0] is sc.agents[0]
+    assert texts.text(variant) == variant.to_json()
+    fewer = variant.evolve(agents=variant.agents[1:])
+    assert texts.text(fewer) == fewer.to_json()
+    none = SharedAgentsJson(sc.evolve(agents=[], collision=None))
+    alone = variant.evolve(agents=[], collision=None)
+    assert none.fragment == "[]" and none.text(alone) == alone.to_json()

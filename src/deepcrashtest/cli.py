@@ -26,7 +26,7 @@ from typer._click import exceptions as click_exc  # typer >= 0.29 vendors its ow
 
 from deepcrashtest import __version__
 from deepcrashtest.errors import UserError
-from deepcrashtest.perception.detect import DEFAULT_DETECTOR, DETECTOR_HELP
+from deepcrashtest.perception.detector_names import DEFAULT_DETECTOR, DETECTOR_HELP  # no NumPy
 from deepcrashtest.ui import console_err, set_quiet
 
 app = typer.Typer(

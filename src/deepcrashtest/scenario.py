@@ -33,6 +33,7 @@ from pydantic import (
     ConfigDict,
     Field,
     ValidationError,
+    ValidationInfo,
     field_validator,
     model_validator,
 )
@@ -48,6 +49,7 @@ SCHEMA_VERSION = "1.2"
 #: Physical limits used by validation. Stated, never clipped silently.
 MAX_SPEED_MPS = 90.0  # 324 km/h: above any road vehicle
 MAX_ACCEL_MPS2 = 15.0  # ~1.5 g: above any tyre-limited braking/acceleration (impacts are cut away)
+_PHYSICS_CHECKED = "physics_checked"  # validation context: id()s of trajectories whose physics passed already
 
 
 @dataclass(frozen=True)
@@ -542,13 +544,16 @@ class Scenario(_Model):
         return v
 
     @model_validator(mode="after")
-    def _ids_and_physics(self) -> Scenario:
+    def _ids_and_physics(self, info: ValidationInfo) -> Scenario:
         ids = [self.ego.id] + [a.id for a in self.agents]
         if len(set(ids)) != len(ids):
             dup = sorted({i for i in ids if ids.count(i) > 1})
             raise ValueError(f"vehicle ids must be unique (duplicated: {dup})")
         if self.stage == "processed":
+            checked = (info.context or {}).get(_PHYSICS_CHECKED, ())
             for label, veh in [("ego", self.ego)] + [(f"agents[id={a.id}]", a) for a in self.agents]:
+                if id(veh.trajectory) in checked:  # evolve: this processed scenario's own, checked when it was made
+                    continue
                 problem = veh.trajectory.accel_problem(label)
                 if problem is not None:
                     raise ValueError(problem)
@@ -575,7 +580,10 @@ class Scenario(_Model):
         data = {key: getattr(self, key) for key in type(self).model_fields}
         for key, value in changes.items():
             data[key] = _plain(value)
-        return Scenario.from_dict(data, origin="scenario")
+        # the physics check of a processed scenario's unchanged vehicles passed when this one was validated (their
+        # trajectories are the same objects in the copy): a search's variant file checked its ~10 vehicles again
+        checked = {id(v.trajectory) for v in [self.ego, *self.agents]} if self.stage == "processed" else set()
+        return Scenario.from_dict(data, origin="scenario", context={_PHYSICS_CHECKED: checked})
 
     # ------------------------------------------------------------------ time
     def video_time(self, t: Any) -> Any:
@@ -633,15 +641,16 @@ class Scenario(_Model):
         return atomic_write_text(path, self.to_json(), force=force)
 
     @classmethod
-    def from_dict(cls, data: Any, origin: str = "scenario") -> Scenario:
-        """Validate a decoded JSON object; errors name the field (``agents.2.trajectory.t: ...``)."""
+    def from_dict(cls, data: Any, origin: str = "scenario", context: dict[str, Any] | None = None) -> Scenario:
+        """Validate a decoded JSON object; errors name the field (``agents.2.trajectory.t: ...``). ``context``:
+        pydantic's validation context (:meth:`evolve`'s already checked trajectories)."""
         if not isinstance(data, dict):
             raise ScenarioError(f"{origin}: expected a JSON object, got {type(data).__name__}")
         if "schema_version" not in data:
             raise ScenarioError(f"{origin}: missing schema_version (not a DeepCrashTest scenario?)")
         try:
             check_schema_version(str(data["schema_version"]))
-            return cls.model_validate(migrate(data))
+            return cls.model_validate(migrate(data), context=context)
         except ValidationError as exc:
             raise ScenarioError(f"{origin}: {format_validation_error(exc)}") from None
         except ValueError as exc:

@@ -44,12 +44,13 @@ import numpy as np
 from deepcrashtest.errors import UserError
 from deepcrashtest.perception.boxes import nms
 from deepcrashtest.perception.detections import Detections, Detector
+from deepcrashtest.perception.detector_names import DEFAULT_DETECTOR as DEFAULT_DETECTOR  # re-exported
+from deepcrashtest.perception.detector_names import DETECTOR_HELP
 
 # TF Object Detection API 90-id COCO label map (ids of the road-user classes only).
 _TF_COCO_ROAD_USERS = {1: "pedestrian", 2: "bicycle", 3: "car", 4: "motorcycle", 6: "bus", 8: "truck"}
 
 
-DEFAULT_DETECTOR = "yolo26n"
 #: yolo26n's second, whole-image pass at this long side (px) for road users at the ego's bumper
 #: (:mod:`deepcrashtest.perception.yolo_onnx`, ``coarse``; ``coarse=0`` turns it off). Chosen on the crash
 #: clips' contact frames (bench/labels, 18 clips): labelled road users detected 15/42 -> 31/42 (384: 30/42).
@@ -65,11 +66,6 @@ YOLO_SKY = 0.0
 #: busy; a second onnxruntime thread then costs CPU without saving time (measured on highway_lane_challenge
 #: frames: 137 ms CPU a call with 1 thread, 151-158 ms with 2; the same boxes).
 YOLO_THREADS = 1
-DETECTOR_HELP = (
-    "yolo26n[:int8,area=PIXELS,size=N,score=S,coarse=N,threads=N,sky=F] (default; YOLO26n weights AGPL-3.0, "
-    "Ultralytics; built once by `make models`)"
-    " | ssd[:tiles=N,score=S,input=WxH] (SSD-MobileNet-v2, Apache-2.0) | onnx:PATH (any YOLO ONNX)."
-)
 
 
 def make_detector(spec: str) -> Detector:

@@ -124,6 +124,7 @@ def write_variants(
     best: Scenario | None = None
     kinematics = _kinematics(space, theta, variant[order], limit)
     candidates = zip(variant[order].tolist(), method[order].tolist(), kinematics, strict=True)
+    texts = SharedAgentsJson(scenario)
     with ThreadPoolExecutor(max_workers=4) as pool:
         for vid, m, kin in candidates:
             if len(saved) >= limit and best is not None:
@@ -135,9 +136,43 @@ def write_variants(
                 continue
             best = best or sc
             if len(saved) < limit:
-                saved.append(pool.submit(sc.save, folder / f"variant_{int(vid):04d}.json", force))
+                path = folder / f"variant_{int(vid):04d}.json"
+                saved.append(pool.submit(atomic_write_text, path, texts.text(sc), force))
         paths = [str(f.result()) for f in saved]
     return paths, problems, best
+
+
+class SharedAgentsJson:
+    """Variant files' text (:meth:`Scenario.to_json`, the same characters) with the source scenario's agents
+    serialised once: a variant changes the ego and shares the agents' models, most of a file (KITTI 0003: 9 agents,
+    ~1.4 of a file's ~1.6 ms of serialising, 32 files a search)."""
+
+    _KEY = '\n "agents": []'  # a top-level key: one space of indent (deeper keys have more; strings hold no newline)
+
+    def __init__(self, scenario: Scenario) -> None:
+        self.agents = scenario.agents
+        self.fragment: str | None = None
+        whole, parts = scenario.to_json(), self._around(scenario)
+        if parts is not None and whole.startswith(parts[0]) and whole.endswith(parts[1]):
+            self.fragment = whole[len(parts[0]) : len(whole) - len(parts[1])]
+
+    def text(self, sc: Scenario) -> str:
+        """``sc.to_json()``: ``sc``'s own fields with the shared agents' text where ``sc`` holds those very agents."""
+        same = len(sc.agents) == len(self.agents) and all(a is b for a, b in zip(sc.agents, self.agents, strict=True))
+        parts = self._around(sc) if same and self.fragment is not None else None
+        if parts is None or self.fragment is None:
+            return sc.to_json()
+        return parts[0] + self.fragment + parts[1]
+
+    @classmethod
+    def _around(cls, sc: Scenario) -> tuple[str, str] | None:
+        """The JSON of ``sc`` without agents, cut where its agents' list goes (before ``[]``, after it)."""
+        text = sc.model_copy(update={"agents": []}).to_json()
+        i = text.find(cls._KEY)
+        if i < 0 or text.find(cls._KEY, i + 1) >= 0:
+            return None
+        i += len(cls._KEY) - 2
+        return text[:i], text[i + 2 :]
 
 
 def _kinematics(

@@ -3,6 +3,7 @@ the forked output helper writes results.csv without loading the simulator)."""
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -37,22 +38,33 @@ def csv_text(table: Mapping[str, Any], float_format: str = "%.6g") -> str:
     Columns are formatted whole (floats with ``float_format``, NaN empty; booleans ``True``/``False``;
     integers as numbers); a table with other columns, or text that would need quoting, goes to pandas.
     """
-    cols: list[list[str]] = []
+    cols: list[list[Any]] = []
+    fmts: list[str] = []  # each column's conversion in the row format
     names = [str(c) for c in table]
+    one_spec = _ONE_FLOAT_SPEC.fullmatch(float_format) is not None
     for name in table:
         v = column(table, name)
         kind = v.dtype.kind
         if kind == "f":
-            cols.append(["" if x != x else float_format % x for x in v.tolist()])
+            values = v.tolist()
+            if one_spec and not np.isnan(v).any():  # formatted by the row format below, as ``float_format % x``
+                cols.append(values)
+                fmts.append(float_format)
+            else:
+                cols.append(["" if x != x else float_format % x for x in values])
+                fmts.append("%s")
         elif kind in "biu":
-            cols.append([str(x) for x in v.tolist()])
+            cols.append(v.tolist())  # Python bools and ints: "%s" writes str(x)
+            fmts.append("%s")
         elif kind in "OU" and all(type(x) is str and not _NEEDS_QUOTES.intersection(x) for x in v.tolist()):
             cols.append(v.tolist())
+            fmts.append("%s")
         else:
             return _pandas_csv(table, float_format)
     if any(_NEEDS_QUOTES.intersection(c) for c in names):
         return _pandas_csv(table, float_format)
-    lines = [",".join(names), *map(",".join, zip(*cols, strict=True))] if cols else [",".join(names)]
+    row = ",".join(fmts)  # one formatting call per row instead of one per cell (~4x less CPU)
+    lines = [",".join(names), *(row % values for values in zip(*cols, strict=True))] if cols else [",".join(names)]
     return "\n".join(lines) + "\n"
 
 
@@ -63,3 +75,5 @@ def _pandas_csv(table: Mapping[str, Any], float_format: str) -> str:
 
 
 _NEEDS_QUOTES = frozenset(',"\n\r')
+#: A ``float_format`` of one conversion that writes no comma (``%.6g``, ``%.3f``, ...): usable inside a row format.
+_ONE_FLOAT_SPEC = re.compile(r"%[-+ #0]*\d*(\.\d+)?[eEfFgG]")
