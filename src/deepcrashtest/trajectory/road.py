@@ -17,7 +17,8 @@ it, so neither counts), each by the median lateral offset of its path from the e
   paths within ``MAX_ROAD_OFFSET_M`` (farther: another road or a localisation error) nearest to lane centres.
 * The ego's carriageway: as many lanes on each side of the ego's lane as the same-direction vehicles
   within ``MAX_ROAD_OFFSET_M`` and the lanes the ego itself changed to (lane timeline) need, at most
-  ``MAX_INFERRED_LANES``.
+  ``MAX_INFERRED_LANES``; an oncoming vehicle right of the ego's lane (mislocalised, or against the
+  traffic) is held by it too.
 * Oncoming lanes (``Road.oncoming_lane_count``, right-hand traffic: left of the ego's carriageway): the
   lanes the oncoming vehicles left of the ego's lane (up to ``MAX_ONCOMING_OFFSET_M``) need, from the
   innermost one outwards. When the innermost lies more than a lane beyond the ego's carriageway (a divided
@@ -159,7 +160,7 @@ def build_road(
     else:
         width, shift = fitted_lane_width(same + oncoming, p.default_lane_width_m), 0.0
         source = "road_users" if source == "ego_path" else source
-    count, ego_lane = carriageway(same, width)
+    count, ego_lane = carriageway(same + [v for v in oncoming if v < 0], width)  # oncoming on the right: held too
     n_on, median = oncoming_lanes(oncoming, (count - ego_lane - 0.5) * width, width)
     if lt is None and warnings is not None:
         users = f"the spread of {len(same) + len(oncoming)} road users' paths" if same or oncoming else "no other path"
