@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import KITTI_TRACKING, ROOT, need
+from conftest import DATA, KITTI_TRACKING, ROOT, need
 from deepcrashtest.geometry.road import boundary_offsets, oncoming_boundary_offsets
 from deepcrashtest.scenario import Scenario
 from deepcrashtest.trajectory.roadframe import RoadFrame
@@ -132,5 +132,19 @@ def test_kitti_oncoming_cars_drive_on_the_oncoming_lanes(seq):
     sc = process_scenario(scenario_from_kitti(need(KITTI_TRACKING), seq, road_users=True), seed=0)
     users = _moving_along(sc)
     assert any(o for _, o in users.values())
+    assert _off_road(sc) == []
+    assert sc.road.oncoming_lane_count >= 1
+
+
+def test_crash_clip_oncoming_cars_beyond_the_median(tmp_path):
+    """ccd_000330 (no lane lines seen: the road is inferred): the ego moves slowly while oncoming cars pass
+    9-14 m to its left; on main (one direction, offsets beyond 12 m ignored) two of the three were off the road."""
+    from deepcrashtest.pipeline.extract import run_extract
+    from deepcrashtest.trajectory.pipeline import process_scenario
+
+    run_extract(need(DATA / "crash_ccd" / "ccd_000330.mp4"), tmp_path, report=False, annotate=False)
+    sc = process_scenario(Scenario.load(tmp_path / "scenario_raw.json"), seed=0)
+    assert sc.road.source == "road_users" and any("no lane lines seen" in w for w in sc.warnings)
+    assert sum(o for _, o in _moving_along(sc).values()) >= 2
     assert _off_road(sc) == []
     assert sc.road.oncoming_lane_count >= 1
