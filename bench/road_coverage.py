@@ -39,11 +39,11 @@ def lane_span(sc: Scenario) -> tuple[tuple[float, float], tuple[float, float] | 
     return (float(b[0]), float(b[-1])), ((inner, inner + n_on * r.lane_width) if n_on else None)
 
 
-def coverage(sc: Scenario) -> tuple[int, int, list[tuple[int, float]]]:
-    """(held, counted, [(id, offset m) off the road]) of the vehicles moving along the road."""
+def moving_along(sc: Scenario) -> dict[int, tuple[float, bool]]:
+    """{agent id: (median lateral offset m of its observed positions from the road's centre line, oncoming)} of
+    the vehicles that move (> 5 m) along the road (within 30 deg of its direction, either way)."""
     frame = RoadFrame.from_polyline(sc.road.centerline())
-    own, other = lane_span(sc)
-    held, counted, off = 0, 0, []
+    out = {}
     for v in sc.agents:
         a = v.trajectory.arrays()
         seen = v.trajectory.observed
@@ -52,14 +52,21 @@ def coverage(sc: Scenario) -> tuple[int, int, list[tuple[int, float]]]:
             continue
         s, d = frame.project(xy)
         travel = float(np.arctan2(*(xy[-1] - xy[0])[::-1])) - float(frame.tangent(float(np.median(s)))[0])
-        if abs(np.cos(travel)) < np.cos(np.radians(30.0)):
-            continue
-        dm, counted = float(np.median(d)), counted + 1
-        ok = own[0] <= dm <= own[1] or (other is not None and other[0] <= dm <= other[1])
-        held += ok
-        if not ok:
-            off.append((v.id, round(dm, 1)))
-    return held, counted, off
+        if abs(np.cos(travel)) >= np.cos(np.radians(30.0)):
+            out[v.id] = (float(np.median(d)), bool(np.cos(travel) < 0))
+    return out
+
+
+def coverage(sc: Scenario) -> tuple[int, int, list[tuple[int, float]]]:
+    """(held, counted, [(id, offset m) off the road]) of the vehicles moving along the road."""
+    own, other = lane_span(sc)
+    users = moving_along(sc)
+    off = [
+        (i, round(d, 1))
+        for i, (d, _) in users.items()
+        if not (own[0] <= d <= own[1] or (other is not None and other[0] <= d <= other[1]))
+    ]
+    return len(users) - len(off), len(users), off
 
 
 def main() -> None:

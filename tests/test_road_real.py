@@ -3,7 +3,9 @@ oncoming lanes, measured on real extractions (the demo highway clip, KITTI, cras
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -11,28 +13,24 @@ import pytest
 from conftest import DATA, KITTI_TRACKING, ROOT, need
 from deepcrashtest.geometry.road import boundary_offsets, oncoming_boundary_offsets
 from deepcrashtest.scenario import Scenario
-from deepcrashtest.trajectory.roadframe import RoadFrame
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")  # commonroad's protobuf modules
 SAMPLE = ROOT / "examples" / "highway_sample.mp4"
 
 
+def _bench() -> Any:
+    """bench/road_coverage.py (its selection of the vehicles moving along the road)."""
+    spec = importlib.util.spec_from_file_location("road_coverage", ROOT / "bench" / "road_coverage.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def _moving_along(sc: Scenario) -> dict[int, tuple[float, bool]]:
-    """{agent id: (median lateral offset m of its observed positions from the road's centre line, oncoming)} of
-    the vehicles that move (> 5 m) along the road (within 30 deg of its direction, either way)."""
-    frame = RoadFrame.from_polyline(sc.road.centerline())
-    out = {}
-    for v in sc.agents:
-        a = v.trajectory.arrays()
-        seen = v.trajectory.observed
-        xy = np.column_stack([a["x"], a["y"]])[np.asarray(seen, bool) if seen is not None else slice(None)]
-        if v.category == "pedestrian" or len(xy) < 2 or np.hypot(*(xy[-1] - xy[0])) < 5.0:
-            continue
-        s, d = frame.project(xy)
-        travel = float(np.arctan2(*(xy[-1] - xy[0])[::-1])) - float(frame.tangent(float(np.median(s)))[0])
-        if abs(np.cos(travel)) >= np.cos(np.radians(30.0)):
-            out[v.id] = (float(np.median(d)), bool(np.cos(travel) < 0))
-    return out
+    """{agent id: (median lateral offset m of its seen positions, oncoming)} of the vehicles moving along the
+    road (bench/road_coverage.py)."""
+    return dict(_bench().moving_along(sc))
 
 
 def _off_road(sc: Scenario) -> list[tuple[int, float]]:
