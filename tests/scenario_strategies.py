@@ -106,6 +106,8 @@ def scenario_dicts(draw: st.DrawFn, stage: str = "processed") -> dict[str, Any]:
             "lane_count": lane_count,
             "ego_lane": draw(st.integers(0, lane_count - 1)),
             "lane_width": draw(st.floats(1.0, 20.0)),
+            "oncoming_lane_count": draw(st.integers(0, 3)),
+            "median_width": draw(st.sampled_from([0.0, 0.5, 12.0])),
         },
     }
     if agents and draw(st.booleans()):

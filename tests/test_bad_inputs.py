@@ -196,7 +196,7 @@ def test_commonroad_export_of_a_200_km_road_stays_small(capsys, good, tmp_path):
     assert rc == 0, err
     xml = (tmp_path / "cr" / "commonroad.xml").read_text()
     lanelets = xml.count("<lanelet ")
-    assert lanelets == good.road.lane_count
+    assert lanelets == good.road.lane_count + good.road.oncoming_lane_count
     assert xml.count("<point>") <= lanelets * 3 * (MAX_LANELET_VERTICES + 2) + 200  # + the obstacles' shapes
 
 

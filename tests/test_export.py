@@ -105,7 +105,9 @@ def test_reference_line_passes_through_waypoints_pyxodr(exported):
     assert max(dev) < POS_TOL_M, f"max waypoint deviation {max(dev):.4f} m"
     # the lane the road came from (ego_path roads: the ego's lane) is centred on the waypoints
     lanes = {lane.id: lane for section in road.lane_sections for lane in section.lanes}
-    assert sorted(lanes) == sorted(opendrive_lane_id(k, sc.road.lane_count) for k in range(sc.road.lane_count))
+    left = sc.road.oncoming_lane_count + (1 if sc.road.oncoming_lane_count and sc.road.median_width else 0)
+    right = [opendrive_lane_id(k, sc.road.lane_count) for k in range(sc.road.lane_count)]
+    assert sorted(lanes) == sorted(right + list(range(1, left + 1)))  # the oncoming lanes: left lanes 1..
     ego_lane = lanes[opendrive_lane_id(sc.road.ego_lane, sc.road.lane_count)]
     centre = shapely.LineString(np.asarray(ego_lane.centre_line)[:, :2])
     lane_dev = max(centre.distance(shapely.Point(p)) for p in sc.road.centerline())
@@ -260,8 +262,10 @@ def test_parameter_distribution_file(exported, tmp_path, xsd, qc):
 
 
 # --------------------------------------------------------------------------- a tight synthetic curve
-def test_tight_curve_road(tmp_path, kitti8_raw, xsd, qc):
-    """A 90-degree bend of radius 25 m with three lanes: waypoints on the line, checkers clean."""
+@pytest.mark.parametrize("oncoming", [0, 2])
+def test_tight_curve_road(tmp_path, kitti8_raw, xsd, qc, oncoming):
+    """A 90-degree bend of radius 25 m with three lanes (and two oncoming ones beside them, without a median):
+    waypoints on the line, checkers clean."""
     from pyxodr.road_objects.network import RoadNetwork
 
     ang = np.linspace(0.0, math.pi / 2, 40)
@@ -271,14 +275,18 @@ def test_tight_curve_road(tmp_path, kitti8_raw, xsd, qc):
         lane_count=3,
         ego_lane=1,
         lane_width=3.25,
+        oncoming_lane_count=oncoming,
         source="lanes",
     )
     curved = copy.deepcopy(kitti8_raw)
     curved.road = road
     export_scenario(curved, "openscenario", tmp_path)
     xsd["xodr"].validate(str(tmp_path / "road.xodr"))
-    line = shapely.LineString(RoadNetwork(str(tmp_path / "road.xodr"), resolution=0.05).get_roads()[0].reference_line)
+    xroad = RoadNetwork(str(tmp_path / "road.xodr"), resolution=0.05).get_roads()[0]
+    line = shapely.LineString(xroad.reference_line)
     assert max(line.distance(shapely.Point(p)) for p in road.centerline()) < POS_TOL_M
+    ids = sorted(lane.id for section in xroad.lane_sections for lane in section.lanes)
+    assert ids == [-3, -2, -1, *range(1, oncoming + 1)]  # the oncoming lanes: left lanes beside the centre line
     length = sum(seg.length for seg in reference_line(road))
     assert length == pytest.approx(25.0 * math.pi / 2, rel=1e-3)  # the arc's own length
     _assert_clean(qc("xodr", tmp_path / "road.xodr", tmp_path / "qc"), "check_asam_xodr_xml_valid_schema")

@@ -101,7 +101,7 @@ def test_commonroad_reloads_with_resampled_agents(seq, tmp_path):
     res = export_scenario(sc, "commonroad", tmp_path)
     cr, pps = _read_cr(tmp_path / "commonroad.xml")
     assert cr.dt == pytest.approx(COMMONROAD_DT_S)
-    assert len(cr.lanelet_network.lanelets) == sc.road.lane_count
+    assert len(cr.lanelet_network.lanelets) == sc.road.lane_count + sc.road.oncoming_lane_count
     kept = [a for a in sc.agents if a.id not in res["agents_left_out"]]
     assert {o.obstacle_id for o in cr.dynamic_obstacles} == {OBSTACLE_ID_BASE + a.id for a in kept}
     assert all(len(resample(sc.vehicle(i))["step"]) < 2 for i in res["agents_left_out"])

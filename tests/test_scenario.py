@@ -141,6 +141,18 @@ def test_migrates_1_0_files_and_keeps_the_time_mapping() -> None:
     assert data["schema_version"] == "1.0"  # the input is not changed
 
 
+def test_a_1_2_file_reads_as_a_one_way_road(kitti8_raw) -> None:
+    """Schema 1.3 adds the oncoming lanes (``Road.oncoming_lane_count``, ``median_width``): a 1.2 file (without
+    them) loads as 1.3 with none, the road it described; 1.3 writes them."""
+    data = json.loads(kitti8_raw.to_json())
+    assert data["schema_version"] == SCHEMA_VERSION == "1.3"
+    assert data["road"]["oncoming_lane_count"] == 0 and data["road"]["median_width"] == 0.0
+    old = dict(data, schema_version="1.2", road={k: v for k, v in data["road"].items() if k not in
+                                                  ("oncoming_lane_count", "median_width")})  # fmt: skip
+    sc = Scenario.from_dict(old)
+    assert sc.schema_version == "1.3" and sc.road == kitti8_raw.road
+
+
 def test_evolve_validates_and_third_party_collision(kitti8_raw):
     """Scenario.evolve returns a validated copy; a collision may name two agents but not an unknown one."""
     a, b = kitti8_raw.agents[0].id, kitti8_raw.agents[1].id

@@ -174,7 +174,9 @@ def test_lane_timeline_sets_the_lanes():
     raw = raw.model_copy(update={"road": raw.road.model_copy(update={"lane_timeline": lt, "lane_width": 3.2,
                                                                       "lane_count": 3, "ego_lane": 1})})  # fmt: skip
     sc = process_scenario(raw)
-    assert (sc.road.lane_width, sc.road.lane_count, sc.road.ego_lane) == (3.2, 3, 1)
+    # the seen lines give the width; the lanes are the ones the road users need: the car 3.5 m right of the ego
+    # (the lane stage's own lane count and index are relative to where the ego started, not counted lanes)
+    assert (sc.road.lane_width, sc.road.lane_count, sc.road.ego_lane, sc.road.oncoming_lane_count) == (3.2, 2, 1, 0)
     t_max = sc.provenance.parameters["t_max_s"]
     assert sc.road.lane_timeline is not None and sc.road.lane_timeline.t == pytest.approx([t_max, 5 + t_max])
     plain = process_scenario(raw_scenario([vehicle(1, track(lambda t: (20 + EGO_SPEED * t, -3.5 + 0 * t), 0, 100))]))

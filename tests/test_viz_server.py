@@ -48,6 +48,8 @@ def test_page_and_scenario_are_served(client, folder):
     assert data["file"] == "scenario.json"
     assert data["video"] is None and "no annotated.mp4" in data["video_note"]
     assert len(data["road"]["boundaries"]) == data["scenario"]["road"]["lane_count"] + 1
+    n = data["scenario"]["road"]["oncoming_lane_count"]
+    assert len(data["road"]["oncoming"]) == (n + 1 if n else 0)
     frame = client.get("/api/frame", params={"t": 1.0})
     assert frame.status_code == 404 and "no annotated.mp4" in frame.json()["error"]
 

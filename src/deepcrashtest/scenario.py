@@ -42,7 +42,7 @@ from deepcrashtest import __version__
 from deepcrashtest.errors import ScenarioError
 from deepcrashtest.fileio import atomic_write_text, require_file
 
-SCHEMA_VERSION = "1.2"
+SCHEMA_VERSION = "1.3"
 """Major.minor. A file with another major, or a newer minor, is refused; older minors are migrated on load
 (:func:`migrate`)."""
 
@@ -443,13 +443,29 @@ class LaneTimeline(_Model):
 
 
 class Road(_Model):
-    """Road centre line and lanes, world frame."""
+    """Road centre line and lanes, world frame.
+
+    The ego's carriageway: ``lane_count`` lanes of ``lane_width`` in the ego's direction (0 = rightmost).
+    Left of its left edge, ``median_width`` metres on, ``oncoming_lane_count`` lanes of the same width carry the
+    opposite direction (right-hand traffic).
+    """
 
     centerline_x: list[CoordItem] = Field(description="Waypoint x, metres")
     centerline_y: list[CoordItem] = Field(description="Waypoint y, metres")
     lane_width: PositiveFloat = Field(default=3.5, ge=1.0, le=20.0, description="Metres")
     lane_count: Integer = Field(default=2, ge=1, le=12)
     ego_lane: Integer = Field(default=0, ge=0, description="Lane of the ego at t=0, 0 = rightmost")
+    oncoming_lane_count: Integer = Field(
+        default=0,
+        ge=0,
+        le=12,
+        description="Lanes of the opposite direction, left of the ego's carriageway (0 = a one-way road)",
+    )
+    median_width: NonNegFloat = Field(
+        default=0.0,
+        le=50.0,
+        description="Metres between the ego's carriageway and the oncoming lanes (0 = one line between them)",
+    )
     source: Literal["ego_path", "ego_path+oncoming", "lanes", "road_users", "user"] = Field(
         default="ego_path",
         description="ego_path: along the ego path (lane width assumed); lanes: lane lines seen in the video; "
@@ -695,11 +711,13 @@ def migrate(data: dict[str, Any]) -> dict[str, Any]:
     1.0 -> 1.1: the video/scenario time mapping moves from ``provenance.parameters.video_time_offset_s``
     (processed files) and the ego's first frame into ``source.time_offset_s``; collisions get
     ``source="video-auto"`` (the default). 1.1 -> 1.2: ``camera.attitude`` (optional) is new; nothing moves.
+    1.2 -> 1.3: ``road.oncoming_lane_count`` and ``road.median_width`` are new (default 0: the road as read
+    before, the ego's direction only); nothing moves.
     """
-    if str(data.get("schema_version")) not in ("1.0", "1.1"):
+    if str(data.get("schema_version")) not in ("1.0", "1.1", "1.2"):
         return data
     out = dict(data)
-    if str(data.get("schema_version")) == "1.1":
+    if str(data.get("schema_version")) in ("1.1", "1.2"):
         out["schema_version"] = SCHEMA_VERSION
         return out
     out["schema_version"] = SCHEMA_VERSION

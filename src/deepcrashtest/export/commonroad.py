@@ -7,6 +7,9 @@
   (:func:`deepcrashtest.geometry.road.boundary_offsets` around the same reference line,
   sampled every ``LANELET_STEP_M`` metres; at most ``MAX_LANELET_VERTICES`` samples on a long road).
   Lanelet id ``1 + lane index`` (0 = rightmost); neighbours are linked as adjacent in the same direction.
+  The oncoming lanes (``Road.oncoming_lane_count``) follow with ids ``lane_count + 1 + k`` (k = 0 next to the
+  ego's carriageway), their vertices running the opposite way; without a median the innermost one and the
+  ego carriageway's leftmost lanelet are each other's left neighbour in the opposite direction.
 * Agents: dynamic obstacles (id ``OBSTACLE_ID_BASE + vehicle id``), rectangle shape of the
   vehicle's length x width, initial state at the first step of their span, a trajectory
   prediction over the remaining steps. Agents whose span holds fewer than two steps are left out
@@ -37,8 +40,8 @@ import numpy as np
 from deepcrashtest.errors import UserError
 from deepcrashtest.export.opendrive import reference_line, sample_reference_line
 from deepcrashtest.fileio import atomic_path
-from deepcrashtest.geometry.road import boundary_offsets
-from deepcrashtest.scenario import Scenario, Vehicle, wrap_angle
+from deepcrashtest.geometry.road import boundary_offsets, oncoming_boundary_offsets
+from deepcrashtest.scenario import Road, Scenario, Vehicle, wrap_angle
 
 COMMONROAD_DT_S = 0.1
 LANELET_STEP_M = 1.0
@@ -105,6 +108,7 @@ def _lanelet_network(sc: Scenario) -> Any:
     normal = np.column_stack([-np.sin(hdg), np.cos(hdg)])
     offsets = boundary_offsets(sc.road)
     n = sc.road.lane_count
+    oncoming_next = sc.road.oncoming_lane_count > 0 and sc.road.median_width == 0
     net = LaneletNetwork()
     for k in range(n):
         right = pts + offsets[k] * normal
@@ -115,8 +119,8 @@ def _lanelet_network(sc: Scenario) -> Any:
                 (left + right) / 2.0,
                 right,
                 lanelet_id=k + 1,
-                adjacent_left=k + 2 if k + 1 < n else None,
-                adjacent_left_same_direction=True if k + 1 < n else None,
+                adjacent_left=k + 2 if k + 1 < n or oncoming_next else None,
+                adjacent_left_same_direction=(k + 1 < n) if k + 1 < n or oncoming_next else None,
                 adjacent_right=k if k > 0 else None,
                 adjacent_right_same_direction=True if k > 0 else None,
                 line_marking_left_vertices=LineMarking.SOLID if k == n - 1 else LineMarking.DASHED,
@@ -124,7 +128,40 @@ def _lanelet_network(sc: Scenario) -> Any:
                 lanelet_type={LaneletType.UNKNOWN},
             )
         )
+    for lanelet in _oncoming_lanelets(sc.road, pts, normal):
+        net.add_lanelet(lanelet)
     return net
+
+
+def _oncoming_lanelets(road: Road, pts: np.ndarray, normal: np.ndarray) -> list[Any]:
+    """The oncoming lanes' lanelets (see the module doc) on the reference line's samples ``pts`` (M, 2) with
+    their left normals (metres)."""
+    from commonroad.scenario.lanelet import Lanelet, LaneletType, LineMarking
+
+    offsets = oncoming_boundary_offsets(road)
+    n, m = road.lane_count, road.oncoming_lane_count
+    touching = road.median_width == 0
+    out = []
+    for k in range(m):
+        left = (pts + offsets[k] * normal)[::-1]  # driving towards the line's start: the inner edge is its left
+        right = (pts + offsets[k + 1] * normal)[::-1]
+        inner = n + k if k > 0 or touching else None
+        out.append(
+            Lanelet(
+                left,
+                (left + right) / 2.0,
+                right,
+                lanelet_id=n + 1 + k,
+                adjacent_left=inner,
+                adjacent_left_same_direction=(k > 0) if inner is not None else None,
+                adjacent_right=n + 2 + k if k + 1 < m else None,
+                adjacent_right_same_direction=True if k + 1 < m else None,
+                line_marking_left_vertices=LineMarking.SOLID if k == 0 else LineMarking.DASHED,
+                line_marking_right_vertices=LineMarking.SOLID if k == m - 1 else LineMarking.DASHED,
+                lanelet_type={LaneletType.UNKNOWN},
+            )
+        )
+    return out
 
 
 def _obstacle(vehicle: Vehicle, states: dict[str, np.ndarray]) -> Any:

@@ -8,12 +8,14 @@ tangents are the tangent directions of a natural cubic spline through all waypoi
 exactly, its heading is continuous (G1) across geometries, and each geometry's ``length`` is its
 arc length integrated numerically (agrees with the ASAM checker's integral to < 1e-6 m).
 
-Lanes. One lane section, all lanes driving in the reference line's direction (right-hand
+Lanes. One lane section; the ego's carriageway drives in the reference line's direction (right-hand
 traffic: lane ids -1 .. -lane_count, -1 the leftmost). ``Road.lane_width`` and ``lane_count`` set
 the lanes; Scenario lane index 0 is the rightmost (OpenDRIVE id -lane_count). Where the road
 came from the ego's path (``source`` ``ego_path*``) the waypoints are the centre of the ego's lane
 (``ego_lane``), so a constant ``laneOffset`` shifts the lanes to put that lane's centre on the
-reference line; otherwise the waypoints are the centre of the carriageway.
+reference line; otherwise the waypoints are the centre of the carriageway. The oncoming lanes
+(``oncoming_lane_count``) are left lanes (positive ids, the opposite direction) beyond the centre lane's
+solid line: ids 1 .. n, or 2 .. n + 1 behind a ``median`` lane 1 of ``median_width`` on a divided road.
 
 Elevation: one record with all coefficients 0 (a flat road; scenariogeneration would otherwise
 write an empty, schema-invalid ``<elevationProfile/>``). Header revMajor 1, revMinor 7: the
@@ -165,6 +167,7 @@ def build_opendrive(road: Road, name: str = "deepcrashtest"):  # -> scenariogene
         outer = lane_id == -n
         lane.add_roadmark(xodr.RoadMark(xodr.RoadMarkType.solid if outer else xodr.RoadMarkType.broken, 0.12))
         section.add_right_lane(lane)
+    _add_oncoming_lanes(section, road)
     lanes.add_lanesection(section)
 
     xroad = xodr.Road(ROAD_ID, planview, lanes, name=name)
@@ -172,6 +175,23 @@ def build_opendrive(road: Road, name: str = "deepcrashtest"):  # -> scenariogene
     odr = xodr.OpenDrive(name, revMajor=str(OPENDRIVE_REV_MAJOR), revMinor=str(OPENDRIVE_REV_MINOR))
     odr.add_road(xroad)
     return odr
+
+
+def _add_oncoming_lanes(section, road: Road) -> None:  # section: scenariogeneration.xodr.LaneSection
+    """The oncoming lanes as left lanes (ids 1.., inner first), behind a median lane where the road has one."""
+    from scenariogeneration import xodr
+
+    if road.oncoming_lane_count == 0:
+        return
+    if road.median_width > 0:
+        median = xodr.Lane(xodr.LaneType.median, a=road.median_width)
+        median.add_roadmark(xodr.RoadMark(xodr.RoadMarkType.solid, 0.12))
+        section.add_left_lane(median)
+    for k in range(road.oncoming_lane_count):
+        lane = xodr.Lane(xodr.LaneType.driving, a=road.lane_width)
+        outer = k == road.oncoming_lane_count - 1
+        lane.add_roadmark(xodr.RoadMark(xodr.RoadMarkType.solid if outer else xodr.RoadMarkType.broken, 0.12))
+        section.add_left_lane(lane)
 
 
 def write_opendrive(road: Road, path: str | os.PathLike[str], name: str = "deepcrashtest", force: bool = False) -> Path:

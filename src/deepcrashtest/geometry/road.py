@@ -3,7 +3,8 @@
 Used by the exporters (OpenDRIVE, CommonRoad), the bird's-eye video, the report's plots and the viewer.
 Layout: on an ``ego_path*`` or ``road_users`` road the centre line is the ego's path, so it is the centre
 of lane ``ego_lane``; on any other road it is the centre of the carriageway. Lane 0 is the rightmost.
-World frame, metres.
+The oncoming lanes (``oncoming_lane_count``, the opposite direction) lie left of the ego's carriageway,
+``median_width`` beyond its left edge. World frame, metres.
 """
 
 from __future__ import annotations
@@ -33,16 +34,39 @@ def boundary_offsets(road: Road) -> np.ndarray:
     return (j - road.lane_count / 2.0) * road.lane_width
 
 
+def oncoming_boundary_offsets(road: Road) -> np.ndarray:
+    """Lateral offsets (m, left positive) of the oncoming lanes' boundaries from the centre line, right to left.
+
+    ``oncoming_lane_count + 1`` values (none on a one-way road); the first is the inner edge, ``median_width``
+    left of the ego's carriageway. Oncoming lane k (0 = the one next to the ego's carriageway) lies between
+    entries k and k + 1.
+    """
+    if road.oncoming_lane_count == 0:
+        return np.zeros(0)
+    inner = float(boundary_offsets(road)[-1]) + road.median_width
+    return inner + np.arange(road.oncoming_lane_count + 1, dtype=float) * road.lane_width
+
+
 def lane_lines(road: Road) -> dict[str, list[list[list[float]]]]:
-    """``{"center": [[x, y], ...], "boundaries": [[[x, y], ...], ...]}``: outer boundaries first and last."""
+    """``{"center": [[x, y], ...], "boundaries": [[[x, y], ...], ...], "oncoming": [...]}``: the ego's
+    carriageway's boundaries (outer ones first and last), then the oncoming lanes' (inner edge first; empty on a
+    one-way road)."""
     xy = road.centerline()
     return {
         "center": xy.tolist(),
         "boundaries": [b.tolist() for b in boundary_polylines(road)],
+        "oncoming": [b.tolist() for b in oncoming_polylines(road)],
     }
 
 
 def boundary_polylines(road: Road) -> list[np.ndarray]:
-    """Every lane boundary as an (N, 2) polyline, rightmost edge first, leftmost edge last (metres)."""
+    """Every lane boundary of the ego's carriageway as an (N, 2) polyline, rightmost edge first, leftmost edge
+    last (metres)."""
     xy = road.centerline()
     return [offset_polyline(xy, float(o)) for o in boundary_offsets(road)]
+
+
+def oncoming_polylines(road: Road) -> list[np.ndarray]:
+    """Every boundary of the oncoming lanes as an (N, 2) polyline, inner edge first (metres); [] if none."""
+    xy = road.centerline()
+    return [offset_polyline(xy, float(o)) for o in oncoming_boundary_offsets(road)]

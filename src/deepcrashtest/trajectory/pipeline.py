@@ -548,15 +548,27 @@ def _road_phase(run: _Run, ego: Dense, crash: CrashOutcome, ego_frame: EgoFrame,
         )
         raw_road = raw_road.model_copy(update={"lane_timeline": shifted})
     paths = [d.xy for d in [ego, *crash.agents]]
-    offsets = [d.lateral_m for d in crash.agents if _lane_evidence(d, road_frame)]
-    return build_road(road_frame, raw_road, paths, offsets, p, source, run.warnings)
+    along = [d for d in crash.agents if _lane_evidence(d, road_frame)]
+    oncoming = [_lateral_m(d, road_frame) for d in along if d.cls is not None and d.cls.startswith("D1")]
+    same = [_lateral_m(d, road_frame) for d in along if d.cls is None or not d.cls.startswith("D1")]
+    return build_road(road_frame, raw_road, paths, (same, oncoming), p, source, run.warnings)
+
+
+def _seen_xy(d: Dense) -> np.ndarray:
+    """A road user's observed positions (m), all of them where none is observed."""
+    return d.xy[d.observed] if d.observed.any() else d.xy
 
 
 def _lane_evidence(d: Dense, frame: RoadFrame) -> bool:
     """A vehicle (not a pedestrian) moving along the road: its lateral offset says where a lane is."""
     if d.static or d.vehicle.category == "pedestrian":
         return False
-    return along_road(frame, d.xy[d.observed] if d.observed.any() else d.xy, d.heading)
+    return along_road(frame, _seen_xy(d), d.heading)
+
+
+def _lateral_m(d: Dense, frame: RoadFrame) -> float:
+    """Median lateral offset (m, left positive) of a road user's observed positions from the road's centre line."""
+    return float(np.median(frame.project(_seen_xy(d))[1]))
 
 
 def _assemble(

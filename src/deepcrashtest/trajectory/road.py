@@ -7,14 +7,22 @@ sideways onto the ego's lane), because the ego's own path stops there (``ego_pat
 It always reaches ``road_margin_m`` past every vehicle's first and last position along the road,
 continued straight beyond the paths.
 
-Lanes: from the lane stage when the raw road carries a ``lane_timeline`` (its width, count and the
-ego's lane are kept). Where no lane lines were seen (most urban clips) the lanes are inferred from
-the road users' paths and the road says so (``Road.source`` ``road_users`` and a warning): the
-median lateral offsets from the ego's lane of the vehicles moving along the road (pedestrians walk
-beside it and crossing traffic crosses it, so neither counts, nor do offsets beyond
-``MAX_ROAD_OFFSET_M``: another road or a localisation error)
-are fitted with lanes of a plausible width (``LANE_WIDTH_RANGE_M``, the width that puts the paths
-nearest to lane centres) and as many lanes as their spread needs, at most ``MAX_INFERRED_LANES``.
+Lanes cover the vehicles that move along the road (pedestrians walk beside it and crossing traffic crosses
+it, so neither counts), each by the median lateral offset of its path from the ego's lane:
+
+* Width: from the lane stage when the raw road carries a ``lane_timeline`` (seen lines), which also puts the
+  ego's lane centre where the lines are (the centre line moves by the ego's median offset in its lane).
+  Where no lane lines were seen (most urban clips) the width is inferred from the paths and the road says
+  so (``Road.source`` ``road_users`` and a warning): the width in ``LANE_WIDTH_RANGE_M`` that puts the
+  paths within ``MAX_ROAD_OFFSET_M`` (farther: another road or a localisation error) nearest to lane centres.
+* The ego's carriageway: as many lanes on each side of the ego's lane as the same-direction vehicles
+  within ``MAX_ROAD_OFFSET_M`` and the lanes the ego itself changed to (lane timeline) need, at most
+  ``MAX_INFERRED_LANES``; an oncoming vehicle right of the ego's lane (mislocalised, or against the
+  traffic) is held by it too.
+* Oncoming lanes (``Road.oncoming_lane_count``, right-hand traffic: left of the ego's carriageway): the
+  lanes the oncoming vehicles left of the ego's lane (up to ``MAX_ONCOMING_OFFSET_M``) need, from the
+  innermost one outwards. When the innermost lies more than a lane beyond the ego's carriageway (a divided
+  road), the gap is the ``Road.median_width``; otherwise the oncoming lanes start at its left edge.
 """
 
 from __future__ import annotations
@@ -28,8 +36,11 @@ from deepcrashtest.trajectory.roadframe import RoadFrame
 MAX_LANES = 12
 #: Plausible lane widths (m) of an inferred road: urban lanes 3.0 m to motorway lanes 3.75 m.
 LANE_WIDTH_RANGE_M = (3.0, 3.75)
-#: Lateral offsets (m) beyond this from the ego's lane are not lanes of the ego's road.
+#: Lateral offsets (m) beyond this from the ego's lane are not lanes of the ego's carriageway.
 MAX_ROAD_OFFSET_M = 12.0
+#: Oncoming vehicles farther left than this (m) are on another road (or mislocalised), not the oncoming lanes:
+#: the far carriageway of a divided motorway lies up to ~30 m left (Udacity highway clip, mono-localised).
+MAX_ONCOMING_OFFSET_M = 35.0
 #: The most lanes inferred from paths (a wide urban road: three each way).
 MAX_INFERRED_LANES = 6
 #: A path within this angle (degrees) of the road's direction runs along it; crossing traffic does not count.
@@ -72,63 +83,101 @@ def along_road(frame: RoadFrame, xy: np.ndarray, heading: float, max_angle_deg: 
     return bool(abs(np.cos(heading - tangent)) >= np.cos(np.radians(max_angle_deg)))
 
 
-def inferred_lanes(offsets_m: list[float], default_width: float) -> tuple[float, int, int]:
-    """(lane width m, lane count, ego lane) fitted to the road users' lateral offsets (m, left positive).
-
-    Only offsets within ``MAX_ROAD_OFFSET_M`` count; with none the ego's lane alone at ``default_width``
-    (clipped to ``LANE_WIDTH_RANGE_M``). Otherwise the width in ``LANE_WIDTH_RANGE_M`` whose lane centres
-    lie nearest the offsets (least squares, 5 cm steps; ties to the wider) and the lanes they span.
-    """
+def fitted_lane_width(offsets_m: list[float], default_width: float) -> float:
+    """Lane width (m) in ``LANE_WIDTH_RANGE_M`` whose lane centres lie nearest the lateral offsets (m, left
+    positive) within ``MAX_ROAD_OFFSET_M`` (least squares, 5 cm steps; ties to the wider); with none
+    ``default_width`` clipped to the range."""
     d = np.asarray([v for v in offsets_m if abs(v) <= MAX_ROAD_OFFSET_M], float)
     lo, hi = LANE_WIDTH_RANGE_M
     if d.size == 0:
-        return float(np.clip(default_width, lo, hi)), 1, 0
+        return float(np.clip(default_width, lo, hi))
     widths = np.arange(hi, lo - 1e-9, -0.05)
     cost = [float(np.sum((d - np.round(d / w) * w) ** 2)) for w in widths]
-    width = float(widths[int(np.argmin(cost))])
-    count, ego_lane = lane_layout(list(d), width)
+    return round(float(widths[int(np.argmin(cost))]), 2)
+
+
+def carriageway(offsets_m: list[float], lane_width: float) -> tuple[int, int]:
+    """(lane count, ego lane) of the ego's carriageway covering the offsets (m, left positive) within
+    ``MAX_ROAD_OFFSET_M`` of the ego's lane, at most ``MAX_INFERRED_LANES`` (the outermost lanes of the wider
+    side dropped first)."""
+    count, ego_lane = lane_layout([v for v in offsets_m if abs(v) <= MAX_ROAD_OFFSET_M], lane_width)
     while count > MAX_INFERRED_LANES:  # drop the outermost lane on the wider side
         left, right = count - 1 - ego_lane, ego_lane
         count, ego_lane = count - 1, ego_lane - (1 if right > left else 0)
-    return round(width, 2), count, ego_lane
+    return count, ego_lane
+
+
+def inferred_lanes(offsets_m: list[float], default_width: float) -> tuple[float, int, int]:
+    """(lane width m, lane count, ego lane) fitted to the road users' lateral offsets (m, left positive):
+    :func:`fitted_lane_width` and the :func:`carriageway` they span; with none the ego's lane alone."""
+    width = fitted_lane_width(offsets_m, default_width)
+    count, ego_lane = carriageway(offsets_m, width)
+    return width, count, ego_lane
+
+
+def oncoming_lanes(offsets_m: list[float], left_edge_m: float, lane_width: float) -> tuple[int, float]:
+    """(oncoming lane count, median width m) covering the oncoming vehicles' lateral offsets (m, left positive,
+    from the ego's lane centre) left of the ego's lane and within ``MAX_ONCOMING_OFFSET_M``.
+
+    ``left_edge_m``: the ego carriageway's left edge. The innermost vehicle's lane is the first oncoming lane;
+    it starts at the edge unless that leaves a gap of a lane or more (a median, whose width is returned).
+    """
+    d = np.asarray([v for v in offsets_m if 0.0 < v <= MAX_ONCOMING_OFFSET_M], float)
+    if d.size == 0:
+        return 0, 0.0
+    gap = float(d.min()) - lane_width / 2 - left_edge_m
+    median = round(gap, 2) if gap >= lane_width else 0.0
+    count = int(np.floor((float(d.max()) - left_edge_m - median) / lane_width)) + 1
+    return int(np.clip(count, 1, MAX_INFERRED_LANES)), median
 
 
 def build_road(
     frame: RoadFrame,
     raw_road: Road,
     positions: list[np.ndarray],
-    moving_offsets_m: list[float],
+    offsets_m: tuple[list[float], list[float]],
     p: Stage2Params,
     source: str = "ego_path",
     warnings: list[str] | None = None,
 ) -> Road:
     """The Road of the processed scenario (world frame, metres).
 
-    ``moving_offsets_m``: median lateral offsets of the moving vehicles (not pedestrians) from the
-    ego's lane. A road inferred without lane lines adds a line to ``warnings``.
+    ``offsets_m``: median lateral offsets (m, left positive) from the ego's path of the vehicles (not
+    pedestrians) moving along the road, (same direction as the ego, oncoming). A road inferred without lane
+    lines adds a line to ``warnings``.
     """
     pts = np.vstack([q[:: max(1, len(q) // 50)] for q in positions] + [q[-1:] for q in positions])
     s, _ = frame.project(pts)
     s_from = min(float(s.min()), 0.0) - p.road_margin_m
     s_to = max(float(s.max()), frame.length) + p.road_margin_m
-    wp = frame.resampled(s_from, s_to, p.road_spacing_m)
-    if raw_road.lane_timeline is not None:
-        width, count, ego_lane = raw_road.lane_width, raw_road.lane_count, raw_road.ego_lane
+    same, oncoming = offsets_m
+    lt = raw_road.lane_timeline
+    if lt is not None:
+        width = raw_road.lane_width
+        shift = float(np.clip(-np.median(lt.lateral_offset), -width / 2, width / 2))  # lane centre from the path
+        visited = [(k - lt.lane_index[0]) * width for k in sorted(set(lt.lane_index))]
+        same, oncoming = [v - shift for v in same] + visited, [v - shift for v in oncoming]
     else:
-        width, count, ego_lane = inferred_lanes(moving_offsets_m, p.default_lane_width_m)
+        width, shift = fitted_lane_width(same + oncoming, p.default_lane_width_m), 0.0
         source = "road_users" if source == "ego_path" else source
-        if warnings is not None:
-            users = f"the spread of {len(moving_offsets_m)} road users' paths" if moving_offsets_m else "no other path"
-            warnings.append(
-                f"no lane lines seen: the road ({count} lane(s) x {width:g} m, ego in lane {ego_lane}) is inferred "
-                f"from the ego's path and {users}, not measured"
-            )
+    count, ego_lane = carriageway(same + [v for v in oncoming if v < 0], width)  # oncoming on the right: held too
+    n_on, median = oncoming_lanes(oncoming, (count - ego_lane - 0.5) * width, width)
+    if lt is None and warnings is not None:
+        users = f"the spread of {len(same) + len(oncoming)} road users' paths" if same or oncoming else "no other path"
+        on = f", {n_on} oncoming" + (f" beyond a {median:g} m median" if median else "") if n_on else ""
+        warnings.append(
+            f"no lane lines seen: the road ({count} lane(s){on} x {width:g} m, ego in lane {ego_lane}) is inferred "
+            f"from the ego's path and {users}, not measured"
+        )
+    wp = frame.resampled(s_from, s_to, p.road_spacing_m, shift)
     return Road(
         centerline_x=wp[:, 0].tolist(),
         centerline_y=wp[:, 1].tolist(),
         lane_width=width,
         lane_count=count,
         ego_lane=ego_lane,
+        oncoming_lane_count=n_on,
+        median_width=median,
         source=source,  # type: ignore[arg-type]
         lane_timeline=raw_road.lane_timeline,
     )

@@ -121,7 +121,8 @@ class RoadFrame:
             object.__setattr__(self, "_kdtree", tree)
         return tree
 
-    def resampled(self, s_from: float, s_to: float, spacing_m: float) -> np.ndarray:
-        """Waypoints (N, 2) every ``spacing_m`` from ``s_from`` to ``s_to`` (may reach past the ends)."""
+    def resampled(self, s_from: float, s_to: float, spacing_m: float, d: float = 0.0) -> np.ndarray:
+        """Waypoints (N, 2) every ``spacing_m`` from ``s_from`` to ``s_to`` (may reach past the ends), ``d`` metres
+        left of the line (negative: right)."""
         n = max(2, int(np.ceil((s_to - s_from) / spacing_m)) + 1)
-        return self.point(np.linspace(s_from, s_to, n))
+        return self.point(np.linspace(s_from, s_to, n), d)

@@ -3,7 +3,8 @@
 The view follows the ego (world x forward = right of the image, y left = up), ``PX_PER_M``
 pixels per metre. Drawn: road edges and lane lines from ``Scenario.road`` (the centre line is the
 ego's lane centre when ``road.source`` is ``ego_path``; the road spans ``lane_count`` lanes of
-``lane_width`` with the ego in ``ego_lane``, 0 = rightmost), every present vehicle as its box with
+``lane_width`` with the ego in ``ego_lane``, 0 = rightmost; the oncoming lanes left of it, beyond a solid
+yellow line between the two directions, or two across a median), every present vehicle as its box with
 its id and class (ego blue, cars grey, two-wheelers with their rider yellow, pedestrians green
 discs; road users in a collision red), 3-second trails, a clock, the ego's speed, the ego's first
 collision and the first contact between two other road users (a third-party crash), each marked at
@@ -13,12 +14,13 @@ its impact point from then on. A road that was inferred rather than seen says so
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from typing import Any
 
 import cv2
 import numpy as np
 
-from deepcrashtest.geometry.road import boundary_polylines
+from deepcrashtest.geometry.road import boundary_polylines, oncoming_polylines
 from deepcrashtest.scenario import Scenario
 from deepcrashtest.viz.h264 import h264_writer
 
@@ -32,6 +34,7 @@ BG = (40, 40, 40)
 ROAD = (70, 70, 70)
 EDGE = (230, 230, 230)
 LANE = (160, 160, 160)
+DIRECTIONS = (40, 200, 240)  # yellow: the solid line between the two directions
 EGO = (235, 140, 30)
 AGENT = (190, 190, 190)
 HIT = (40, 40, 230)
@@ -41,12 +44,25 @@ SHORT = {"pedestrian": "ped", "motorcycle": "moto", "bicycle": "bike"}
 TEXT = (255, 255, 255)
 
 
-def _road_lines(scenario: Scenario) -> tuple[list[np.ndarray], list[np.ndarray], np.ndarray]:
-    """(edge polylines, lane-divider polylines, road polygon) in world metres."""
-    lines = boundary_polylines(scenario.road)
-    edges, lanes = [lines[0], lines[-1]], lines[1:-1]
-    polygon = np.vstack([edges[0], edges[1][::-1]])
-    return edges, lanes, polygon
+@dataclass(frozen=True)
+class _RoadLines:
+    """The road's lines in world metres: outer edges, dashed lane dividers, the solid line(s) between the two
+    directions (none on a one-way road) and the carriageways' polygons."""
+
+    edges: list[np.ndarray]
+    lanes: list[np.ndarray]
+    directions: list[np.ndarray]
+    polygons: list[np.ndarray]
+
+
+def _road_lines(scenario: Scenario) -> _RoadLines:
+    """The ego's carriageway and the oncoming lanes' lines (:mod:`deepcrashtest.geometry.road`)."""
+    own, other = boundary_polylines(scenario.road), oncoming_polylines(scenario.road)
+    polygons = [np.vstack([own[0], own[-1][::-1]])]
+    if not other:
+        return _RoadLines([own[0], own[-1]], own[1:-1], [], polygons)
+    polygons.append(np.vstack([other[0], other[-1][::-1]]))
+    return _RoadLines([own[0], other[-1]], own[1:-1] + other[1:-1], [own[-1], other[0]], polygons)
 
 
 class _View:
@@ -75,7 +91,7 @@ def render_frames(scenario: Scenario, result: Any, stride: int | None = None) ->
     stride = stride or max(1, int(round(1.0 / (FPS * dt))))
     sizes = {v.id: (v.length, v.width) for v in scenario.vehicles()}
     cats = {v.id: v.category for v in scenario.vehicles()}
-    edges, lanes, polygon = _road_lines(scenario)
+    road = _road_lines(scenario)
     trail_n = int(round(TRAIL_S / dt))
     first = result.collision
     third = next((c for c in result.collisions if scenario.ego.id not in c["vehicles"]), None)
@@ -89,10 +105,12 @@ def render_frames(scenario: Scenario, result: Any, stride: int | None = None) ->
         ego = result.states[k, 0]
         view = _View(np.array([ego[0] + AHEAD_M * np.cos(ego[2]), ego[1] + AHEAD_M * np.sin(ego[2])]))
         img = np.full((HEIGHT, WIDTH, 3), BG, np.uint8)
-        cv2.fillPoly(img, [view.px(polygon)], ROAD)
-        for e in edges:
+        cv2.fillPoly(img, [view.px(poly) for poly in road.polygons], ROAD)
+        for e in road.edges:
             cv2.polylines(img, [view.px(e)], False, EDGE, 2, cv2.LINE_AA)
-        for lane in lanes:
+        for e in road.directions:
+            cv2.polylines(img, [view.px(e)], False, DIRECTIONS, 2, cv2.LINE_AA)
+        for lane in road.lanes:
             pts = view.px(lane)
             for a in range(0, len(pts) - 1, 2):
                 cv2.line(img, tuple(map(int, pts[a])), tuple(map(int, pts[a + 1])), LANE, 1, cv2.LINE_AA)

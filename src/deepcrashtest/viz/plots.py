@@ -23,7 +23,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from deepcrashtest.fileio import atomic_path
-from deepcrashtest.geometry.road import boundary_polylines
+from deepcrashtest.geometry.road import boundary_polylines, oncoming_polylines
 from deepcrashtest.scenario import Scenario, Vehicle
 from deepcrashtest.viz.style import EGO_COLOUR, vehicle_colour
 
@@ -58,13 +58,18 @@ def plot_observed(ax: Any, x: np.ndarray, y: np.ndarray, obs: np.ndarray, colour
 
 
 def draw_road(ax: Any, sc: Scenario) -> None:
-    """Road surface and lane lines (world frame, metres; :func:`deepcrashtest.geometry.road.boundary_polylines`)."""
-    b = boundary_polylines(sc.road)
-    outline = np.vstack([b[0], b[-1][::-1]])
-    ax.fill(outline[:, 0], outline[:, 1], color="0.9", zorder=0)
-    for i, line in enumerate(b):
-        style = {"lw": 0.9, "ls": "-"} if i in (0, len(b) - 1) else {"lw": 0.6, "ls": (0, (6, 6))}
-        ax.plot(line[:, 0], line[:, 1], color="0.55", zorder=1, **style)
+    """Road surface and lane lines of the ego's carriageway and the oncoming lanes (world frame, metres;
+    :mod:`deepcrashtest.geometry.road`); the edge between the two directions solid and darker."""
+    oncoming = oncoming_polylines(sc.road)
+    for b in (boundary_polylines(sc.road), oncoming):
+        if not b:
+            continue
+        outline = np.vstack([b[0], b[-1][::-1]])
+        ax.fill(outline[:, 0], outline[:, 1], color="0.9", zorder=0)
+        for i, line in enumerate(b):
+            style = {"lw": 0.9, "ls": "-"} if i in (0, len(b) - 1) else {"lw": 0.6, "ls": (0, (6, 6))}
+            divider = bool(oncoming) and line is (b[0] if b is oncoming else b[-1])
+            ax.plot(line[:, 0], line[:, 1], color="0.3" if divider else "0.55", zorder=1, **style)
 
 
 def _draw_scene(

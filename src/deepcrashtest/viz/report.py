@@ -163,8 +163,14 @@ def overview_section(sc: Scenario) -> Section:
         ),
         (
             "road",
-            f"{sc.road.lane_count} lanes x {sc.road.lane_width:.2f} m, ego lane {sc.road.ego_lane}, "
-            f"from {sc.road.source}"
+            f"{sc.road.lane_count} lanes x {sc.road.lane_width:.2f} m, ego lane {sc.road.ego_lane}"
+            + (
+                f", {sc.road.oncoming_lane_count} oncoming lane(s)"
+                + (f" beyond a {sc.road.median_width:.1f} m median" if sc.road.median_width else "")
+                if sc.road.oncoming_lane_count
+                else ""
+            )
+            + f", from {sc.road.source}"
             + (" (no lanes seen: inferred from the road users' paths)" if sc.road.source == "road_users" else ""),
         ),
         ("collision in the scenario", collision_text(sc, sc.collision) if sc.collision is not None else "none"),

@@ -225,21 +225,30 @@
     ctx.fill();
   }
 
-  function drawRoad() {
-    const b = S.road.boundaries;
+  function drawCarriageway(b, oncoming) {
+    // one direction's lanes: surface, solid outer edges, dashed lane lines; the edge next to the other
+    // direction (the ego carriageway's left edge, the oncoming lanes' inner edge) solid yellow
     if (b.length >= 2) {
       polyline([...b[0], ...[...b[b.length - 1]].reverse()], true);
       ctx.fillStyle = "#555b5e";
       ctx.fill();
     }
     b.forEach((line, i) => {
+      const edge = i === 0 || i === b.length - 1;
+      const divider = oncoming.length > 0 && line === (b === oncoming ? b[0] : b[b.length - 1]);
       polyline(line);
-      ctx.strokeStyle = "#f5f5f5";
+      ctx.strokeStyle = divider ? "#f0c828" : "#f5f5f5";
       ctx.lineWidth = 1.5;
-      ctx.setLineDash(i === 0 || i === b.length - 1 ? [] : [8, 8]);
+      ctx.setLineDash(edge ? [] : [8, 8]);
       ctx.stroke();
     });
     ctx.setLineDash([]);
+  }
+
+  function drawRoad() {
+    const oncoming = S.road.oncoming || [];
+    drawCarriageway(S.road.boundaries, oncoming);
+    drawCarriageway(oncoming, oncoming);
   }
 
   function drawPath(v, opts) {
