@@ -439,7 +439,8 @@ def test_heights_that_fit_no_class_leave_the_class_to_the_box_shape(kitti_root):
     horizon off) carries no class evidence in its heights (``MonoConfig.class_free_height_cost``): on training
     sequence 0009 the wide-boxed labelled cars 35-70 m away that read 2.4-3.8 m tall are typed car instead of van
     (MOTA 65.0 against 60.7 without; chosen on the 18 training sequences: 65.37 -> 65.92 combined); only van ->
-    car flips, mostly onto labelled cars, and every flipped track's heights lie far above the van's."""
+    car flips, mostly onto labelled cars, and every flipped track's heights lie far above the van's. Only where the
+    camera's height is measured (the KITTI camera's is)."""
     from deepcrashtest.eval.boxes import iou_2d
     from deepcrashtest.eval.kitti_mono import quick_mota
 
@@ -466,3 +467,12 @@ def test_heights_that_fit_no_class_leave_the_class_to_the_box_shape(kitti_root):
     mota_on = quick_mota([prep], DEFAULT_MONO)[0]
     mota_off = quick_mota([prep], dataclasses.replace(DEFAULT_MONO, mono=off_cfg))[0]
     assert mota_on >= 63.0 and mota_on - mota_off > 3.0, (mota_on, mota_off)
+    # a self-calibrated camera height (every dashcam clip without a calibration) keeps the classes as they were
+    from deepcrashtest.eval.kitti_mono import ego_of
+    from deepcrashtest.geometry.mono3d import localize_tracks
+
+    tracks, cam = image_tracks(prep, DEFAULT_MONO), prep.camera.model_copy(update={"height_source": "self_calibration"})
+    on_s, off_s = (
+        localize_tracks(tracks, cam, ego_of(prep.world), prep.size, 10.0, c) for c in (DEFAULT_MONO.mono, off_cfg)
+    )
+    assert on_s["category"].equals(off_s["category"]) and on_s["x"].equals(off_s["x"])
