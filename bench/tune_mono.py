@@ -158,6 +158,13 @@ GRID: dict[tuple[str, str], list] = {
 #: nearly independent of the height cue (correlation -0.2 to 0.26 by range against 0.6-0.8 for the bottom edge) but
 #: spreads 7-15 % (the track's width and heading): weighted up, width_sigma_rel 0.15 / 0.12: 64.71 / 61.83 (59.63 /
 #: 56.29).
+#: Round mono13 (by hand, one setting at a time, 18 tuning sequences, `bench/mono_variants.py`; start KITTI
+#: camera 65.37, unknown 60.98): each class's height log-likelihood in the car/van choice floored at the samples'
+#: fit about their own mean less class_free_height_cost per sample (heights that fit no class: no class evidence)
+#: 0.1 / 0.15 / 0.2 / 0.3: 65.41 / 65.92 / 65.92 / 65.53 -> 0.2 (unknown 61.49, but gated to measured camera heights,
+#: as dad_000512 lost IoU: unknown 60.98); one cost per track 2 / 4 / 8:
+#: 57.34 / 59.05 / 60.83. Dropped: init_speed_std 5 / 30: 65.32 / 65.29; bottom_sigma_px 3: 65.39;
+#: bearing_sigma_px 2: 64.64; a receding track's extension started from 35 m (rows still reported beyond 45 m): 64.74.
 #: Tried and dropped: the KITTI labels' median car length/width (3.9 / 1.62 m) as priors 54.32,
 #: width cue at 12 % 56.70; a per-track range scale from the track's motion against the ego's
 #: (parked cars fitted as a point) 36.4-45.7 (slow cars in queues look parked at the wrong scale,
