@@ -6,12 +6,12 @@ per grid step (every operation on the same operands in the same order, so the st
 the loop's), rearranged for speed: the states are separate contiguous arrays (x, y, yaw, speed,
 steering: (T, B) each, metres, radians, m/s; world frame), every step writes into preallocated
 buffers (no temporary arrays), the path tables the follower reads are packed per point (x, y, cos
-and sin of the heading, the heading, ``atan(wheelbase * curvature)``: looked up instead of computed
-per step, the ego's wheelbase being one number), laid out point-major (the variants, advancing alike,
-read neighbouring rows: half the gather's cost of one table per variant) and gathered once per step
-instead of three times (the first index update reads the previous step's row; the final row is
-fetched again only where the second update moved the index), and ``tan(steer)`` is computed once per
-step instead of twice.
+and sin of the heading, the heading, the front axle's offset ``follow.front_axle_offset``: looked up
+instead of computed per step, the ego's wheelbase being one number), laid out point-major (the
+variants, advancing alike, read neighbouring rows: half the gather's cost of one table per variant)
+and gathered once per step instead of three times (the first index update reads the previous step's
+row; the final row is fetched again only where the second update moved the index), and ``tan(steer)``
+is computed once per step instead of twice.
 What remains is bound by ~9 transcendental functions per variant and step.
 """
 
@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from deepcrashtest.sim.follow import K_E, K_I, K_P, K_S, V_CORR, V_SOFT
+from deepcrashtest.sim.follow import K_E, K_I, K_P, K_S, V_CORR, V_SOFT, front_axle_offset
 from deepcrashtest.sim.reference import PATH_DS_M, PathSet
 from deepcrashtest.sim.vehicle import VehicleLimits
 
@@ -149,6 +149,7 @@ def rollout(
         np.multiply(t2, gc, out=t3)
         np.multiply(t1, gs, out=steer_c)
         np.subtract(t3, steer_c, out=t3)  # lateral
+        np.add(t3, gk, out=t3)  # from the front axle's path
         # along = dx * c + dy * s
         np.multiply(t1, gc, out=t1)
         np.multiply(t2, gs, out=t2)
@@ -162,8 +163,7 @@ def rollout(
         np.add(v, V_SOFT, out=steer_c)
         np.divide(t3, steer_c, out=t3)
         np.arctan(t3, out=t3)
-        np.add(gk, t2, out=steer_c)
-        np.subtract(steer_c, t3, out=steer_c)  # steering command
+        np.subtract(t2, t3, out=steer_c)  # steering command
         # station and speed: s_centre = i * ds + along - half
         np.multiply(idx, PATH_DS_M, out=t2)
         np.add(t2, t1, out=t2)
@@ -236,8 +236,8 @@ def rollout(
 def _path_table(paths: PathSet, wheelbase: float, block: int = 64) -> np.ndarray:
     """The follower's path tables, (P * Q, 6) flat over (point, reference): row ``p * Q + q`` holds point ``p`` of
     reference ``q`` (the variants' rows at one step lie close together, as they advance alike), packed per point:
-    x, y (m), cos and sin of the heading, the heading (rad), ``atan(wheelbase * curvature)`` (rad). Built in blocks
-    of points, each block's columns transposed through a small contiguous copy (cache-sized)."""
+    x, y (m), cos and sin of the heading, the heading (rad), the front axle's offset (m, ``front_axle_offset``).
+    Built in blocks of points, each block's columns transposed through a small contiguous copy (cache-sized)."""
     Q, P = paths.path.shape[:2]
     table = np.empty((P, Q, 6))
     for p0 in range(0, P, block):
@@ -247,7 +247,7 @@ def _path_table(paths: PathSet, wheelbase: float, block: int = 64) -> np.ndarray
         rows[..., 1] = paths.path[:, sl, 1].T
         h = np.ascontiguousarray(paths.heading[:, sl].T)
         rows[..., 2], rows[..., 3], rows[..., 4] = np.cos(h), np.sin(h), h
-        rows[..., 5] = np.arctan(wheelbase * np.ascontiguousarray(paths.curvature[:, sl].T))
+        rows[..., 5] = front_axle_offset(np.ascontiguousarray(paths.curvature[:, sl].T), wheelbase)
     return table.reshape(P * Q, 6)
 
 
