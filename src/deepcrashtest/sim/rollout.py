@@ -6,12 +6,11 @@ per grid step (every operation on the same operands in the same order, so the st
 the loop's), rearranged for speed: the states are separate contiguous arrays (x, y, yaw, speed,
 steering: (T, B) each, metres, radians, m/s; world frame), every step writes into preallocated
 buffers (no temporary arrays), the path tables the follower reads are packed per point (x, y, cos
-and sin of the heading, the heading, ``atan(wheelbase * curvature)``: looked up instead of computed
-per step, the ego's wheelbase being one number), laid out point-major (the variants, advancing alike,
-read neighbouring rows: half the gather's cost of one table per variant) and gathered once per step
-instead of three times (the first index update reads the previous step's row; the final row is
-fetched again only where the second update moved the index), and ``tan(steer)`` is computed once per
-step instead of twice.
+and sin of the heading, the heading: looked up instead of computed per step), laid out point-major (the
+variants, advancing alike, read neighbouring rows: half the gather's cost of one table per variant)
+and gathered once per step instead of three times (the first index update reads the previous step's
+row; the final row is fetched again only where the second update moved the index), and ``tan(steer)``
+is computed once per step instead of twice.
 What remains is bound by ~9 transcendental functions per variant and step.
 """
 
@@ -47,7 +46,7 @@ class EgoRun:
 @dataclass
 class PackedPaths:
     """A :class:`PathSet` as the roll-out reads it, for one wheelbase: the follower's path tables packed point-major
-    (:func:`_path_table`, (P * Q, 6)) and the (Q, T) station, speed and acceleration profiles. Holding this instead
+    (:func:`_path_table`, (P * Q, 5)) and the (Q, T) station, speed and acceleration profiles. Holding this instead
     of the path set lets the paths' own arrays (points, headings, curvatures: ~37 MB per 1,000 variants) go before
     the roll-out allocates its states: a fresh worker's page faults follow its peak of memory."""
 
@@ -62,12 +61,12 @@ class PackedPaths:
     def pack(cls, paths: PathSet, wheelbase: float) -> PackedPaths:
         """The tables of ``paths`` for an ego of ``wheelbase`` (m)."""
         Q, P = paths.path.shape[:2]
-        return cls(_path_table(paths, wheelbase), (Q, P), wheelbase, paths.s_ref, paths.v_ref, paths.a_ref)
+        return cls(_path_table(paths), (Q, P), wheelbase, paths.s_ref, paths.v_ref, paths.a_ref)
 
     def release(self) -> None:
         """Drop the tables and profiles (no roll-out reads them any more: a batch's only chunk has rolled out), so
         that what is computed next reuses their memory instead of touching fresh pages."""
-        self.table = np.empty((0, 6))
+        self.table = np.empty((0, 5))
         self.s_ref = self.v_ref = self.a_ref = np.empty((0, 0))
 
 
@@ -111,8 +110,8 @@ def rollout(
     f = np.empty(B, np.intp)
     di = np.empty(B, np.intp)
     moved = np.empty(B, np.intp)
-    g = np.empty((B, 6))
-    gx, gy, gc, gs, gh, gk = (g[:, c] for c in range(6))
+    g = np.empty((B, 5))
+    gx, gy, gc, gs, gh = (g[:, c] for c in range(5))
     np.take(table, q, axis=0, out=g)  # index 0 of every path
     fx, fy, t1, t2, t3 = (np.empty(B) for _ in range(5))
     steer_c, acc, tan_s, beta, tau = (np.empty(B) for _ in range(5))
@@ -162,8 +161,7 @@ def rollout(
         np.add(v, V_SOFT, out=steer_c)
         np.divide(t3, steer_c, out=t3)
         np.arctan(t3, out=t3)
-        np.add(gk, t2, out=steer_c)
-        np.subtract(steer_c, t3, out=steer_c)  # steering command
+        np.subtract(t2, t3, out=steer_c)  # steering command
         # station and speed: s_centre = i * ds + along - half
         np.multiply(idx, PATH_DS_M, out=t2)
         np.add(t2, t1, out=t2)
@@ -233,13 +231,13 @@ def rollout(
     return run
 
 
-def _path_table(paths: PathSet, wheelbase: float, block: int = 64) -> np.ndarray:
-    """The follower's path tables, (P * Q, 6) flat over (point, reference): row ``p * Q + q`` holds point ``p`` of
+def _path_table(paths: PathSet, block: int = 64) -> np.ndarray:
+    """The follower's path tables, (P * Q, 5) flat over (point, reference): row ``p * Q + q`` holds point ``p`` of
     reference ``q`` (the variants' rows at one step lie close together, as they advance alike), packed per point:
-    x, y (m), cos and sin of the heading, the heading (rad), ``atan(wheelbase * curvature)`` (rad). Built in blocks
-    of points, each block's columns transposed through a small contiguous copy (cache-sized)."""
+    x, y (m), cos and sin of the heading, the heading (rad). Built in blocks of points, each block's columns
+    transposed through a small contiguous copy (cache-sized)."""
     Q, P = paths.path.shape[:2]
-    table = np.empty((P, Q, 6))
+    table = np.empty((P, Q, 5))
     for p0 in range(0, P, block):
         sl = slice(p0, min(p0 + block, P))
         rows = table[sl]
@@ -247,8 +245,7 @@ def _path_table(paths: PathSet, wheelbase: float, block: int = 64) -> np.ndarray
         rows[..., 1] = paths.path[:, sl, 1].T
         h = np.ascontiguousarray(paths.heading[:, sl].T)
         rows[..., 2], rows[..., 3], rows[..., 4] = np.cos(h), np.sin(h), h
-        rows[..., 5] = np.arctan(wheelbase * np.ascontiguousarray(paths.curvature[:, sl].T))
-    return table.reshape(P * Q, 6)
+    return table.reshape(P * Q, 5)
 
 
 def _remainder_two_pi(a: np.ndarray, two_pi: float) -> None:
