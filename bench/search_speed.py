@@ -254,8 +254,11 @@ def main() -> None:
         _compile(ROOT / "src")
         if args.baseline_src:
             _compile(Path(args.baseline_src).resolve())
+        # the scene is written by the baseline's CLI when there is one: a newer checkout reads an older schema
+        # (migrated), an older one refuses a newer schema's file
+        scene_env = {**env, "PYTHONPATH": str(Path(args.baseline_src).resolve())} if args.baseline_src else env
         for spec in args.scene or [f"kitti:{args.sequence}"]:
-            label, scen = _scene(spec, Path(tmp), env)
+            label, scen = _scene(spec, Path(tmp), scene_env)
             row = _measure(label, scen, args, Path(tmp), workers)
             row["cpus"] = os.cpu_count()
             row["note"] = "wall times on a possibly shared machine; the ratio is measured in one run"
