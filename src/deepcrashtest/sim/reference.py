@@ -2,7 +2,7 @@
 
 A vehicle's trajectory (box centre samples, world frame) becomes
 
-* a geometric path resampled every ``PATH_DS_M`` metres of arc length, with heading and curvature,
+* a geometric path resampled every ``PATH_DS_M`` metres of arc length, with its heading,
   extended straight along its final heading (so a follower can always look ahead);
 * a station profile ``s_ref(t)``, speed ``v_ref(t)`` and acceleration ``a_ref(t)`` on the simulation
   time grid (before the first sample: the initial values; after the last: constant speed).
@@ -118,13 +118,10 @@ def resample_path(points: np.ndarray, end_heading: float, extension: float, ds: 
     return np.vstack([base, ext])
 
 
-def path_heading_curvature(path: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Heading (rad, unwrapped) and curvature (1/m) along arc-length-uniform paths ``(..., P, 2)`` -> ``(..., P)``."""
+def path_heading(path: np.ndarray) -> np.ndarray:
+    """Heading (rad, unwrapped) along arc-length-uniform paths ``(..., P, 2)`` -> ``(..., P)``."""
     d = np.gradient(path, axis=-2)
-    heading = _unwrap(np.arctan2(d[..., 1], d[..., 0]))
-    curv = np.gradient(heading, axis=-1) / PATH_DS_M
-    # curvature of a smoothed vehicle path: bounded by the minimum turning radius (~4 m)
-    return heading, np.clip(curv, -0.25, 0.25)
+    return _unwrap(np.arctan2(d[..., 1], d[..., 0]))
 
 
 def _unwrap(p: np.ndarray) -> np.ndarray:
@@ -377,7 +374,6 @@ class PathSet:
 
     path: np.ndarray  # (Q, P, 2)
     heading: np.ndarray  # (Q, P)
-    curvature: np.ndarray  # (Q, P)
     s_ref: np.ndarray  # (Q, T); build_pathset's: views of time-major (T, Q) arrays, as the roll-out reads them
     v_ref: np.ndarray  # (Q, T)
     a_ref: np.ndarray  # (Q, T)
@@ -419,9 +415,8 @@ class PathSet:
             d = p1 - p2
             d = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None] * PATH_DS_M
             _continue_straight_units(paths, lengths - 1, P - lengths, p1, d)
-        heads, curvs = path_heading_curvature(paths)
         a_ref = np.gradient(v_ref, dt, axis=1) if v_ref.shape[1] > 1 else np.zeros_like(v_ref)
-        return cls(paths, heads, curvs, s_ref, v_ref, a_ref)
+        return cls(paths, path_heading(paths), s_ref, v_ref, a_ref)
 
     def pose_at(self, k: int) -> np.ndarray:
         """(Q, 4) x, y, heading, speed of every reference at grid step ``k`` (position at ``s_ref``)."""

@@ -47,7 +47,7 @@ class EgoRun:
 class PackedPaths:
     """A :class:`PathSet` as the roll-out reads it, for one wheelbase: the follower's path tables packed point-major
     (:func:`_path_table`, (P * Q, 5)) and the (Q, T) station, speed and acceleration profiles. Holding this instead
-    of the path set lets the paths' own arrays (points, headings, curvatures: ~37 MB per 1,000 variants) go before
+    of the path set lets the paths' own arrays (points and headings: ~28 MB per 1,000 variants) go before
     the roll-out allocates its states: a fresh worker's page faults follow its peak of memory."""
 
     table: np.ndarray
