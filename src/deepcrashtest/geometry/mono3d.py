@@ -274,9 +274,10 @@ def _track_size(
     free_cost = cfg.class_free_height_cost if measured else None
     for cls in candidates:  # the class: the likeliest prior given the samples
         prior_h, prior_rel = class_size(cls)[2] * scale, _size_sigma(cls)
-        _, _, loglik = _pool_log(near_face(cls), h_rel, prior_h, prior_rel, inflation)
+        samples = near_face(cls)
+        _, _, loglik = _pool_log(samples, h_rel, prior_h, prior_rel, inflation)
         if free_cost is not None:  # heights far from every class's prior: no class evidence
-            loglik = float(np.logaddexp(loglik, _free_loglik(near_face(cls), h_rel, prior_rel, inflation, free_cost)))
+            loglik = float(np.logaddexp(loglik, _free_loglik(samples, h_rel, prior_rel, inflation, free_cost)))
         loglik -= 0.0 if cls == category else cfg.class_switch_cost  # the detector's own class is likelier
         if cfg.aspect_sigma > 0:
             loglik += _aspect_loglik(cls, cues, rows[det[rows]], camera, scale, cfg)

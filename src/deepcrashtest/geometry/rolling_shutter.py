@@ -76,7 +76,7 @@ def rolling_shutter_fit(
     of the height from the focus are left out (their direction across the travel is undefined). None with fewer
     than :data:`MIN_POINTS` points left."""
     offsets = np.linspace(-search_px, search_px, 2 * steps + 1) if search_px > 0 else np.zeros(1)
-    best3: tuple[float, float] | None = None
+    best3: float | None = None
     best6: tuple[float, np.ndarray, int] | None = None
     for du in offsets:
         for dv in offsets:
@@ -84,13 +84,13 @@ def rolling_shutter_fit(
             if fit is None:
                 continue
             s3, s6, rates, n = fit
-            if best3 is None or s3 < best3[0]:
-                best3 = (s3, 0.0)
+            if best3 is None or s3 < best3:
+                best3 = s3
             if best6 is None or s6 < best6[0]:
                 best6 = (s6, rates, n)
     if best3 is None or best6 is None:
         return None
-    return RollingShutterFit(best3[0], best6[0], best6[1], best6[2])
+    return RollingShutterFit(best3, best6[0], best6[1], best6[2])
 
 
 def _fit_at(
