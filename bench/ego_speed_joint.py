@@ -11,9 +11,10 @@ learned direction of travel (``travel``) or each pair's essential matrix (``pair
 points also get their own image shift (the road rows' rotation error: rolling shutter, a shaking mount).
 
 Printed per clip and variant: the per-pair readings' median (what the filter sees), the joint fit's speed and its
-1-sigma, the pairs and points that entered it, and the truth (overlay / ground truth). ``--jitter N`` repeats the
-run at focal lengths 1..N % either side with the height scaled to keep ``fx * h`` (the conditioning check: a
-measurement that depended on the camera only through ``fx * h`` would not move).
+1-sigma, the pairs and points that entered it, and the truth (overlay / ground truth); with ``--tracks``, the lead
+car's closing speed from its box width (:func:`lead_closing`, a second scale cue at the same camera).
+``--jitter N`` repeats the run at focal lengths 1..N % either side with the height scaled to keep ``fx * h`` (the
+conditioning check: a measurement that depended on the camera only through ``fx * h`` would not move).
 
 Run: PYTHONPATH=src python bench/ego_speed_joint.py [--clips ccd_000014,seq06,seq00,highway] [--tracks DIR]
 [--fx PX --height M] [--jitter N] [--window S] [--modes pair,travel,pair+shift,travel+shift] [--min-cond X]
@@ -91,6 +92,27 @@ def clip_frames(name: str, args: argparse.Namespace) -> tuple[list[np.ndarray], 
     return imgs, fps, cam, rows, boxes, truth
 
 
+def lead_closing(boxes: Any, fps: float, fx: float, width_m: float = 1.8, step_s: float = 0.8) -> str:
+    """The longest car track's closing speed (km/h) over about ``step_s`` from its detected box widths (depth
+    ``fx W / w``, a car ``width_m`` wide): the ego's speed when that car stands, and like the road's scale
+    proportional to the focal length (this second scale cue gives no focal length, but checks the road's scale at
+    the same camera)."""
+    cars = boxes[(boxes.category == "car") & (boxes.state == "detected")]  # the tracker's predictions are no evidence
+    if not len(cars):
+        return "no car track"
+    track = cars[cars.track_id == cars.track_id.value_counts().idxmax()].sort_values("frame")
+    depth = fx * width_m / (track.x2 - track.x1).to_numpy(float)
+    frames = track.frame.to_numpy(int)
+    parts = []
+    k = 0
+    while k < len(frames) - 1:
+        j = min(int(np.searchsorted(frames, frames[k] + step_s * fps)), len(frames) - 1)
+        dt = (frames[j] - frames[k]) / fps
+        parts.append(f"{frames[k]}-{frames[j]}: {(depth[k] - depth[j]) / dt * 3.6:.0f}")
+        k = j
+    return f"lead car (track {int(track.track_id.iloc[0])}) closing km/h at fx {fx:.0f} px: " + ", ".join(parts)
+
+
 def joint(pairs: list[dict[str, Any]], height_m: float, mode: str, min_cond: float) -> Any:
     """:func:`fit_joint_speed` for a mode written ``pair`` / ``travel``, ``+shift`` for its ``free_shift``."""
     from deepcrashtest.geometry.egomotion import fit_joint_speed
@@ -130,6 +152,8 @@ def run(name: str, args: argparse.Namespace, cam_scale: float = 1.0) -> None:
             f"{fit.points} pts, {fit.inliers} inl)"
         )
     print(line, flush=True)
+    if boxes is not None:
+        print(f"{'':11} {lead_closing(boxes, fps, cam.fx)}")
     if args.window > 0:
         t1 = np.array([p["t1"] for p in pairs])
         for end in np.arange(args.window, t1.max() + 1e-6, args.window / 2):

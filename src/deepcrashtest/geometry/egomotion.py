@@ -561,7 +561,8 @@ class EgoMotionEstimator:
     this 1-sigma, work px; :func:`fit_plane_motion`): the rotation error of the road's rows (rolling shutter, a
     shaking mount) then no longer reads as speed, and a reading whose road rows span too little depth to tell the
     two apart gets the large variance it has; 0 (default): off. ``max_scale_rel_std``: a road-scale reading whose
-    1-sigma is over this share of it is dropped (ill-conditioned); inf (default): off. Neither is the default
+    1-sigma is over this share of it does not reach the speed filter (ill-conditioned; its fit still warps the
+    next frame's road tracking); inf (default): off. Neither is the default
     (README / docs/notes/egospeed11.md: KITTI unchanged, ccd_000014 no nearer its overlay).
     ``keep_pairs``: every solved keyframe pair is kept in ``pairs`` (its road points, rotation, translation, time
     span) for :func:`fit_joint_speed` (one speed over many pairs; a diagnosis, not used by ``extract``)."""
@@ -885,8 +886,6 @@ class EgoMotionEstimator:
         )
         if fit is None or fit.normal @ self._down < math.cos(math.radians(15)):
             return float("nan"), dyaw, int(road.sum()), R, t, None
-        if fit.sigma_std > self.max_scale_rel_std * fit.sigma:  # ill-conditioned: no reading rather than a wild one
-            return float("nan"), dyaw, int(road.sum()), R, t, None
         return fit.sigma * self.camera.height_m, dyaw, fit.inliers, R, t, fit
 
     def _keep_pair(
@@ -987,6 +986,8 @@ class EgoMotionEstimator:
                         var = (fit.sigma_std * self.camera.height_m / max(span, 1e-3)) ** 2 + (
                             self.speed_noise_rel * raw
                         ) ** 2
+                        if fit.sigma_std > self.max_scale_rel_std * fit.sigma:
+                            raw = None  # ill-conditioned: no reading (the fit still carries the road tracking)
                         self._normal = _tilted_towards(self._normal, fit.normal, 0.1)
                         rv, _ = cv2.Rodrigues(R)
                         Rk, _ = cv2.Rodrigues(rv / k)
