@@ -32,8 +32,9 @@ keep the predicted speed and are flagged ``valid=False``.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import cv2
 import numpy as np
@@ -53,6 +54,9 @@ MIN_ROAD_POINTS = 12
 #: speed 1-3 % faster than every frame; 15 Hz (20 fps DAD clips every other frame) moved their speeds outside
 #: the every-frame spread and lowered their fidelity IoU (processed 0.61 -> 0.60, replay 0.55 -> 0.51).
 MAX_RATE_HZ = 20.0
+#: Road points moving less than this share of the flow the pair's rotation alone gives them are fixed to the camera
+#: and stay out of :func:`fit_joint_speed` (the ``fixed_flow_share`` value chosen on KITTI odometry, README).
+_JOINT_FIXED_SHARE = 0.1
 #: Grey-level standard deviation below which a frame is too dark or flat to track (0-255 scale).
 DARK_CONTRAST = 6.0
 
@@ -162,54 +166,29 @@ class PlaneFit:
     inliers: int
 
 
-def fit_plane_motion(
-    x0: np.ndarray,
-    p1: np.ndarray,
-    K: np.ndarray,
-    R: np.ndarray,
-    t: np.ndarray,
-    n_prior: np.ndarray,
-    noise_px: float = 0.5,
-    tilt_prior_rad: float = 0.02,
-    iters: int = 8,
-) -> PlaneFit | None:
-    """Fit ``x1 ~ R x0 + sigma (n . x0) t`` to road points (robust Gauss-Newton, Huber weights).
-
-    ``x0``: (N, 3) normalised homogeneous image points of the earlier frame (``K^-1 [u, v, 1]``),
-    ``p1``: (N, 2) pixels in the later frame, ``R``/``t``: rotation and unit translation from the
-    essential matrix (``X1 = R X0 + |T| t``), ``n_prior``: road normal (camera frame, pointing down).
-    The road ``n . X0 = h`` makes ``sigma = |T| / h``. Returns None when the fit is degenerate.
-    """
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    a = x0 @ R.T
-    basis = _tilt_basis(n_prior)
-
-    def residuals(p: np.ndarray) -> np.ndarray:
-        n = _tilted(n_prior, p[1], p[2], basis)
-        X = a + p[0] * (x0 @ n)[:, None] * t[None, :]
-        z = np.where(np.abs(X[:, 2]) < 1e-9, 1e-9, X[:, 2])
-        return np.column_stack([fx * X[:, 0] / z + cx - p1[:, 0], fy * X[:, 1] / z + cy - p1[:, 1]]) / noise_px
-
-    # start: per-point sigma from x1 x (a + sigma b) = 0 with the prior normal, median
-    x1 = np.column_stack([(p1[:, 0] - cx) / fx, (p1[:, 1] - cy) / fy, np.ones(len(p1))])
-    c1 = np.cross(x1, a)
-    c2 = np.cross(x1, (x0 @ n_prior)[:, None] * t[None, :])
-    den = np.sum(c2 * c2, axis=1)
-    ok = den > 1e-12
-    if ok.sum() < MIN_ROAD_POINTS:
-        return None
-    p = np.array([float(np.median(-np.sum(c1[ok] * c2[ok], axis=1) / den[ok])), 0.0, 0.0])
-    if not np.isfinite(p[0]):
-        return None
-    prior_w = np.array([0.0, 1.0 / tilt_prior_rad**2, 1.0 / tilt_prior_rad**2])
-    steps = np.array([1e-4, 1e-4, 1e-4])
-    A = np.eye(3)
-    w = np.ones(len(x0))
+def _huber_gauss_newton(
+    residuals: Callable[[np.ndarray], np.ndarray],
+    p: np.ndarray,
+    prior_w: np.ndarray,
+    n_numeric: int,
+    extra_j: np.ndarray,
+    iters: int,
+    use: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Robust Gauss-Newton from ``p``: ``residuals(p)`` (N, 2) in noise units, Huber weights at 2 units, a Gaussian
+    prior of precision ``prior_w`` around 0 on each parameter; the Jacobian of the first ``n_numeric`` parameters
+    by forward differences (1e-4), ``extra_j`` (N, 2, rest) for the others (constant); ``use``: rows that count.
+    Stops when the first parameter settles. Returns (parameters, normal matrix, weights) or None if singular."""
+    A = np.eye(len(p))
+    w = np.ones(len(extra_j))
     for _ in range(iters):
         r = residuals(p)
-        J = np.stack([(residuals(p + np.eye(3)[k] * steps[k]) - r) / steps[k] for k in range(3)], axis=-1)
+        J = np.stack([(residuals(p + np.eye(len(p))[k] * 1e-4) - r) / 1e-4 for k in range(n_numeric)], axis=-1)
+        J = np.concatenate([J, extra_j], axis=-1)
         e = np.hypot(r[:, 0], r[:, 1])
-        w = np.where(e < 2.0, 1.0, 2.0 / np.maximum(e, 1e-9))  # Huber at 2 noise units (1 px)
+        w = np.where(e < 2.0, 1.0, 2.0 / np.maximum(e, 1e-9))  # Huber at 2 noise units
+        if use is not None:
+            w = w * use
         Jw = J * w[:, None, None]
         A = np.einsum("nij,nik->jk", Jw, J) + np.diag(prior_w)
         g = np.einsum("nij,ni->j", Jw, r) + prior_w * p
@@ -220,14 +199,189 @@ def fit_plane_motion(
         p = p + d
         if abs(d[0]) < 1e-6 * max(abs(p[0]), 1e-6):
             break
+    return p, A, w
+
+
+def fit_plane_motion(
+    x0: np.ndarray,
+    p1: np.ndarray,
+    K: np.ndarray,
+    R: np.ndarray,
+    t: np.ndarray,
+    n_prior: np.ndarray,
+    noise_px: float = 0.5,
+    tilt_prior_rad: float = 0.02,
+    iters: int = 8,
+    shift_prior_px: float = 0.0,
+) -> PlaneFit | None:
+    """Fit ``x1 ~ R x0 + sigma (n . x0) t`` to road points (robust Gauss-Newton, Huber weights).
+
+    ``x0``: (N, 3) normalised homogeneous image points of the earlier frame (``K^-1 [u, v, 1]``),
+    ``p1``: (N, 2) pixels in the later frame, ``R``/``t``: rotation and unit translation from the
+    essential matrix (``X1 = R X0 + |T| t``), ``n_prior``: road normal (camera frame, pointing down).
+    The road ``n . X0 = h`` makes ``sigma = |T| / h``. ``shift_prior_px`` > 0: the road points also get one
+    image shift (px, u and v; a Gaussian prior of this 1-sigma) fitted with the rest: the small pitch / yaw by
+    which the road's rows differ from the pair's rotation (a rolling shutter, a shaking mount); ``sigma_std``
+    then carries that uncertainty. Returns None when the fit is degenerate.
+    """
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    a = x0 @ R.T
+    basis = _tilt_basis(n_prior)
+    npar = 5 if shift_prior_px > 0.0 else 3
+
+    def residuals(p: np.ndarray) -> np.ndarray:
+        n = _tilted(n_prior, p[1], p[2], basis)
+        X = a + p[0] * (x0 @ n)[:, None] * t[None, :]
+        z = np.where(np.abs(X[:, 2]) < 1e-9, 1e-9, X[:, 2])
+        u, v = fx * X[:, 0] / z + cx - p1[:, 0], fy * X[:, 1] / z + cy - p1[:, 1]
+        if npar == 5:
+            u, v = u + p[3], v + p[4]
+        return np.column_stack([u, v]) / noise_px
+
+    # start: per-point sigma from x1 x (a + sigma b) = 0 with the prior normal, median
+    x1 = np.column_stack([(p1[:, 0] - cx) / fx, (p1[:, 1] - cy) / fy, np.ones(len(p1))])
+    c1 = np.cross(x1, a)
+    c2 = np.cross(x1, (x0 @ n_prior)[:, None] * t[None, :])
+    den = np.sum(c2 * c2, axis=1)
+    ok = den > 1e-12
+    if ok.sum() < MIN_ROAD_POINTS:
+        return None
+    p = np.array([float(np.median(-np.sum(c1[ok] * c2[ok], axis=1) / den[ok])), 0.0, 0.0, 0.0, 0.0][:npar])
+    if not np.isfinite(p[0]):
+        return None
+    prior_w = np.array([0.0, 1.0 / tilt_prior_rad**2, 1.0 / tilt_prior_rad**2, 0.0, 0.0][:npar])
+    if npar == 5:
+        prior_w[3:] = (noise_px / shift_prior_px) ** 2  # residuals are in noise units
+    solved = _huber_gauss_newton(residuals, p, prior_w, npar, np.zeros((len(x0), 2, 0)), iters)
+    if solved is None:
+        return None
+    p, A, w = solved
     r = residuals(p)
     e = np.hypot(r[:, 0], r[:, 1])
     inl = e < 4.0
     if inl.sum() < MIN_ROAD_POINTS or not np.all(np.isfinite(p)) or p[0] <= 0:
         return None
-    s2 = float(np.sum(w[inl] * e[inl] ** 2) / max(1, 2 * int(inl.sum()) - 3))
+    s2 = float(np.sum(w[inl] * e[inl] ** 2) / max(1, 2 * int(inl.sum()) - npar))
     var = float(np.linalg.inv(A)[0, 0]) * max(s2, 0.25)
     return PlaneFit(float(p[0]), math.sqrt(max(var, 0.0)), _tilted(n_prior, p[1], p[2], basis), int(inl.sum()))
+
+
+@dataclass
+class JointFit:
+    """One speed fitted over many keyframe pairs at once (:func:`fit_joint_speed`)."""
+
+    speed: float  # m/s
+    speed_std: float  # m/s, 1-sigma
+    pairs: int  # pairs with road points in the fit
+    points: int
+    inliers: int
+
+
+def _pair_points(pair: dict[str, Any], height_m: float, mode: str) -> tuple[np.ndarray, ...] | None:
+    """One recorded keyframe pair's road points as the joint fit's rows: (a = R x0, x0, t * dt / h, n, p1, K)."""
+    road = pair["road"]
+    if road.sum() == 0:
+        return None
+    R, K = pair["R"], pair["K"]
+    if mode == "travel":
+        if pair["travel"] is None:
+            return None
+        t = -R @ (pair["travel"] / np.linalg.norm(pair["travel"]))  # the camera moves along the travel
+    else:
+        t = pair["t"]
+    p0 = pair["p0"][road].astype(np.float64)
+    x0 = np.column_stack([(p0[:, 0] - K[0, 2]) / K[0, 0], (p0[:, 1] - K[1, 2]) / K[1, 1], np.ones(len(p0))])
+    dt = max(pair["t1"] - pair["t0"], 1e-3)
+    m = len(x0)
+    return (
+        x0 @ R.T,
+        x0,
+        np.tile(t * dt / height_m, (m, 1)),
+        np.tile(pair["normal"], (m, 1)),
+        pair["p1"][road].astype(np.float64),
+        np.tile(K[[0, 1, 0, 1], [0, 1, 2, 2]], (m, 1)),
+    )
+
+
+def fit_joint_speed(
+    pairs: Sequence[dict[str, Any]],
+    height_m: float,
+    mode: str = "travel",
+    noise_px: float = 0.5,
+    min_cond: float = 0.0,
+    free_shift: bool = False,
+    tilt_prior_rad: float = 0.02,
+) -> JointFit | None:
+    """One constant speed (m/s) over many keyframe pairs' road points at once (robust Gauss-Newton, Huber).
+
+    Each pair ``k`` (a dict: ``t0``, ``t1`` s, ``p0``/``p1`` work px (N, 2), ``road`` bool (N,), ``R``, ``t``,
+    ``K``, ``normal`` (camera frame, down), ``travel`` (camera frame or None); as ``EgoMotionEstimator(...,
+    keep_pairs=True).pairs`` records them) contributes its road points to ``x1 ~ R x0 + (v dt_k / h) (n . x0) t_k``;
+    ``v`` and a tilt of the road normal shared by all pairs are fitted (``tilt_prior_rad``: the tilt's 1-sigma
+    prior). ``mode``: ``"travel"`` takes each pair's translation along the learned direction of travel, ``"pair"``
+    its essential matrix's. ``min_cond``: pairs whose own information on ``v`` (the squared sensitivity of their
+    points to ``v``, per noise px^2, at the first estimate) is under this share of the best pair's are left out
+    (ill-conditioned). ``free_shift``: each pair's road points also get their own image shift (px; the small
+    pitch / yaw by which the rows of the road differ from the pair's rotation, a rolling shutter or a shaking
+    mount), fitted with the rest. None when fewer than ``MIN_ROAD_POINTS`` points."""
+    rows = [r for r in (_pair_points(p, height_m, mode) for p in pairs) if r is not None]
+    if not rows:
+        return None
+    pair_id = np.concatenate([np.full(len(r[0]), k) for k, r in enumerate(rows)])
+    a, x0, tb, n0, p1, kk = (np.concatenate([r[j] for r in rows]) for j in range(6))
+    if len(a) < MIN_ROAD_POINTS:
+        return None
+    basis = _tilt_basis(np.mean(n0, axis=0) / np.linalg.norm(np.mean(n0, axis=0)))
+
+    npair = len(rows)
+
+    def residuals(p: np.ndarray) -> np.ndarray:
+        n = n0 + p[1] * basis[0] + p[2] * basis[1]
+        n = n / np.linalg.norm(n, axis=1, keepdims=True)
+        X = a + p[0] * np.sum(x0 * n, axis=1)[:, None] * tb
+        z = np.where(np.abs(X[:, 2]) < 1e-9, 1e-9, X[:, 2])
+        u = kk[:, 0] * X[:, 0] / z + kk[:, 2] - p1[:, 0]
+        v = kk[:, 1] * X[:, 1] / z + kk[:, 3] - p1[:, 1]
+        if free_shift:
+            u = u + p[3 : 3 + npair][pair_id]
+            v = v + p[3 + npair :][pair_id]
+        return np.column_stack([u, v]) / noise_px
+
+    # start: per-point speed from x1 x (a + v b) = 0, median
+    x1 = np.column_stack([(p1[:, 0] - kk[:, 2]) / kk[:, 0], (p1[:, 1] - kk[:, 3]) / kk[:, 1], np.ones(len(p1))])
+    c1 = np.cross(x1, a)
+    c2 = np.cross(x1, np.sum(x0 * n0, axis=1)[:, None] * tb)
+    den = np.sum(c2 * c2, axis=1)
+    ok = den > 1e-12
+    if ok.sum() < MIN_ROAD_POINTS:
+        return None
+    p = np.array([float(np.median(-np.sum(c1[ok] * c2[ok], axis=1) / den[ok])), 0.0, 0.0])
+    if not np.isfinite(p[0]):
+        return None
+    nshift = 2 * npair if free_shift else 0
+    p = np.r_[p, np.zeros(nshift)]
+    use = np.ones(len(a), bool)
+    if min_cond > 0.0:
+        r0 = residuals(p)
+        jv = (residuals(p + np.eye(len(p))[0] * 1e-3) - r0) / 1e-3
+        info = np.bincount(pair_id, weights=np.sum(jv * jv, axis=1), minlength=len(rows))
+        use = info[pair_id] >= min_cond * info.max()
+    prior_w = np.r_[0.0, 1.0 / tilt_prior_rad**2, 1.0 / tilt_prior_rad**2, np.full(nshift, 1e-6)]
+    shift_j = np.zeros((len(a), 2, nshift))
+    if free_shift:
+        shift_j[np.arange(len(a)), 0, pair_id] = 1.0 / noise_px
+        shift_j[np.arange(len(a)), 1, npair + pair_id] = 1.0 / noise_px
+    solved = _huber_gauss_newton(residuals, p, prior_w, 3, shift_j, 10, use)
+    if solved is None:
+        return None
+    p, A, w = solved
+    e = np.hypot(*residuals(p).T)
+    inl = (e < 4.0) & use
+    if inl.sum() < MIN_ROAD_POINTS or not np.all(np.isfinite(p)) or p[0] <= 0:
+        return None
+    s2 = float(np.sum(w[inl] * e[inl] ** 2) / max(1, 2 * int(inl.sum()) - len(p)))
+    std = math.sqrt(max(float(np.linalg.inv(A)[0, 0]) * max(s2, 0.25), 0.0))
+    return JointFit(float(p[0]), std, len(set(pair_id[use].tolist())), int(use.sum()), int(inl.sum()))
 
 
 def _epipolar_px(E: np.ndarray, p0: np.ndarray, p1: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -402,7 +556,16 @@ class EgoMotionEstimator:
     0.82 -> 0.77 (its flagged points are codec-block corners on a blank road, the ego 10 % faster), means
     0.652 / 0.625 -> 0.642 / 0.615 (dad_000493 0.35 -> 0.41). Extract's ccd_000014 reads 34 -> 28 km/h (main
     34 -> 30): at the default camera it keeps one reading (21 km/h x 1.55), and the readings do not follow the
-    assumed focal length (README, ego speed on real dashcam clips)."""
+    assumed focal length (README, ego speed on real dashcam clips).
+    ``road_shift_prior_px``: the road-plane fit also fits one image shift of the road points (a Gaussian prior of
+    this 1-sigma, work px; :func:`fit_plane_motion`): the rotation error of the road's rows (rolling shutter, a
+    shaking mount) then no longer reads as speed, and a reading whose road rows span too little depth to tell the
+    two apart gets the large variance it has; 0 (default): off. ``max_scale_rel_std``: a road-scale reading whose
+    1-sigma is over this share of it does not reach the speed filter (ill-conditioned; its fit still warps the
+    next frame's road tracking); inf (default): off. Neither is the default
+    (README / docs/notes/egospeed11.md: KITTI unchanged, ccd_000014 no nearer its overlay).
+    ``keep_pairs``: every solved keyframe pair is kept in ``pairs`` (its road points, rotation, translation, time
+    span) for :func:`fit_joint_speed` (one speed over many pairs; a diagnosis, not used by ``extract``)."""
 
     def __init__(
         self,
@@ -434,6 +597,9 @@ class EgoMotionEstimator:
         max_travel_dev_deg: float = 180.0,
         speed_hold_accel: float = 0.0,
         fixed_flow_share: float = 0.0,
+        keep_pairs: bool = False,
+        road_shift_prior_px: float = 0.0,
+        max_scale_rel_std: float = math.inf,
     ) -> None:
         if scale_method != "homography":
             raise ValueError(f"scale_method must be 'homography' (got {scale_method!r})")
@@ -491,6 +657,11 @@ class EgoMotionEstimator:
         self._all: list[tuple[int, float]] = []  # (frame, time) of every update, measured or not
         self.still_mask = still_mask
         self._still: np.ndarray | None = None  # still_mask at the work resolution
+        self.keep_pairs = keep_pairs
+        self.road_shift_prior_px = road_shift_prior_px
+        self.max_scale_rel_std = max_scale_rel_std
+        self.pairs: list[dict[str, Any]] = []  # with keep_pairs: every solved keyframe pair (fit_joint_speed)
+        self._now = 0.0
 
     # ------------------------------------------------------------------ helpers
     def _prepare(self, frame: np.ndarray) -> np.ndarray:
@@ -696,6 +867,8 @@ class EgoMotionEstimator:
         dyaw = _rotation_yaw(R.T, self._normal)
         aside = self._off_travel(R, t)
         self._learn_travel(R, t, dyaw)
+        if self.keep_pairs:
+            self._keep_pair(p0, p1, h, R, t, moving, parallax)
         if aside:  # a car does not move sideways: a degenerate essential matrix, its road scale is none
             return float("nan"), dyaw, 0, R, t, None
         if moving:
@@ -708,10 +881,31 @@ class EgoMotionEstimator:
             return float("nan"), dyaw, int(road.sum()), R, t, None
         x0 = cv2.undistortPoints(p0[road].reshape(-1, 1, 2).astype(np.float64), K, None).reshape(-1, 2)
         x0h = np.column_stack([x0, np.ones(len(x0))])
-        fit = fit_plane_motion(x0h, p1[road].astype(np.float64), K, R, t, self._normal)
+        fit = fit_plane_motion(
+            x0h, p1[road].astype(np.float64), K, R, t, self._normal, shift_prior_px=self.road_shift_prior_px
+        )
         if fit is None or fit.normal @ self._down < math.cos(math.radians(15)):
             return float("nan"), dyaw, int(road.sum()), R, t, None
         return fit.sigma * self.camera.height_m, dyaw, fit.inliers, R, t, fit
+
+    def _keep_pair(
+        self, p0: np.ndarray, p1: np.ndarray, h: int, R: np.ndarray, t: np.ndarray, moving: bool, parallax: float
+    ) -> None:
+        """Record a solved keyframe pair for :func:`fit_joint_speed` (``keep_pairs``): its work-px points, the
+        road candidates among them (road region, moving, off the overlay, not fixed to the camera at
+        ``_JOINT_FIXED_SHARE``; no epipolar gate), rotation, translation direction, road normal, travel, span."""
+        assert self._K is not None
+        ok = self._road_region(p0[:, 0], p0[:, 1], h) & self._off_overlay(p0)
+        if moving:
+            ok &= np.linalg.norm(p1 - p0, axis=1) >= max(0.1, self.road_flow_share * parallax)
+        share, self.fixed_flow_share = self.fixed_flow_share, max(self.fixed_flow_share, _JOINT_FIXED_SHARE)
+        ok &= ~self._camera_fixed(p0, p1, R)
+        self.fixed_flow_share = share
+        travel = None if self._travel is None else self._travel.copy()
+        self.pairs.append(
+            {"t0": self._kf_time, "t1": self._now, "p0": p0.copy(), "p1": p1.copy(), "road": ok, "R": R.copy(),
+             "t": t.copy(), "K": self._K.copy(), "normal": self._normal.copy(), "travel": travel}
+        )  # fmt: skip
 
     # ------------------------------------------------------------------ API
     def update(
@@ -721,6 +915,7 @@ class EgoMotionEstimator:
         if self._skip(float(time)):
             return self._skipped(float(time))
         self._all.append((self._frame, float(time)))
+        self._now = float(time)
         cur = self._prepare(frame_bgr)
         h = cur.shape[0]
         boxes = np.zeros((0, 4)) if vehicle_boxes is None else np.asarray(vehicle_boxes, dtype=float).reshape(-1, 4)
@@ -791,6 +986,8 @@ class EgoMotionEstimator:
                         var = (fit.sigma_std * self.camera.height_m / max(span, 1e-3)) ** 2 + (
                             self.speed_noise_rel * raw
                         ) ** 2
+                        if fit.sigma_std > self.max_scale_rel_std * fit.sigma:
+                            raw = None  # ill-conditioned: no reading (the fit still carries the road tracking)
                         self._normal = _tilted_towards(self._normal, fit.normal, 0.1)
                         rv, _ = cv2.Rodrigues(R)
                         Rk, _ = cv2.Rodrigues(rv / k)
