@@ -325,13 +325,15 @@ class _Rows:
         out.min_distance[rows] = upper
         return True
 
-    def _never_close(self, sel: np.ndarray, w: np.ndarray, speed: np.ndarray) -> np.ndarray:
-        """(n, R) True where the boxes of pairs ``sel`` can never touch moving at their relative velocity ``w``
-        (m/s): their circumcircles stay apart for all t >= 0, so the swept test gives infinity."""
+    def _never_close(self, sel: np.ndarray, wx: np.ndarray, wy: np.ndarray, speed: np.ndarray) -> np.ndarray:
+        """(n, R) True where the boxes of pairs ``sel`` can never touch moving at their relative velocity (``wx``,
+        ``wy``) (m/s): their circumcircles stay apart for all t >= 0, so the swept test gives infinity."""
         dx, dy = self.dx[sel], self.dy[sel]
         reach = np.hypot(*self.eh) + self.r_a[sel] + _EPS  # (n, 1)
-        closing = dx * w[..., 0] + dy * w[..., 1] < 0.0
-        miss = np.abs(dx * w[..., 1] - dy * w[..., 0])  # closest approach of the centres times the speed
+        t1, t2 = dx * wx, dy * wy
+        closing = np.add(t1, t2, out=t1) < 0.0  # dx * wx + dy * wy
+        miss = np.subtract(np.multiply(dx, wy, out=dx), np.multiply(dy, wx, out=dy), out=t1)
+        np.abs(miss, out=miss)  # closest approach of the centres times the speed
         return np.where(closing, miss > reach * speed, self.dist[sel] > reach)
 
     def _min_ttc(self, out: LoopOutput, rows: slice, valid: np.ndarray, gap_known: np.ndarray) -> None:
@@ -342,24 +344,31 @@ class _Rows:
         ok = valid[sel] & (np.isnan(gk) | (gk > 0))  # unknown gaps are positive (the circles do not touch)
         pi, pj = self.pi[sel], self.pj[sel]
         at, inv = np.unique(pi, return_inverse=True)  # each evaluation index once (several agents share it)
-        ev = velocity_xy(self.ego[at, :, 2], self.ego[at, :, 3], self.steer[at])[inv]
-        w = self.ag_vel[pi, pj][:, None, :] - ev
+        ev = velocity_xy(self.ego[at, :, 2], self.ego[at, :, 3], self.steer[at])  # (indices, R, 2)
+        evx, evy = ev[..., 0][inv], ev[..., 1][inv]  # (n, R) each, contiguous: the passes below read them whole
+        agv = self.ag_vel[pi, pj]
+        wx, wy = np.subtract(agv[:, :1], evx), np.subtract(agv[:, 1:], evy)  # relative velocity (m/s)
         # relative speeds for the pruning bounds only (they carry _EPS of slack; hypot would be ~3x the CPU)
-        speed = np.sqrt(w[..., 0] * w[..., 0] + w[..., 1] * w[..., 1])
-        ok &= ~self._never_close(sel, w, speed)
+        speed = wx * wx
+        speed += np.multiply(wy, wy)
+        np.sqrt(speed, out=speed)
+        ok &= ~self._never_close(sel, wx, wy, speed)
         with np.errstate(divide="ignore", invalid="ignore"):
             # no contact before the gap closes at the closing speed
-            t_lower = np.nan_to_num(np.where(ok, np.maximum(self.lower[sel], 0.0) / speed, np.inf), nan=0.0)
+            t_lower = np.maximum(self.lower[sel], 0.0)
+            t_lower /= speed
+        t_lower[~ok] = np.inf
+        np.nan_to_num(t_lower, copy=False, nan=0.0)
         best = np.full(R, np.inf)
         for cap in (4.0, np.inf):  # the likely minima first, then whatever can still beat them
             n, r = np.nonzero(ok & (t_lower <= np.minimum(cap, best)[None, :] + _EPS))
             ok[n, r] = False
             if not len(n):
                 continue
-            ee, evv, ah = self.ego[pi[n], r], ev[n, r], self.ah[pj[n]]
+            ee, ah = self.ego[pi[n], r], self.ah[pj[n]]
             a, av = self.ag[pi[n], pj[n]], self.ag_vel[pi[n], pj[n]]
             ttc = time_to_collision(
-                a[:, 0] - ee[:, 0], a[:, 1] - ee[:, 1], av[:, 0] - evv[:, 0], av[:, 1] - evv[:, 1],
+                a[:, 0] - ee[:, 0], a[:, 1] - ee[:, 1], av[:, 0] - evx[n, r], av[:, 1] - evy[n, r],
                 ee[:, 2], self.eh[0], self.eh[1], a[:, 2], ah[:, 0], ah[:, 1],
             )  # fmt: skip
             np.minimum.at(best, r, ttc)
