@@ -85,7 +85,7 @@ def run_replay_batch(
     pre_contact: dict[int, PreContact] = {}
     # pairs far from every row left out, unless that could change a minimum (then the rows again with every pair);
     # once that happened the next blocks take every pair at once (the same outcomes: leaving pairs out is exact)
-    attempts = (True, False)
+    attempts: tuple[bool, ...] = (True, False)
     for lo in range(0, B, ROWS):
         rows = slice(lo, min(lo + ROWS, B))
         for prune in attempts:
@@ -124,6 +124,16 @@ def _new_boxes(boxes: np.ndarray) -> np.ndarray:
     new = np.ones(len(bits), bool)
     np.any(bits[1:] != bits[:-1], axis=1, out=new[1:])
     return new
+
+
+def apart_distances(boxes: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """:func:`~deepcrashtest.sim.boxes.signed_distance` of ego boxes of half extents ``half`` (2,) and agent boxes,
+    ``boxes`` (K, 8: the ego's x, y, yaw, the agent's x, y, yaw, half length, half width), all apart (their
+    separating-axis gaps positive): computed once for each run of identical rows (:func:`_new_boxes`)."""
+    new = _new_boxes(boxes)
+    b = boxes[new]
+    d = apart_distance(b[:, :3], b[:, 3:6], half[None, :], b[:, 6:], np.ones(len(b), bool))
+    return d[np.cumsum(new) - 1]
 
 
 class _Rows:
@@ -298,14 +308,7 @@ class _Rows:
         refine = (g > 0) & (g < NEAR_M)
         e, a = self.ego[self.pi[n[refine]], r[refine]], self.ag[self.pi[n[refine]], self.pj[n[refine]]]
         # their gaps are positive (``g``, sat_gap of these very boxes): signed_distance's value without its gaps
-        boxes = np.column_stack(
-            [e[:, :3], a[:, :3], self.ah[self.pj[n[refine]]]]
-        )  # (K, 8): x, y, yaw, x, y, yaw, hl, hw
-        new = _new_boxes(boxes)
-        d = apart_distance(
-            boxes[new, :3], boxes[new, 3:6], self.eh[None, :], boxes[new, 6:], np.ones(int(new.sum()), bool)
-        )
-        g[refine] = d[np.cumsum(new) - 1]
+        g[refine] = apart_distances(np.column_stack([e[:, :3], a[:, :3], self.ah[self.pj[n[refine]]]]), self.eh)
         return g
 
     def _min_distance(self, out: LoopOutput, rows: slice, valid: np.ndarray, gap_known: np.ndarray) -> bool:
