@@ -333,15 +333,23 @@ class _Rows:
         if (upper >= self.far_bound).any():
             return False
         n, r = np.nonzero(valid & (self.lower <= upper[None, :]))
-        g = self._gap(n, r, gap_known)
+        g = gap_known[n, r]
+        unknown = np.flatnonzero(np.isnan(g))
+        axes = axis_gaps(*self._boxes(n[unknown], r[unknown]))  # kept for the corner bounds below
+        g[unknown] = np.maximum(np.maximum(axes[0], axes[1]), np.maximum(axes[2], axes[3]))  # sat_gap
         # entries whose gap is above their row's bound are never computed (the bound only falls): left out (~3/4)
         keep = g <= upper[r]
-        n, r, g = n[keep], r[keep], g[keep]
+        slot = np.full(len(n), -1)  # an entry's position in ``axes`` (-1: its gap was known)
+        slot[unknown] = np.arange(len(unknown))
+        n, r, g, slot = n[keep], r[keep], g[keep], slot[keep]
         # a tighter lower bound of the distance than the gap (corner to corner) where the distance is exact (apart,
         # below NEAR_M; elsewhere it is the gap itself): an entry whose bound exceeds its row's cannot hold the minimum
         bound = g.copy()
         exact = (g > 0) & (g < NEAR_M)
-        bound[exact] = self.lower_bound(n[exact], r[exact])
+        have = exact & (slot >= 0)
+        bound[have] = distance_lower_bound(*(a[slot[have]] for a in axes))
+        rest = exact & (slot < 0)
+        bound[rest] = self.lower_bound(n[rest], r[rest])
         order = np.lexsort((bound, r))  # by row, smallest bound first
         n, r, g, bound = n[order], r[order], g[order], bound[order]
         rank = np.arange(len(r)) - np.searchsorted(r, r)  # position within the row
