@@ -150,3 +150,46 @@ def test_remainder_shortcut_gives_the_loops_heading_error():
             _remainder_two_pi(got, two_pi)
             want = np.remainder(t, two_pi) - np.pi
         assert np.array_equal(got - np.pi, want, equal_nan=True)
+
+
+def test_stopped_ego_beside_parked_cars_kitti3(kitti3_raw):
+    """A stopped ego beside parked cars (the same pair of boxes step after step): the loop's outcomes."""
+    space = SearchSpace.for_scenario(kitti3_raw)
+    theta = space.reference_grid(np.random.default_rng([0, 1]), 6, 2)
+    paths = space.paths(theta)
+    # every other variant stands for the whole run 4 m beside the car parked at (52, 21) for the first 2.5 s
+    park = next(a.trajectory.arrays() for a in kitti3_raw.agents if a.id == 3)
+    paths[::2] = [float(np.mean(park["x"])), float(np.mean(park["y"])) - 4.0]
+    world = prepare(kitti3_raw)
+    zero = np.zeros((len(theta), 2))
+    fast = simulate_batch(world, zero, ego_paths=paths)
+    _equivalent(fast, simulate_batch(world, zero, ego_paths=paths, stepwise=True))
+    assert np.ptp(fast.min_distance[::2]) == 0.0 and 0.0 < fast.min_distance[0] < 4.0
+
+
+def test_repeated_box_pairs_give_signed_distances(kitti3_raw):
+    """Runs of identical box pairs (a stopped ego, a parked car) computed once give signed_distance's bits."""
+    from deepcrashtest.sim.boxes import signed_distance
+    from deepcrashtest.sim.replay_batch import apart_distances
+
+    world = prepare(kitti3_raw)
+    rng = np.random.default_rng(0)
+    ag = np.array([[52.8, 21.5, -3.09], [56.7, 21.6, -3.1], [50.0, 27.0, 1.2]])
+    ego = np.column_stack([rng.uniform(40, 60, 40), rng.uniform(14, 17, 40), rng.uniform(-3.3, -2.9, 40)])
+    pick = np.repeat(rng.integers(0, 40, 60), rng.integers(1, 6, 60))  # runs of repeated pairs
+    e, a = ego[pick], ag[pick % 3]
+    ah = world.half[1:][pick % 3]
+    signed = signed_distance(e, a, world.half[0][None, :], ah)
+    apart = signed > 0
+    assert apart.sum() > 100
+    got = apart_distances(np.column_stack([e, a, ah])[apart], world.half[0])
+    assert np.array_equal(got, signed[apart])
+    assert len(np.unique(got)) < apart.sum()  # repeats were there
+
+
+def test_new_boxes_compares_bits():
+    from deepcrashtest.sim.replay_batch import _new_boxes
+
+    boxes = np.array([[1.0, 0.0], [1.0, 0.0], [1.0, -0.0], [np.nan, 2.0], [np.nan, 2.0], [1.0, 2.0]])
+    assert _new_boxes(boxes).tolist() == [True, False, True, True, False, True]
+    assert _new_boxes(np.zeros((0, 8))).tolist() == []

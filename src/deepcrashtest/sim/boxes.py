@@ -91,15 +91,22 @@ def signed_distance(a: np.ndarray, b: np.ndarray, ha: np.ndarray, hb: np.ndarray
     if not np.any(apart):
         return gap
     out = np.array(gap, dtype=float, copy=True)
+    out[apart] = apart_distance(a, b, ha, hb, apart)
+    return out
+
+
+def apart_distance(a: np.ndarray, b: np.ndarray, ha: np.ndarray, hb: np.ndarray, apart: np.ndarray) -> np.ndarray:
+    """The Euclidean distance (m) between the boxes ``a``/``b`` (..., 3: x, y, yaw; half extents ``ha``/``hb``
+    (..., 2)) where ``apart`` (their broadcast shape) is True: those boxes' separating-axis gap is positive (the
+    caller has it), so this is :func:`signed_distance` there, without computing the gap again."""
     ia = np.broadcast_to(a, np.broadcast_shapes(a.shape, b.shape))[apart]
     ib = np.broadcast_to(b, np.broadcast_shapes(a.shape, b.shape))[apart]
-    sh = np.broadcast_shapes(ha.shape, hb.shape, gap.shape + (2,))
+    sh = np.broadcast_shapes(ha.shape, hb.shape, apart.shape + (2,))
     pa, pb = np.broadcast_to(ha, sh)[apart], np.broadcast_to(hb, sh)[apart]
-    out[apart] = box_distance(
+    return box_distance(
         corners(ia[:, 0], ia[:, 1], ia[:, 2], pa[:, 0], pa[:, 1]),
         corners(ib[:, 0], ib[:, 1], ib[:, 2], pb[:, 0], pb[:, 1]),
     )
-    return out
 
 
 def contact_fraction(

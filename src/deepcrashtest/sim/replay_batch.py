@@ -28,11 +28,11 @@ import numpy as np
 
 from deepcrashtest.sim.agents import agent_timeline
 from deepcrashtest.sim.boxes import (
+    apart_distance,
     axis_gaps,
     contact_fraction,
     distance_lower_bound,
     sat_gap,
-    signed_distance,
     time_to_collision,
 )
 from deepcrashtest.sim.loop import NEAR_M, TTC_EVERY, LoopOutput, PreContact, batch_delta_v
@@ -83,13 +83,17 @@ def run_replay_batch(
     pres = np.concatenate([seg.pres[:1], seg.pres_next]).astype(bool)
     ag_vel = np.concatenate([seg.vel[:1], seg.new_vel])
     pre_contact: dict[int, PreContact] = {}
+    # pairs far from every row left out, unless that could change a minimum (then the rows again with every pair);
+    # once that happened the next blocks take every pair at once (the same outcomes: leaving pairs out is exact)
+    attempts: tuple[bool, ...] = (True, False)
     for lo in range(0, B, ROWS):
         rows = slice(lo, min(lo + ROWS, B))
-        for prune in (True, False):  # pairs far from every row left out, unless that could change a minimum
+        for prune in attempts:
             if _Rows(
                 world, ego[:, rows], steer[:, rows], ag, pres, ag_vel, prune, (cos_sin[0][:, rows], cos_sin[1][:, rows])
             ).evaluate(seg, out, rows, pre_contact):
                 break
+            attempts = (False,)
     batch_delta_v(world, pre_contact, out)
     return out
 
@@ -109,6 +113,27 @@ def _rollout(
     if release and isinstance(paths, PackedPaths):
         paths.release()  # before the states are stacked: their copy takes the tables' memory
     return np.stack([run.x, run.y, run.yaw, run.v], axis=-1), run.steer, (run.cos_yaw, run.sin_yaw)
+
+
+def _new_boxes(boxes: np.ndarray) -> np.ndarray:
+    """(K,) True where a row of ``boxes`` (K, C) differs from the row before it in any bit (the first row: True).
+
+    A stopped ego beside a parked car gives the same pair of boxes at step after step (dad_000512: ~13,000 entries
+    of a row block, ~200 distinct); their distance is computed once (the same inputs give the same bits)."""
+    bits = np.ascontiguousarray(boxes).view(np.uint64)
+    new = np.ones(len(bits), bool)
+    np.any(bits[1:] != bits[:-1], axis=1, out=new[1:])
+    return new
+
+
+def apart_distances(boxes: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """:func:`~deepcrashtest.sim.boxes.signed_distance` of ego boxes of half extents ``half`` (2,) and agent boxes,
+    ``boxes`` (K, 8: the ego's x, y, yaw, the agent's x, y, yaw, half length, half width), all apart (their
+    separating-axis gaps positive): computed once for each run of identical rows (:func:`_new_boxes`)."""
+    new = _new_boxes(boxes)
+    b = boxes[new]
+    d = apart_distance(b[:, :3], b[:, 3:6], half[None, :], b[:, 6:], np.ones(len(b), bool))
+    return d[np.cumsum(new) - 1]
 
 
 class _Rows:
@@ -282,7 +307,8 @@ class _Rows:
         g = g.copy()
         refine = (g > 0) & (g < NEAR_M)
         e, a = self.ego[self.pi[n[refine]], r[refine]], self.ag[self.pi[n[refine]], self.pj[n[refine]]]
-        g[refine] = signed_distance(e[:, :3], a[:, :3], self.eh[None, :], self.ah[self.pj[n[refine]]])
+        # their gaps are positive (``g``, sat_gap of these very boxes): signed_distance's value without its gaps
+        g[refine] = apart_distances(np.column_stack([e[:, :3], a[:, :3], self.ah[self.pj[n[refine]]]]), self.eh)
         return g
 
     def _min_distance(self, out: LoopOutput, rows: slice, valid: np.ndarray, gap_known: np.ndarray) -> bool:
@@ -307,15 +333,23 @@ class _Rows:
         if (upper >= self.far_bound).any():
             return False
         n, r = np.nonzero(valid & (self.lower <= upper[None, :]))
-        g = self._gap(n, r, gap_known)
+        g = gap_known[n, r]
+        unknown = np.flatnonzero(np.isnan(g))
+        axes = axis_gaps(*self._boxes(n[unknown], r[unknown]))  # kept for the corner bounds below
+        g[unknown] = np.maximum(np.maximum(axes[0], axes[1]), np.maximum(axes[2], axes[3]))  # sat_gap
         # entries whose gap is above their row's bound are never computed (the bound only falls): left out (~3/4)
         keep = g <= upper[r]
-        n, r, g = n[keep], r[keep], g[keep]
+        slot = np.full(len(n), -1)  # an entry's position in ``axes`` (-1: its gap was known)
+        slot[unknown] = np.arange(len(unknown))
+        n, r, g, slot = n[keep], r[keep], g[keep], slot[keep]
         # a tighter lower bound of the distance than the gap (corner to corner) where the distance is exact (apart,
         # below NEAR_M; elsewhere it is the gap itself): an entry whose bound exceeds its row's cannot hold the minimum
         bound = g.copy()
         exact = (g > 0) & (g < NEAR_M)
-        bound[exact] = self.lower_bound(n[exact], r[exact])
+        have = exact & (slot >= 0)
+        bound[have] = distance_lower_bound(*(a[slot[have]] for a in axes))
+        rest = exact & (slot < 0)
+        bound[rest] = self.lower_bound(n[rest], r[rest])
         order = np.lexsort((bound, r))  # by row, smallest bound first
         n, r, g, bound = n[order], r[order], g[order], bound[order]
         rank = np.arange(len(r)) - np.searchsorted(r, r)  # position within the row
@@ -325,13 +359,15 @@ class _Rows:
         out.min_distance[rows] = upper
         return True
 
-    def _never_close(self, sel: np.ndarray, w: np.ndarray, speed: np.ndarray) -> np.ndarray:
-        """(n, R) True where the boxes of pairs ``sel`` can never touch moving at their relative velocity ``w``
-        (m/s): their circumcircles stay apart for all t >= 0, so the swept test gives infinity."""
+    def _never_close(self, sel: np.ndarray, wx: np.ndarray, wy: np.ndarray, speed: np.ndarray) -> np.ndarray:
+        """(n, R) True where the boxes of pairs ``sel`` can never touch moving at their relative velocity (``wx``,
+        ``wy``) (m/s): their circumcircles stay apart for all t >= 0, so the swept test gives infinity."""
         dx, dy = self.dx[sel], self.dy[sel]
         reach = np.hypot(*self.eh) + self.r_a[sel] + _EPS  # (n, 1)
-        closing = dx * w[..., 0] + dy * w[..., 1] < 0.0
-        miss = np.abs(dx * w[..., 1] - dy * w[..., 0])  # closest approach of the centres times the speed
+        t1, t2 = dx * wx, dy * wy
+        closing = np.add(t1, t2, out=t1) < 0.0  # dx * wx + dy * wy
+        miss = np.subtract(np.multiply(dx, wy, out=dx), np.multiply(dy, wx, out=dy), out=t1)
+        np.abs(miss, out=miss)  # closest approach of the centres times the speed
         return np.where(closing, miss > reach * speed, self.dist[sel] > reach)
 
     def _min_ttc(self, out: LoopOutput, rows: slice, valid: np.ndarray, gap_known: np.ndarray) -> None:
@@ -342,24 +378,31 @@ class _Rows:
         ok = valid[sel] & (np.isnan(gk) | (gk > 0))  # unknown gaps are positive (the circles do not touch)
         pi, pj = self.pi[sel], self.pj[sel]
         at, inv = np.unique(pi, return_inverse=True)  # each evaluation index once (several agents share it)
-        ev = velocity_xy(self.ego[at, :, 2], self.ego[at, :, 3], self.steer[at])[inv]
-        w = self.ag_vel[pi, pj][:, None, :] - ev
+        ev = velocity_xy(self.ego[at, :, 2], self.ego[at, :, 3], self.steer[at])  # (indices, R, 2)
+        evx, evy = ev[..., 0][inv], ev[..., 1][inv]  # (n, R) each, contiguous: the passes below read them whole
+        agv = self.ag_vel[pi, pj]
+        wx, wy = np.subtract(agv[:, :1], evx), np.subtract(agv[:, 1:], evy)  # relative velocity (m/s)
         # relative speeds for the pruning bounds only (they carry _EPS of slack; hypot would be ~3x the CPU)
-        speed = np.sqrt(w[..., 0] * w[..., 0] + w[..., 1] * w[..., 1])
-        ok &= ~self._never_close(sel, w, speed)
+        speed = wx * wx
+        speed += np.multiply(wy, wy)
+        np.sqrt(speed, out=speed)
+        ok &= ~self._never_close(sel, wx, wy, speed)
         with np.errstate(divide="ignore", invalid="ignore"):
             # no contact before the gap closes at the closing speed
-            t_lower = np.nan_to_num(np.where(ok, np.maximum(self.lower[sel], 0.0) / speed, np.inf), nan=0.0)
+            t_lower = np.maximum(self.lower[sel], 0.0)
+            t_lower /= speed
+        t_lower[~ok] = np.inf
+        np.nan_to_num(t_lower, copy=False, nan=0.0)
         best = np.full(R, np.inf)
         for cap in (4.0, np.inf):  # the likely minima first, then whatever can still beat them
             n, r = np.nonzero(ok & (t_lower <= np.minimum(cap, best)[None, :] + _EPS))
             ok[n, r] = False
             if not len(n):
                 continue
-            ee, evv, ah = self.ego[pi[n], r], ev[n, r], self.ah[pj[n]]
+            ee, ah = self.ego[pi[n], r], self.ah[pj[n]]
             a, av = self.ag[pi[n], pj[n]], self.ag_vel[pi[n], pj[n]]
             ttc = time_to_collision(
-                a[:, 0] - ee[:, 0], a[:, 1] - ee[:, 1], av[:, 0] - evv[:, 0], av[:, 1] - evv[:, 1],
+                a[:, 0] - ee[:, 0], a[:, 1] - ee[:, 1], av[:, 0] - evx[n, r], av[:, 1] - evy[n, r],
                 ee[:, 2], self.eh[0], self.eh[1], a[:, 2], ah[:, 0], ah[:, 1],
             )  # fmt: skip
             np.minimum.at(best, r, ttc)
