@@ -83,10 +83,11 @@ def figure_png(fig: Any, tight: bool | None = None) -> str:
 
     A figure with a layout engine (the report's are constrained, :func:`_figure`, ``birdseye_figure``) already
     fits its labels and legends inside the canvas: it is drawn once (its layout runs in that draw) and the
-    canvas's pixels are written as they are. ``savefig`` would draw it twice (a first draw without rendering
-    for the layout, then again), and ``bbox_inches="tight"`` measures it once more for the same picture with
-    0.1 in more margin: the three plots of a report cost ~0.5 s of CPU more that way. ``tight``: crop (or grow)
-    the canvas to the artists, for artists the layout does not place (default: only without a layout engine).
+    canvas's pixels are written, the blank rows and columns beyond 0.1 in around what is drawn cut off (an
+    equal-aspect plot leaves them; :func:`_inked`). ``savefig(..., bbox_inches="tight")`` drew it twice (a first
+    draw without rendering for the layout, then again) and measured it once more, for the same picture: the
+    three plots of a report cost ~0.5 s of CPU more that way. ``tight``: crop (or grow) the canvas to the
+    artists, for artists the layout does not place (default: only without a layout engine).
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from PIL import Image  # matplotlib's own PNG writer
@@ -97,8 +98,19 @@ def figure_png(fig: Any, tight: bool | None = None) -> str:
         fig.savefig(buf, format="png", dpi=fig.dpi, bbox_inches="tight")
     else:
         canvas.draw()
-        Image.fromarray(np.asarray(canvas.buffer_rgba())).save(buf, format="png")
+        rgba = np.asarray(canvas.buffer_rgba())
+        Image.fromarray(_inked(rgba, fig.get_facecolor(), round(0.1 * fig.dpi))).save(buf, format="png")
     return base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _inked(rgba: np.ndarray, background: Sequence[float], pad: int) -> np.ndarray:
+    """``rgba`` (H, W, 4 uint8) cut to the pixels unlike ``background`` (RGBA, 0-1) and ``pad`` px around them."""
+    ink = np.any(rgba != np.round(np.asarray(background) * 255).astype(np.uint8), axis=2)
+    rows, cols = np.flatnonzero(ink.any(axis=1)), np.flatnonzero(ink.any(axis=0))
+    if not len(rows):
+        return rgba
+    h, w = ink.shape
+    return rgba[max(rows[0] - pad, 0) : min(rows[-1] + 1 + pad, h), max(cols[0] - pad, 0) : min(cols[-1] + 1 + pad, w)]
 
 
 def img(png_b64: str, alt: str, mime: str = "image/png") -> str:
