@@ -95,6 +95,49 @@ def test_closest_approach_matches_the_trajectories(kitti8_raw):
     assert d[i] == pytest.approx(np.hypot(a.x[i] - e.x[k], a.y[i] - e.y[k]))
 
 
+def _with_lane_timeline(sc):
+    """``sc`` with a lane timeline from its ego's lateral position (two lanes, split at the mean)."""
+    t = sc.ego.trajectory.t
+    offs = (np.asarray(sc.ego.trajectory.y) - np.asarray(sc.ego.trajectory.y).mean()).tolist()
+    timeline = LaneTimeline(t=t, lane_index=[0 if o < 0 else 1 for o in offs], lateral_offset=offs)
+    return sc.model_copy(update={"road": sc.road.model_copy(update={"lane_timeline": timeline})})
+
+
+def test_report_plots_are_drawn_once_and_fit_their_canvas(kitti8_raw, monkeypatch):
+    """Each plot is drawn once, at its figure's own size (``savefig`` drew it twice, and its tight bounding box
+    measured it once more: ~0.5 s of CPU a report), and its constrained layout keeps every label and the
+    legend inside the canvas: ink near each edge, none on it. The bird's-eye view of a long drive keeps the
+    tight box: its zoomed panel's frame reaches beyond the overview's axes."""
+    from matplotlib.figure import Figure
+
+    from deepcrashtest.viz.report import birdseye_section
+
+    draws: list[Figure] = []
+    draw = Figure.draw
+
+    def counted(self: Figure, renderer: object) -> None:
+        draws.append(self)
+        draw(self, renderer)
+
+    monkeypatch.setattr(Figure, "draw", counted)
+    for make in (lambda: motion_section(kitti8_raw), lambda: lane_offset_section(_with_lane_timeline(kitti8_raw))):
+        draws.clear()
+        section = make()
+        assert section is not None
+        (png,) = _pngs(section.body)
+        (fig,) = draws
+        w, h = fig.get_size_inches() * fig.dpi
+        assert abs(png.shape[0] - h) < 1 and abs(png.shape[1] - w) < 1, (png.shape, w, h)  # main: 0.2 in more
+        ink = (png < 250).any(axis=2)
+        rows, cols = np.flatnonzero(ink.any(axis=1)), np.flatnonzero(ink.any(axis=0))
+        margins = (rows[0], png.shape[0] - 1 - rows[-1], cols[0], png.shape[1] - 1 - cols[-1])
+        assert all(1 <= m <= 12 for m in margins), margins
+    draws.clear()
+    (png,) = _pngs(birdseye_section(kitti8_raw).body)
+    fig = draws[0]
+    assert len(fig.axes) == 2 and png.shape[1] > fig.get_size_inches()[0] * fig.dpi  # the zoom frame kept whole
+
+
 def test_contact_sheet_from_the_real_video():
     sec = contact_sheet_section(SAMPLE_VIDEO, frames=6, columns=3, thumb_width=200)
     (sheet,) = _pngs(sec.body)
@@ -156,14 +199,11 @@ def test_search_section_counts_safe_variants():
 
 def test_lane_offset_only_with_a_lane_timeline(kitti8_raw):
     assert lane_offset_section(kitti8_raw) is None
-    t = kitti8_raw.ego.trajectory.t
-    offs = (np.asarray(kitti8_raw.ego.trajectory.y) - np.asarray(kitti8_raw.ego.trajectory.y).mean()).tolist()
-    lanes = [0 if o < 0 else 1 for o in offs]
-    timeline = LaneTimeline(t=t, lane_index=lanes, lateral_offset=offs)
-    road = kitti8_raw.road.model_copy(update={"lane_timeline": timeline})
-    sec = lane_offset_section(kitti8_raw.model_copy(update={"road": road}))
+    sc = _with_lane_timeline(kitti8_raw)
+    sec = lane_offset_section(sc)
     assert sec is not None
-    changes = int(np.count_nonzero(np.diff(lanes)))
+    assert sc.road.lane_timeline is not None
+    changes = int(np.count_nonzero(np.diff(sc.road.lane_timeline.lane_index)))
     assert f"<p>{changes} lane change(s)." in sec.body
 
 
