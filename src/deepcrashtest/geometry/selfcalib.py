@@ -474,7 +474,7 @@ PARKED_MAX_SIGMAS = 3.0
 #: against the labelled cars' road (``bench/selfcalib_sigma.py``): median |error| / sigma 1.11 -> 0.67,
 #: within 1 / 2 sigmas 47 / 88 % -> 76 / 94 % (the bootstrap alone was too tight: 0002 -7.9 +- 2.4 px,
 #: 0009 -5.0 +- 1.7 px). Reported only: the level-camera focal term keeps the bootstrap sigma (with the
-#: floor it moved 5 dashcam clips' focal lengths by 0.05-0.08 % and dad_000487's fidelity IoU by -0.002).
+#: floor it moved 5 dashcam clips' focal lengths by 0.05-0.08 % and ccd_000014's replay IoU 0.6824 -> 0.6822).
 HORIZON_FLOOR_RAD = 0.003
 
 
