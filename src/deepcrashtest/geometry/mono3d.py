@@ -152,7 +152,7 @@ class MonoConfig:
     # the width cue's geometry (:func:`_width_m`): the box's edges as a vehicle parallel to the optical axis projects
     # them (its side's far end at the near face's depth plus its length), not its extent across the line of sight at
     # the box centre's bearing, which reads a car 10 m ahead and 3 m aside 18 % too far, one at 30 m 7 % (round
-    # mono14, 18 training sequences: median position error at 0-20 m lower on 11 of 14 sequences with the KITTI
+    # mono14, 18 training sequences: median position error at 0-20 m lower on 12 of 14 sequences with the KITTI
     # camera, 10 of 14 with the unknown one; MOTA 65.92 -> 65.75, unknown 60.98 -> 60.97)
     width_box_edges: bool = True
 
