@@ -166,8 +166,9 @@ def test_hull_factor_explains_the_label_box_heights(kitti_root):
 def test_width_cue_reads_the_box_edges_of_cars_beside_the_axis(kitti_root):
     """A car parallel to the optical axis and off it shows its side: its box runs from the side's far end to the
     near face's outer corner. KITTI 0001 labels (unoccluded, untruncated cars heading along the axis, near face
-    5-40 m): the width cue's near-face depth from the label box, the label's size and the default geometry is
-    within 3 % on median for the cars off the axis (|tan| > 0.15; measured -0.7 %), where the extent across the
+    5-40 m): the width cue's near-face depth from the label box, the label's size and the box-edge geometry
+    (``MonoConfig.width_box_edges``, off by default: it lowered the dashcam clips' reprojection IoU) is within 3 % on
+    median for the cars off the axis (|tan| > 0.15; measured -0.7 %), where the extent across the
     line of sight at the box centre's bearing read them 7.2 % too far, and nearer overall (median |log| 0.051
     against 0.063)."""
     seq = KittiSequence(kitti_root, 1)
@@ -190,7 +191,7 @@ def test_width_cue_reads_the_box_edges_of_cars_beside_the_axis(kitti_root):
             zip(c["l"], c["w"], strict=True))]  # fmt: skip
         return np.log(np.array(z) / z_near)
 
-    new, old = log_error(MonoConfig()), log_error(MonoConfig(width_box_edges=False))
+    new, old = log_error(MonoConfig(width_box_edges=True)), log_error(MonoConfig())
     off = np.abs(bearing) > 0.15
     assert len(c) > 300 and off.sum() > 200
     assert abs(np.median(new[off])) < 0.03 and np.median(old[off]) > 0.05
@@ -407,14 +408,13 @@ def test_cut_boxes_at_a_track_end_are_carried(prep):
 def test_confirmation_by_accumulated_scores_tracks_far_cars(kitti_root):
     """Training sequence 0002 (highway, cars receding far ahead, boxes of scores 0.7-0.97): tentative tracks
     from any kept box, confirmed once their scores add up to 3.8 (round mono9, chosen on the 18 training
-    sequences: combined MOTA 63.84 -> 64.55), score 53.1; births from boxes of 0.97 only after 3 hits, 42.1 (47.7
-    against 36.0 since round mono14's width-cue geometry)."""
+    sequences: combined MOTA 63.84 -> 64.55), score 53.1; births from boxes of 0.97 only after 3 hits, 42.1."""
     from deepcrashtest.eval.kitti_mono import quick_mota
 
     prep = prepare_mono(kitti_root, 2)
     old = dataclasses.replace(DEFAULT_MONO, new_track_score=0.97, min_hits=3, min_evidence=0.0)
     now, before = quick_mota([prep], DEFAULT_MONO)[0], quick_mota([prep], old)[0]
-    assert now >= 45.0 and now - before > 7.0, (now, before)
+    assert now >= 50.0 and now - before > 7.0, (now, before)
 
 
 def test_axis_column_skips_rows_across_a_bend(kitti_root):

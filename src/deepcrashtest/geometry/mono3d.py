@@ -151,10 +151,13 @@ class MonoConfig:
     horizon_hull: bool = False
     # the width cue's geometry (:func:`_width_m`): the box's edges as a vehicle parallel to the optical axis projects
     # them (its side's far end at the near face's depth plus its length), not its extent across the line of sight at
-    # the box centre's bearing, which reads a car 10 m ahead and 3 m aside 18 % too far, one at 30 m 7 % (round
-    # mono14, 18 training sequences: median position error at 0-20 m lower on 12 of 14 sequences with the KITTI
-    # camera, 10 of 14 with the unknown one; MOTA 65.92 -> 65.75, unknown 60.98 -> 60.97)
-    width_box_edges: bool = True
+    # the box centre's bearing, which reads a car 10 m ahead and 3 m aside 18 % too far, one at 30 m 7 %. Off: round
+    # mono14, 18 training sequences, median position error at 0-20 m lower on 12 of 14 sequences with the KITTI
+    # camera, 10 of 14 with the unknown one, MOTA 65.92 -> 65.75 (unknown 60.98 -> 60.97), held-out 85.93 / 66.96 /
+    # 88.97 -> 89.22 / 67.66 / 88.28 (unknown 86.83 / 53.37 / 92.07 -> 83.83 / 55.36 / 92.24), but on the 20 dashcam
+    # clips the mean reprojection IoU fell 0.652 / 0.627 -> 0.645 / 0.616 (ccd_000080 0.715 -> 0.607: crash cars
+    # turn towards the ego, not parallel to the axis; 19 of 19 outcomes kept)
+    width_box_edges: bool = False
 
 
 def class_size(category: str) -> tuple[float, float, float]:
