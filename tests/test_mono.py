@@ -28,7 +28,7 @@ from deepcrashtest.eval.kitti_mono import (
 from deepcrashtest.eval.kitti_rules import MATCH_RULES, apply_kitti_rules
 from deepcrashtest.eval.kitti_world import KittiWorld
 from deepcrashtest.geometry.egomotion import EgoMotion
-from deepcrashtest.geometry.mono3d import hull_factor
+from deepcrashtest.geometry.mono3d import MonoConfig, _Cues, _width_m, hull_factor
 from deepcrashtest.geometry.selfcalib import focal_from_motion, self_calibrate
 from deepcrashtest.scenario import Camera
 
@@ -161,6 +161,41 @@ def test_hull_factor_explains_the_label_box_heights(kitti_root):
     assert len(c) > 300 and np.median(factor) > 1.01
     plain, hull = np.median(np.abs(np.log(ratio))), np.median(np.abs(np.log(ratio / factor)))
     assert hull < 0.9 * plain  # measured 0.018 against 0.023
+
+
+def test_width_cue_reads_the_box_edges_of_cars_beside_the_axis(kitti_root):
+    """A car parallel to the optical axis and off it shows its side: its box runs from the side's far end to the
+    near face's outer corner. KITTI 0001 labels (unoccluded, untruncated cars heading along the axis, near face
+    5-40 m): the width cue's near-face depth from the label box, the label's size and the box-edge geometry
+    (``MonoConfig.width_box_edges``, off by default: it lowered the dashcam clips' reprojection IoU) is within 3 % on
+    median for the cars off the axis (|tan| > 0.15; measured -0.7 %), where the extent across the
+    line of sight at the box centre's bearing read them 7.2 % too far, and nearer overall (median |log| 0.051
+    against 0.063)."""
+    seq = KittiSequence(kitti_root, 1)
+    p2 = read_calib(seq.calib).P2
+    fx, cx = p2[0, 0], p2[0, 2]
+    lab = read_labels(seq.labels)
+    c = lab[(lab["type"] == "Car") & (lab["occluded"] == 0) & (lab["truncated"] == 0)]
+    c = c[np.abs(np.abs(c["ry"]) - np.pi / 2) < 0.1]  # heading along the optical axis
+    z_near = (c["z"] - 0.5 * c["l"]).to_numpy()
+    ok = (z_near > 5) & (z_near < 40)
+    c, z_near = c[ok], z_near[ok]
+    box_w = (c["x2"] - c["x1"]).to_numpy()
+    bearing = (0.5 * (c["x1"] + c["x2"]).to_numpy() - cx) / fx
+    none = np.zeros(len(c), bool)
+    cues = _Cues(z_near, z_near, box_w, box_w, bearing, none, none)
+    camera = Camera(fx=fx, fy=fx, cx=cx, cy=p2[1, 2], height_m=1.65)
+
+    def log_error(cfg: MonoConfig) -> np.ndarray:
+        z = [fx * _width_m(ln, w, cues, np.array([i]), camera, cfg)[0] / box_w[i] for i, (ln, w) in enumerate(
+            zip(c["l"], c["w"], strict=True))]  # fmt: skip
+        return np.log(np.array(z) / z_near)
+
+    new, old = log_error(MonoConfig(width_box_edges=True)), log_error(MonoConfig())
+    off = np.abs(bearing) > 0.15
+    assert len(c) > 300 and off.sum() > 200
+    assert abs(np.median(new[off])) < 0.03 and np.median(old[off]) > 0.05
+    assert np.median(np.abs(new)) < 0.9 * np.median(np.abs(old))
 
 
 def test_pitch_bounce_calibrates_the_focal_where_parked_cars_mislead(kitti_root):
