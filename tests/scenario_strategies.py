@@ -108,6 +108,7 @@ def scenario_dicts(draw: st.DrawFn, stage: str = "processed") -> dict[str, Any]:
             "lane_width": draw(st.floats(1.0, 20.0)),
             "oncoming_lane_count": draw(st.integers(0, 3)),
             "median_width": draw(st.sampled_from([0.0, 0.5, 12.0])),
+            "driving_side": draw(st.sampled_from(["right", "left"])),
         },
     }
     if agents and draw(st.booleans()):

@@ -207,6 +207,7 @@ def test_commonroad_export_of_a_200_km_road_stays_small(capsys, good, tmp_path):
         (["--fps", "1e308"], "--fps must be a positive number of frames per second, 0.01-10000"),
         (["--fps", "10", "--camera-height", "inf"], "camera height must be > 0 and <= 100 m"),
         (["--fps", "10", "--camera-height", "1e308"], "camera height must be > 0 and <= 100 m"),
+        (["--fps", "10", "--driving-side", "middle"], "--driving-side must be one of right, left (got 'middle')"),
     ],
 )
 def test_extract_refuses_absurd_frame_rates_and_camera_heights(capsys, tmp_path, option, fragment):

@@ -39,6 +39,8 @@ def test_file_overrides_and_cli_overrides_file(tmp_path):
         ("search:\n  starts: 1.5\n", "search.starts: expected int"),
         ("stage2:\n  road_sigma_m: .nan\n", "stage2.road_sigma_m: expected float"),
         ("stage2:\n  road_sigma_m: -1\n", "must be > 0"),
+        ("stage2:\n  driving_side: middle\n", "driving_side must be one of right, left"),
+        ("stage2:\n  driving_side: 1\n", "stage2.driving_side: expected str"),
         ("[1, 2]\n", "expected a mapping of sections"),
         ("search: [1]\n", "must be a mapping"),
         ("search: {starts: [\n", "invalid YAML at line"),

@@ -40,7 +40,7 @@ def _off_road(sc: Scenario) -> list[tuple[int, float]]:
     bad = []
     for i, (d, oncoming) in _moving_along(sc).items():
         lanes = other if oncoming and len(other) else own
-        if not lanes[0] <= d <= lanes[-1]:
+        if not min(lanes) <= d <= max(lanes):
             bad.append((i, round(d, 1)))
     return bad
 
@@ -146,3 +146,113 @@ def test_crash_clip_oncoming_cars_beyond_the_median(tmp_path):
     assert sum(o for _, o in _moving_along(sc).values()) >= 2
     assert _off_road(sc) == []
     assert sc.road.oncoming_lane_count >= 1
+
+
+def _mirrored(sc: Scenario) -> Scenario:
+    """``sc`` seen in a mirror about the ego's direction of travel (world y -> -y, headings negated): a real
+    right-hand-traffic scene as the same scene in left-hand traffic (no lane lines: none to mirror)."""
+    d = sc.model_dump()
+    for v in [d["ego"], *d["agents"]]:
+        tr = v["trajectory"]
+        tr["y"] = [-y for y in tr["y"]]
+        tr["yaw"] = [-a for a in tr["yaw"]]
+        v["spline"] = None
+    d["road"]["centerline_y"] = [-y for y in d["road"]["centerline_y"]]
+    assert d["road"]["lane_timeline"] is None and d["collision"] is None
+    return Scenario.model_validate(d)
+
+
+@pytest.fixture(scope="module")
+def kitti9_left() -> tuple[Scenario, Scenario, Scenario]:
+    """KITTI 9 from labels (a road with oncoming cars across a median, right-hand traffic), processed as it is,
+    and mirrored into left-hand traffic processed with ``driving_side`` left and (wrongly) right."""
+    from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
+    from deepcrashtest.trajectory.params import Stage2Params
+    from deepcrashtest.trajectory.pipeline import process_scenario
+
+    raw = scenario_from_kitti(need(KITTI_TRACKING), 9, road_users=True)
+    left = Stage2Params(driving_side="left")
+    return (
+        process_scenario(raw, seed=0),
+        process_scenario(_mirrored(raw), seed=0, params=left),
+        process_scenario(_mirrored(raw), seed=0),
+    )
+
+
+def test_left_hand_traffic_puts_the_oncoming_lanes_right_of_the_ego(kitti9_left):
+    """The mirrored scene with ``driving_side`` left gets the mirrored road: the same lanes, the ego's lane
+    counted from the other side, the oncoming lanes on its right holding the oncoming cars. Read as right-hand
+    traffic (all a road could be before) the road had no oncoming lanes and the oncoming cars across the median
+    drove off it."""
+    rht, lht, wrong = (sc.road for sc in kitti9_left)
+    assert lht.driving_side == "left" and rht.driving_side == "right"
+    assert (lht.lane_count, lht.oncoming_lane_count, lht.lane_width, lht.median_width) == (
+        rht.lane_count,
+        rht.oncoming_lane_count,
+        rht.lane_width,
+        rht.median_width,
+    )
+    assert lht.ego_lane == rht.lane_count - 1 - rht.ego_lane
+    assert np.allclose(oncoming_boundary_offsets(lht), -oncoming_boundary_offsets(rht))
+    assert np.all(oncoming_boundary_offsets(lht) < boundary_offsets(lht)[0] + 1e-9)  # right of the carriageway
+    assert _off_road(kitti9_left[1]) == []
+    assert wrong.oncoming_lane_count == 0 and _off_road(kitti9_left[2]) != []  # oncoming cars in the grass
+
+
+def test_left_hand_traffic_exports(kitti9_left, tmp_path):
+    """OpenDRIVE: rule LHT, the ego's carriageway as left lanes (positive ids, the reference line's direction
+    under LHT) and the oncoming lanes as right lanes, valid for the schema and the ASAM checkers; CommonRoad: the
+    oncoming lanelets run the other way right of the ego's and hold the oncoming cars."""
+    import shapely
+    from commonroad.common.file_reader import CommonRoadFileReader
+    from lxml import etree
+    from pyxodr.road_objects.network import RoadNetwork
+
+    from deepcrashtest.export import export_scenario
+    from export_helpers import qc_available, run_qc
+
+    sc = kitti9_left[1]
+    export_scenario(sc, "openscenario", tmp_path)
+    export_scenario(sc, "commonroad", tmp_path)
+    road = sc.road
+    assert etree.parse(str(tmp_path / "road.xodr")).find("road").get("rule") == "LHT"
+    xroad = RoadNetwork(str(tmp_path / "road.xodr"), resolution=0.5).get_roads()[0]
+    ids = sorted(lane.id for section in xroad.lane_sections for lane in section.lanes)
+    median = 1 if road.median_width > 0 else 0
+    assert ids == [*range(-road.oncoming_lane_count - median, 0), *range(1, road.lane_count + 1)]
+    if qc_available():
+        report = run_qc("xodr", tmp_path / "road.xodr", tmp_path / "qc")
+        assert report["errors"] == [] and report["warnings"] == []
+    cr, _ = CommonRoadFileReader(str(tmp_path / "commonroad.xml")).open()
+    lanelets = {lanelet.lanelet_id: lanelet for lanelet in cr.lanelet_network.lanelets}
+    tangent = road.centerline()[-1] - road.centerline()[0]
+    normal = np.array([-tangent[1], tangent[0]])
+    for i, lanelet in lanelets.items():
+        along = float((lanelet.center_vertices[-1] - lanelet.center_vertices[0]) @ tangent)
+        assert (along < 0) == (i > road.lane_count)
+    own_right = min(
+        float(np.mean(lanelets[1].right_vertices @ normal)), float(np.mean(lanelets[1].left_vertices @ normal))
+    )
+    oncoming = {i: lanelet for i, lanelet in lanelets.items() if i > road.lane_count}
+    assert all(float(np.mean(lanelet.center_vertices @ normal)) < own_right for lanelet in oncoming.values())
+    users = _moving_along(sc)
+    for v in sc.agents:
+        if v.id in users and users[v.id][1]:
+            seen = np.flatnonzero(np.asarray(v.trajectory.observed, bool))
+            k = int(seen[len(seen) // 4])
+            point = shapely.Point(v.trajectory.x[k], v.trajectory.y[k])
+            assert any(lanelet.polygon.shapely_object.buffer(1.0).contains(point) for lanelet in oncoming.values())
+
+
+def test_left_hand_traffic_birdseye_divider(kitti9_left):
+    """The bird's-eye view draws the solid yellow line between the directions on the ego carriageway's right
+    edge in left-hand traffic (left of the ego in the mirrored road: none would be drawn there)."""
+    from deepcrashtest.sim import simulate
+    from deepcrashtest.viz import birdseye
+
+    sc = kitti9_left[1]
+    frame = next(birdseye.render_frames(sc, simulate(sc, controller="replay"), stride=1))
+    yellow = np.all(np.abs(frame.astype(int) - birdseye.DIRECTIONS) <= 30, axis=2)
+    rows = np.flatnonzero(yellow.any(axis=1))
+    assert yellow.sum() > 500
+    assert rows.mean() > frame.shape[0] / 2  # world y right of the ego is down in the view

@@ -142,15 +142,21 @@ def test_migrates_1_0_files_and_keeps_the_time_mapping() -> None:
 
 
 def test_a_1_2_file_reads_as_a_one_way_road(kitti8_raw) -> None:
-    """Schema 1.3 adds the oncoming lanes (``Road.oncoming_lane_count``, ``median_width``): a 1.2 file (without
-    them) loads as 1.3 with none, the road it described; 1.3 writes them."""
+    """Schema 1.3 adds the oncoming lanes (``Road.oncoming_lane_count``, ``median_width``), 1.4 the side traffic
+    keeps to (``Road.driving_side``): a 1.2 file (without them) loads as 1.4 with no oncoming lanes in right-hand
+    traffic, the road it described; a 1.3 file as 1.4 in right-hand traffic; 1.4 writes them."""
     data = json.loads(kitti8_raw.to_json())
-    assert data["schema_version"] == SCHEMA_VERSION == "1.3"
+    assert data["schema_version"] == SCHEMA_VERSION == "1.4"
     assert data["road"]["oncoming_lane_count"] == 0 and data["road"]["median_width"] == 0.0
-    old = dict(data, schema_version="1.2", road={k: v for k, v in data["road"].items() if k not in
-                                                  ("oncoming_lane_count", "median_width")})  # fmt: skip
+    assert data["road"]["driving_side"] == "right"
+    new = ("oncoming_lane_count", "median_width", "driving_side")
+    old = dict(data, schema_version="1.2", road={k: v for k, v in data["road"].items() if k not in new})
     sc = Scenario.from_dict(old)
-    assert sc.schema_version == "1.3" and sc.road == kitti8_raw.road
+    assert sc.schema_version == "1.4" and sc.road == kitti8_raw.road
+    v13 = dict(data, schema_version="1.3", road={k: v for k, v in data["road"].items() if k != "driving_side"})
+    assert Scenario.from_dict(v13).road == kitti8_raw.road
+    with pytest.raises(ValueError, match="driving_side"):
+        Scenario.from_dict(dict(data, road=dict(data["road"], driving_side="middle")))
 
 
 def test_evolve_validates_and_third_party_collision(kitti8_raw):

@@ -49,6 +49,12 @@ SeedOpt = typer.Option(0, "--seed", min=0, help="Seed for every random choice (a
 ConfigOpt = typer.Option(
     None, "--config", help="YAML file of settings (sections stage2, search) merged over the defaults."
 )
+DrivingSideOpt = typer.Option(
+    None,
+    "--driving-side",
+    help="right | left: the side traffic keeps to, for the road's oncoming lanes (default right; left for the UK, "
+    "Japan, India, Australia, ...). Overrides stage2.driving_side of --config.",
+)
 
 
 def _version(value: bool) -> None:
@@ -183,6 +189,7 @@ def scenario_build(
     raw: Path = typer.Argument(..., help="Raw Scenario JSON (stage=raw: world-frame tracks)."),
     output: Path = typer.Option(..., "-o", "--output", help="Processed Scenario JSON to write."),
     config: Path | None = ConfigOpt,
+    driving_side: str | None = DrivingSideOpt,
     force: bool = ForceOpt,
     seed: int = SeedOpt,
     as_json: bool = JsonOpt,
@@ -192,10 +199,10 @@ def scenario_build(
     from deepcrashtest.fileio import check_writable
     from deepcrashtest.trajectory.pipeline import process_scenario
 
-    cfg = load_config(config)
+    params = _with_driving_side(load_config(config).stage2, driving_side)
     sc_raw = _load(raw)
     check_writable(output, force)
-    sc = process_scenario(sc_raw, seed=seed, params=cfg.stage2)
+    sc = process_scenario(sc_raw, seed=seed, params=params)
     path = sc.save(output, force=force)
     c = sc.collision
     emit(
@@ -248,6 +255,7 @@ def extract(
         "and the annotated video, 'ego' allowed; FRAME alone = the likeliest pair there), e.g. 95:ego,7.",
     ),
     config: Path | None = ConfigOpt,
+    driving_side: str | None = DrivingSideOpt,
     force: bool = ForceOpt,
     seed: int = SeedOpt,
     as_json: bool = JsonOpt,
@@ -266,6 +274,7 @@ def extract(
     check_fps(fps)
     if dashboard_rows is not None and dashboard_rows < 0:
         raise UserError(f"--dashboard-rows must be >= 0 (got {dashboard_rows})")
+    stage2 = _stage2_config(config, driving_side)
     if camera is not None:
         require_file(camera, "camera file")
     if chessboard is not None and not chessboard.is_dir():
@@ -288,19 +297,36 @@ def extract(
         seed=seed,
         shots=shots,
         crash=crash,
-        stage2=_stage2_config(config),
+        stage2=stage2,
     )
     emit(result, as_json, _extract_summary)
 
 
-def _stage2_config(path: Path | None) -> Any:
-    """Stage 2's settings from ``--config`` (None without a file: the defaults, and no import of the search
-    package that ``config`` pulls in: ~0.3 s of extract's start-up)."""
-    if path is None:
+def _stage2_config(path: Path | None, driving_side: str | None = None) -> Any:
+    """Stage 2's settings from ``--config`` and ``--driving-side`` (None without either: the defaults, and no
+    import of the search package that ``config`` pulls in: ~0.3 s of extract's start-up)."""
+    if path is None and driving_side is None:
         return None
+    if path is None:
+        from deepcrashtest.trajectory.params import Stage2Params
+
+        return _with_driving_side(Stage2Params(), driving_side)
     from deepcrashtest.config import load_config
 
-    return load_config(path).stage2
+    return _with_driving_side(load_config(path).stage2, driving_side)
+
+
+def _with_driving_side(params: Any, driving_side: str | None) -> Any:
+    """``params`` (Stage2Params) with ``--driving-side`` on top when given (refused unless right or left)."""
+    if driving_side is None:
+        return params
+    from dataclasses import replace
+
+    from deepcrashtest.trajectory.params import DRIVING_SIDES
+
+    if driving_side not in DRIVING_SIDES:
+        raise UserError(f"--driving-side must be one of {', '.join(DRIVING_SIDES)} (got {driving_side!r})")
+    return replace(params, driving_side=driving_side)
 
 
 def _extract_summary(r: dict[str, Any]) -> None:

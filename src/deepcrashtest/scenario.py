@@ -42,7 +42,7 @@ from deepcrashtest import __version__
 from deepcrashtest.errors import ScenarioError
 from deepcrashtest.fileio import atomic_write_text, require_file
 
-SCHEMA_VERSION = "1.3"
+SCHEMA_VERSION = "1.4"
 """Major.minor. A file with another major, or a newer minor, is refused; older minors are migrated on load
 (:func:`migrate`)."""
 
@@ -446,8 +446,9 @@ class Road(_Model):
     """Road centre line and lanes, world frame.
 
     The ego's carriageway: ``lane_count`` lanes of ``lane_width`` in the ego's direction (0 = rightmost).
-    Left of its left edge, ``median_width`` metres on, ``oncoming_lane_count`` lanes of the same width carry the
-    opposite direction (right-hand traffic).
+    Beyond its edge next to the other direction (the left edge in right-hand traffic, the right edge where
+    ``driving_side`` is ``left``), ``median_width`` metres on, ``oncoming_lane_count`` lanes of the same width
+    carry the opposite direction.
     """
 
     centerline_x: list[CoordItem] = Field(description="Waypoint x, metres")
@@ -459,7 +460,12 @@ class Road(_Model):
         default=0,
         ge=0,
         le=12,
-        description="Lanes of the opposite direction, left of the ego's carriageway (0 = a one-way road)",
+        description="Lanes of the opposite direction, beside the ego's carriageway (0 = a one-way road)",
+    )
+    driving_side: Literal["right", "left"] = Field(
+        default="right",
+        description="The side traffic keeps to: right (the oncoming lanes left of the ego's carriageway) or left "
+        "(UK, Japan, India, Australia, ...: the oncoming lanes on its right)",
     )
     median_width: NonNegFloat = Field(
         default=0.0,
@@ -712,12 +718,13 @@ def migrate(data: dict[str, Any]) -> dict[str, Any]:
     (processed files) and the ego's first frame into ``source.time_offset_s``; collisions get
     ``source="video-auto"`` (the default). 1.1 -> 1.2: ``camera.attitude`` (optional) is new; nothing moves.
     1.2 -> 1.3: ``road.oncoming_lane_count`` and ``road.median_width`` are new (default 0: the road as read
-    before, the ego's direction only); nothing moves.
+    before, the ego's direction only); nothing moves. 1.3 -> 1.4: ``road.driving_side`` is new (default
+    ``right``, what every earlier file described); nothing moves.
     """
-    if str(data.get("schema_version")) not in ("1.0", "1.1", "1.2"):
+    if str(data.get("schema_version")) not in ("1.0", "1.1", "1.2", "1.3"):
         return data
     out = dict(data)
-    if str(data.get("schema_version")) in ("1.1", "1.2"):
+    if str(data.get("schema_version")) in ("1.1", "1.2", "1.3"):
         out["schema_version"] = SCHEMA_VERSION
         return out
     out["schema_version"] = SCHEMA_VERSION

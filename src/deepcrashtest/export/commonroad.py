@@ -9,7 +9,9 @@
   Lanelet id ``1 + lane index`` (0 = rightmost); neighbours are linked as adjacent in the same direction.
   The oncoming lanes (``Road.oncoming_lane_count``) follow with ids ``lane_count + 1 + k`` (k = 0 next to the
   ego's carriageway), their vertices running the opposite way; without a median the innermost one and the
-  ego carriageway's leftmost lanelet are each other's left neighbour in the opposite direction.
+  ego carriageway's lanelet next to it (the leftmost; in left-hand traffic, ``Road.driving_side`` ``left``, the
+  rightmost, the oncoming lanes lying right of it) are each other's neighbour in the opposite direction (left in
+  right-hand traffic, right in left-hand traffic).
 * Agents: dynamic obstacles (id ``OBSTACLE_ID_BASE + vehicle id``), rectangle shape of the
   vehicle's length x width, initial state at the first step of their span, a trajectory
   prediction over the remaining steps. Agents whose span holds fewer than two steps are left out
@@ -109,20 +111,24 @@ def _lanelet_network(sc: Scenario) -> Any:
     offsets = boundary_offsets(sc.road)
     n = sc.road.lane_count
     oncoming_next = sc.road.oncoming_lane_count > 0 and sc.road.median_width == 0
+    left_opposite = oncoming_next and sc.road.driving_side == "right"  # the leftmost lane's left: the oncoming
+    right_opposite = oncoming_next and sc.road.driving_side == "left"  # the rightmost lane's right: the oncoming
     net = LaneletNetwork()
     for k in range(n):
         right = pts + offsets[k] * normal
         left = pts + offsets[k + 1] * normal
+        left_id = k + 2 if k + 1 < n or left_opposite else None
+        right_id = k if k > 0 else (n + 1 if right_opposite else None)
         net.add_lanelet(
             Lanelet(
                 left,
                 (left + right) / 2.0,
                 right,
                 lanelet_id=k + 1,
-                adjacent_left=k + 2 if k + 1 < n or oncoming_next else None,
-                adjacent_left_same_direction=(k + 1 < n) if k + 1 < n or oncoming_next else None,
-                adjacent_right=k if k > 0 else None,
-                adjacent_right_same_direction=True if k > 0 else None,
+                adjacent_left=left_id,
+                adjacent_left_same_direction=(k + 1 < n) if left_id is not None else None,
+                adjacent_right=right_id,
+                adjacent_right_same_direction=(k > 0) if right_id is not None else None,
                 line_marking_left_vertices=LineMarking.SOLID if k == n - 1 else LineMarking.DASHED,
                 line_marking_right_vertices=LineMarking.SOLID if k == 0 else LineMarking.DASHED,
                 lanelet_type={LaneletType.UNKNOWN},
@@ -141,23 +147,30 @@ def _oncoming_lanelets(road: Road, pts: np.ndarray, normal: np.ndarray) -> list[
     offsets = oncoming_boundary_offsets(road)
     n, m = road.lane_count, road.oncoming_lane_count
     touching = road.median_width == 0
+    right_hand = road.driving_side == "right"
     out = []
     for k in range(m):
-        left = (pts + offsets[k] * normal)[::-1]  # driving towards the line's start: the inner edge is its left
-        right = (pts + offsets[k + 1] * normal)[::-1]
-        inner = n + k if k > 0 or touching else None
+        # driving towards the line's start: in right-hand traffic the inner edge is the lanelet's left
+        inner_edge = (pts + offsets[k] * normal)[::-1]
+        outer_edge = (pts + offsets[k + 1] * normal)[::-1]
+        inner = (n + k if k > 0 else (n if right_hand else 1)) if k > 0 or touching else None
+        outer = n + 2 + k if k + 1 < m else None
+        inner_kw = {"id": inner, "same": (k > 0) if inner is not None else None, "marking": k == 0}
+        outer_kw = {"id": outer, "same": True if outer is not None else None, "marking": k == m - 1}
+        left_kw, right_kw = (inner_kw, outer_kw) if right_hand else (outer_kw, inner_kw)
+        left, right = (inner_edge, outer_edge) if right_hand else (outer_edge, inner_edge)
         out.append(
             Lanelet(
                 left,
                 (left + right) / 2.0,
                 right,
                 lanelet_id=n + 1 + k,
-                adjacent_left=inner,
-                adjacent_left_same_direction=(k > 0) if inner is not None else None,
-                adjacent_right=n + 2 + k if k + 1 < m else None,
-                adjacent_right_same_direction=True if k + 1 < m else None,
-                line_marking_left_vertices=LineMarking.SOLID if k == 0 else LineMarking.DASHED,
-                line_marking_right_vertices=LineMarking.SOLID if k == m - 1 else LineMarking.DASHED,
+                adjacent_left=left_kw["id"],
+                adjacent_left_same_direction=left_kw["same"],
+                adjacent_right=right_kw["id"],
+                adjacent_right_same_direction=right_kw["same"],
+                line_marking_left_vertices=LineMarking.SOLID if left_kw["marking"] else LineMarking.DASHED,
+                line_marking_right_vertices=LineMarking.SOLID if right_kw["marking"] else LineMarking.DASHED,
                 lanelet_type={LaneletType.UNKNOWN},
             )
         )

@@ -16,6 +16,10 @@ came from the ego's path (``source`` ``ego_path*``) the waypoints are the centre
 reference line; otherwise the waypoints are the centre of the carriageway. The oncoming lanes
 (``oncoming_lane_count``) are left lanes (positive ids, the opposite direction) beyond the centre lane's
 solid line: ids 1 .. n, or 2 .. n + 1 behind a ``median`` lane 1 of ``median_width`` on a divided road.
+Left-hand traffic (``Road.driving_side`` ``left``): the road's ``rule`` is ``LHT``, under which the left lanes
+drive in the reference line's direction: the ego's carriageway is left lanes 1 .. lane_count (1 the rightmost,
+next to the centre lane, which lies on the carriageway's right edge) and the oncoming lanes are right lanes
+-1 .. -n (or -2 .. -(n + 1) behind a median lane -1).
 
 Elevation: one record with all coefficients 0 (a flat road; scenariogeneration would otherwise
 write an empty, schema-invalid ``<elevationProfile/>``). Header revMajor 1, revMinor 7: the
@@ -27,8 +31,10 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.integrate import quad
@@ -141,9 +147,10 @@ def sample_reference_line(segments: list[Poly3Segment], step_m: float = 0.5) -> 
     return np.vstack(pts), np.concatenate(hdgs)
 
 
-def opendrive_lane_id(lane_index: int, lane_count: int) -> int:
-    """OpenDRIVE lane id of Scenario lane ``lane_index`` (0 = rightmost): -lane_count .. -1."""
-    return -(lane_count - lane_index)
+def opendrive_lane_id(lane_index: int, lane_count: int, driving_side: str = "right") -> int:
+    """OpenDRIVE lane id of Scenario lane ``lane_index`` (0 = rightmost) of the ego's carriageway: -lane_count .. -1
+    in right-hand traffic, 1 .. lane_count in left-hand traffic."""
+    return -(lane_count - lane_index) if driving_side == "right" else lane_index + 1
 
 
 def build_opendrive(road: Road, name: str = "deepcrashtest"):  # -> scenariogeneration.xodr.OpenDrive
@@ -155,30 +162,35 @@ def build_opendrive(road: Road, name: str = "deepcrashtest"):  # -> scenariogene
         geom = xodr.ParamPoly3(*seg.u, *seg.v, prange="normalized", length=seg.length)
         planview.add_fixed_geometry(geom, seg.x, seg.y, seg.hdg, s=seg.s)
 
+    right_hand = road.driving_side == "right"
     offsets = boundary_offsets(road)
-    lanes = xodr.Lanes()
-    lanes.add_laneoffset(xodr.LaneOffset(0.0, float(offsets[-1]), 0.0, 0.0, 0.0))
+    lanes = xodr.Lanes()  # the centre lane on the ego carriageway's edge next to the other direction
+    lanes.add_laneoffset(xodr.LaneOffset(0.0, float(offsets[-1] if right_hand else offsets[0]), 0.0, 0.0, 0.0))
     centre = xodr.Lane(a=0.0)
     centre.add_roadmark(xodr.RoadMark(xodr.RoadMarkType.solid, 0.12))
     section = xodr.LaneSection(0.0, centre)
+    own_side, other_side = (section.add_right_lane, section.add_left_lane)
+    if not right_hand:
+        own_side, other_side = other_side, own_side
     n = road.lane_count
-    for lane_id in range(-1, -n - 1, -1):  # -1 (leftmost) first, as scenariogeneration numbers them
+    for k in range(n):  # from the centre lane outwards, as scenariogeneration numbers them
         lane = xodr.Lane(xodr.LaneType.driving, a=road.lane_width)
-        outer = lane_id == -n
-        lane.add_roadmark(xodr.RoadMark(xodr.RoadMarkType.solid if outer else xodr.RoadMarkType.broken, 0.12))
-        section.add_right_lane(lane)
-    _add_oncoming_lanes(section, road)
+        lane.add_roadmark(xodr.RoadMark(xodr.RoadMarkType.solid if k == n - 1 else xodr.RoadMarkType.broken, 0.12))
+        own_side(lane)
+    _add_oncoming_lanes(other_side, road)
     lanes.add_lanesection(section)
 
-    xroad = xodr.Road(ROAD_ID, planview, lanes, name=name)
+    rule = xodr.TrafficRule.RHT if right_hand else xodr.TrafficRule.LHT
+    xroad = xodr.Road(ROAD_ID, planview, lanes, name=name, rule=rule)
     xroad.add_elevation(0.0, 0.0, 0.0, 0.0, 0.0)
     odr = xodr.OpenDrive(name, revMajor=str(OPENDRIVE_REV_MAJOR), revMinor=str(OPENDRIVE_REV_MINOR))
     odr.add_road(xroad)
     return odr
 
 
-def _add_oncoming_lanes(section, road: Road) -> None:  # section: scenariogeneration.xodr.LaneSection
-    """The oncoming lanes as left lanes (ids 1.., inner first), behind a median lane where the road has one."""
+def _add_oncoming_lanes(add_lane: Callable[[Any], None], road: Road) -> None:
+    """The oncoming lanes, inner first, behind a median lane where the road has one, each given to ``add_lane``
+    (the lane section's ``add_left_lane`` in right-hand traffic, ``add_right_lane`` in left-hand traffic)."""
     from scenariogeneration import xodr
 
     if road.oncoming_lane_count == 0:
@@ -186,12 +198,12 @@ def _add_oncoming_lanes(section, road: Road) -> None:  # section: scenariogenera
     if road.median_width > 0:
         median = xodr.Lane(xodr.LaneType.median, a=road.median_width)
         median.add_roadmark(xodr.RoadMark(xodr.RoadMarkType.solid, 0.12))
-        section.add_left_lane(median)
+        add_lane(median)
     for k in range(road.oncoming_lane_count):
         lane = xodr.Lane(xodr.LaneType.driving, a=road.lane_width)
         outer = k == road.oncoming_lane_count - 1
         lane.add_roadmark(xodr.RoadMark(xodr.RoadMarkType.solid if outer else xodr.RoadMarkType.broken, 0.12))
-        section.add_left_lane(lane)
+        add_lane(lane)
 
 
 def write_opendrive(road: Road, path: str | os.PathLike[str], name: str = "deepcrashtest", force: bool = False) -> Path:

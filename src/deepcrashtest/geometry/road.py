@@ -3,11 +3,14 @@
 Used by the exporters (OpenDRIVE, CommonRoad), the bird's-eye video, the report's plots and the viewer.
 Layout: on an ``ego_path*`` or ``road_users`` road the centre line is the ego's path, so it is the centre
 of lane ``ego_lane``; on any other road it is the centre of the carriageway. Lane 0 is the rightmost.
-The oncoming lanes (``oncoming_lane_count``, the opposite direction) lie left of the ego's carriageway,
-``median_width`` beyond its left edge. World frame, metres.
+The oncoming lanes (``oncoming_lane_count``, the opposite direction) lie ``median_width`` beyond the ego
+carriageway's edge next to the other direction: its left edge in right-hand traffic, its right edge where
+``driving_side`` is ``left``. World frame, metres.
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import numpy as np
 
@@ -37,25 +40,39 @@ def boundary_offsets(road: Road) -> np.ndarray:
 def oncoming_boundary_offsets(road: Road) -> np.ndarray:
     """Lateral offsets (m, left positive) of the oncoming lanes' boundaries from the centre line, right to left.
 
-    ``oncoming_lane_count + 1`` values (none on a one-way road); the first is the inner edge, ``median_width``
-    left of the ego's carriageway. Oncoming lane k (0 = the one next to the ego's carriageway) lies between
-    entries k and k + 1.
+    ``oncoming_lane_count + 1`` values (none on a one-way road), from the inner edge, ``median_width`` beyond
+    the ego's carriageway (left of it, or right in left-hand traffic), outwards. Oncoming lane k (0 = the one
+    next to the ego's carriageway) lies between entries k and k + 1.
     """
     if road.oncoming_lane_count == 0:
         return np.zeros(0)
-    inner = float(boundary_offsets(road)[-1]) + road.median_width
-    return inner + np.arange(road.oncoming_lane_count + 1, dtype=float) * road.lane_width
+    side = side_sign(road)
+    inner = float(divider_offset(road)) + side * road.median_width
+    return inner + side * np.arange(road.oncoming_lane_count + 1, dtype=float) * road.lane_width
 
 
-def lane_lines(road: Road) -> dict[str, list[list[list[float]]]]:
-    """``{"center": [[x, y], ...], "boundaries": [[[x, y], ...], ...], "oncoming": [...]}``: the ego's
-    carriageway's boundaries (outer ones first and last), then the oncoming lanes' (inner edge first; empty on a
-    one-way road)."""
+def side_sign(road: Road) -> float:
+    """+1 where the oncoming lanes lie left of the ego's carriageway (right-hand traffic), -1 right of it."""
+    return 1.0 if road.driving_side == "right" else -1.0
+
+
+def divider_offset(road: Road) -> float:
+    """Lateral offset (m, left positive) of the ego carriageway's edge next to the other direction."""
+    edges = boundary_offsets(road)
+    return float(edges[-1] if road.driving_side == "right" else edges[0])
+
+
+def lane_lines(road: Road) -> dict[str, Any]:
+    """``{"center": [[x, y], ...], "boundaries": [[[x, y], ...], ...], "oncoming": [...], "driving_side": ...}``:
+    the ego's carriageway's boundaries (rightmost edge first, leftmost last), then the oncoming lanes' (inner edge
+    first; empty on a one-way road), and the side traffic keeps to (``right``: the ego carriageway's last boundary
+    is the edge between the directions; ``left``: its first)."""
     xy = road.centerline()
     return {
         "center": xy.tolist(),
         "boundaries": [b.tolist() for b in boundary_polylines(road)],
         "oncoming": [b.tolist() for b in oncoming_polylines(road)],
+        "driving_side": road.driving_side,
     }
 
 

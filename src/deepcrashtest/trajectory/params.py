@@ -12,6 +12,9 @@ from typing import Any
 
 from deepcrashtest.errors import UserError
 
+#: Values of ``Stage2Params.driving_side`` (and ``Road.driving_side``).
+DRIVING_SIDES = ("right", "left")
+
 
 @dataclass(frozen=True)
 class Stage2Params:
@@ -82,10 +85,19 @@ class Stage2Params:
     road_margin_m: float = 20.0
     """The centre line reaches this far past the first/last vehicle position along the road, metres."""
     default_lane_width_m: float = 3.5
+    driving_side: str = "right"
+    """Which side of the road traffic keeps to: ``right`` (right-hand traffic: the oncoming lanes left of the
+    ego's carriageway) or ``left`` (UK, Ireland, Japan, India, Australia, ...: the oncoming lanes on its right)."""
 
     def __post_init__(self) -> None:
+        if self.driving_side not in DRIVING_SIDES:
+            raise UserError(
+                f"Stage2Params.driving_side must be one of {', '.join(DRIVING_SIDES)} (got {self.driving_side!r})"
+            )
         for f in fields(self):
             v = getattr(self, f.name)
+            if f.name == "driving_side":
+                continue
             if not isinstance(v, int | float) or isinstance(v, bool) or not math.isfinite(v):
                 raise UserError(f"Stage2Params.{f.name} must be a finite number (got {v!r})")
             if v <= 0:

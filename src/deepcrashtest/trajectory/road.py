@@ -23,6 +23,9 @@ it, so neither counts), each by the median lateral offset of its path from the e
   lanes the oncoming vehicles left of the ego's lane (up to ``MAX_ONCOMING_OFFSET_M``) need, from the
   innermost one outwards. When the innermost lies more than a lane beyond the ego's carriageway (a divided
   road), the gap is the ``Road.median_width``; otherwise the oncoming lanes start at its left edge.
+* Left-hand traffic (``Stage2Params.driving_side`` ``left``, given by the user: the video cannot tell a
+  wrong-way or mislocalised car from the rule of the road): the same layout mirrored, the oncoming lanes right
+  of the ego's carriageway; lane 0 stays the rightmost.
 """
 
 from __future__ import annotations
@@ -131,6 +134,26 @@ def oncoming_lanes(offsets_m: list[float], left_edge_m: float, lane_width: float
     return int(np.clip(count, 1, MAX_INFERRED_LANES)), median
 
 
+def road_layout(
+    same_m: list[float], oncoming_m: list[float], width: float, driving_side: str = "right"
+) -> tuple[int, int, int, float]:
+    """(lane count, ego lane (0 = rightmost), oncoming lane count, median width m) of a road holding the lateral
+    offsets (m, left positive, from the ego's lane centre) of the same-direction and oncoming vehicles.
+
+    Right-hand traffic: :func:`carriageway` (an oncoming vehicle on the ego's side of the road, mislocalised or
+    against the traffic, is held by it too) and :func:`oncoming_lanes` left of it. Left-hand traffic: the same
+    on the offsets mirrored, the ego's lane index turned back to count from the right.
+    """
+    sign = 1.0 if driving_side == "right" else -1.0
+    same = [sign * v for v in same_m]
+    oncoming = [sign * v for v in oncoming_m]
+    count, ego_lane = carriageway(same + [v for v in oncoming if v < 0], width)
+    n_on, median = oncoming_lanes(oncoming, (count - ego_lane - 0.5) * width, width)
+    if sign < 0:
+        ego_lane = count - 1 - ego_lane
+    return count, ego_lane, n_on, median
+
+
 def build_road(
     frame: RoadFrame,
     raw_road: Road,
@@ -160,8 +183,7 @@ def build_road(
     else:
         width, shift = fitted_lane_width(same + oncoming, p.default_lane_width_m), 0.0
         source = "road_users" if source == "ego_path" else source
-    count, ego_lane = carriageway(same + [v for v in oncoming if v < 0], width)  # oncoming on the right: held too
-    n_on, median = oncoming_lanes(oncoming, (count - ego_lane - 0.5) * width, width)
+    count, ego_lane, n_on, median = road_layout(same, oncoming, width, p.driving_side)
     if lt is None and warnings is not None:
         users = f"the spread of {len(same) + len(oncoming)} road users' paths" if same or oncoming else "no other path"
         on = f", {n_on} oncoming" + (f" beyond a {median:g} m median" if median else "") if n_on else ""
@@ -178,6 +200,7 @@ def build_road(
         ego_lane=ego_lane,
         oncoming_lane_count=n_on,
         median_width=median,
+        driving_side=p.driving_side,  # type: ignore[arg-type]
         source=source,  # type: ignore[arg-type]
         lane_timeline=raw_road.lane_timeline,
     )

@@ -62,7 +62,9 @@ def _road_lines(scenario: Scenario) -> _RoadLines:
     if not other:
         return _RoadLines([own[0], own[-1]], own[1:-1], [], polygons)
     polygons.append(np.vstack([other[0], other[-1][::-1]]))
-    return _RoadLines([own[0], other[-1]], own[1:-1] + other[1:-1], [own[-1], other[0]], polygons)
+    right_hand = scenario.road.driving_side == "right"
+    outer, divider = (own[0], own[-1]) if right_hand else (own[-1], own[0])
+    return _RoadLines([outer, other[-1]], own[1:-1] + other[1:-1], [divider, other[0]], polygons)
 
 
 class _View:

@@ -61,6 +61,7 @@ def draw_road(ax: Any, sc: Scenario) -> None:
     """Road surface and lane lines of the ego's carriageway and the oncoming lanes (world frame, metres;
     :mod:`deepcrashtest.geometry.road`); the edge between the two directions solid and darker."""
     oncoming = oncoming_polylines(sc.road)
+    own_divider = -1 if sc.road.driving_side == "right" else 0  # the ego carriageway's edge next to the oncoming
     for b in (boundary_polylines(sc.road), oncoming):
         if not b:
             continue
@@ -68,7 +69,7 @@ def draw_road(ax: Any, sc: Scenario) -> None:
         ax.fill(outline[:, 0], outline[:, 1], color="0.9", zorder=0)
         for i, line in enumerate(b):
             style = {"lw": 0.9, "ls": "-"} if i in (0, len(b) - 1) else {"lw": 0.6, "ls": (0, (6, 6))}
-            divider = bool(oncoming) and line is (b[0] if b is oncoming else b[-1])
+            divider = bool(oncoming) and line is (b[0] if b is oncoming else b[own_divider])
             ax.plot(line[:, 0], line[:, 1], color="0.3" if divider else "0.55", zorder=1, **style)
 
 

@@ -195,6 +195,7 @@ def overview_section(sc: Scenario) -> Section:
                 if sc.road.oncoming_lane_count
                 else ""
             )
+            + (", left-hand traffic" if sc.road.driving_side == "left" else "")
             + f", from {sc.road.source}"
             + (" (no lanes seen: inferred from the road users' paths)" if sc.road.source == "road_users" else ""),
         ),

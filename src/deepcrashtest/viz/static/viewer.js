@@ -227,7 +227,9 @@
 
   function drawCarriageway(b, oncoming) {
     // one direction's lanes: surface, solid outer edges, dashed lane lines; the edge next to the other
-    // direction (the ego carriageway's left edge, the oncoming lanes' inner edge) solid yellow
+    // direction (the ego carriageway's left edge, its right edge in left-hand traffic; the oncoming lanes'
+    // inner edge) solid yellow
+    const ownDivider = S.road.driving_side === "left" ? b[0] : b[b.length - 1];
     if (b.length >= 2) {
       polyline([...b[0], ...[...b[b.length - 1]].reverse()], true);
       ctx.fillStyle = "#555b5e";
@@ -235,7 +237,7 @@
     }
     b.forEach((line, i) => {
       const edge = i === 0 || i === b.length - 1;
-      const divider = oncoming.length > 0 && line === (b === oncoming ? b[0] : b[b.length - 1]);
+      const divider = oncoming.length > 0 && line === (b === oncoming ? b[0] : ownDivider);
       polyline(line);
       ctx.strokeStyle = divider ? "#f0c828" : "#f5f5f5";
       ctx.lineWidth = 1.5;
