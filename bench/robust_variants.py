@@ -13,6 +13,11 @@ Usage::
         "letterbox", "pillarbox", "phone", "portrait", "text", "compil", "short", "frozen"]}'
     TAG=r1 python bench/robust_variants.py run ccd_000053_down640 ccd_000053_fps30 ...
     TAG=r1 python bench/robust_variants.py score ccd_000053_compil ...   # score out_r1 again, no extract
+    TAG=r1 NEW=r2 python bench/robust_variants.py restage [--redetect] ccd_000053_phone ...  # stage 2 again
+
+``restage`` copies ``out_TAG/NAME`` to ``out_NEW/NAME`` and reruns this checkout's stage 2 on its
+``scenario_raw.json`` (``--redetect``: the automatic crash detection on its ``tracks.csv`` first, the camera's
+motion cached in ``$ROBUST_DIR/motion``), then scores it (rows in ``results_NEW.jsonl``).
 
 ``ROBUST_DIR`` (default ``/tmp/robust``) is the folder of the videos, labels and outputs (one per user).
 A compilation's extraction (``shot_NN`` folders) is scored on the shot whose tracks cover the contact.
@@ -250,6 +255,48 @@ def run_main(names, extract=True):
             f.write(json.dumps(row) + "\n")
 
 
+def restage_main(names, redetect=False):
+    """Stage 2 (and with ``redetect`` the crash detection) of this checkout on copies of ``out_TAG``'s
+    extractions in ``out_NEW``; one scored JSON row each (``restage`` in the module docstring)."""
+    import shutil
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from crash_detect_bench import global_motion
+
+    from deepcrashtest.eval.fidelity import read_tracks
+    from deepcrashtest.pipeline.crash import crash_for_raw
+    from deepcrashtest.scenario import Scenario
+    from deepcrashtest.trajectory.pipeline import process_scenario
+
+    tag, new = os.environ.get("TAG", "r1"), os.environ["NEW"]
+    for name in names:
+        src, dst = ROOT / f"out_{tag}" / name, ROOT / f"out_{new}" / name
+        shutil.rmtree(dst, ignore_errors=True)
+        shutil.copytree(src, dst)
+        shot = _crash_shot(dst, name)
+        row = {"variant": name, "from": tag, "redetect": redetect}
+        if shot is not None:
+            raw = Scenario.load(shot / "scenario_raw.json")
+            if redetect:
+                tracks = read_tracks(shot / "tracks.csv")
+                fr, sh = global_motion(OUT / f"{name}.mp4", ROOT / "motion", None)
+                m = (fr >= tracks["frame"].min()) & (fr <= tracks["frame"].max())
+                sh = sh[m].copy()
+                sh[0] = 0.0  # a shot's own pass starts its motion afresh (no shift across the cut)
+                from deepcrashtest.video.bars import video_picture_area
+
+                raw, rec = crash_for_raw(raw, tracks, (fr[m], sh), picture=video_picture_area(OUT / f"{name}.mp4"))
+                raw.save(shot / "scenario_raw.json", force=True)
+                row["detected"] = [rec.get("frame"), rec.get("pair"), rec.get("confidence")]
+            process_scenario(raw).save(shot / "scenario.json", force=True)
+            row["shot"] = shot.name if shot != dst else None
+            row.update(_score(shot, OUT / f"{name}.mp4", name))
+        print(json.dumps(row), flush=True)
+        with open(ROOT / f"results_{new}.jsonl", "a") as f:
+            f.write(json.dumps(row) + "\n")
+
+
 def _score(shot, video, name):
     """The fidelity row of one extraction folder (``scenario.json``, ``tracks.csv``) against the labels."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
@@ -280,7 +327,12 @@ def _score(shot, video, name):
 
 
 if __name__ == "__main__":
-    if len(sys.argv) < 3 or sys.argv[1] not in ("make", "run", "score"):
+    if len(sys.argv) < 3 or sys.argv[1] not in ("make", "run", "score", "restage"):
         sys.exit(__doc__)
     cmd, args = sys.argv[1], sys.argv[2:]
-    make_main(args) if cmd == "make" else run_main(args, extract=cmd == "run")
+    if cmd == "make":
+        make_main(args)
+    elif cmd == "restage":
+        restage_main([a for a in args if a != "--redetect"], redetect="--redetect" in args)
+    else:
+        run_main(args, extract=cmd == "run")

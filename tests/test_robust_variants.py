@@ -246,3 +246,30 @@ def test_a_clip_resampled_to_a_higher_frame_rate_has_its_crash_where_the_box_sto
     found = detect_crash(pd.read_csv(tmp_path / "out" / "tracks.csv"), w, h, 15.0)
     assert found is not None and found.pair[0] == 0
     assert abs(found.time_s - 2.6) <= 0.1  # main: 1.93 s
+
+
+def test_a_jolt_just_before_the_box_fills_the_view_is_not_yet_the_contact(tmp_path):
+    """ccd_001143 (a bus cuts in from the right; the ego is against its side from frame 33, 3.3 s) re-encoded at
+    crf 35: the camera's motion measured into frame 30, where the bus's box jumps onto the image border (the bus
+    filling the view, its own motion), reads 11.8 px. The jolt, a second difference centred on each frame, is
+    full at frame 29 already (it holds frame 30's shift): the crash came at 2.9 s and the replay 0.77 s early.
+    A jolt on the frame before such a border jump is that jump's: the contact comes after it (3.1 s, as on the
+    clip itself)."""
+    import pandas as pd
+
+    from deepcrashtest.perception.crash_detect import GlobalMotion, detect_crash
+    from deepcrashtest.pipeline.extract import run_extract
+    from deepcrashtest.video.source import open_video
+
+    with av.open(str(need(CCD / "ccd_001143.mp4"))) as c:
+        frames = [f.to_ndarray(format="bgr24") for f in c.decode(video=0)]
+    video = _write(tmp_path / "crf35.mp4", frames, 10, crf=35)
+    run_extract(video, tmp_path / "out", geometry=False, annotate=False, report=False)
+    gm = GlobalMotion()
+    with open_video(video) as src:
+        for fr in src:
+            gm.update(fr.index, fr.image)
+    h, w = frames[0].shape[:2]
+    found = detect_crash(pd.read_csv(tmp_path / "out" / "tracks.csv"), w, h, 10.0, motion=gm.arrays())
+    assert found is not None and found.pair[0] == 0
+    assert abs(found.time_s - 3.3) <= 0.25  # main: 2.9 s

@@ -69,3 +69,35 @@ def test_a_late_jolt_free_detection_is_moved_to_the_first_touch(ccd882_raw):
     hit = simulate(sc).first_contact  # the replay's first contact of any pair
     assert hit is not None and set(hit["vehicles"]) == set(c.participants)
     assert abs(sc.video_time(hit["time"]) - 3.0) <= 0.25
+
+
+def test_a_trimmed_lead_in_starts_clear_of_every_road_user(ccd882_raw):
+    """ccd_000882: agent 2's invented lead-in touched agent 1 at 0.85 s; trimmed to start 1 s later, it started
+    0.35 m from agent 1 (main 42759cb), under the 0.5 m bystanders are kept apart by: a scenario whose first moment
+    has two road users (nearly) in one place, which the replay ignores only until they part. A trimmed lead-in now
+    starts at its first sample that is clear of everyone (or where the road user is first seen)."""
+    from deepcrashtest.trajectory.collision import vehicle_box
+    from deepcrashtest.trajectory.contact import ContactParams, separation
+    from deepcrashtest.trajectory.pipeline import process_scenario
+
+    sc = process_scenario(ccd882_raw)
+    byid = {v.id: v for v in [sc.ego, *sc.agents]}
+    trims = [b for b in sc.provenance.parameters["crash"].get("bystanders", []) if "trimmed_at_s" in b]
+    leadins = [b for b in trims if b["agent"] in byid and byid[b["agent"]].trajectory.t[0] > b["trimmed_at_s"]]
+    assert leadins  # agent 2's lead-in is trimmed
+    checked = 0
+    for b in leadins:
+        v = byid[b["agent"]]
+        box = vehicle_box(v)
+        t0 = np.array([box.t[0]])
+        seen = v.trajectory.observed
+        first_seen = v.trajectory.t[seen.index(True)] if seen and any(seen) else None
+        if first_seen is not None and box.t[0] >= first_seen - 1e-3:
+            continue  # it starts where it is first seen: nothing invented is left to trim
+        for o in [sc.ego, *sc.agents]:
+            ob = vehicle_box(o)
+            if o.id != v.id and ob.t[0] <= t0[0] <= ob.t[-1]:
+                gap = float(separation(box, ob, t0)[0])
+                assert gap >= ContactParams().clearance_m - 0.1, (v.id, o.id, gap)  # the final fit moves it cm
+                checked += 1
+    assert checked  # a lead-in starts before the road user is seen, beside another (agent 2 beside agent 1)

@@ -39,7 +39,8 @@ box had already stopped growing at the bumper ``STILL_BEFORE_JOLT_S`` before tha
 stopped: the jolt is the same crash going on), else the
 "knee" where its approaching box stops growing, else the first frame at which it is nearest; one
 frame later when that frame is where the box jumps onto the image border (the road user filling the
-view: its box stops growing and it moves the image the jolt is measured on).
+view: its box stops growing and it moves the image the jolt is measured on), and for a jolt on the frame
+just before that jump (its centred second difference holds the jump's shift) the frame after the jump.
 
 The crash is the best-scoring (pair, frame); among pairs of road users within ``TIE_MARGIN`` of the
 best pair, the one whose score holds longest over ``CONTACT_HOLD_S`` after its contact (:func:`ranked`).
@@ -441,6 +442,10 @@ def ego_best(s: pd.DataFrame, fps: float) -> tuple[float, int, dict[str, float]]
     fell = s.index.to_numpy()[(fallen & near_enough).to_numpy()]
     if len(fell) and int(fell[0]) < frame:  # a pedestrian struck off their feet: contact before knee or jolt
         ev["later_frame"], frame = frame, int(fell[0])
+    if len(jolted) and frame == int(jolted[0]) and "reaches_border" in s:
+        nxt = _next_new_frame(s, frame)
+        if nxt in s.index and bool(s.loc[nxt, "reaches_border"]):
+            frame = nxt  # the jolt's second difference holds the next frame's shift: the box jumping onto the border
     if "reaches_border" in s and bool(s.loc[frame, "reaches_border"]):
         frame = _next_new_frame(s, frame)  # the box jumped onto the border there: filling the view, not touching
     return score, frame, ev
