@@ -202,6 +202,20 @@ def _huber_gauss_newton(
     return p, A, w
 
 
+def _median_scale(x1: np.ndarray, a: np.ndarray, b: np.ndarray) -> float | None:
+    """Start of a road-plane fit: the median over points of the scale ``s`` solving ``x1 x (a + s b) = 0`` (each
+    (N, 3): the later frame's normalised point, the rotated earlier point, the translation per unit scale); None
+    with fewer than ``MIN_ROAD_POINTS`` points that fix it or a non-finite median."""
+    c1 = np.cross(x1, a)
+    c2 = np.cross(x1, b)
+    den = np.sum(c2 * c2, axis=1)
+    ok = den > 1e-12
+    if ok.sum() < MIN_ROAD_POINTS:
+        return None
+    start = float(np.median(-np.sum(c1[ok] * c2[ok], axis=1) / den[ok]))
+    return start if np.isfinite(start) else None
+
+
 def fit_plane_motion(
     x0: np.ndarray,
     p1: np.ndarray,
@@ -238,17 +252,11 @@ def fit_plane_motion(
             u, v = u + p[3], v + p[4]
         return np.column_stack([u, v]) / noise_px
 
-    # start: per-point sigma from x1 x (a + sigma b) = 0 with the prior normal, median
     x1 = np.column_stack([(p1[:, 0] - cx) / fx, (p1[:, 1] - cy) / fy, np.ones(len(p1))])
-    c1 = np.cross(x1, a)
-    c2 = np.cross(x1, (x0 @ n_prior)[:, None] * t[None, :])
-    den = np.sum(c2 * c2, axis=1)
-    ok = den > 1e-12
-    if ok.sum() < MIN_ROAD_POINTS:
+    start = _median_scale(x1, a, (x0 @ n_prior)[:, None] * t[None, :])
+    if start is None:
         return None
-    p = np.array([float(np.median(-np.sum(c1[ok] * c2[ok], axis=1) / den[ok])), 0.0, 0.0, 0.0, 0.0][:npar])
-    if not np.isfinite(p[0]):
-        return None
+    p = np.array([start, 0.0, 0.0, 0.0, 0.0][:npar])
     prior_w = np.array([0.0, 1.0 / tilt_prior_rad**2, 1.0 / tilt_prior_rad**2, 0.0, 0.0][:npar])
     if npar == 5:
         prior_w[3:] = (noise_px / shift_prior_px) ** 2  # residuals are in noise units
@@ -347,19 +355,12 @@ def fit_joint_speed(
             v = v + p[3 + npair :][pair_id]
         return np.column_stack([u, v]) / noise_px
 
-    # start: per-point speed from x1 x (a + v b) = 0, median
     x1 = np.column_stack([(p1[:, 0] - kk[:, 2]) / kk[:, 0], (p1[:, 1] - kk[:, 3]) / kk[:, 1], np.ones(len(p1))])
-    c1 = np.cross(x1, a)
-    c2 = np.cross(x1, np.sum(x0 * n0, axis=1)[:, None] * tb)
-    den = np.sum(c2 * c2, axis=1)
-    ok = den > 1e-12
-    if ok.sum() < MIN_ROAD_POINTS:
-        return None
-    p = np.array([float(np.median(-np.sum(c1[ok] * c2[ok], axis=1) / den[ok])), 0.0, 0.0])
-    if not np.isfinite(p[0]):
+    start = _median_scale(x1, a, np.sum(x0 * n0, axis=1)[:, None] * tb)
+    if start is None:
         return None
     nshift = 2 * npair if free_shift else 0
-    p = np.r_[p, np.zeros(nshift)]
+    p = np.r_[start, 0.0, 0.0, np.zeros(nshift)]
     use = np.ones(len(a), bool)
     if min_cond > 0.0:
         r0 = residuals(p)
@@ -819,14 +820,16 @@ class EgoMotionEstimator:
         cos = float(c @ ref) / max(float(np.linalg.norm(c) * np.linalg.norm(ref)), 1e-12)
         return cos < math.cos(math.radians(self.max_travel_dev_deg))
 
-    def _camera_fixed(self, p0: np.ndarray, p1: np.ndarray, R: np.ndarray) -> np.ndarray:
+    def _camera_fixed(self, p0: np.ndarray, p1: np.ndarray, R: np.ndarray, share: float | None = None) -> np.ndarray:
         """Whether each work-px point pair (``p0`` -> ``p1``, N x 2) stays put in the image while the camera's
         rotation ``R`` (``X1 = R X0 + |T| t``) moves every scene point by at least ``_FIXED_MIN_ROT_PX``: a point
         fixed to the camera (dashboard, its reflection in the windscreen, burned-in text), not scene. A scene
         point at any depth moves by the rotation's flow plus a translation flow along its epipolar line; staying
         put takes the two to cancel, which the road's translation flow (radial from the direction of travel) does
-        not do for a whole patch. Still means moving less than ``fixed_flow_share`` of the rotation's own flow."""
-        if self.fixed_flow_share <= 0.0 or not len(p0):
+        not do for a whole patch. Still means moving less than ``share`` (default ``fixed_flow_share``) of the
+        rotation's own flow."""
+        share = self.fixed_flow_share if share is None else share
+        if share <= 0.0 or not len(p0):
             return np.zeros(len(p0), bool)
         assert self._K is not None
         K = self._K
@@ -834,7 +837,7 @@ class EgoMotionEstimator:
         a = x0 @ (K @ R).T
         rot = np.linalg.norm(a[:, :2] / a[:, 2:3] - p0, axis=1)  # the flow of a point at infinite depth
         still = np.linalg.norm(p1 - p0, axis=1)
-        return (rot >= _FIXED_MIN_ROT_PX) & (still < self.fixed_flow_share * rot)
+        return (rot >= _FIXED_MIN_ROT_PX) & (still < share * rot)
 
     def _solve(
         self, p0: np.ndarray, p1: np.ndarray, h: int, moving: bool = False, parallax: float = 0.0
@@ -898,9 +901,7 @@ class EgoMotionEstimator:
         ok = self._road_region(p0[:, 0], p0[:, 1], h) & self._off_overlay(p0)
         if moving:
             ok &= np.linalg.norm(p1 - p0, axis=1) >= max(0.1, self.road_flow_share * parallax)
-        share, self.fixed_flow_share = self.fixed_flow_share, max(self.fixed_flow_share, _JOINT_FIXED_SHARE)
-        ok &= ~self._camera_fixed(p0, p1, R)
-        self.fixed_flow_share = share
+        ok &= ~self._camera_fixed(p0, p1, R, max(self.fixed_flow_share, _JOINT_FIXED_SHARE))
         travel = None if self._travel is None else self._travel.copy()
         self.pairs.append(
             {"t0": self._kf_time, "t1": self._now, "p0": p0.copy(), "p1": p1.copy(), "road": ok, "R": R.copy(),

@@ -56,10 +56,15 @@ def side_sign(road: Road) -> float:
     return 1.0 if road.driving_side == "right" else -1.0
 
 
+def divider_index(road: Road) -> int:
+    """Index, in :func:`boundary_offsets` / :func:`boundary_polylines`, of the ego carriageway's edge next to the
+    other direction: its leftmost (-1) in right-hand traffic, its rightmost (0) in left-hand traffic."""
+    return -1 if road.driving_side == "right" else 0
+
+
 def divider_offset(road: Road) -> float:
     """Lateral offset (m, left positive) of the ego carriageway's edge next to the other direction."""
-    edges = boundary_offsets(road)
-    return float(edges[-1] if road.driving_side == "right" else edges[0])
+    return float(boundary_offsets(road)[divider_index(road)])
 
 
 def lane_lines(road: Road) -> dict[str, Any]:

@@ -28,7 +28,11 @@ def sat_gap(
     exact when the closest features are a face and a corner); zero or negative: they touch or
     overlap, and ``-gap`` is the penetration depth.
     """
-    g1, g2, g3, g4 = axis_gaps(xa, ya, yawa, hla, hwa, xb, yb, yawb, hlb, hwb)
+    return gap_of_axes(*axis_gaps(xa, ya, yawa, hla, hwa, xb, yb, yawb, hlb, hwb))
+
+
+def gap_of_axes(g1: np.ndarray, g2: np.ndarray, g3: np.ndarray, g4: np.ndarray) -> np.ndarray:
+    """:func:`sat_gap` (m) from the boxes' :func:`axis_gaps`: the largest of the four."""
     return np.maximum(np.maximum(g1, g2), np.maximum(g3, g4))
 
 

@@ -32,6 +32,7 @@ from deepcrashtest.sim.boxes import (
     axis_gaps,
     contact_fraction,
     distance_lower_bound,
+    gap_of_axes,
     sat_gap,
     time_to_collision,
 )
@@ -336,7 +337,7 @@ class _Rows:
         g = gap_known[n, r]
         unknown = np.flatnonzero(np.isnan(g))
         axes = axis_gaps(*self._boxes(n[unknown], r[unknown]))  # kept for the corner bounds below
-        g[unknown] = np.maximum(np.maximum(axes[0], axes[1]), np.maximum(axes[2], axes[3]))  # sat_gap
+        g[unknown] = gap_of_axes(*axes)
         # entries whose gap is above their row's bound are never computed (the bound only falls): left out (~3/4)
         keep = g <= upper[r]
         slot = np.full(len(n), -1)  # an entry's position in ``axes`` (-1: its gap was known)

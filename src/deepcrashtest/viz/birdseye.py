@@ -20,7 +20,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from deepcrashtest.geometry.road import boundary_polylines, oncoming_polylines
+from deepcrashtest.geometry.road import boundary_polylines, divider_index, oncoming_polylines
 from deepcrashtest.scenario import Scenario
 from deepcrashtest.viz.h264 import h264_writer
 
@@ -62,8 +62,8 @@ def _road_lines(scenario: Scenario) -> _RoadLines:
     if not other:
         return _RoadLines([own[0], own[-1]], own[1:-1], [], polygons)
     polygons.append(np.vstack([other[0], other[-1][::-1]]))
-    right_hand = scenario.road.driving_side == "right"
-    outer, divider = (own[0], own[-1]) if right_hand else (own[-1], own[0])
+    k = divider_index(scenario.road)
+    outer, divider = own[-1 - k], own[k]
     return _RoadLines([outer, other[-1]], own[1:-1] + other[1:-1], [divider, other[0]], polygons)
 
 

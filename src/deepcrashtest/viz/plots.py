@@ -23,7 +23,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from deepcrashtest.fileio import atomic_path
-from deepcrashtest.geometry.road import boundary_polylines, oncoming_polylines
+from deepcrashtest.geometry.road import boundary_polylines, divider_index, oncoming_polylines
 from deepcrashtest.scenario import Scenario, Vehicle
 from deepcrashtest.viz.style import EGO_COLOUR, vehicle_colour
 
@@ -61,7 +61,7 @@ def draw_road(ax: Any, sc: Scenario) -> None:
     """Road surface and lane lines of the ego's carriageway and the oncoming lanes (world frame, metres;
     :mod:`deepcrashtest.geometry.road`); the edge between the two directions solid and darker."""
     oncoming = oncoming_polylines(sc.road)
-    own_divider = -1 if sc.road.driving_side == "right" else 0  # the ego carriageway's edge next to the oncoming
+    own_divider = divider_index(sc.road)  # the ego carriageway's edge next to the oncoming lanes
     for b in (boundary_polylines(sc.road), oncoming):
         if not b:
             continue

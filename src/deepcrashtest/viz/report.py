@@ -94,7 +94,8 @@ def figure_png(fig: Any, tight: bool | None = None) -> str:
 
     canvas = FigureCanvasAgg(fig)
     buf = io.BytesIO()
-    if fig.get_layout_engine() is None if tight is None else tight:
+    crop_to_artists = fig.get_layout_engine() is None if tight is None else tight
+    if crop_to_artists:
         fig.savefig(buf, format="png", dpi=fig.dpi, bbox_inches="tight")
     else:
         canvas.draw()
