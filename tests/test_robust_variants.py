@@ -273,3 +273,27 @@ def test_a_jolt_just_before_the_box_fills_the_view_is_not_yet_the_contact(tmp_pa
     found = detect_crash(pd.read_csv(tmp_path / "out" / "tracks.csv"), w, h, 10.0, motion=gm.arrays())
     assert found is not None and found.pair[0] == 0
     assert abs(found.time_s - 3.3) <= 0.25  # main: 2.9 s
+
+
+def test_a_third_party_crash_reencoded_at_crf_35_has_its_contact_where_the_motion_changes(tmp_path):
+    """dad_000550 (a scooter turning at a junction runs into the front of a pickup truck, labelled contact
+    frame 88 at 20 fps) re-encoded at crf 35, as compilations re-upload clips: the scooter loses its
+    detections at the contact, so the pair's crash score is flat from frame 82, where the boxes first overlap
+    and the footprints touch, while the motion change rises only at the contact. The contact was the start
+    of that plateau (0.31 s early); it is now the frame where the motion change rises anew
+    (``crash_detect.NEW_CHANGE_RISE``)."""
+    from deepcrashtest.datasets.crash_labels import load_crash_labels
+    from deepcrashtest.pipeline.extract import run_extract
+    from deepcrashtest.scenario import Scenario
+
+    root = Path(__file__).resolve().parents[1]
+    label = load_crash_labels(root / "bench" / "labels" / "dad_crashes.json")["dad_000550"]
+    with av.open(str(need(DATA / label.video))) as c:
+        frames = [f.to_ndarray(format="bgr24") for f in c.decode(video=0)]
+    video = _write(tmp_path / "dad_000550_crf35.mp4", frames, 20, crf=35)
+    run_extract(video, tmp_path / "out", report=False, annotate=False)
+    raw = Scenario.load(tmp_path / "out" / "scenario_raw.json")
+    found = raw.provenance.parameters["crash_detection"]
+    assert found["found"] and "ego" not in found["pair"]  # the third-party pair, as before
+    assert label.contact_frame is not None
+    assert abs(found["frame"] - label.contact_frame) <= 5  # within 0.25 s; main: frame 82, 0.3 s early

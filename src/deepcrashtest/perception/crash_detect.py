@@ -84,6 +84,17 @@ PAIR_PEAK_SHARE = 0.97
 #: (each 1 frame at the peak); the 20 clips of bench/labels unchanged (no near-tie changes their pair).
 TIE_MARGIN = 0.05
 CONTACT_HOLD_S = 0.3
+#: A pair whose score reaches its peak on a plateau (the boxes overlap and the footprints touch before the
+#: road users meet) has its contact where the motion change rises anew: the first frame within
+#: NEW_CHANGE_WINDOW_S (s) of the plateau's start whose motion change exceeds the least since that start by
+#: NEW_CHANGE_RISE, while the pair still touches and is close (image contact x closeness >= NEW_CHANGE_HELD)
+#: and its score is at least NEW_CHANGE_SCORE of the peak. dad_000550 re-encoded at crf 35 loses the
+#: scooter's detections at the contact: its score is flat from frame 82, where the boxes first overlap, to the
+#: contact (88), where its motion change rises (0.31 s early -> on the label).
+NEW_CHANGE_RISE = 0.1
+NEW_CHANGE_WINDOW_S = 0.5
+NEW_CHANGE_HELD = 0.9
+NEW_CHANGE_SCORE = 0.5
 #: Two road users count as close in 3D when their ground-plane gap (centre distance less their half
 #: widths, metres) is under this; chosen on the DAD clips (labelled pairs 0-1 m, others >= 2.5 m).
 CLOSE_3D_M = 2.5
@@ -784,13 +795,38 @@ def _categories(tracks: pd.DataFrame) -> dict[int, str]:
 
 def _best(s: pd.DataFrame, pair: tuple[int, int], fps: float) -> tuple[float, int, tuple[int, int], dict[str, float]]:
     """The pair's peak score and its contact frame: the first frame reaching ``PAIR_PEAK_SHARE`` of the
-    peak; its evidence there, with ``hold``: the mean score over ``CONTACT_HOLD_S`` from that frame on (a
+    peak, or a new rise of the motion change soon after it (:func:`_contact_index`); its evidence there,
+    with ``hold``: the mean score over ``CONTACT_HOLD_S`` from the first frame reaching the peak share on (a
     frame without both tracks counts 0)."""
     peak = float(s["score"].max())
     idx = s.index.to_numpy()
     k = int(np.argmax(s["score"].to_numpy() >= PAIR_PEAK_SHARE * peak)) if peak > 0 else 0
+    first = int(idx[k])
+    k = _contact_index(s, k, peak, fps)
     frame = int(idx[k])
     ev = {str(c): round(float(s[c].to_numpy()[k]), 3) for c in s.columns}
-    after = np.arange(frame, frame + max(1, int(round(CONTACT_HOLD_S * fps))))
+    after = np.arange(first, first + max(1, int(round(CONTACT_HOLD_S * fps))))
     ev["hold"] = round(float(s["score"].reindex(after).fillna(0.0).mean()), 3)
     return peak, frame, pair, ev
+
+
+def _contact_index(s: pd.DataFrame, k: int, peak: float, fps: float) -> int:
+    """The row of a pair's contact given ``k``, the first row reaching its peak share: the first later row
+    within ``NEW_CHANGE_WINDOW_S`` (s) where the motion change rises by ``NEW_CHANGE_RISE`` over its least
+    since ``k`` (:func:`_motion_rise`), or ``k`` when there is none."""
+    frames = s.index.to_numpy(float)
+    held = (s["touch"] * s["depth"] * s["onset"]).to_numpy(float)
+    strong = s["score"].to_numpy(float) >= NEW_CHANGE_SCORE * peak
+    change = s["change"].to_numpy(float)
+    for j in range(k + 1, len(s)):
+        if frames[j] - frames[k] > NEW_CHANGE_WINDOW_S * fps + 1e-9 or held[j] < NEW_CHANGE_HELD * held[k]:
+            break
+        if strong[j] and _motion_rise(change[k : j + 1]):
+            return j
+    return k
+
+
+def _motion_rise(change: np.ndarray) -> bool:
+    """Whether the last of a run of motion-change values (0..1) exceeds the least before it by
+    ``NEW_CHANGE_RISE``."""
+    return bool(change[-1] - change[:-1].min() >= NEW_CHANGE_RISE)
