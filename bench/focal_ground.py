@@ -1,0 +1,117 @@
+"""Focal length from the ground's rigid motion while the ego yaws, on cameras with a known focal length.
+
+    PYTHONPATH=src nice -n 10 python bench/focal_ground.py [--clips NAMES] [--gap 2] [--max-frames 200]
+        [--horizon-offset PX]
+
+Per clip: the estimate of :func:`deepcrashtest.geometry.focal_ground.focal_from_ground` (focal px,
+1-sigma of ``log f``, pairs that turned, their median yaw) against the true focal length where known.
+The horizon row: KITTI the calibration's principal row (a level camera), Udacity the chessboard's
+principal row, the crash clips the boxes' self-calibrated horizon (``--horizon ROW`` overrides,
+``--horizon-offset`` shifts all, to measure the sensitivity). Not used by extract.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from deepcrashtest.geometry.camera import calibrate_chessboard, undistort
+from deepcrashtest.geometry.focal_ground import focal_from_ground
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+KITTI_TRACK = DATA / "kitti_tracking" / "image_02"
+ODO = DATA / "kitti_odometry"
+#: name: (source, true focal px or None, horizon row, bottom rows masked, principal column or None)
+CLIPS: dict[str, tuple[Path, float | None, float, int, float | None]] = {
+    "seq00": (ODO / "seq00_frames0000-0159" / "image_0", 718.86, 185.2, 0, 607.2),
+    "seq06": (ODO / "seq06_frames0000-0050" / "image_0", 707.1, 185.2, 0, 607.2),
+    "trk0001": (KITTI_TRACK / "0001", 721.54, 172.9, 0, 609.6),
+    "trk0016": (KITTI_TRACK / "0016", 721.54, 172.9, 0, 609.6),
+    "highway": (DATA / "dashcam_udacity" / "highway_project_video.mp4", 1154.0, 424.0, 60, None),
+    "ccd_000014": (DATA / "crash_ccd" / "ccd_000014.mp4", None, 540.0, 40, None),
+}
+
+
+def frames_of(source: Path, max_frames: int) -> list[np.ndarray]:
+    """Greyscale frames of an image folder or a video (at most ``max_frames``)."""
+    if source.is_dir():
+        return [cv2.imread(str(f), cv2.IMREAD_GRAYSCALE) for f in sorted(source.glob("*.png"))[:max_frames]]
+    cap, out = cv2.VideoCapture(str(source)), []
+    while len(out) < max_frames:
+        ok, img = cap.read()
+        if not ok:
+            break
+        out.append(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
+    cap.release()
+    return out
+
+
+def crash_clips(work: Path) -> dict[str, tuple[Path, float | None, float, int, float | None]]:
+    """The crash clips of a fidelity ``--work`` folder, each with its extracted horizon row (pixels)."""
+    out: dict[str, tuple[Path, float | None, float, int, float | None]] = {}
+    for scen in sorted(work.glob("*/scenario.json")):
+        name = scen.parent.name
+        video = DATA / ("crash_dad" if name.startswith("dad") else "crash_ccd") / f"{name}.mp4"
+        if not video.exists():
+            continue
+        cam = json.loads(scen.read_text())["camera"]
+        row = cam["cy"] - cam["fy"] * math.tan(cam["pitch_rad"])
+        out[name] = (video, None, row, 86, None)
+    return out
+
+
+def main() -> None:
+    """Print each clip's estimate."""
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--clips", default=",".join(CLIPS))
+    ap.add_argument("--gap", type=int, default=2)
+    ap.add_argument("--max-frames", type=int, default=200)
+    ap.add_argument("--horizon", type=float, default=None)
+    ap.add_argument("--horizon-offset", type=float, default=0.0)
+    ap.add_argument("--pairs", action="store_true", help="print each pair's focal length")
+    ap.add_argument("--target", type=float, default=25.0)
+    ap.add_argument("--search", type=float, default=0.0, help="refine the horizon within +-PX rows")
+    ap.add_argument("--max-chain", type=int, default=10)
+    ap.add_argument("--crash-work", type=Path, default=None, help="a fidelity --work folder: its crash clips")
+    ap.add_argument("--undistort", action="store_true", help="Udacity frames undistorted by the chessboard")
+    args = ap.parse_args()
+    clips = dict(CLIPS)
+    if args.crash_work is not None:
+        clips = crash_clips(args.crash_work)
+        args.clips = ",".join(clips)
+    for name in args.clips.split(","):
+        src, truth, row, bottom, cx = clips[name]
+        frames = frames_of(src, args.max_frames)
+        if args.undistort and name == "highway":
+            cam = calibrate_chessboard(DATA / "dashcam_udacity" / "camera_calibration")[0]
+            frames = [undistort(f, cam) for f in frames]
+            cx = cam.cx
+        horizon = (args.horizon if args.horizon is not None else row) + args.horizon_offset
+        est = focal_from_ground(
+            frames,
+            horizon,
+            cx=cx,
+            gap=args.gap,
+            bottom_rows=bottom,
+            target_px=args.target,
+            max_pairs=args.max_chain,
+            horizon_search_px=args.search,
+        )
+        focal = "none" if est.focal_px is None else f"{est.focal_px:7.0f}"
+        err = "" if truth is None or est.focal_px is None else f"  error {100 * (est.focal_px / truth - 1):+.1f} %"
+        print(
+            f"{name:12} frames {len(frames):4d}  focal {focal} px  sigma(log) {est.sigma_log:.3f}  "
+            f"horizon {est.horizon_row:.0f}  pairs {est.pairs:3d}  median yaw {np.degrees(est.yaw_rad):.2f} deg  "
+            f"true {truth}{err}"
+        )
+        if args.pairs:
+            print("   ", " ".join(f"{f:.0f}" for f in est.per_pair))
+
+
+if __name__ == "__main__":
+    main()
