@@ -51,6 +51,21 @@ def frames_of(source: Path, max_frames: int) -> list[np.ndarray]:
     return out
 
 
+def box_masks(tracks: Path, frames: list[np.ndarray], pad: int = 10) -> list[np.ndarray | None]:
+    """Per frame a uint8 mask that is zero on every detected box of ``tracks`` (a tracks.csv), padded."""
+    import pandas as pd
+
+    df = pd.read_csv(tracks)
+    out: list[np.ndarray | None] = []
+    for k, img in enumerate(frames):
+        m = np.full(img.shape, 255, np.uint8)
+        for r in df[df["frame"] == k].itertuples():
+            y0, y1 = max(0, int(r.y1) - pad), int(r.y2) + pad
+            m[y0:y1, max(0, int(r.x1) - pad) : int(r.x2) + pad] = 0
+        out.append(m)
+    return out
+
+
 def crash_clips(work: Path) -> dict[str, tuple[Path, float | None, float, int, float | None]]:
     """The crash clips of a fidelity ``--work`` folder, each with its extracted horizon row (pixels)."""
     out: dict[str, tuple[Path, float | None, float, int, float | None]] = {}
@@ -78,6 +93,7 @@ def main() -> None:
     ap.add_argument("--search", type=float, default=0.0, help="refine the horizon within +-PX rows")
     ap.add_argument("--max-chain", type=int, default=10)
     ap.add_argument("--crash-work", type=Path, default=None, help="a fidelity --work folder: its crash clips")
+    ap.add_argument("--mask-boxes", action="store_true", help="crash clips: corners off the detected boxes")
     ap.add_argument("--undistort", action="store_true", help="Udacity frames undistorted by the chessboard")
     args = ap.parse_args()
     clips = dict(CLIPS)
@@ -87,6 +103,9 @@ def main() -> None:
     for name in args.clips.split(","):
         src, truth, row, bottom, cx = clips[name]
         frames = frames_of(src, args.max_frames)
+        masks = None
+        if args.crash_work is not None and args.mask_boxes:
+            masks = box_masks(args.crash_work / name / "tracks.csv", frames)
         if args.undistort and name == "highway":
             cam = calibrate_chessboard(DATA / "dashcam_udacity" / "camera_calibration")[0]
             frames = [undistort(f, cam) for f in frames]
@@ -101,6 +120,7 @@ def main() -> None:
             target_px=args.target,
             max_pairs=args.max_chain,
             horizon_search_px=args.search,
+            masks=masks,
         )
         focal = "none" if est.focal_px is None else f"{est.focal_px:7.0f}"
         err = "" if truth is None or est.focal_px is None else f"  error {100 * (est.focal_px / truth - 1):+.1f} %"

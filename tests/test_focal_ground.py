@@ -29,7 +29,7 @@ def test_ground_homography_of_a_turn_gives_its_focal_length():
     t = np.array([0.3, 0.0, -1.5])
     n = np.array([0.0, 1.0, 0.0])  # ground normal (camera y down), plane n . X = hc
     hom = K @ (R + np.outer(t, n) / hc) @ np.linalg.inv(K)
-    m10, m01 = pair_terms(hom, cx, row)
+    m10, m01, d = pair_terms(hom, cx, row)
     assert abs(abs(m10) - f * math.sin(psi)) < 1e-6 * f
     assert math.sqrt(-m10 / m01) == pytest.approx(f, rel=1e-9)
 

@@ -64,15 +64,16 @@ def bird_matrix(cx: float, horizon_row: float) -> np.ndarray:
     return np.array([[0.0, 0.0, 1.0], [1.0, 0.0, -cx], [0.0, 1.0, -horizon_row]])
 
 
-def pair_terms(homography: np.ndarray, cx: float, horizon_row: float) -> tuple[float, float]:
-    """``(M10, M01)`` of one ground homography (image to image, pixels) in focal-free bird's-eye terms.
+def pair_terms(homography: np.ndarray, cx: float, horizon_row: float) -> tuple[float, float, float]:
+    """``(M10, M01, d)`` of one ground homography (image to image, pixels) in focal-free bird's-eye terms.
 
-    ``M10 = f sin(psi)`` is the yaw's uniform image shift (pixels), ``M01 = -sin(psi) / f`` (1/pixels).
+    ``M10 = f sin(psi)`` is the yaw's uniform image shift (pixels), ``M01 = -sin(psi) / f`` (1/pixels),
+    ``d`` the forward shift of ``u`` (``-T / (f h)`` for a travel ``T`` metres; 1/pixels, negative forward).
     """
     b = bird_matrix(cx, horizon_row)
     g = b @ homography @ np.linalg.inv(b)
     g = g / g[2, 2]
-    return float(g[1, 0]), float(g[0, 1])
+    return float(g[1, 0]), float(g[0, 1]), float(g[0, 2])
 
 
 def ground_homography(
@@ -104,14 +105,14 @@ def ground_homography(
     return np.asarray(hom, float)
 
 
-def combine(terms: Sequence[tuple[float, float]], min_pairs: int, seed: int) -> GroundFocal:
+def combine(terms: Sequence[tuple[float, float, float]], min_pairs: int, seed: int) -> GroundFocal:
     """``f = q^-1/2`` from the weighted median of ``q = -M01 / M10`` (= ``f^-2``) over the pairs.
 
     Only pairs whose yaw shift ``|M10|`` is at least :data:`MIN_YAW_SHIFT_PX`; weights ``M10^2``
     (``M10`` is the well-measured term, so the ratio is formed in the direction whose noise is in the
     numerator: no attenuation bias). 1-sigma of ``log f`` by a seeded bootstrap over pairs.
     """
-    kept = [(m10, m01) for m10, m01 in terms if abs(m10) >= MIN_YAW_SHIFT_PX]
+    kept = [(m10, m01) for m10, m01, _ in terms if abs(m10) >= MIN_YAW_SHIFT_PX]
     if len(kept) < min_pairs:
         return GroundFocal(None, math.inf, len(kept), 0.0, ())
     m10 = np.array([a for a, _ in kept])
@@ -137,23 +138,23 @@ def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
 
 def composed_terms(
     homographies: Sequence[np.ndarray | None], cx: float, horizon_row: float, target_px: float, max_pairs: int
-) -> list[tuple[float, float]]:
-    """``(M10, M01)`` of consecutive ground homographies chained until the yaw shift reaches ``target_px``.
+) -> list[tuple[float, float, float]]:
+    """``(M10, M01, d)`` (:func:`pair_terms`) of ground homographies chained up to a yaw shift ``target_px``.
 
     A gentle curve turns too little between two frames; chaining (``H_0k = H_k-1,k ... H_01``) lets the
     yaw grow linearly while the tracking noise grows as a random walk. A chain restarts after
     ``max_pairs`` homographies or at a missing one.
     """
-    out: list[tuple[float, float]] = []
+    out: list[tuple[float, float, float]] = []
     acc, n = np.eye(3), 0
     for hom in homographies:
         if hom is None:
             acc, n = np.eye(3), 0
             continue
         acc, n = hom @ acc, n + 1
-        m10, m01 = pair_terms(acc, cx, horizon_row)
-        if abs(m10) >= target_px or n >= max_pairs:
-            out.append((m10, m01))
+        terms = pair_terms(acc, cx, horizon_row)
+        if abs(terms[0]) >= target_px or n >= max_pairs:
+            out.append(terms)
             acc, n = np.eye(3), 0
     return out
 
@@ -190,6 +191,7 @@ def focal_from_ground(
     target_px: float = 25.0,
     max_pairs: int = 10,
     horizon_search_px: float = 0.0,
+    masks: Sequence[np.ndarray | None] | None = None,
 ) -> GroundFocal:
     """Focal length (pixels) of a level camera from greyscale ``frames`` of a drive that turns.
 
@@ -198,10 +200,11 @@ def focal_from_ground(
     ``max_pairs`` links; ``bottom_rows`` image rows at the bottom left out (dashboard, overlay text).
     With ``horizon_search_px`` > 0 the horizon is refined within that many rows above / below
     ``horizon_row`` (:func:`horizon_from_ground`; the ground region stays the one below ``horizon_row``).
+    ``masks`` (one per frame, uint8, non-zero where corners may start; None for none) keep road users out.
     """
     centre = frames[0].shape[1] / 2.0 if cx is None else cx
     homs = [
-        ground_homography(frames[k], frames[k + gap], horizon_row, bottom_rows)
+        ground_homography(frames[k], frames[k + gap], horizon_row, bottom_rows, None if masks is None else masks[k])
         for k in range(0, len(frames) - gap, gap)
     ]
     if horizon_search_px > 0:
