@@ -1,13 +1,19 @@
 """Focal length from the ground's rigid motion while the ego yaws, on cameras with a known focal length.
 
-    PYTHONPATH=src nice -n 10 python bench/focal_ground.py [--clips NAMES] [--gap 2] [--max-frames 200]
-        [--horizon-offset PX]
+    PYTHONPATH=src nice -n 10 python bench/focal_ground.py [--clips seq00,seq06,highway,ccd_000014]
+        [--gap 2] [--max-frames 200] [--horizon ROW] [--horizon-offset PX] [--search PX] [--target PX]
+        [--max-chain N] [--undistort] [--pairs] [--crash-work DIR [--mask-boxes]]
 
 Per clip: the estimate of :func:`deepcrashtest.geometry.focal_ground.focal_from_ground` (focal px,
-1-sigma of ``log f``, pairs that turned, their median yaw) against the true focal length where known.
-The horizon row: KITTI the calibration's principal row (a level camera), Udacity the chessboard's
-principal row, the crash clips the boxes' self-calibrated horizon (``--horizon ROW`` overrides,
-``--horizon-offset`` shifts all, to measure the sensitivity). Not used by extract.
+1-sigma of ``log f``, chained segments that turned, their median yaw) against the true focal length
+where known. The horizon row: KITTI the calibration's principal row (a level camera), the Udacity
+highway 424 (extract's box self-calibration reads 430), ccd_000014 the boxes' 540; with ``--crash-work``
+(a fidelity ``--work`` folder) every crash clip in it at its extracted horizon, ``--mask-boxes`` keeping
+corners off its detected boxes. ``--horizon-offset`` shifts the horizon (sensitivity), ``--search``
+refines it from the ground's own motion (``horizon_from_ground``), ``--undistort`` takes the Udacity
+frames through its chessboard calibration. Measured (docs/notes/selfcal13.md): seq00 731 px +- 3.3 %
+(true 718.9), seq06 none (straight), Udacity 604 +- 13 % (1154), ccd_000014 295-448 px (overlay-implied
+~2,700): not used by extract.
 """
 
 from __future__ import annotations
@@ -17,38 +23,21 @@ import json
 import math
 from pathlib import Path
 
-import cv2
 import numpy as np
+from focal_epipolar import _frames as frames_of
 
 from deepcrashtest.geometry.camera import calibrate_chessboard, undistort
 from deepcrashtest.geometry.focal_ground import focal_from_ground
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-KITTI_TRACK = DATA / "kitti_tracking" / "image_02"
 ODO = DATA / "kitti_odometry"
 #: name: (source, true focal px or None, horizon row, bottom rows masked, principal column or None)
 CLIPS: dict[str, tuple[Path, float | None, float, int, float | None]] = {
     "seq00": (ODO / "seq00_frames0000-0159" / "image_0", 718.86, 185.2, 0, 607.2),
     "seq06": (ODO / "seq06_frames0000-0050" / "image_0", 707.1, 185.2, 0, 607.2),
-    "trk0001": (KITTI_TRACK / "0001", 721.54, 172.9, 0, 609.6),
-    "trk0016": (KITTI_TRACK / "0016", 721.54, 172.9, 0, 609.6),
     "highway": (DATA / "dashcam_udacity" / "highway_project_video.mp4", 1154.0, 424.0, 60, None),
     "ccd_000014": (DATA / "crash_ccd" / "ccd_000014.mp4", None, 540.0, 40, None),
 }
-
-
-def frames_of(source: Path, max_frames: int) -> list[np.ndarray]:
-    """Greyscale frames of an image folder or a video (at most ``max_frames``)."""
-    if source.is_dir():
-        return [cv2.imread(str(f), cv2.IMREAD_GRAYSCALE) for f in sorted(source.glob("*.png"))[:max_frames]]
-    cap, out = cv2.VideoCapture(str(source)), []
-    while len(out) < max_frames:
-        ok, img = cap.read()
-        if not ok:
-            break
-        out.append(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
-    cap.release()
-    return out
 
 
 def box_masks(tracks: Path, frames: list[np.ndarray], pad: int = 10) -> list[np.ndarray | None]:
