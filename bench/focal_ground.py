@@ -83,6 +83,7 @@ def main() -> None:
     ap.add_argument("--max-chain", type=int, default=10)
     ap.add_argument("--crash-work", type=Path, default=None, help="a fidelity --work folder: its crash clips")
     ap.add_argument("--mask-boxes", action="store_true", help="crash clips: corners off the detected boxes")
+    ap.add_argument("--roll", action="store_true", help="fit a static camera roll with the focal length")
     ap.add_argument("--undistort", action="store_true", help="Udacity frames undistorted by the chessboard")
     args = ap.parse_args()
     clips = dict(CLIPS)
@@ -110,13 +111,14 @@ def main() -> None:
             max_pairs=args.max_chain,
             horizon_search_px=args.search,
             masks=masks,
+            fit_roll=args.roll,
         )
         focal = "none" if est.focal_px is None else f"{est.focal_px:7.0f}"
         err = "" if truth is None or est.focal_px is None else f"  error {100 * (est.focal_px / truth - 1):+.1f} %"
         print(
             f"{name:12} frames {len(frames):4d}  focal {focal} px  sigma(log) {est.sigma_log:.3f}  "
             f"horizon {est.horizon_row:.0f}  pairs {est.pairs:3d}  median yaw {np.degrees(est.yaw_rad):.2f} deg  "
-            f"true {truth}{err}"
+            f"roll {np.degrees(est.roll_rad):.2f} deg  true {truth}{err}"
         )
         if args.pairs:
             print("   ", " ".join(f"{f:.0f}" for f in est.per_pair))

@@ -49,3 +49,21 @@ def test_straight_drive_says_nothing():
     """KITTI odometry seq06 frames 0-50 drive straight: no pair turns enough, no focal length is claimed."""
     est = focal_from_ground(_frames("seq06_frames0000-0050"), SEQ00_CY, cx=SEQ00_CX)
     assert est.focal_px is None and math.isinf(est.sigma_log)
+
+
+def test_roll_and_focal_fitted_together():
+    """Segments of a camera (f 1100 px) rolled by 0.5 deg: straight ones read ``M01 = rho d``, turning ones add
+    ``-M10 / f^2``; the joint fit returns both, while the ratio-only combination is pulled off by the roll."""
+    from deepcrashtest.geometry.focal_ground import combine, combine_with_roll
+
+    f, rho = 1100.0, math.radians(0.5)
+    rng = np.random.default_rng(3)
+    m10 = np.concatenate([rng.uniform(-2.0, 2.0, 20), rng.choice([-1.0, 1.0], 10) * rng.uniform(10.0, 30.0, 10)])
+    d = -rng.uniform(2e-3, 6e-3, 30)
+    m01 = -m10 / f**2 + rho * d + rng.normal(0.0, 1e-7, 30)
+    terms = list(zip(m10, m01, d, strict=True))
+    joint = combine_with_roll(terms, 3, 0)
+    assert joint.focal_px == pytest.approx(f, rel=0.02)
+    assert joint.roll_rad == pytest.approx(rho, rel=0.05)
+    ratio = combine(terms, 3, 0)
+    assert ratio.focal_px is None or abs(ratio.focal_px / f - 1.0) > 0.1

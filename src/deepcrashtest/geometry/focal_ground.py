@@ -48,7 +48,8 @@ class GroundFocal:
 
     ``focal_px`` is None when fewer than ``min_pairs`` frame pairs turned enough; ``pairs`` counts the
     pairs used, ``yaw_rad`` is their median absolute yaw (radians), ``per_pair`` each pair's focal (px),
-    ``horizon_row`` the horizon row used (pixels).
+    ``horizon_row`` the horizon row used (pixels), ``roll_rad`` the camera roll fitted with it (radians;
+    NaN when not fitted).
     """
 
     focal_px: float | None
@@ -57,6 +58,7 @@ class GroundFocal:
     yaw_rad: float
     per_pair: tuple[float, ...]
     horizon_row: float = math.nan
+    roll_rad: float = math.nan
 
 
 def bird_matrix(cx: float, horizon_row: float) -> np.ndarray:
@@ -129,6 +131,45 @@ def combine(terms: Sequence[tuple[float, float, float]], min_pairs: int, seed: i
     return GroundFocal(focal, float(np.std(logs)), len(kept), float(np.median(np.abs(m10)) / focal), per_pair)
 
 
+def combine_with_roll(terms: Sequence[tuple[float, float, float]], min_pairs: int, seed: int) -> GroundFocal:
+    """``f`` and a static camera roll from all segments at once: ``M01 = -M10 / f^2 + rho d``.
+
+    A camera rolled by ``rho`` (radians) tilts the horizon, ``y - y_h`` gains ``-rho (x - c_x)``, and a
+    forward travel ``d`` then reads ``M01 = rho d`` without any turn: on a fast, gently curving road
+    that term outweighs the yaw's. Straight segments measure ``rho``, turning ones ``f``: a Huber
+    (IRLS) linear fit over every segment; ``None`` unless ``min_pairs`` segments turn
+    (:data:`MIN_YAW_SHIFT_PX`) and the fit's ``-1/f^2`` is negative. 1-sigma of ``log f``: seeded
+    bootstrap over segments.
+    """
+    arr = np.array(terms, float).reshape(-1, 3)
+    turning = int(np.sum(np.abs(arr[:, 0]) >= MIN_YAW_SHIFT_PX))
+    if turning < min_pairs:
+        return GroundFocal(None, math.inf, turning, 0.0, ())
+    coef = _huber_fit(arr[:, [0, 2]], arr[:, 1])
+    if coef[0] >= 0.0:
+        return GroundFocal(None, math.inf, turning, 0.0, ())
+    rng = np.random.default_rng(seed)
+    boots = [_huber_fit(arr[i][:, [0, 2]], arr[i][:, 1])[0] for i in rng.integers(0, len(arr), (BOOTSTRAP, len(arr)))]
+    logs = -0.5 * np.log(np.clip(-np.array(boots), -coef[0] * 1e-3, None))
+    focal = 1.0 / math.sqrt(-coef[0])
+    yaw = float(np.median(np.abs(arr[np.abs(arr[:, 0]) >= MIN_YAW_SHIFT_PX, 0])) / focal)
+    return GroundFocal(focal, float(np.std(logs)), turning, yaw, (), roll_rad=float(coef[1]))
+
+
+def _huber_fit(x: np.ndarray, y: np.ndarray, iters: int = 20) -> np.ndarray:
+    """Linear fit ``y ~ x c`` (no intercept) by iteratively reweighted least squares, Huber at 1.345 MAD."""
+    scale = np.std(x, axis=0) + 1e-30
+    xs, w = x / scale, np.ones(len(y))
+    coef = np.zeros(x.shape[1])
+    for _ in range(iters):
+        sw = np.sqrt(w)
+        coef = np.linalg.lstsq(xs * sw[:, None], y * sw, rcond=None)[0]
+        r = y - xs @ coef
+        mad = 1.4826 * float(np.median(np.abs(r))) + 1e-30
+        w = np.minimum(1.0, 1.345 * mad / np.maximum(np.abs(r), 1e-30))
+    return coef / scale
+
+
 def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
     """Weighted median (the value where the cumulative weight passes half)."""
     order = np.argsort(values)
@@ -192,6 +233,7 @@ def focal_from_ground(
     max_pairs: int = 10,
     horizon_search_px: float = 0.0,
     masks: Sequence[np.ndarray | None] | None = None,
+    fit_roll: bool = False,
 ) -> GroundFocal:
     """Focal length (pixels) of a level camera from greyscale ``frames`` of a drive that turns.
 
@@ -201,6 +243,7 @@ def focal_from_ground(
     With ``horizon_search_px`` > 0 the horizon is refined within that many rows above / below
     ``horizon_row`` (:func:`horizon_from_ground`; the ground region stays the one below ``horizon_row``).
     ``masks`` (one per frame, uint8, non-zero where corners may start; None for none) keep road users out.
+    ``fit_roll``: a static camera roll fitted together with the focal length (:func:`combine_with_roll`).
     """
     centre = frames[0].shape[1] / 2.0 if cx is None else cx
     homs = [
@@ -210,5 +253,6 @@ def focal_from_ground(
     if horizon_search_px > 0:
         rows = horizon_row + np.arange(-horizon_search_px, horizon_search_px + 1.0, 2.0)
         horizon_row = horizon_from_ground(homs, centre, rows)
-    est = combine(composed_terms(homs, centre, horizon_row, target_px, max_pairs), min_pairs, seed)
+    terms = composed_terms(homs, centre, horizon_row, target_px, max_pairs)
+    est = (combine_with_roll if fit_roll else combine)(terms, min_pairs, seed)
     return dataclasses.replace(est, horizon_row=horizon_row)
