@@ -9,6 +9,8 @@ a pipelined run's wall time approaches CPU / 2.
 Run: PYTHONPATH=src python bench/extract_e2e.py [VIDEO] [--baseline-src ../main/src] [--repeat 1]
   ``--baseline-src DIR`` adds the code in DIR (e.g. an older checkout's src) with its own defaults.
   ``--variant NAME=ARGS`` (repeatable) adds runs of this checkout with extra CLI arguments.
+  ``--env-variant NAME=VAR=VALUE[,VAR=VALUE...]`` (repeatable) adds runs of this checkout with those environment
+  variables set (thread pools, allocator: e.g. ``blas1=OPENBLAS_NUM_THREADS=1``).
 """
 
 from __future__ import annotations
@@ -29,9 +31,10 @@ ROOT = Path(__file__).resolve().parents[1]
 DEFAULT = ROOT.parent / "shared" / "data" / "dashcam_udacity" / "highway_lane_challenge.mp4"
 
 
-def run_once(src: Path, video: str, extra: list[str], out: Path) -> dict[str, float]:
-    """One extract process; returns wall s, CPU s, peak RSS MB, frames, and the process's own fps."""
-    env = dict(os.environ, PYTHONPATH=str(src))
+def run_once(src: Path, video: str, extra: list[str], out: Path, env_extra: dict[str, str]) -> dict[str, float]:
+    """One extract process (``env_extra`` added to its environment); returns wall s, CPU s, peak RSS MB, frames,
+    and the process's own fps."""
+    env = dict(os.environ, PYTHONPATH=str(src), **env_extra)
     cmd = [sys.executable, "-m", "deepcrashtest.cli", "extract", video, "-o", str(out), "--force", "--json", *extra]
     t = time.perf_counter()
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
@@ -57,34 +60,40 @@ def main() -> None:
     ap.add_argument("--baseline-args", default="", help="extra CLI arguments of the baseline runs")
     ap.add_argument("--variant", action="append", default=[], help="NAME=EXTRA CLI ARGS (this checkout)")
     ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--env-variant", action="append", default=[], help="NAME=VAR=VALUE[,VAR=VALUE] (this checkout)")
     ap.add_argument("--common", default="", help="extra CLI arguments of every run (e.g. '--max-frames 100')")
     args = ap.parse_args()
-    variants: list[tuple[str, Path, list[str]]] = []
+    variants: list[tuple[str, Path, list[str], dict[str, str]]] = []
     if args.baseline_src is not None:
-        variants.append(("baseline", args.baseline_src, shlex.split(args.baseline_args)))
-    variants.append(("this checkout", ROOT / "src", []))
+        variants.append(("baseline", args.baseline_src, shlex.split(args.baseline_args), {}))
+    variants.append(("this checkout", ROOT / "src", [], {}))
     for v in args.variant:
         name, _, extra = v.partition("=")
-        variants.append((name, ROOT / "src", shlex.split(extra)))
-    runs: dict[str, list[dict[str, float]]] = {name: [] for name, _, _ in variants}
+        variants.append((name, ROOT / "src", shlex.split(extra), {}))
+    for v in args.env_variant:
+        name, _, assignments = v.partition("=")
+        env = dict(kv.split("=", 1) for kv in assignments.split(",") if "=" in kv)
+        variants.append((name, ROOT / "src", [], env))
+    runs: dict[str, list[dict[str, float]]] = {name: [] for name, _, _, _ in variants}
     loads = []
     with tempfile.TemporaryDirectory() as tmp:
         for _ in range(args.repeat):
-            for name, src, extra in variants:
+            for name, src, extra, env in variants:
                 loads.append(os.getloadavg()[0])
-                runs[name].append(run_once(src, args.video, shlex.split(args.common) + extra, Path(tmp) / "out"))
+                out = Path(tmp) / "out"
+                runs[name].append(run_once(src, args.video, shlex.split(args.common) + extra, out, env))
     print(f"{args.video}: {runs[variants[0][0]][0]['frames']} frames, {os.cpu_count()} cores")
     print(f"load average during the runs: {min(loads):.1f}-{max(loads):.1f} (1 min)")
     print("| variant | wall fps (process) | wall s | CPU s | CPU s / frame | fps inside | peak RSS MB |")
     print("|---|---|---|---|---|---|---|")
-    for name, _, _ in variants:
+    for name, _, _, _ in variants:
         r = min(runs[name], key=lambda x: x["wall"])
         print(
             f"| {name} | {r['frames'] / r['wall']:.2f} | {r['wall']:.1f} | {r['cpu']:.1f} | "
             f"{r['cpu'] / r['frames'] * 1000:.0f} ms | {r['inner_fps']:.2f} | {r['rss_mb']:.0f} |"
         )
     if args.repeat > 1:  # CPU seconds vary by ~10 % run to run under load: every run's, in order
-        for name, _, _ in variants:
+        for name, _, _, _ in variants:
             cpus = ", ".join(f"{r['cpu']:.1f}" for r in runs[name])
             walls = ", ".join(f"{r['wall']:.1f}" for r in runs[name])
             med = np.median([r["cpu"] for r in runs[name]])
