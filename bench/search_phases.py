@@ -10,8 +10,7 @@ CPU seconds (``time.process_time`` of the parent, from the process start; the ch
 are the figures a loaded machine blurs least; wall seconds are given for the record.
 
 Each worker reports its own CPU since its fork (its share of the variants plus its cold costs: unpickling the job,
-first-touch page faults, per-process caches; the parent's own chunk, where it simulates one, its CPU in that
-call); ``critical_path_cpu_s`` = the parent's serial CPU before the
+first-touch page faults, per-process caches); ``critical_path_cpu_s`` = the parent's serial CPU before the
 workers + the slowest worker's CPU + the parent's serial CPU after them: the whole process's wall time on an
 idle machine with a core per worker (~2.5 s for main's measured idle 2.55 s), from figures a load blurs less.
 
@@ -38,8 +37,7 @@ KITTI = ROOT.parent / "shared" / "data" / "kitti_tracking"
 # Runs in the timed process: wraps the search's functions with marks (parent CPU from the process start, wall),
 # runs the CLI, prints the marks and the children's CPU as one JSON line on stderr.
 PROBE = r"""
-import json, os, resource, sys, time
-PARENT = os.getpid()
+import json, resource, sys, time
 W0 = time.perf_counter()
 marks = [("start", 0.0, time.process_time())]
 def mark(name):
@@ -71,12 +69,11 @@ def helper():
     wrap(ev.Evaluator, "_map", "workers")
     wrap(out, "write_variants", "variant files")
     sim = ev.simulate_variants
-    def worker(*a, **k):  # a forked worker: its CPU since the fork, cold costs included; the parent's own chunk
-        t0 = time.process_time() if os.getpid() == PARENT else 0.0
+    def worker(*a, **k):  # in a forked worker: its CPU since the fork, cold costs included
         try:
             return sim(*a, **k)
         finally:
-            sys.stderr.write("\nWORKER " + json.dumps(time.process_time() - t0) + "\n")
+            sys.stderr.write("\nWORKER " + json.dumps(time.process_time()) + "\n")
     worker.__module__, worker.__qualname__ = ev.__name__, "simulate_variants"  # pickled by name, as the original
     ev.simulate_variants = worker
     return h

@@ -140,7 +140,9 @@ class Evaluator:
         elif self.workers == 1 or len(chunks) == 1:
             results = (simulate_variants(*a) for a in args)
         else:
-            results = self._local_map(args)
+            if self._pool is None:
+                self._pool = ProcessPoolExecutor(max_workers=self.workers)
+            results = self._pool.map(simulate_variants, *zip(*args, strict=True))
         parts = []
         for th, part in zip(chunks, results, strict=True):  # as each chunk finishes: the progress bar
             parts.append(part)
@@ -148,20 +150,6 @@ class Evaluator:
             if self.on_progress is not None:
                 self.on_progress(len(th))
         return parts
-
-    def _local_map(self, args: list[tuple[Any, ...]]) -> Iterable[dict[str, np.ndarray]]:
-        """The chunks on the local process pool. With the replay controller (one chunk per worker) this process
-        simulates the first chunk itself while ``workers - 1`` forked processes simulate the others: it would
-        only wait for them otherwise (one fork, its copied pages and its cold start fewer; the same results)."""
-        share = self.controller == "replay"
-        if self._pool is None:
-            self._pool = ProcessPoolExecutor(max_workers=self.workers - 1 if share else self.workers)
-        if not share or len(args) > self.workers:
-            yield from self._pool.map(simulate_variants, *zip(*args, strict=True))
-            return
-        rest = self._pool.map(simulate_variants, *zip(*args[1:], strict=True))
-        yield simulate_variants(*args[0])
-        yield from rest
 
     def warm(self) -> None:
         """Prepare the scenario's world and record the agents' run in this process (local engine, several
