@@ -87,13 +87,6 @@ MAX_LEAVING_BACK = 0.25
 LEAVING_RATE = 0.03
 #: A box edge within this many pixels of the image border is cut by it.
 BORDER_PX = 4
-#: Second matching pass: a track of a fast road user (:data:`_FAST`) left unmatched by the IoU pass takes a
-#: leftover detection whose centre is off its predicted box's by at most this share of that box's width and
-#: height (each axis). At 15 fps a scooter crossing the view moves by more than its box overlaps between
-#: frames (dad_000550 / dad_000512 resampled to 15 fps: the scooter split into new tracks).
-RECOVER_SHIFT = 0.5
-#: Road users whose box can move past its own overlap in one detection round (small and quick or close).
-_FAST = frozenset({"motorcycle", "bicycle", "pedestrian"})
 
 
 @dataclass
@@ -270,8 +263,7 @@ class BoxTracker:
             cost[tg[:, None] != dg[None, :]] = np.inf
             cost[_height_jumps(tracks, dets.boxes)] = np.inf
             cost[_comes_back(tracks, dets.boxes, self._width) & (cost <= 1.0 - self.min_iou)] = np.inf
-        max_cost = 1.0 - self.min_iou
-        result = self.core.step(_recovered(tracks, dets, cost, max_cost), max_cost=max_cost, scores=dets.scores)
+        result = self.core.step(cost, max_cost=1.0 - self.min_iou, scores=dets.scores)
         for t, j in result.matched:
             self._absorb(t, dets, j)
         existing = [t.box for t in self.core.tracks if t.state is not TrackState.DELETED]
@@ -301,44 +293,6 @@ class BoxTracker:
         t.score = float(dets.scores[j])
         t.vote(str(dets.categories[j]), float(dets.scores[j]))
         t.detected_now = True
-
-
-def _fast(tracks: list[ImageTrack]) -> np.ndarray:
-    """(tracks,) True for the tracks of a two-wheeler or a pedestrian (:data:`_FAST`)."""
-    return np.array([t.category in _FAST for t in tracks], bool)
-
-
-def _recovered(tracks: list[ImageTrack], dets: Detections, cost: np.ndarray, max_cost: float) -> np.ndarray:
-    """The IoU cost (tracks, detections) with a second pass: the Hungarian assignment on 1 - IoU, then a
-    second one on the fast tracks (:func:`_fast`) and the detections it left, by the centre shift (share of
-    the predicted box's size, at most :data:`RECOVER_SHIFT` on each axis) where the IoU gate failed but no
-    other gate (class group, height jump, a track leaving) did. Returns a cost matrix in which only the
-    pairs chosen by the two passes are feasible (at most ``max_cost``) when the second pass adds any, else
-    ``cost`` itself."""
-    if not (len(tracks) and len(dets)):
-        return cost
-    first = assign(cost, max_cost)
-    fast = _fast(tracks)
-    rows = [r for r in first.unmatched_rows if fast[r]]
-    cols = first.unmatched_cols
-    if not (rows and cols):
-        return cost
-    pred = np.stack([tracks[r].box for r in rows])
-    size = np.maximum(pred[:, 2:] - pred[:, :2], 1.0)
-    centre = 0.5 * (pred[:, :2] + pred[:, 2:])
-    det_centre = 0.5 * (dets.boxes[cols, :2] + dets.boxes[cols, 2:])
-    shift = np.abs(det_centre[None, :, :] - centre[:, None, :]) / size[:, None, :]  # (rows, cols, 2)
-    shift_cost = shift.max(axis=2)
-    shift_cost[~np.isfinite(cost[np.ix_(rows, cols)])] = np.inf
-    second = assign(shift_cost, RECOVER_SHIFT)
-    if not second.pairs:
-        return cost
-    out = np.full_like(cost, np.inf)
-    for r, c in first.pairs:
-        out[r, c] = cost[r, c]
-    for i, j in second.pairs:
-        out[rows[i], cols[j]] = max_cost
-    return out
 
 
 def _height_jumps(tracks: list[ImageTrack], boxes: np.ndarray) -> np.ndarray:
