@@ -737,27 +737,29 @@ def _measurements(
     return meas, covs, rng
 
 
-def _heading_along(xs: np.ndarray, ego_i: np.ndarray, ego: EgoMotion, cfg: MonoConfig) -> np.ndarray | None:
-    """Per row of a track's filtered states ``xs`` (n, 4: x, y, vx, vy world m, m/s): whether the vehicle heads
-    along the camera's axis or against it within ``cfg.width_edges_along_deg``, or is slower than
-    ``cfg.along_min_speed`` (m/s); None when the option is off."""
+def _heading_against_axis(xs: np.ndarray, ego_i: np.ndarray, ego: EgoMotion) -> tuple[np.ndarray, np.ndarray]:
+    """Per row of a track's filtered states ``xs`` (n, 4: x, y, vx, vy world m, m/s): its heading left of the
+    camera's axis (rad) and its speed (m/s), for the width geometry of its second pass."""
+    return np.arctan2(xs[:, 3], xs[:, 2]) - ego.yaw[ego_i], np.hypot(xs[:, 2], xs[:, 3])
+
+
+def _heading_along(rel: np.ndarray, speed: np.ndarray, cfg: MonoConfig) -> np.ndarray | None:
+    """Per row (``rel``, ``speed``: :func:`_heading_against_axis`): whether the vehicle heads along the camera's
+    axis or against it within ``cfg.width_edges_along_deg``, or is slower than ``cfg.along_min_speed`` (m/s);
+    None when the option is off."""
     if cfg.width_edges_along_deg <= 0:
         return None
-    rel = np.arctan2(xs[:, 3], xs[:, 2]) - ego.yaw[ego_i]
-    slow = np.hypot(xs[:, 2], xs[:, 3]) < cfg.along_min_speed
+    slow = speed < cfg.along_min_speed
     return slow | (np.abs(np.sin(rel)) <= math.sin(math.radians(cfg.width_edges_along_deg)))
 
 
-def _oblique_yaw(
-    xs: np.ndarray, ego_i: np.ndarray, ego: EgoMotion, along: np.ndarray | None, cfg: MonoConfig
-) -> np.ndarray | None:
-    """Per row of a track's filtered states ``xs`` (n, 4): its heading left of the camera's axis (rad) where
-    ``cfg.width_oblique`` and the row is not ``along`` (NaN elsewhere); None when off or no such row."""
+def _oblique_yaw(rel: np.ndarray, speed: np.ndarray, along: np.ndarray | None, cfg: MonoConfig) -> np.ndarray | None:
+    """Per row (``rel``, ``speed``: :func:`_heading_against_axis`): its heading left of the camera's axis (rad)
+    where ``cfg.width_oblique`` and the row is not ``along`` (NaN elsewhere); None when off or no such row."""
     if not cfg.width_oblique:
         return None
-    rel = np.arctan2(xs[:, 3], xs[:, 2]) - ego.yaw[ego_i]
-    other = np.ones(len(xs), bool) if along is None else ~along
-    other &= np.hypot(xs[:, 2], xs[:, 3]) >= cfg.oblique_min_speed
+    other = np.ones(len(rel), bool) if along is None else ~along
+    other &= speed >= cfg.oblique_min_speed
     return np.where(other, rel, np.nan) if other.any() else None
 
 
@@ -850,8 +852,9 @@ def localize_tracks(
         rows, meas, covs, rng = rows[inside], meas[inside], covs[inside], rng[inside]
         span = r.frames[rows]
         xs = _kalman(span, meas, covs, fps, cfg)[1][span - span[0]]
-        along = _heading_along(xs, r.ego_i[rows], ego, cfg)
-        turned = _oblique_yaw(xs, r.ego_i[rows], ego, along, cfg)
+        rel, speed = _heading_against_axis(xs, r.ego_i[rows], ego)
+        along = _heading_along(rel, speed, cfg)
+        turned = _oblique_yaw(rel, speed, along, cfg)
         if (along is not None and along.any()) or turned is not None:  # again with the heading's width geometry
             meas, covs, rng = _measurements(rows, size, cues, r, ego, camera, cfg, along, turned)
             xs = _kalman(span, meas, covs, fps, cfg)[1][span - span[0]]
