@@ -569,3 +569,39 @@ def test_oblique_width_reads_the_depth_of_cars_turned_against_the_axis(kitti_roo
         assert np.median(np.abs(new)) < 0.01 < 0.2 < np.median(np.abs(old))
     one = _oblique_width(4.0, 1.8, np.array([0.25]), np.array([0.3]), np.array([1.0]))
     assert one.shape == (1,) and 0.5 < float(one[0]) < 10.0
+
+
+def test_standing_cars_are_placed_by_the_parallax_of_the_ego_motion(kitti_root):
+    """Training sequence 0000 drives past parked cars: the tracks the standing-vehicle fit places
+    (``MonoConfig.static_fit``; 5 tracks) stand still, lie nearer their labelled cars than the moving-filter
+    estimate (median 0.51 m against 1.08 m over 213 matched rows), and lift the sequence's MOTA (76.7 against
+    38.6 without; gates chosen on the 18 training sequences: 65.75 -> 69.86 combined, unknown camera 60.87 ->
+    61.15)."""
+    from deepcrashtest.eval.boxes import iou_2d
+    from deepcrashtest.eval.kitti_mono import quick_mota
+
+    prep = prepare_mono(kitti_root, 0)
+    _, on, off, _ = _rows_added_by(prep, static_fit=False)
+    standing = on.groupby("track_id")["speed"].max() == 0.0
+    placed = standing[standing].index
+    assert len(placed) >= 3
+    err_on, err_off = [], []
+    for states, errs in ((on, err_on), (off, err_off)):
+        rows = states[states["track_id"].isin(placed) & states["detected"]]
+        for f, g in rows.groupby("frame"):
+            gt = prep.ground_truth[int(f)].objects  # labelled cars and vans: image boxes, world centres
+            if not len(gt.ids):
+                continue
+            iou = iou_2d(g[["x1", "y1", "x2", "y2"]].to_numpy(float), gt.boxes2d.astype(float))
+            xy = g[["x", "y"]].to_numpy(float)
+            errs += [
+                float(np.hypot(*(xy[k] - gt.world[int(iou[k].argmax()), :2])))
+                for k in range(len(g))
+                if iou[k].max() >= 0.5
+            ]
+    assert len(err_on) >= 50 and np.median(err_on) < 0.8 * np.median(err_off), (np.median(err_on), np.median(err_off))
+    mota_on = quick_mota([prep], DEFAULT_MONO)[0]
+    mota_off = quick_mota(
+        [prep], dataclasses.replace(DEFAULT_MONO, mono=dataclasses.replace(DEFAULT_MONO.mono, static_fit=False))
+    )[0]
+    assert mota_on >= 70.0 and mota_on - mota_off > 20.0, (mota_on, mota_off)
