@@ -530,10 +530,13 @@ def test_box_edge_width_where_vehicles_head_along_the_axis_brings_near_cars_clos
     (``width_edges_along_deg``, on by default; crossing and turning vehicles keep the centre-bearing geometry, so
     the dashcam crash clips keep their reprojection IoU). Training sequence 0001 (parked cars beside the ego's
     path), KITTI camera: the median position error of matched cars 0-20 m away falls (measured 4.16 -> 3.97 %,
-    the 18 training sequences' n-weighted mean 4.57 -> 4.39 %, unknown camera 5.10 -> 4.87 %)."""
-    off = dataclasses.replace(DEFAULT_MONO, mono=dataclasses.replace(DEFAULT_MONO.mono, width_edges_along_deg=0.0))
+    the 18 training sequences' n-weighted mean 4.57 -> 4.39 %, unknown camera 5.10 -> 4.87 %). The standing-vehicle
+    fit is off on both sides: it places most of those parked cars by the ego's parallax (3.41 against 3.48 %)."""
+    moving = dataclasses.replace(DEFAULT_MONO.mono, static_fit=False)
+    on = dataclasses.replace(DEFAULT_MONO, mono=moving)
+    off = dataclasses.replace(DEFAULT_MONO, mono=dataclasses.replace(moving, width_edges_along_deg=0.0))
     near = [evaluate_mono(kitti_root, [1], config=cfg)["sequences"]["0001"]["position_error"]["0-20 m"] for cfg in (
-        DEFAULT_MONO, off)]  # fmt: skip
+        on, off)]  # fmt: skip
     assert near[0]["n"] > 500
     assert near[0]["median_pct"] < near[1]["median_pct"] - 0.1  # 3.97 against 4.16
 
