@@ -65,6 +65,7 @@ from filterpy.kalman import KalmanFilter
 
 from deepcrashtest.geometry.egomotion import EgoMotion
 from deepcrashtest.geometry.localize import CLASS_DIMENSIONS, SIZE_PRIOR_SIGMA
+from deepcrashtest.geometry.standing import StandingNoise, Views, fit_standing
 from deepcrashtest.perception.roadusers import track_category
 from deepcrashtest.scenario import Camera
 
@@ -764,47 +765,34 @@ def _static_fit(
     rows: np.ndarray, xs: np.ndarray, size: tuple, cues: _Cues, r: _Rows, ego: EgoMotion, camera: Camera,
     cfg: MonoConfig,
 ) -> np.ndarray | None:  # fmt: skip
-    """World ground position (x, y m) of a standing vehicle from its whole track, or None (not standing, too
-    little parallax, or the fit poor): the point whose bearing and range fit every detected, uncut box, its
-    box heights ``fy H / Z_near`` with one height ``H`` for the track (log-normal prior: the track's size, relative
-    sigma ``cfg.static_size_rel``). Depth then comes from the ego's motion (the change of bearing and box height
-    as the ego drives by), not from the class's size alone. ``xs``: the track's first-pass states (n, 4)."""
-    from scipy.optimize import least_squares
-
+    """World ground position (x, y m) of a standing vehicle from its whole track (:func:`~deepcrashtest.geometry.
+    standing.fit_standing` on its detected, uncut boxes, the height scale's prior the track's size), or None: the
+    first pass ``xs`` (n, 4) not slow, too few boxes, the fit poor, its size far from the track's, or too little
+    parallax (``MonoConfig.static_*``)."""
     if np.median(np.hypot(xs[:, 2], xs[:, 3])) > cfg.static_max_speed:
         return None
     use = r.detected[rows] & ~cues.cut_v[rows] & ~cues.cut_u[rows]
     if use.sum() < cfg.static_min_rows:
         return None
-    ei = r.ego_i[rows][use]
-    ex, ey, c, s = ego.x[ei], ego.y[ei], np.cos(ego.yaw[ei]), np.sin(ego.yaw[ei])
-    bearing, box_h = cues.bearing[rows][use], cues.box_h[rows][use]
-    _, length, width, height = size[:4]
-    sig_b = cfg.bearing_sigma_px / camera.fx
-    sig_h = np.hypot(cfg.height_sigma_px / box_h, cfg.static_height_rel)
-    log_h0 = math.log(camera.fy * height)
+    fit = fit_standing(
+        track_views(rows[use], cues, r, ego), size[1:3], math.log(camera.fy * size[3]),
+        np.median(xs[:, :2], axis=0), standing_noise(camera, cfg),
+    )  # fmt: skip
+    ok = fit is not None and fit.chi2 <= cfg.static_max_chi2 and abs(fit.log_scale) <= cfg.static_max_size_dev
+    return fit.xy if ok and fit.parallax_rad >= cfg.static_min_parallax_rad else None  # type: ignore[union-attr]
 
-    def residuals(p: np.ndarray) -> np.ndarray:
-        dx, dy = p[0] - ex, p[1] - ey
-        fwd, left = c * dx + s * dy, -s * dx + c * dy
-        fwd = np.maximum(fwd, 0.5)
-        a = np.arctan2(-left, fwd)
-        near = fwd - 0.5 * (length * np.abs(np.cos(a)) + width * np.abs(np.sin(a))) * np.cos(a)
-        rb = (-left / fwd - bearing) / sig_b
-        rh = (np.log(box_h) - (p[2] - np.log(np.maximum(near, 0.5)))) / sig_h
-        return np.r_[rb, rh, (p[2] - log_h0) / cfg.static_size_rel]
 
-    p0 = np.r_[np.median(xs[:, :2], axis=0), log_h0]
-    fit = least_squares(residuals, p0, loss="soft_l1", f_scale=2.0)
-    if not fit.success:
-        return None
-    chi2 = float(np.mean(residuals(fit.x)[:-1] ** 2))
-    if chi2 > cfg.static_max_chi2 or abs(fit.x[2] - log_h0) > cfg.static_max_size_dev:
-        return None
-    dx, dy = fit.x[0] - ex, fit.x[1] - ey
-    if float(np.ptp(np.arctan2(-s * dx + c * dy, c * dx + s * dy))) < cfg.static_min_parallax_rad:
-        return None
-    return np.asarray(fit.x[:2], dtype=float)
+def track_views(rows: np.ndarray, cues: _Cues, r: _Rows, ego: EgoMotion) -> Views:
+    """The :class:`~deepcrashtest.geometry.standing.Views` of rows ``rows``."""
+    ei = r.ego_i[rows]
+    return Views(ego.x[ei], ego.y[ei], ego.yaw[ei], cues.bearing[rows], cues.box_h[rows])
+
+
+def standing_noise(camera: Camera, cfg: MonoConfig) -> StandingNoise:
+    """The standing fit's row errors for ``camera`` under ``cfg``."""
+    return StandingNoise(
+        cfg.bearing_sigma_px / camera.fx, cfg.height_sigma_px, cfg.static_height_rel, cfg.static_size_rel
+    )
 
 
 def _heading_against_axis(xs: np.ndarray, ego_i: np.ndarray, ego: EgoMotion) -> tuple[np.ndarray, np.ndarray]:
