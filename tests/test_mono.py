@@ -574,6 +574,28 @@ def test_oblique_width_reads_the_depth_of_cars_turned_against_the_axis(kitti_roo
     assert one.shape == (1,) and 0.5 < float(one[0]) < 10.0
 
 
+def test_forward_axis_column_from_standing_vehicles(kitti_root):
+    """Training sequence 0011: parked cars seen from the moving ego, each fitted as one standing point with a
+    bearing offset common to its boxes, measure the column of the camera's forward axis (KITTI P2: 609.6 px;
+    measured 609.2 px from 22 tracks) where the road users beside the ego path read it 15 px off (624.8 +- 14.8),
+    and the self-calibrated camera keeps it within a few pixels (609.4; the unknown camera's MOTA on 0011 59.6 ->
+    85.0, on the 18 training sequences 61.15 -> 64.10)."""
+    from deepcrashtest.geometry.selfcalib import BOX_HEIGHT_EXCESS, _usable
+    from deepcrashtest.geometry.selfcalib_axis import axis_column_from_path, axis_column_from_standing
+
+    prep = prepare_mono(kitti_root, 11)
+    tracks = image_tracks(prep, DEFAULT_MONO)
+    ego = EgoMotion.from_poses(prep.world.poses, 10.0)
+    boxes, fy, centre, true_cx = _usable(tracks, prep.size), prep.camera.fy, prep.size[0] / 2, prep.camera.cx
+    standing = axis_column_from_standing(boxes, fy, fy, centre, ego)
+    assert standing is not None and abs(standing[0] - true_cx) < 3.0 and standing[2] >= 10, standing
+    path = axis_column_from_path(boxes, fy, centre, ego, BOX_HEIGHT_EXCESS)
+    assert path is not None and abs(path[0] - true_cx) > 10.0  # what the standing vehicles mend here
+    start = Camera(fx=621.0, fy=621.0, cx=centre, cy=prep.size[1] / 2, height_m=1.3)
+    cal = self_calibrate(tracks, start, prep.size, ego)
+    assert abs(cal.camera.cx - true_cx) < 4.0 and any("standing vehicles" in n for n in cal.notes), cal.camera.cx
+
+
 def test_standing_cars_are_placed_by_the_parallax_of_the_ego_motion(kitti_root):
     """Training sequence 0000 drives past parked cars: the tracks the standing-vehicle fit places
     (``MonoConfig.static_fit``; 5 tracks) stand still, lie nearer their labelled cars than the moving-filter

@@ -33,7 +33,7 @@ import pandas as pd
 
 from deepcrashtest.geometry.egomotion import EgoMotion
 from deepcrashtest.geometry.mono3d import class_size
-from deepcrashtest.geometry.selfcalib_axis import axis_column_from_path
+from deepcrashtest.geometry.selfcalib_axis import axis_column_from_path, axis_column_from_standing
 from deepcrashtest.geometry.selfcalib_image import focal_from_level_horizon
 from deepcrashtest.geometry.selfcalib_moving import (
     MODE_BAND,
@@ -416,28 +416,35 @@ def combine_focal(
 AXIS_PRIOR_REL = 0.02
 AXIS_SIGMA_INFLATION = 4.0
 AXIS_MIN_SIGMA_PX = 3.0
+#: The column from standing vehicles as well (:func:`~deepcrashtest.geometry.selfcalib_axis.axis_column_from_standing`,
+#: its bootstrap sigma inflated alike).
+AXIS_FROM_STANDING = True
 
 
 def _calibrate_axis(
     tracks: pd.DataFrame, size: tuple[int, int], cam: Camera, ego: EgoMotion, notes: list[str]
 ) -> Camera:
     """The camera with ``cx`` (and ``fx`` unchanged) moved to the column of the ego's heading measured
-    from the road users beside its path, combined with the image-centre prior by inverse variance."""
+    from the road users beside its path and from the vehicles standing there, combined with the image-centre
+    prior by inverse variance."""
     boxes = _usable(tracks, size)
-    est = axis_column_from_path(boxes, cam.fy, cam.cx, ego, BOX_HEIGHT_EXCESS)
-    if est is not None:
-        est = axis_column_from_path(boxes, cam.fy, est[0], ego, BOX_HEIGHT_EXCESS)
-    if est is None:
+    path = axis_column_from_path(boxes, cam.fy, cam.cx, ego, BOX_HEIGHT_EXCESS)
+    if path is not None:
+        path = axis_column_from_path(boxes, cam.fy, path[0], ego, BOX_HEIGHT_EXCESS)
+    standing = axis_column_from_standing(boxes, cam.fx, cam.fy, cam.cx, ego) if AXIS_FROM_STANDING else None
+    terms = [(e[0], max(AXIS_SIGMA_INFLATION * e[1], AXIS_MIN_SIGMA_PX)) for e in (path, standing) if e is not None]
+    if not terms:
         notes.append("forward axis column not measurable (too few road users beside the ego path): image centre kept")
         return cam
-    cx, sig, n = est
-    sig = max(AXIS_SIGMA_INFLATION * sig, AXIS_MIN_SIGMA_PX)
-    sig0 = AXIS_PRIOR_REL * size[0]
-    w, w0 = 1.0 / sig**2, 1.0 / sig0**2
-    cx_post = (w * cx + w0 * cam.cx) / (w + w0)
-    notes.append(
-        f"forward axis column {cx_post:.1f} px (road users beside the ego path: {cx:.1f} +- {sig:.1f} px, {n} tracks)"
-    )
+    terms.append((cam.cx, AXIS_PRIOR_REL * size[0]))
+    w = np.array([1.0 / sig**2 for _, sig in terms])
+    cx_post = float(np.sum(w * np.array([c for c, _ in terms])) / np.sum(w))
+    said = [
+        f"{what}: {e[0]:.1f} +- {e[1]:.1f} px, {e[2]} tracks"
+        for what, e in (("road users beside the ego path", path), ("standing vehicles", standing))
+        if e is not None
+    ]
+    notes.append(f"forward axis column {cx_post:.1f} px ({'; '.join(said)})")
     return cam.model_copy(update={"cx": cx_post})
 
 

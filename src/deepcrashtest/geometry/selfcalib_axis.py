@@ -28,6 +28,7 @@ import pandas as pd
 
 from deepcrashtest.geometry.egomotion import EgoMotion
 from deepcrashtest.geometry.mono3d import class_size
+from deepcrashtest.geometry.standing import StandingNoise, Views, fit_standing
 
 #: Rows further than this (m, depth from the box height) are not used (pixel noise and the road's
 #: curvature dominate); fewer usable tracks than MIN_TRACKS (of MIN_ROWS rows each) and nothing is
@@ -144,3 +145,61 @@ def axis_column_from_path(
     rng = np.random.default_rng(seed)
     boots = [_fit([parts[k] for k in rng.integers(0, len(parts), len(parts))], iters=10) for _ in range(BOOTSTRAP)]
     return cx0 + delta, float(np.std(boots)), len(parts)
+
+
+#: Standing vehicles (:func:`axis_column_from_standing`): a track's fit counts where its mean squared
+#: normalised residual, its height scale against the class's (log) and the turn of its line of sight (rad) pass
+#: these (the gates of :class:`~deepcrashtest.geometry.mono3d.MonoConfig`'s standing-vehicle fit); the fewest
+#: such tracks; the fit's row errors (bearing px, box height px and relative, the height scale's prior).
+STANDING_MAX_CHI2 = 1.0
+STANDING_MAX_SIZE_DEV = 0.3
+STANDING_MIN_PARALLAX_RAD = 0.3
+STANDING_MIN_TRACKS = 3
+STANDING_NOISE_PX = (3.0, 0.4, 0.05, 0.15)
+
+
+def _standing_column(
+    g: pd.DataFrame, fx: float, fy: float, cx0: float, ego: EgoMotion, idx: np.ndarray
+) -> float | None:
+    """The forward axis column (px) one track's boxes give as a standing vehicle with a free bearing offset, or
+    None (the fit fails its gates: a moving vehicle, too little parallax)."""
+    length, width, height = class_size(str(g["category"].iloc[0]))
+    h = (g["y2"] - g["y1"]).to_numpy(float)
+    bearing = (0.5 * (g["x1"] + g["x2"]).to_numpy(float) - cx0) / fx
+    views = Views(ego.x[idx], ego.y[idx], ego.yaw[idx], bearing, h)
+    k = len(h) // 2
+    z = fy * height / h[k]
+    c, s = np.cos(ego.yaw[idx[k]]), np.sin(ego.yaw[idx[k]])
+    p0 = np.array([ego.x[idx[k]] + c * z + s * bearing[k] * z, ego.y[idx[k]] + s * z - c * bearing[k] * z])
+    b, hp, hr, sr = STANDING_NOISE_PX
+    fit = fit_standing(views, (length, width), np.log(fy * height), p0, StandingNoise(b / fx, hp, hr, sr), True)
+    if fit is None or fit.chi2 > STANDING_MAX_CHI2 or abs(fit.log_scale) > STANDING_MAX_SIZE_DEV:
+        return None
+    return cx0 - fit.offset * fx if fit.parallax_rad >= STANDING_MIN_PARALLAX_RAD else None
+
+
+def axis_column_from_standing(
+    boxes: pd.DataFrame, fx: float, fy: float, cx0: float, ego: EgoMotion, seed: int = 0
+) -> tuple[float, float, int] | None:
+    """(column px of the ego's heading, its 1-sigma px, tracks used) from vehicles standing beside the ego's path:
+    each track fitted as one standing point seen from the ego's poses with a bearing offset common to its boxes
+    (:func:`~deepcrashtest.geometry.standing.fit_standing`); a column error ``delta`` shifts every bearing by
+    ``delta / fx``, and the parallax of the ego's travel separates that from the point's position. The median over
+    the tracks that pass the fit's gates (fewer than :data:`STANDING_MIN_TRACKS`: None); the sigma is a bootstrap
+    of that median over tracks. ``boxes``: detected, uncut vehicle boxes of the tracks table; ``cx0``: the current
+    guess (px)."""
+    frame_to_i = {int(f): i for i, f in enumerate(ego.frame)}
+    d = boxes[boxes["frame"].isin(frame_to_i.keys())]
+    cols = []
+    for _, g in d.groupby("track_id"):
+        if len(g) >= MIN_ROWS:
+            g = g.sort_values("frame")
+            col = _standing_column(g, fx, fy, cx0, ego, np.array([frame_to_i[int(f)] for f in g["frame"]]))
+            if col is not None:
+                cols.append(col)
+    if len(cols) < STANDING_MIN_TRACKS:
+        return None
+    v = np.array(cols)
+    rng = np.random.default_rng(seed)
+    boots = [float(np.median(v[rng.integers(0, len(v), len(v))])) for _ in range(BOOTSTRAP)]
+    return float(np.median(v)), float(np.std(boots)), len(v)
