@@ -25,6 +25,7 @@ monocular 3D path), and the LiDAR world tracker (``deepcrashtest.datasets.kitti.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import Generic, TypeVar
@@ -88,6 +89,20 @@ def assign(cost: np.ndarray, max_cost: float) -> Assignment:
     )
 
 
+def _joined(first: Assignment, more: list[tuple[int, int]]) -> Assignment:
+    """``first`` with the pairs ``more`` (among its unmatched rows and columns) added."""
+    if not more:
+        return first
+    rows, cols = {r for r, _ in more}, {c for _, c in more}
+    if not rows <= set(first.unmatched_rows) or not cols <= set(first.unmatched_cols):
+        raise ValueError("a second matching may only pair rows and columns the first left unmatched")
+    return Assignment(
+        sorted(first.pairs + more),
+        [r for r in first.unmatched_rows if r not in rows],
+        [c for c in first.unmatched_cols if c not in cols],
+    )
+
+
 @dataclass
 class StepResult(Generic[T]):
     """One detection round: matched (track, detection index) pairs, the detections left unmatched,
@@ -112,13 +127,23 @@ class TrackCore(Generic[T]):
     def _met(self, track: T) -> bool:
         return track.hits >= self.min_hits and track.evidence >= self.min_evidence
 
-    def step(self, cost: np.ndarray, max_cost: float, scores: np.ndarray | None = None) -> StepResult[T]:
+    def step(
+        self,
+        cost: np.ndarray,
+        max_cost: float,
+        scores: np.ndarray | None = None,
+        second: Callable[[Assignment], list[tuple[int, int]]] | None = None,
+    ) -> StepResult[T]:
         """Assign detections to the current tracks and advance every track's lifecycle by one round
-        (``scores``: the detections' scores, added to a matched track's evidence; None: 1 each)."""
+        (``scores``: the detections' scores, added to a matched track's evidence; None: 1 each). ``second``: the
+        owner's second matching, given the first assignment, returns more (track row, detection column) pairs
+        among the rows and columns it left unmatched."""
         cost = np.asarray(cost, dtype=np.float64)
         if cost.shape[0] != len(self.tracks):
             raise ValueError(f"cost has {cost.shape[0]} rows for {len(self.tracks)} tracks")
         a = assign(cost, max_cost)
+        if second is not None:
+            a = _joined(a, second(a))
         matched = [(self.tracks[r], c) for r, c in a.pairs]
         missed = [self.tracks[r] for r in a.unmatched_rows]
         for t, c in matched:

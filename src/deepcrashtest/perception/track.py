@@ -268,8 +268,12 @@ class BoxTracker:
             cost[tg[:, None] != dg[None, :]] = np.inf
             cost[_height_jumps(tracks, dets.boxes)] = np.inf
             cost[_comes_back(tracks, dets.boxes, self._width) & (cost <= 1.0 - self.min_iou)] = np.inf
-        cost = _recovered(tracks, dets, cost, 1.0 - self.min_iou, self._n, self.detect_every)
-        result = self.core.step(cost, max_cost=1.0 - self.min_iou, scores=dets.scores)
+        max_cost = 1.0 - self.min_iou
+
+        def second(first: Assignment) -> list[tuple[int, int]]:
+            return _recovered(tracks, dets, cost, first, max_cost, self._n, self.detect_every)
+
+        result = self.core.step(cost, max_cost=max_cost, scores=dets.scores, second=second)
         for t, j in result.matched:
             self._absorb(t, dets, j)
         existing = [t.box for t in self.core.tracks if t.state is not TrackState.DELETED]
@@ -302,36 +306,28 @@ class BoxTracker:
 
 
 def _recovered(
-    tracks: list[ImageTrack], dets: Detections, cost: np.ndarray, max_cost: float, n: int, every: int
-) -> np.ndarray:
-    """``cost`` (tracks x detections, 1 - IoU) with a second matching: a confirmed track of
-    :data:`RECOVER_CATEGORIES` detected in the previous detection round (``every`` frames ago; ``n``: this
-    round's running frame number) and left unmatched by the first (its carried box overlaps no free detection
-    enough) is matched to a free detection of its group that its constant-velocity box (its last detected box
-    moved on by its box velocity) overlaps by IoU >= 1 - ``max_cost``; the two matchings are returned as the only
-    finite costs, so the lifecycle's assignment keeps both. Only one round on: further on, a walker's
-    extrapolated box ran 280 px across a crowd onto another one (dad_000487)."""
-    first = assign(cost, max_cost)
+    tracks: list[ImageTrack], dets: Detections, cost: np.ndarray, first: Assignment, max_cost: float, n: int,
+    every: int,
+) -> list[tuple[int, int]]:  # fmt: skip
+    """The second matching (:meth:`TrackCore.step`'s ``second``): (track row, detection column) pairs of a
+    confirmed track of :data:`RECOVER_CATEGORIES` detected in the previous detection round (``every`` frames ago;
+    ``n``: this round's running frame number) and left unmatched by the ``first`` assignment of ``cost`` (tracks x
+    detections, 1 - IoU; its carried box overlaps no free detection enough) with a free detection of its group
+    that its constant-velocity box (its last detected box moved on by its box velocity) overlaps by IoU >= 1 -
+    ``max_cost``. Only one round on: further on, a walker's extrapolated box ran 280 px across a crowd onto
+    another one (dad_000487)."""
     rows = [
         r
         for r in first.unmatched_rows
         if tracks[r].confirmed and tracks[r].category in RECOVER_CATEGORIES and n - tracks[r].last_detected <= every
     ]
     if not rows or not first.unmatched_cols:
-        return cost
+        return []
     cols = first.unmatched_cols
     moved = np.stack([tracks[r].detected_box + tracks[r].velocity * (n - tracks[r].last_detected) for r in rows])
     second_cost = 1.0 - iou_matrix(moved, dets.boxes[cols])
     second_cost[~np.isfinite(cost[np.ix_(rows, cols)])] = np.inf  # the first matching's gates hold
-    second = assign(second_cost, max_cost)
-    if not second.pairs:
-        return cost
-    out = np.full_like(cost, np.inf)
-    for r, c in first.pairs:
-        out[r, c] = cost[r, c]
-    for i, j in second.pairs:
-        out[rows[i], cols[j]] = second_cost[i, j]
-    return out
+    return [(rows[i], cols[j]) for i, j in assign(second_cost, max_cost).pairs]
 
 
 def _height_jumps(tracks: list[ImageTrack], boxes: np.ndarray) -> np.ndarray:
