@@ -510,8 +510,12 @@ def test_heights_that_fit_no_class_leave_the_class_to_the_box_shape(kitti_root):
         implied.append(float(np.median((rows["y2"] - rows["y1"]).to_numpy(float) / below * prep.camera.height_m)))
     assert cars >= 0.7 * len(flipped), (cars, len(flipped))
     assert min(implied) > 2.1 * 1.1, implied  # above the van prior's 2.1 m, far above the car's 1.5 m
-    mota_on = quick_mota([prep], DEFAULT_MONO)[0]
-    mota_off = quick_mota([prep], dataclasses.replace(DEFAULT_MONO, mono=off_cfg))[0]
+    # the MOTA with the standing vehicles' class choice off on both sides (it types some of those cars too: 68.5
+    # against 65.6 with it on)
+    moving = dataclasses.replace(DEFAULT_MONO.mono, static_class=False)
+    mota_on = quick_mota([prep], dataclasses.replace(DEFAULT_MONO, mono=moving))[0]
+    off_moving = dataclasses.replace(off_cfg, static_class=False)
+    mota_off = quick_mota([prep], dataclasses.replace(DEFAULT_MONO, mono=off_moving))[0]
     assert mota_on >= 63.0 and mota_on - mota_off > 3.0, (mota_on, mota_off)
     # a self-calibrated camera height (every dashcam clip without a calibration) keeps the classes as they were
     from deepcrashtest.eval.kitti_mono import ego_of
@@ -630,3 +634,32 @@ def test_standing_cars_are_placed_by_the_parallax_of_the_ego_motion(kitti_root):
         [prep], dataclasses.replace(DEFAULT_MONO, mono=dataclasses.replace(DEFAULT_MONO.mono, static_fit=False))
     )[0]
     assert mota_on >= 70.0 and mota_on - mota_off > 20.0, (mota_on, mota_off)
+
+
+def test_standing_vehicles_take_the_class_their_parallax_height_fits(kitti_root):
+    """A standing vehicle's height measured by the ego's parallax (the standing fit with a loose size prior,
+    ``MonoConfig.static_class``) chooses between car and van: on training sequence 0001 the track it retypes (a
+    labelled car the bottom edges typed van) is typed as its label says, and the sequence's MOTA rises (69.9
+    against 66.6 without; 18 training sequences: 69.86 -> 70.20, unknown camera 64.10 -> 64.33)."""
+    from deepcrashtest.eval.boxes import iou_2d
+    from deepcrashtest.eval.kitti_mono import quick_mota
+
+    prep = prepare_mono(kitti_root, 1)
+    _, on, off, _ = _rows_added_by(prep, static_class=False)
+    cls_on, cls_off = (s.groupby("track_id")["category"].first() for s in (on, off))
+    common = cls_on.index.intersection(cls_off.index)
+    flipped = common[cls_on[common] != cls_off[common]]
+    labels = read_labels(KittiSequence(kitti_root, 1).labels)
+    right = 0
+    for tid in flipped:
+        rows = on[(on["track_id"] == tid) & on["detected"]]
+        votes = []
+        for f, box in zip(rows["frame"], rows[["x1", "y1", "x2", "y2"]].to_numpy(float), strict=True):
+            lab = labels[labels["frame"] == f]
+            iou = iou_2d(box[None], lab[["x1", "y1", "x2", "y2"]].to_numpy(float))[0] if len(lab) else np.zeros(0)
+            votes.append(str(lab["type"].iloc[int(iou.argmax())]).lower() if len(iou) and iou.max() >= 0.5 else "none")
+        right += max(set(votes), key=votes.count) == cls_on[tid]
+    assert len(flipped) >= 1 and right == len(flipped), (right, len(flipped))
+    off_cfg = dataclasses.replace(DEFAULT_MONO, mono=dataclasses.replace(DEFAULT_MONO.mono, static_class=False))
+    mota_on, mota_off = quick_mota([prep], DEFAULT_MONO)[0], quick_mota([prep], off_cfg)[0]
+    assert mota_on - mota_off > 2.0, (mota_on, mota_off)
