@@ -480,6 +480,18 @@ def test_road_profile_from_the_tracks_follows_the_labels_road(kitti_root):
     assert abs(rise - label_rise) < 0.5 * label_rise, (rise, label_rise)
 
 
+def _label_type(rows: pd.DataFrame, labels: pd.DataFrame) -> str:
+    """The label type most of a track's ``rows`` (their image boxes) cover with IoU >= 0.5 ("none": no label)."""
+    from deepcrashtest.eval.boxes import iou_2d
+
+    votes = []
+    for f, box in zip(rows["frame"], rows[["x1", "y1", "x2", "y2"]].to_numpy(float), strict=True):
+        lab = labels[labels["frame"] == f]
+        iou = iou_2d(box[None], lab[["x1", "y1", "x2", "y2"]].to_numpy(float))[0] if len(lab) else np.zeros(0)
+        votes.append(str(lab["type"].iloc[int(iou.argmax())]) if len(iou) and iou.max() >= 0.5 else "none")
+    return max(set(votes), key=votes.count)
+
+
 def test_heights_that_fit_no_class_leave_the_class_to_the_box_shape(kitti_root):
     """A track whose bottom edges imply a height far from every candidate class's (the road under it or the
     horizon off) carries no class evidence in its heights (``MonoConfig.class_free_height_cost``): on training
@@ -487,7 +499,6 @@ def test_heights_that_fit_no_class_leave_the_class_to_the_box_shape(kitti_root):
     (MOTA 65.0 against 60.7 without; chosen on the 18 training sequences: 65.37 -> 65.92 combined); only van ->
     car flips, mostly onto labelled cars, and every flipped track's heights lie far above the van's. Only where the
     camera's height is measured (the KITTI camera's is)."""
-    from deepcrashtest.eval.boxes import iou_2d
     from deepcrashtest.eval.kitti_mono import quick_mota
 
     prep = prepare_mono(kitti_root, 9)
@@ -500,12 +511,7 @@ def test_heights_that_fit_no_class_leave_the_class_to_the_box_shape(kitti_root):
     cars, implied = 0, []
     for tid in flipped:
         rows = on[(on["track_id"] == tid) & on["detected"]]
-        votes = []
-        for f, box in zip(rows["frame"], rows[["x1", "y1", "x2", "y2"]].to_numpy(float), strict=True):
-            lab = labels[labels["frame"] == f]
-            iou = iou_2d(box[None], lab[["x1", "y1", "x2", "y2"]].to_numpy(float))[0] if len(lab) else np.zeros(0)
-            votes.append(str(lab["type"].iloc[int(iou.argmax())]) if len(iou) and iou.max() >= 0.5 else "none")
-        cars += max(set(votes), key=votes.count) == "Car"
+        cars += _label_type(rows, labels) == "Car"
         below = (rows["y2"] - rows["horizon_v"]).to_numpy(float)
         implied.append(float(np.median((rows["y2"] - rows["y1"]).to_numpy(float) / below * prep.camera.height_m)))
     assert cars >= 0.7 * len(flipped), (cars, len(flipped))
@@ -641,7 +647,6 @@ def test_standing_vehicles_take_the_class_their_parallax_height_fits(kitti_root)
     ``MonoConfig.static_class``) chooses between car and van: on training sequence 0001 the track it retypes (a
     labelled car the bottom edges typed van) is typed as its label says, and the sequence's MOTA rises (69.9
     against 66.6 without; 18 training sequences: 69.86 -> 70.20, unknown camera 64.10 -> 64.33)."""
-    from deepcrashtest.eval.boxes import iou_2d
     from deepcrashtest.eval.kitti_mono import quick_mota
 
     prep = prepare_mono(kitti_root, 1)
@@ -652,13 +657,7 @@ def test_standing_vehicles_take_the_class_their_parallax_height_fits(kitti_root)
     labels = read_labels(KittiSequence(kitti_root, 1).labels)
     right = 0
     for tid in flipped:
-        rows = on[(on["track_id"] == tid) & on["detected"]]
-        votes = []
-        for f, box in zip(rows["frame"], rows[["x1", "y1", "x2", "y2"]].to_numpy(float), strict=True):
-            lab = labels[labels["frame"] == f]
-            iou = iou_2d(box[None], lab[["x1", "y1", "x2", "y2"]].to_numpy(float))[0] if len(lab) else np.zeros(0)
-            votes.append(str(lab["type"].iloc[int(iou.argmax())]).lower() if len(iou) and iou.max() >= 0.5 else "none")
-        right += max(set(votes), key=votes.count) == cls_on[tid]
+        right += _label_type(on[(on["track_id"] == tid) & on["detected"]], labels).lower() == cls_on[tid]
     assert len(flipped) >= 1 and right == len(flipped), (right, len(flipped))
     off_cfg = dataclasses.replace(DEFAULT_MONO, mono=dataclasses.replace(DEFAULT_MONO.mono, static_class=False))
     mota_on, mota_off = quick_mota([prep], DEFAULT_MONO)[0], quick_mota([prep], off_cfg)[0]
