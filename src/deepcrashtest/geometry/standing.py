@@ -59,8 +59,8 @@ def fit_standing(
     free_offset: bool = False,
 ) -> StandingFit | None:
     """The standing point that explains the views ``v`` of a road user of ``extent`` (length, width, m) whose
-    height scale ``log(fy H)`` has the prior mean ``log_b0``; ``p0``: a starting point (world m). None when the
-    solver fails."""
+    height scale ``log(fy H)`` has the prior mean ``log_b0``; ``p0``: a starting point (world m). None when a view
+    or the start has no finite value, or the solver fails."""
     from scipy.optimize import least_squares
 
     c, s = np.cos(v.yaw), np.sin(v.yaw)
@@ -81,6 +81,8 @@ def fit_standing(
         return np.r_[rb, rh, (p[2] - log_b0) / noise.size_rel]
 
     start = np.r_[p0, log_b0, 0.0] if free_offset else np.r_[p0, log_b0]
+    if not np.isfinite(residuals(start)).all():  # a pose or box without a value: nothing to fit
+        return None
     fit = least_squares(residuals, start, loss="soft_l1", f_scale=2.0)
     if not fit.success:
         return None
