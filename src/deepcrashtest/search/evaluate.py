@@ -161,6 +161,11 @@ class Evaluator:
 
         agent_timeline(_prepared_world(self._json, self.duration, self.scenario), VehicleLimits()).record_all()
 
+    def world(self) -> Any:
+        """The scenario's simulated world as the local workers use it (prepared once per process; the parent's
+        after :meth:`warm`, with the agents' recorded run)."""
+        return _prepared_world(self._json, self.duration, self.scenario)
+
     # ------------------------------------------------------------------ evaluate
     def __call__(self, theta: np.ndarray) -> dict[str, np.ndarray]:
         """Simulate the variants ``theta`` (B, D); returns outcome arrays (B,) plus ``change``."""
