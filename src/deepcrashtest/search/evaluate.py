@@ -31,7 +31,7 @@ CHUNK = 512
 REPLAY_CHUNK = 2048
 #: Per-variant outcome columns returned by the simulator, in results.csv order.
 OUTCOME_FIELDS = ("collided", "collision_time", "min_distance", "min_ttc", "robustness", "aeb_time", "delta_v_ego")
-#: Below this many variant-steps (variants x the world's time steps, ~1.3-1.8 us of a worker's CPU each on the
+#: Below this many variant-steps (variants x the world's time steps, ~1.0-2.0 us of CPU each on the
 #: crash clips) a call simulates in this process instead of on the worker pool: forking the workers, their cold
 #: per-process costs and shipping the results cost more than the second core saves (chosen on the crash clips
 #: ccd_000721 and dad_000487 at 129-2,001 variants: docs/notes/searchfps14.md). The results do not change: the
