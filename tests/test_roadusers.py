@@ -121,6 +121,23 @@ def test_third_party_crash_is_reproduced_and_searched(kitti12, tmp_path):
     assert variant.collision is not None and variant.collision.participants == crash.collision.participants
 
 
+def test_agent_collisions_from_the_recorded_run_are_the_simulated_ones(kitti12):
+    """A third-party crash's contacts from the agents' recorded run (no per-step run) are ``simulate``'s, bit for
+    bit (times, pair, relative speed, Box2D's point and delta-v); where the ego touches someone they are refused."""
+    from deepcrashtest.search.run import SearchConfig, crash_question
+    from deepcrashtest.sim import agent_collisions
+
+    crash = meet(kitti12, PEDESTRIAN, CYCLIST, 3.0)
+    fast = agent_collisions(prepare(crash))
+    assert fast is not None and fast == simulate(crash).collisions and len(fast) >= 1
+    assert fast[0]["delta_v"] and fast[0]["point"] is not None
+    cfg = SearchConfig(method="random")
+    world = prepare(crash)
+    assert crash_question(crash, cfg, lambda: world) == crash_question(crash, cfg)  # the search's two ways
+    both = meet(crash, 2, 0, 5.0).evolve(collision=crash.collision)  # the ego hits car 2 as well
+    assert agent_collisions(prepare(both)) is None
+
+
 def test_road_inferred_from_road_users_where_no_lanes_are_seen(kitti12):
     from deepcrashtest.trajectory.pipeline import process_scenario
     from deepcrashtest.trajectory.road import inferred_lanes

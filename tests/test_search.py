@@ -21,7 +21,7 @@ if not hasattr(sim, "simulate_batch"):
     pytest.skip("the simulator (deepcrashtest.sim.simulate_batch) is not in this build", allow_module_level=True)
 
 from deepcrashtest.scenario import Scenario  # noqa: E402
-from deepcrashtest.search.evaluate import Evaluator  # noqa: E402
+from deepcrashtest.search.evaluate import IN_PROCESS_WORK, Evaluator  # noqa: E402
 from deepcrashtest.search.methods import is_safe  # noqa: E402
 from deepcrashtest.search.run import SearchConfig, run_search  # noqa: E402
 from deepcrashtest.search.space import SearchSpace  # noqa: E402
@@ -133,9 +133,13 @@ def test_same_seed_same_results_and_engines_agree(crash, tmp_path):
     space = SearchSpace.for_scenario(crash)
     theta = space.reference_grid(np.random.default_rng(3), 12, 2)
     outs = {}
-    for name, engine, workers in (("inline", "local", 1), ("pool", "local", 2)):
-        with Evaluator(crash, space, engine=engine, workers=workers, duration=DURATION, chunk=8) as ev:
+    pools = {}
+    for name, workers, work in (("inline", 1, IN_PROCESS_WORK), ("pool", 2, 0), ("small", 2, IN_PROCESS_WORK)):
+        with Evaluator(crash, space, workers=workers, duration=DURATION, chunk=8, in_process_work=work) as ev:
             outs[name] = ev(theta)
+            pools[name] = ev._pool is not None
+    # 24 variants are too little work for the pool unless told otherwise: the same chunks, in this process
+    assert pools == {"inline": False, "pool": True, "small": False}
     for name, o in outs.items():
         for k, v in o.items():
             np.testing.assert_array_equal(v, outs["inline"][k], err_msg=f"{name}: {k}")

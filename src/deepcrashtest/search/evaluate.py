@@ -31,6 +31,12 @@ CHUNK = 512
 REPLAY_CHUNK = 2048
 #: Per-variant outcome columns returned by the simulator, in results.csv order.
 OUTCOME_FIELDS = ("collided", "collision_time", "min_distance", "min_ttc", "robustness", "aeb_time", "delta_v_ego")
+#: Below this many variant-steps (variants x the world's time steps, ~1.0-2.0 us of CPU each on the
+#: crash clips) a call simulates in this process instead of on the worker pool: forking the workers, their cold
+#: per-process costs and shipping the results cost more than the second core saves (chosen on the crash clips
+#: ccd_000721 and dad_000487 at 129-2,001 variants: docs/notes/searchfps14.md). The results do not change: the
+#: same chunks are simulated, one after the other.
+IN_PROCESS_WORK = 100_000
 ENGINES = ("local", "ray")
 MAX_WORKERS = 1024  # processes: more than any machine's cores (the process pool's queues take a C int)
 
@@ -107,6 +113,7 @@ class Evaluator:
     chunk: int | None = None  # variants per simulator call (None: CHUNK; with the replay controller REPLAY_CHUNK)
     simulations: int = 0
     on_progress: Callable[[int], None] | None = field(default=None, repr=False)  # simulations just run
+    in_process_work: int = IN_PROCESS_WORK  # variant-steps below which a call runs here, without the pool
     _json: str = field(default="", repr=False)
     _pool: Any = field(default=None, repr=False)
 
@@ -137,7 +144,7 @@ class Evaluator:
         results: Iterable[dict[str, np.ndarray]]
         if self.engine == "ray":
             results = _ray_map(args, self.workers)
-        elif self.workers == 1 or len(chunks) == 1:
+        elif self.workers == 1 or len(chunks) == 1 or self._small(sum(len(th) for th in chunks)):
             results = (simulate_variants(*a) for a in args)
         else:
             if self._pool is None:
@@ -151,6 +158,10 @@ class Evaluator:
                 self.on_progress(len(th))
         return parts
 
+    def _small(self, variants: int) -> bool:
+        """Whether ``variants`` variants are too little work to start the worker pool for (``in_process_work``)."""
+        return self._pool is None and variants * len(self.world().times) < self.in_process_work
+
     def warm(self) -> None:
         """Prepare the scenario's world and record the agents' run in this process (local engine, several
         workers), so that the worker processes forked next share them instead of each building its own."""
@@ -160,6 +171,11 @@ class Evaluator:
         from deepcrashtest.sim.vehicle import VehicleLimits
 
         agent_timeline(_prepared_world(self._json, self.duration, self.scenario), VehicleLimits()).record_all()
+
+    def world(self) -> Any:
+        """The scenario's simulated world as the local workers use it (prepared once per process; the parent's
+        after :meth:`warm`, with the agents' recorded run)."""
+        return _prepared_world(self._json, self.duration, self.scenario)
 
     # ------------------------------------------------------------------ evaluate
     def __call__(self, theta: np.ndarray) -> dict[str, np.ndarray]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import math
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -143,6 +144,7 @@ def _search(
                 boundary = boundary_scan(ev, log, cfg.boundary_directions, margin=cfg.margin)
         n_sims = ev.simulations
     elapsed = time.perf_counter() - t0
+    crash = crash_question(scenario, cfg, ev.world)  # the world the evaluator prepared (kept after it closes)
 
     theta, res = log.arrays()
     safe = is_safe(res, cfg.margin)
@@ -175,7 +177,7 @@ def _search(
         "workers": workers,
         "original": {"collided": bool(original["collided"][0]), **_metrics(original, 0)},
         "note": None if bool(original["collided"][0]) else NO_CRASH_NOTE,
-        "crash": crash_question(scenario, cfg),
+        "crash": crash,
         "simulations": n_sims,
         "elapsed_s": round(elapsed, 3),
         "variants_per_s": round(n_sims / elapsed, 1) if elapsed > 0 else None,
@@ -230,13 +232,16 @@ def _original_and_random(ev: Evaluator, log: Log, cfg: SearchConfig) -> dict[str
     return original
 
 
-def crash_question(scenario: Scenario, cfg: SearchConfig) -> dict[str, Any]:
+def crash_question(scenario: Scenario, cfg: SearchConfig, world: Callable[[], Any] | None = None) -> dict[str, Any]:
     """What the search asks of this scenario's crash, and whether the replay reproduces it.
 
     Every variant changes the ego only; the agents replay their trajectories, so a crash between two
     agents (third party) happens in every variant. A variant is safe when the ego touches nobody (and
     stays ``margin`` metres away). For a third-party crash the original is simulated once to check
-    that the two agents still crash (``reproduced``, with the simulated time and pair).
+    that the two agents still crash (``reproduced``, with the simulated time and pair). ``world``: gives the
+    search's prepared world (its agents' run recorded): with the replay controller, where the original's ego
+    touches nobody, the agents' contacts come from that run (``sim.agent_collisions``: the same contacts,
+    without a second run of the whole scenario step by step).
     """
     c = scenario.collision
     out: dict[str, Any] = {
@@ -246,13 +251,15 @@ def crash_question(scenario: Scenario, cfg: SearchConfig) -> dict[str, Any]:
         "safe_means": f"the ego touches no road user (robustness > {cfg.margin} m)",
     }
     if c is not None and not c.involves_ego:
-        from deepcrashtest.sim import simulate
+        from deepcrashtest.sim import agent_collisions, simulate
 
-        res = simulate(scenario, controller=cfg.controller, seed=cfg.seed, duration=cfg.duration)
-        hit = res.contact_between(*c.participants)
+        contacts = agent_collisions(world()) if world is not None and cfg.controller == "replay" else None
+        if contacts is None:
+            contacts = simulate(scenario, controller=cfg.controller, seed=cfg.seed, duration=cfg.duration).collisions
+        hit = next((x for x in contacts if set(x["vehicles"]) == set(c.participants)), None)
         out["reproduced"] = hit is not None
         out["simulated_time_s"] = None if hit is None else hit["time"]
-        out["first_contact"] = res.first_contact
+        out["first_contact"] = contacts[0] if contacts else None
     return out
 
 

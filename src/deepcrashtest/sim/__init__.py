@@ -7,7 +7,15 @@ for the search); :func:`prepare` builds a scenario's world once for many calls. 
 """
 
 from deepcrashtest.sim.controllers import AebConfig, AebController, ReplayController, resolve_controller
-from deepcrashtest.sim.engine import BatchResult, SimResult, prepare, replay_error, simulate, simulate_batch
+from deepcrashtest.sim.engine import (
+    BatchResult,
+    SimResult,
+    agent_collisions,
+    prepare,
+    replay_error,
+    simulate,
+    simulate_batch,
+)
 from deepcrashtest.sim.sensors import Observation, SensorConfig
 
 __all__ = [
@@ -18,6 +26,7 @@ __all__ = [
     "ReplayController",
     "SensorConfig",
     "SimResult",
+    "agent_collisions",
     "prepare",
     "replay_error",
     "resolve_controller",

@@ -187,6 +187,7 @@ class AgentTimeline:
         self._live: AgentSet | None = None
         self._next = 0  # first step the live AgentSet has not recorded yet
         self._whole: _Segment | None = None
+        self._contacts: list[tuple[int, int, float, float]] = []  # the live AgentSet's, in step order
 
     def rewind(self) -> None:
         if not self.keep_all:
@@ -211,6 +212,17 @@ class AgentTimeline:
             self._whole = _Segment(0, *(np.concatenate([getattr(p, f) for p in parts]) for f in fields))
         return self._whole
 
+    def agent_contacts(self) -> tuple[list[tuple[int, int, float, float]], PhysicsWorld | None] | None:
+        """The agents' contacts of the whole recorded run, as :meth:`AgentSet.join_contacts` found them (vehicle
+        indices, time in s, relative speed in m/s; in step order), and the Box2D world they continued in (None
+        where no two agents touch); None for runs that are not kept (``keep_all`` False)."""
+        if not self.keep_all:
+            return None
+        self.record_all()
+        if self._live is None:  # recorded without stepping: no two agents ever touch
+            return [], None
+        return list(self._contacts), self._live.phys
+
     def segment(self, k: int) -> _Segment:
         s = self._segments.get(k // SEGMENT)
         if s is None and self.keep_all and not self._segments and self._live is None:
@@ -233,6 +245,7 @@ class AgentTimeline:
             if k0 != 0:
                 raise RuntimeError("agent timeline asked out of order")
             self._live, self._next = AgentSet(self.world, self.limits), 0
+            self._contacts = []
         ag, dt, M = self._live, self.world.dt, self._live.M
         n = min(SEGMENT, len(self.world.times) - 1 - k0)
         seg = _Segment(
@@ -255,8 +268,10 @@ class AgentTimeline:
             if M == 0:
                 continue
             new, steer_new, pres = ag.predict(k, dt)
-            if ag.join_contacts(k, new, pres):  # new Box2D bodies: their velocities from now on
+            found = ag.join_contacts(k, new, pres)
+            if found:  # new Box2D bodies: their velocities from now on
                 vel, omega = ag.velocity()
+                self._contacts.extend(found)
             seg.hit_vel[r], seg.hit_omega[r] = vel, omega
             seg.new_vel[r] = ag.new_velocity(new, steer_new)
             seg.new[r], seg.pres_next[r] = new, pres

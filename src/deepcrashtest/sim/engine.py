@@ -23,7 +23,7 @@ from deepcrashtest.errors import UserError, check_seed
 from deepcrashtest.scenario import Scenario
 from deepcrashtest.sim.agents import agent_timeline
 from deepcrashtest.sim.controllers import controller_name, resolve_controller
-from deepcrashtest.sim.loop import Contact, LoopOutput, is_replay_controller, run_loop
+from deepcrashtest.sim.loop import Contact, LoopOutput, finish_contacts, is_replay_controller, run_loop
 from deepcrashtest.sim.memory import retain_freed_memory
 from deepcrashtest.sim.reference import PathSet, build_pathset
 from deepcrashtest.sim.replay_batch import replay_batch_available, run_replay_batch
@@ -210,6 +210,22 @@ def simulate(
         controller=controller_name(controller),
         dt=world.dt,
     )
+
+
+def agent_collisions(world: World) -> list[dict[str, Any]] | None:
+    """``simulate(world).collisions`` (replay controller) where the ego touches nobody, without the per-step run:
+    the agents' contacts of the recorded run (:meth:`~deepcrashtest.sim.agents.AgentTimeline.agent_contacts`;
+    the agents never see an ego that touches nobody, so theirs is the same run), with Box2D's delta-v and points.
+    None where the ego's own replay touches someone (one batch variant, the ego's reference) or the run is not
+    kept: only :func:`simulate` knows those.
+    """
+    recorded = agent_timeline(world, VehicleLimits()).agent_contacts()
+    if recorded is None or simulate_batch(world, np.zeros((1, 2))).collided[0]:
+        return None
+    found, phys = recorded
+    contacts = [Contact(t, a, b, rel) for a, b, t, rel in found]
+    finish_contacts(contacts, phys)
+    return [_contact_dict(world, c) for c in contacts]
 
 
 def _contact_dict(world: World, c: Contact) -> dict[str, Any]:

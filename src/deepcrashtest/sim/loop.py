@@ -437,7 +437,7 @@ class _Loop:
         """Delta-v: from Box2D (physics mode) or a two-body impact per colliding variant (batch mode)."""
         out, world = self.out, self.world
         if self.physics_mode:
-            _finish_contacts(out, self.live.phys if self.live is not None else None)
+            finish_contacts(out.contacts, self.live.phys if self.live is not None else None)
             first = next((c for c in out.contacts if 0 in (c.a, c.b)), None)  # the ego's first, after any third-party
             if first is not None:
                 other = first.b if first.a == 0 else first.a
@@ -469,17 +469,17 @@ def batch_delta_v(world: World, pre_contact: dict[int, PreContact], out: LoopOut
         out.delta_v_ego[row], out.delta_v_other[row] = dv_e, dv_o
 
 
-def _finish_contacts(out: LoopOutput, phys: PhysicsWorld | None) -> None:
-    """Add delta-v and impact points from Box2D; add contacts only Box2D saw (between sliding bodies)."""
+def finish_contacts(contacts: list[Contact], phys: PhysicsWorld | None) -> None:
+    """Add delta-v and impact points from Box2D; add contacts only Box2D saw (between sliding bodies); in place."""
     if phys is None:
         return
-    seen = {pair_key(c.a, c.b) for c in out.contacts}
+    seen = {pair_key(c.a, c.b) for c in contacts}
     for pair, ep in phys.episodes.items():
         if pair not in seen:
-            out.contacts.append(Contact(ep.begin_time, int(pair[0]), int(pair[1]), ep.relative_speed))
-    for c in out.contacts:
+            contacts.append(Contact(ep.begin_time, int(pair[0]), int(pair[1]), ep.relative_speed))
+    for c in contacts:
         found = phys.episodes.get(pair_key(c.a, c.b))
         if found is not None:
             c.point = found.point
             c.delta_v = {int(k): v for k, v in phys.delta_v(c.a, c.b).items()}
-    out.contacts.sort(key=lambda c: c.time)
+    contacts.sort(key=lambda c: c.time)
