@@ -15,6 +15,10 @@ the label class it covers (Van, Truck, Pedestrian...; distractor cars: occluded/
 agent typed other than Car; its agent 2-6 m or > 6 m off), by range bin; and the FP by the agent's age
 (detected frames) and whether it is a never-matched / mostly-FP / mostly-TP track.
 
+``--standing``: per range bin, the evaluated label rows of standing cars (labelled world speed < 0.5 m/s over
++-0.5 s) and of moving ones, how many were missed, and how many have their nearest kept hypothesis 2-6 m off (the
+standing-vehicle fit's target, ``MonoConfig.static_fit``).
+
 ``--classes``: the class choice per track instead (KITTI camera): each kept track's typed class
 against the label type its detected boxes cover (2D IoU >= 0.5, majority), in detected frames, and
 per label type and range bin the median height its bottom edges imply (``box_h (v_bottom -
@@ -257,6 +261,65 @@ def print_classes(seqs: list[int]) -> None:
     )  # fmt: skip
 
 
+def _label_speeds(prep) -> dict[tuple[int, int], float]:
+    """(label track id, frame) -> the labelled car's world speed (m/s) over the frames within 0.5 s of it."""
+    pos: dict[int, dict[int, np.ndarray]] = {}
+    for f, g in enumerate(prep.ground_truth):
+        for i, tid in enumerate(g.objects.ids):
+            pos.setdefault(int(tid), {})[f] = g.objects.world[i, :2]
+    out = {}
+    for tid, d in pos.items():
+        frames = sorted(d)
+        for f in frames:
+            near = [x for x in frames if abs(x - f) <= 5]
+            a, b = near[0], near[-1]
+            out[(tid, f)] = float(np.linalg.norm(d[b] - d[a]) / (b - a) * KITTI_FPS) if b > a else float("nan")
+    return out
+
+
+def standing_split(seq: int, camera: str, config: MonoTracking = DEFAULT_MONO) -> Counter:
+    """Per (standing|moving, range bin): evaluated label rows (``gt``), missed ones (``fn``) and those whose nearest
+    kept hypothesis lies more than 2 m off (``off``; within 6 m); standing: the labelled car slower than 0.5 m/s."""
+    prep = prepare_mono(DATA, seq, camera=camera)
+    sc, _ = mono_scenario(prep, config, camera)
+    rule = match_rule("distance")
+    table = scenario_result_table(sc, prep.world, prep.P2, True, image_size=prep.size)
+    speeds = _label_speeds(prep)
+    c: Counter = Counter()
+    for f, (g, h) in enumerate(zip(prep.ground_truth, hypotheses_from_table(table, prep.world), strict=True)):
+        fr = apply_kitti_rules(g, h, rule)
+        matched = np.zeros(len(fr.gt_ids), bool)
+        if fr.similarity.size:
+            rows, cols = linear_sum_assignment(-fr.similarity)
+            matched[rows[fr.similarity[rows, cols] > 1e-9]] = True
+        ev = g.evaluated
+        hyp = h.world[np.isin(h.ids, fr.hyp_ids)][:, :2]
+        labelled = zip(g.objects.ids[ev], g.objects.world[ev, :2], prep.gt_range[f][ev], strict=True)
+        for i, (tid, xy, rng) in enumerate(labelled):
+            kind = "standing" if speeds.get((int(tid), f), np.nan) < 0.5 else "moving"
+            key = (kind, _bin(float(rng)))
+            c[key + ("gt",)] += 1
+            c[key + ("fn",)] += int(not matched[i])
+            d = np.hypot(*(hyp - xy).T) if len(hyp) else np.zeros(0)
+            c[key + ("near",)] += int(len(d) > 0 and d.min() < 6)
+            c[key + ("off",)] += int(len(d) > 0 and 2 <= d.min() < 6)
+    return c
+
+
+def print_standing(seqs: list[int], camera: str, config: MonoTracking) -> None:
+    total: Counter = Counter()
+    for s in seqs:
+        total.update(standing_split(s, camera, config))
+    for kind in ("standing", "moving"):
+        for lo, hi in zip(BINS[:-1], BINS[1:], strict=True):
+            k = (kind, f"{lo}-{hi}")
+            near = max(total[k + ("near",)], 1)
+            print(
+                f"{kind:8s} {lo}-{hi} m: labelled {total[k + ('gt',)]} missed {total[k + ('fn',)]} nearest hypothesis "
+                f"2-6 m off {total[k + ('off',)]} ({100 * total[k + ('off',)] / near:.0f} % of those within 6 m)"
+            )
+
+
 def _config(spec: str) -> MonoTracking:
     kw = {k: eval(v) for k, v in (p.split("=") for p in spec.split(",") if p)}  # noqa: S307 (bench option)
     return replace(DEFAULT_MONO, mono=replace(DEFAULT_MONO.mono, **kw))
@@ -268,8 +331,12 @@ def main() -> None:
     ap.add_argument("--camera", default="kitti")
     ap.add_argument("--classes", action="store_true", help="the class choice per track (KITTI camera)")
     ap.add_argument("--lifecycle", action="store_true", help="FN by where lost, FP by track age (KITTI camera)")
+    ap.add_argument("--standing", action="store_true", help="misses split by the labelled car standing or moving")
     ap.add_argument("--mono", default="", help="MonoConfig overrides, e.g. hull_height=False,prior_scale=1.02")
     args = ap.parse_args()
+    if args.standing:
+        print_standing([int(x) for x in args.sequences.split(",")], args.camera, _config(args.mono))
+        return
     if args.classes:
         print_classes([int(x) for x in args.sequences.split(",")])
         return
