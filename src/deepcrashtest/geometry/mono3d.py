@@ -957,10 +957,15 @@ def localize_tracks(
             meas, covs, rng = _measurements(rows, size, cues, r, ego, camera, cfg, along, turned)
             xs = _kalman(span, meas, covs, fps, cfg)[1][span - span[0]]
         standing = None
-        if cfg.static_fit:
+        if cfg.static_fit:  # the class its standing height fits only where it is placed standing
+            trial = size
             if cfg.static_class:
-                size = _standing_class(rows, xs, size, cues, r, ego, camera, cfg, track_category(Counter(cats[s0:s1])))
-            standing = _static_fit(rows, xs, size, cues, r, ego, camera, cfg)
+                trial = _standing_class(rows, xs, size, cues, r, ego, camera, cfg, track_category(Counter(cats[s0:s1])))
+            standing = _static_fit(rows, xs, trial, cues, r, ego, camera, cfg)
+            if standing is None and trial is not size:
+                standing = _static_fit(rows, xs, size, cues, r, ego, camera, cfg)
+            elif standing is not None:
+                size = trial
         if standing is not None:
             xs = np.column_stack([np.tile(standing, (len(xs), 1)), np.zeros((len(xs), 2))])
         sub = r.df.iloc[rows]
