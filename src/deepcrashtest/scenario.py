@@ -77,6 +77,17 @@ VEHICLE_KINEMATICS = Kinematics()
 PEDESTRIAN_KINEMATICS = Kinematics(max_accel_mps2=3.0, max_brake_mps2=3.0, holonomic=True)
 
 
+def interp_heading(t_query: np.ndarray, t: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """Heading (rad) at times ``t_query`` (s) from samples ``(t, yaw)``: linear between samples, except that a box
+    read the other way round (a change of more than a quarter turn between two samples: a box fits both ways)
+    flips at once instead of spinning through its neighbours; its axis turns the short way. Where no two
+    samples differ by a quarter turn, exactly ``np.interp`` of the unwrapped headings."""
+    heading = np.unwrap(np.asarray(yaw, dtype=float))
+    axis = 0.5 * np.unwrap(2.0 * heading)  # the box's axis, continuous modulo a half turn
+    along = np.interp(t_query, t, axis)
+    return along + math.pi * np.round((np.interp(t_query, t, heading) - along) / math.pi)
+
+
 def kinematics(category: str) -> Kinematics:
     """The limits of a road user of ``category`` (a pedestrian's or a vehicle's)."""
     return PEDESTRIAN_KINEMATICS if category == "pedestrian" else VEHICLE_KINEMATICS

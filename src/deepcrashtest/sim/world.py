@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from deepcrashtest.errors import ScenarioError, UserError
-from deepcrashtest.scenario import Scenario
+from deepcrashtest.scenario import Scenario, interp_heading
 from deepcrashtest.sim.reference import PathSet, Reference, reference_from_trajectory
 from deepcrashtest.sim.vehicle import CATEGORY_MASS_KG, HOLONOMIC_CATEGORIES, WHEELBASE_FRACTION, VehicleLimits
 
@@ -89,7 +89,7 @@ def _own_headings(vehicles: list[Any], refs: list[Reference], times: np.ndarray)
     for row, (v, r) in enumerate(zip(vehicles, refs, strict=True)):
         if not r.static:
             a = v.trajectory.arrays()
-            out[row] = np.interp(times, a["t"], np.unwrap(a["yaw"]))
+            out[row] = interp_heading(times, a["t"], a["yaw"])
     return out
 
 

@@ -14,6 +14,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import shapely
 
+from deepcrashtest.scenario import interp_heading
+
 if TYPE_CHECKING:
     from deepcrashtest.scenario import Vehicle
 
@@ -67,7 +69,7 @@ class BoxTrack:
     width: float
 
     def at(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        return np.interp(t, self.t, self.x), np.interp(t, self.t, self.y), np.interp(t, self.t, self.yaw)
+        return np.interp(t, self.t, self.x), np.interp(t, self.t, self.y), interp_heading(t, self.t, self.yaw)
 
     def velocity(self, t: float) -> np.ndarray:
         vx = np.interp(t, self.t, np.gradient(self.x, self.t)) if len(self.t) > 1 else 0.0

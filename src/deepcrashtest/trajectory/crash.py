@@ -13,7 +13,7 @@ the video is known to show no crash, every contact is removed the same way.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -234,7 +234,7 @@ def _separate_others(
     """Nudge (or drop) every bystander that touches anyone before ``t_end`` (s); the pair is left alone."""
     nudges: list[dict[str, Any]] = []
     for _ in range(2 * len(agents) + 1):
-        clash = _first_clash(ego, agents, pair, t_end)
+        clash = _first_clash(ego, agents, pair, t_end, cp.near_miss_m)
         if clash is None:
             break
         mover, hit_time = clash
@@ -262,6 +262,11 @@ def _separate_others(
                 "moved apart plausibly; dropped"
             )
     return agents, nudges
+
+
+def _grown(b: BoxTrack, margin_m: float) -> BoxTrack:
+    """``b`` with its box ``margin_m / 2`` (m) larger on every side (two such boxes touch ``margin_m`` apart)."""
+    return b if margin_m <= 0 else replace(b, length=b.length + margin_m, width=b.width + margin_m)
 
 
 def _seen_at(d: Dense, t: float) -> bool:
@@ -330,12 +335,16 @@ def contact_after_apart(a: BoxTrack, b: BoxTrack) -> Contact | None:
     return None if not len(apart) else first_contact(a, b, t_from=float(apart[0]))
 
 
-def _first_clash(ego: Dense, agents: list[Dense], pair: tuple[int, ...], t_end: float) -> tuple[Dense, float] | None:
+def _first_clash(
+    ego: Dense, agents: list[Dense], pair: tuple[int, ...], t_end: float, near_miss_m: float = 0.0
+) -> tuple[Dense, float] | None:
     """The earliest contact before ``t_end`` between two road users that are not both the crash pair
     (nor both parked, nor overlapping from the moment both exist: the simulator ignores those too);
-    returns the one to move (an agent outside the pair, the less confident one) and the time."""
+    returns the one to move (an agent outside the pair, the less confident one) and the time. Boxes
+    closer than ``near_miss_m`` (m) count as touching: a replay tracks each path within decimetres, and
+    the paths are checked at their samples only."""
     every = [ego, *agents]
-    tracks = [d.box_track() for d in every]
+    tracks = [_grown(d.box_track(), near_miss_m) for d in every]
     best: tuple[float, Dense] | None = None
     for i in range(len(every)):
         for j in range(i + 1, len(every)):
