@@ -9,6 +9,9 @@ then extracted and replayed exactly like ``bench/fidelity_crashes.py``:
 * ``halffps``: every second frame (DAD 20 -> 10 fps, CCD 10 -> 5 fps; contact frames halved);
 * ``copy``: only re-encoded (H.264, CRF 23), the control: what the re-encoding alone changes.
 
+Where ``bench/robust_variants.py`` makes many realistic variants of a few clips (phone-filmed, compilations, ...),
+this makes a few plain variants of every labelled clip and prints one line per variant.
+
 Usage::
 
     python bench/fidelity_perturbed.py [--variants mirror,small,halffps,copy] [--clips dad_000478,...]

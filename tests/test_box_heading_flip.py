@@ -67,3 +67,19 @@ def test_a_bystander_that_passes_closer_than_the_replay_tracks_is_moved_apart():
     ts = np.arange(max(ego.t[0], car.t[0]), min(ego.t[-1], car.t[-1]), 0.01)
     assert separation(ego, car, ts).min() >= 0.15
     assert any("agent 3" in w for w in sc.warnings)
+
+
+def test_a_graze_between_two_video_frames_is_a_contact():
+    """Two cars sampled 0.1 s apart (a 10 fps clip), one passing the other's corner at 4 m/s: their boxes overlap by
+    4 cm for 0.03 s between two samples. The simulator, checking every 0.02 s, counts that contact, so stage 2's
+    checks must too."""
+    from deepcrashtest.trajectory.collision import BoxTrack, first_contact
+
+    t = np.round(np.arange(0.0, 1.01, 0.1), 6)
+    still = BoxTrack(t, 0 * t, 0 * t, 0 * t, 4.5, 1.8)
+    dx = 4.46 + 3.0 * (t - 0.55)  # along x + y = 6.22: overlapping only while 4.42 < dx < 4.5
+    passing = BoxTrack(t, dx, 6.22 - dx, 0 * t, 4.5, 1.8)
+    assert separation(still, passing, t).min() > 0.1  # well apart at every sample
+    assert separation(still, passing, np.linspace(0, 1, 1001)).min() < -0.03  # overlapping between two of them
+    hit = first_contact(still, passing)
+    assert hit is not None and 0.53 < hit.time_s < 0.55

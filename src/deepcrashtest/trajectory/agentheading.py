@@ -118,7 +118,7 @@ def _broken_contact(
         if hit is None or abs(hit.time_s - collision.time_s) > REPLAY_TOUCH_TOL_S:
             t_hit = collision.time_s if hit is None else min(hit.time_s, collision.time_s)
             return pair & changed, t_hit, t_hit - REVERT_WINDOW_S, math.inf
-    t_end = collision.time_s - REPLAY_TOUCH_TOL_S if collision is not None else math.inf
+    t_end = collision.time_s if collision is not None else math.inf  # the pair may touch that late: none before
     grazing = [vehicle_box(v, GRAZE_MARGIN_M) for v in vehicles]
     boxes = [vehicle_box(v) for v in vehicles]
     for i, vi in enumerate(vehicles):
