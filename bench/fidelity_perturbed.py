@@ -7,7 +7,10 @@ then extracted and replayed exactly like ``bench/fidelity_crashes.py``:
 * ``mirror``: left and right swapped (traffic on the other side of the road; label boxes mirrored);
 * ``small``: scaled to 854x480 (label boxes scaled);
 * ``halffps``: every second frame (DAD 20 -> 10 fps, CCD 10 -> 5 fps; contact frames halved);
-* ``copy``: only re-encoded (H.264, CRF 23), the control: what the re-encoding alone changes.
+* ``copy``: only re-encoded, the control: what the re-encoding alone changes.
+
+Clips are written by the project's own H.264 writer (CRF 23, ultrafast): PyAV's default x264 preset fed ``bgr24``
+frames 854 px wide gave different bytes from run to run.
 
 Where ``bench/robust_variants.py`` makes many realistic variants of a few clips (phone-filmed, compilations, ...),
 this makes a few plain variants of every labelled clip and prints one line per variant.
@@ -38,36 +41,37 @@ VARIANTS = ("mirror", "small", "halffps", "copy")
 SMALL_WIDTH, SMALL_HEIGHT = 854, 480
 
 
-def rewrite_clip(src: Path, dst: Path, variant: str) -> tuple[float, int, float, int]:
-    """Write ``src`` changed by ``variant`` to ``dst`` (H.264, CRF 23); returns (fps, frame step, box scale,
+def rewrite_clip(src: Path, dst: Path, variant: str) -> tuple[float, int, tuple[float, float], int]:
+    """Write ``src`` changed by ``variant`` to ``dst``; returns (fps, frame step, box scale x and y,
     source width)."""
     import av
     import cv2
+
+    from deepcrashtest.video.writer import VideoWriter
 
     with av.open(str(src)) as inp:
         stream = inp.streams.video[0]
         fps = float(stream.average_rate)
         frames = [f.to_ndarray(format="bgr24") for f in inp.decode(stream)]
     width = frames[0].shape[1]
-    step, scale = (2, 1.0) if variant == "halffps" else (1, 1.0)
+    step, scale = (2 if variant == "halffps" else 1), (1.0, 1.0)
     if variant == "mirror":
         frames = [cv2.flip(f, 1) for f in frames]
     elif variant == "small":
-        scale = SMALL_WIDTH / width
+        scale = (SMALL_WIDTH / width, SMALL_HEIGHT / frames[0].shape[0])
         frames = [cv2.resize(f, (SMALL_WIDTH, SMALL_HEIGHT), interpolation=cv2.INTER_AREA) for f in frames]
     frames = frames[::step]
     dst.parent.mkdir(parents=True, exist_ok=True)
-    with av.open(str(dst), "w") as out:
-        enc = out.add_stream("libx264", rate=round(fps / step))
-        enc.height, enc.width = frames[0].shape[:2]
-        enc.pix_fmt, enc.options = "yuv420p", {"crf": "23"}
-        for f in frames:
-            out.mux(enc.encode(av.VideoFrame.from_ndarray(f, format="bgr24")))
-        out.mux(enc.encode())
+    out = VideoWriter(dst, fps / step, frames[0].shape[1], frames[0].shape[0], force=True)  # the project's writer
+    for f in frames:
+        out.write(f)
+    out.close()
     return fps / step, step, scale, width
 
 
-def rewrite_label(label: dict[str, Any], video: Path, variant: str, fps: float, step: int, scale: float, width: int):
+def rewrite_label(
+    label: dict[str, Any], video: Path, variant: str, fps: float, step: int, scale: tuple[float, float], width: int
+) -> dict[str, Any]:
     """The clip's label entry moved along with the rewrite (frames, boxes)."""
     out = json.loads(json.dumps(label))
     out["video"], out["fps"] = str(video), fps
@@ -79,7 +83,7 @@ def rewrite_label(label: dict[str, Any], video: Path, variant: str, fps: float, 
             x1, y1, x2, y2 = p["box"]
             if variant == "mirror":
                 x1, x2 = width - x2, width - x1
-            p["box"] = [round(v * scale) for v in (x1, y1, x2, y2)]
+            p["box"] = [round(x1 * scale[0]), round(y1 * scale[1]), round(x2 * scale[0]), round(y2 * scale[1])]
     return out
 
 
