@@ -43,7 +43,14 @@ def with_observed_yaw(final: Vehicle, raw: Vehicle, t_shift: float, blend_s: flo
 
 
 REPLAY_TOUCH_TOL_S = 0.1
-"""The crash pair's boxes, facing as the scenario says, must first touch within this of the crash time (s)."""
+"""The crash pair's boxes, facing as the scenario says, must first touch at most this before the crash (s) ..."""
+LATE_TOUCH_S = 0.05
+"""... and no later than this after it (s): the paths end ``ContactParams.penetration_s`` (0.1 s) after the crash, so a
+pair whose boxes first touch 0.1 s late touches at the paths' very end and the replay, lagging a little, misses it
+(dad_000493 re-encoded: a scooter facing its boxes touched the ego 0.098 s late, no contact in the replay). Chosen on
+the 20 fidelity clips and their re-encoded copies (``bench/fidelity_perturbed.py``): 0.02 s also brought both back
+but turned ccd_000014's and ccd_000487's crash pairs along their paths (mean IoU 0.653 -> 0.648); 0.05 s kept the
+20 clips' scenarios as they were."""
 GRAZE_MARGIN_M = 0.05
 """Boxes are checked this much larger (m, each side) for contacts outside the crash pair: the simulator checks
 every 0.02 s, the scenario's samples are 0.05-0.1 s apart (dad_000487: a bicycle's box facing its boxes grazed a
@@ -115,7 +122,8 @@ def _broken_contact(
     if collision is not None and pair & changed:
         a, b = (next(v for v in vehicles if v.id == i) for i in collision.participants)
         hit = first_contact(vehicle_box(a), vehicle_box(b))
-        if hit is None or abs(hit.time_s - collision.time_s) > REPLAY_TOUCH_TOL_S:
+        late = hit is not None and hit.time_s > collision.time_s + LATE_TOUCH_S
+        if hit is None or late or collision.time_s - hit.time_s > REPLAY_TOUCH_TOL_S:
             t_hit = collision.time_s if hit is None else min(hit.time_s, collision.time_s)
             return pair & changed, t_hit, t_hit - REVERT_WINDOW_S, math.inf
     t_end = collision.time_s if collision is not None else math.inf  # the pair may touch that late: none before
