@@ -18,7 +18,7 @@ this makes a few plain variants of every labelled clip and prints one line per v
 Usage::
 
     python bench/fidelity_perturbed.py [--variants mirror,small,halffps,copy] [--clips dad_000478,...]
-                                       [--work DIR] [--reuse] [--stage2] [--json]
+                                       [--work DIR] [--reuse] [--stage2 [--redetect]] [--json]
 
 Per variant: reproduced crashes / labelled, clips with a contact before the crash, mean reprojection IoU
 (processed / replay), and the clips not reproduced with their first replay contact. ``--reuse`` keeps the
@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -41,43 +42,50 @@ VARIANTS = ("mirror", "small", "halffps", "copy")
 SMALL_WIDTH, SMALL_HEIGHT = 854, 480
 
 
-def rewrite_clip(src: Path, dst: Path, variant: str) -> tuple[float, int, tuple[float, float], int]:
-    """Write ``src`` changed by ``variant`` to ``dst``; returns (fps, frame step, box scale x and y,
-    source width)."""
+def variant_geometry(src: Path, variant: str) -> tuple[float, int, tuple[float, float], int]:
+    """What ``variant`` does to the frames of ``src``: (new fps, frame step, box scale x and y, source width)."""
+    import av
+
+    with av.open(str(src)) as inp:
+        stream = inp.streams.video[0]
+        fps, width, height = float(stream.average_rate), int(stream.width), int(stream.height)
+    step = 2 if variant == "halffps" else 1
+    scale = (SMALL_WIDTH / width, SMALL_HEIGHT / height) if variant == "small" else (1.0, 1.0)
+    return fps / step, step, scale, width
+
+
+def rewrite_clip(src: Path, dst: Path, variant: str) -> None:
+    """Write ``src`` changed by ``variant`` (:func:`variant_geometry`) to ``dst``."""
     import av
     import cv2
 
     from deepcrashtest.video.writer import VideoWriter
 
+    fps, step, _scale, _width = variant_geometry(src, variant)
     with av.open(str(src)) as inp:
-        stream = inp.streams.video[0]
-        fps = float(stream.average_rate)
-        frames = [f.to_ndarray(format="bgr24") for f in inp.decode(stream)]
-    width = frames[0].shape[1]
-    step, scale = (2 if variant == "halffps" else 1), (1.0, 1.0)
+        frames = [f.to_ndarray(format="bgr24") for f in inp.decode(inp.streams.video[0])]
     if variant == "mirror":
         frames = [cv2.flip(f, 1) for f in frames]
     elif variant == "small":
-        scale = (SMALL_WIDTH / width, SMALL_HEIGHT / frames[0].shape[0])
         frames = [cv2.resize(f, (SMALL_WIDTH, SMALL_HEIGHT), interpolation=cv2.INTER_AREA) for f in frames]
     frames = frames[::step]
     dst.parent.mkdir(parents=True, exist_ok=True)
-    out = VideoWriter(dst, fps / step, frames[0].shape[1], frames[0].shape[0], force=True)  # the project's writer
+    out = VideoWriter(dst, fps, frames[0].shape[1], frames[0].shape[0], force=True)  # the project's writer
     for f in frames:
         out.write(f)
     out.close()
-    return fps / step, step, scale, width
 
 
 def rewrite_label(
     label: dict[str, Any], video: Path, variant: str, fps: float, step: int, scale: tuple[float, float], width: int
 ) -> dict[str, Any]:
-    """The clip's label entry moved along with the rewrite (frames, boxes)."""
+    """The clip's label entry moved along with the rewrite (frames, boxes). A contact frame dropped by the
+    frame step moves to the next frame kept: the first frame of the new clip where the two touch."""
     out = json.loads(json.dumps(label))
     out["video"], out["fps"] = str(video), fps
     for key in ("contact_frame", "first_accident_frame"):
         if out.get(key) is not None:
-            out[key] = int(out[key]) // step
+            out[key] = -(-int(out[key]) // step)
     for p in out.get("participants", []):
         if "box" in p:
             x1, y1, x2, y2 = p["box"]
@@ -88,17 +96,17 @@ def rewrite_label(
 
 
 def prepare(variant: str, names: list[str], work: Path, reuse: bool) -> Path:
-    """The rewritten clips and their label file under ``work/variant``; returns the label file."""
+    """The rewritten clips (kept with ``reuse`` where written before) and their label file (always written
+    afresh) under ``work/variant``; returns the label file."""
     labels_path = work / variant / "labels.json"
-    if reuse and labels_path.is_file():
-        return labels_path
     clips = {}
     for name in names:
         label_file, _ = all_labels()[name]
         raw = json.loads(label_file.read_text())["clips"][name]
         video = work / variant / "clips" / f"{name}.mp4"
-        fps, step, scale, width = rewrite_clip(DATA / raw["video"], video, variant)
-        clips[name] = rewrite_label(raw, video, variant, fps, step, scale, width)
+        if not (reuse and video.is_file()):
+            rewrite_clip(DATA / raw["video"], video, variant)
+        clips[name] = rewrite_label(raw, video, variant, *variant_geometry(DATA / raw["video"], variant))
     labels_path.write_text(json.dumps({"format": "deepcrashtest-crash-labels", "version": 1, "clips": clips}))
     return labels_path
 
@@ -123,13 +131,14 @@ def main() -> None:
     ap.add_argument("--work", type=Path, default=Path("/tmp/deepcrashtest_fidelity_perturbed"))
     ap.add_argument("--reuse", action="store_true", help="Reuse rewritten clips and extractions in --work.")
     ap.add_argument("--stage2", action="store_true", help="Rerun stage 2 only (with --reuse).")
+    ap.add_argument("--redetect", action="store_true", help="With --stage2: rerun the automatic crash detection first.")
     ap.add_argument("--json", action="store_true", help="Print one JSON object.")
     args = ap.parse_args()
     if not DATA.exists():
         print(json.dumps({"skipped": f"real data not found: {DATA}"}))
         return
     names = args.clips.split(",") if args.clips else [n for n in all_labels() if not n.startswith("highway")]
-    fid_args = argparse.Namespace(max_frames=None, stage2=args.stage2, labelled_crash=False, redetect=False,
+    fid_args = argparse.Namespace(max_frames=None, stage2=args.stage2, labelled_crash=False, redetect=args.redetect,
                                   reuse=args.reuse, video=False)  # fmt: skip
     result = {}
     for variant in args.variants.split(","):
@@ -140,6 +149,7 @@ def main() -> None:
         from deepcrashtest.datasets.crash_labels import load_crash_labels
 
         parsed = load_crash_labels(labels_path)
+        os.environ["CRASHDET_MOTION"] = str(args.work / variant / "motion")  # the clips' names repeat across variants
         rows = [run_clip(n, labels_path, parsed[n], args.work / variant / "out", fid_args) for n in labels]
         result[variant] = {"summary": summary(rows), "clips": rows}
         if not args.json:
