@@ -92,6 +92,13 @@ BORDER_PX = 4
 #: box stalls on the background while it moves on (dad_000550 at 15 fps: the scooter's carried box stood still
 #: for three frames, 40 px a frame behind it, and the next detection started a new track beside the truck).
 RECOVER_CATEGORIES = frozenset({"motorcycle", "bicycle", "pedestrian"})
+#: Any other confirmed track is matched, in that second matching, by its constant-velocity box at any round of
+#: its ``max_age_s`` when that box overlaps a free detection by at least this IoU: a road user passing in front
+#: of a standing car drags the optical flow inside the car's box with it, and the car detected again where it
+#: stands started a second track (dad_000512, its ego stopped: a parked car's carried box ran 500 px across the
+#: picture with a scooter in 24 frames, and a new track took its next detection 0.5 s on, two cars in one
+#: place in the scenario). Stricter than ``min_iou``: a box extrapolated over many frames has drifted.
+REACQUIRE_IOU = 0.5
 
 
 @dataclass
@@ -310,22 +317,25 @@ def _recovered(
     every: int,
 ) -> list[tuple[int, int]]:  # fmt: skip
     """The second matching (:meth:`TrackCore.step`'s ``second``): (track row, detection column) pairs of a
-    confirmed track of :data:`RECOVER_CATEGORIES` detected in the previous detection round (``every`` frames ago;
-    ``n``: this round's running frame number) and left unmatched by the ``first`` assignment of ``cost`` (tracks x
-    detections, 1 - IoU; its carried box overlaps no free detection enough) with a free detection of its group
-    that its constant-velocity box (its last detected box moved on by its box velocity) overlaps by IoU >= 1 -
-    ``max_cost``. Only one round on: further on, a walker's extrapolated box ran 280 px across a crowd onto
-    another one (dad_000487)."""
+    confirmed track left unmatched by the ``first`` assignment of ``cost`` (tracks x detections, 1 - IoU; its
+    carried box overlaps no free detection enough) with a free detection of its group that its constant-velocity
+    box (its last detected box moved on by its box velocity; ``n``: this round's running frame number) overlaps:
+    a track of :data:`RECOVER_CATEGORIES` detected in the previous detection round (``every`` frames ago) by
+    IoU >= 1 - ``max_cost`` (only one round on: further on, a walker's extrapolated box ran 280 px across a crowd
+    onto another one, dad_000487), any other track by IoU >= :data:`REACQUIRE_IOU`."""
     rows = [
         r
         for r in first.unmatched_rows
-        if tracks[r].confirmed and tracks[r].category in RECOVER_CATEGORIES and n - tracks[r].last_detected <= every
+        if tracks[r].confirmed
+        and (tracks[r].category not in RECOVER_CATEGORIES or n - tracks[r].last_detected <= every)
     ]
     if not rows or not first.unmatched_cols:
         return []
     cols = first.unmatched_cols
     moved = np.stack([tracks[r].detected_box + tracks[r].velocity * (n - tracks[r].last_detected) for r in rows])
     second_cost = 1.0 - iou_matrix(moved, dets.boxes[cols])
+    strict = np.array([tracks[r].category not in RECOVER_CATEGORIES for r in rows])
+    second_cost[strict[:, None] & (second_cost > 1.0 - REACQUIRE_IOU)] = np.inf
     second_cost[~np.isfinite(cost[np.ix_(rows, cols)])] = np.inf  # the first matching's gates hold
     return [(rows[i], cols[j]) for i, j in assign(second_cost, max_cost).pairs]
 
