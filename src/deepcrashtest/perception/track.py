@@ -110,9 +110,12 @@ class ImageTrack(TrackBase):
     score: float = 0.0
     votes: dict[str, float] = field(default_factory=dict)
     last_detected: int = 0  # running frame number of the last matched detection
+    detected_frame: int = 0  # video frame index of the last matched detection
     detected_box: np.ndarray = field(default_factory=lambda: np.zeros(4))
     detected_now: bool = False
     tentative_rows: list[tuple[int, float, TrackedBox]] = field(default_factory=list)
+    carried_rows: list[tuple[int, float, TrackedBox]] = field(default_factory=list)  # reported since its last detection
+    corrected_rows: list[tuple[int, float, TrackedBox]] = field(default_factory=list)  # to report again (backfill)
     wheel: str = ""  # the two-wheeler class once the track was one
     flow_carried: bool = False  # moved by optical flow since its last detection (the height gate applies)
 
@@ -192,6 +195,8 @@ class BoxTracker:
         self.flow = flow or BoxFlow()
         self._prev: GreyFrame | None = None
         self._width = 0  # image width (px) of the current frame
+        self._height = 0  # ... and height (px)
+        self._frame = 0  # video frame index of the current frame
         self._n = 0  # frames seen
 
     def update(self, frame: Frame) -> FrameTracks:
@@ -218,7 +223,7 @@ class BoxTracker:
         ``size``: (width, height) of the frame, pixels; ``image``: the frame (BGR) for optical flow,
         or None to carry boxes by their constant image velocity."""
         w, h = size
-        self._width = int(w)
+        self._width, self._height, self._frame = int(w), int(h), int(index)
         self._carry(self.flow.prepare(image) if image is not None else None)
         for t in self.core.tracks:
             t.detected_now = False
@@ -244,6 +249,9 @@ class BoxTracker:
                 t.tentative_rows.append((int(index), float(time), row))
                 continue
             out.append(row)
+            t.carried_rows = [] if t.detected_now else [*t.carried_rows, (int(index), float(time), row)]
+            backfill += t.corrected_rows
+            t.corrected_rows = []
             if id(t) not in was_confirmed:  # confirmed in this frame: report its tentative frames
                 backfill += [(f, s, replace(b, track_id=t.track_id)) for f, s, b in t.tentative_rows]
                 t.tentative_rows = []
@@ -277,11 +285,18 @@ class BoxTracker:
             cost[_comes_back(tracks, dets.boxes, self._width) & (cost <= 1.0 - self.min_iou)] = np.inf
         max_cost = 1.0 - self.min_iou
 
+        recovered: set[int] = set()
+
         def second(first: Assignment) -> list[tuple[int, int]]:
-            return _recovered(tracks, dets, cost, first, max_cost, self._n, self.detect_every)
+            pairs = _recovered(tracks, dets, cost, first, max_cost, self._n, self.detect_every)
+            recovered.update(id(tracks[r]) for r, _ in pairs)
+            return pairs
 
         result = self.core.step(cost, max_cost=max_cost, scores=dets.scores, second=second)
         for t, j in result.matched:
+            if id(t) in recovered:
+                ends = (t.detected_box, t.detected_frame, dets.boxes[j], self._frame)
+                t.corrected_rows = _bridged(t.carried_rows, *ends, (self._width, self._height))
             self._absorb(t, dets, j)
         existing = [t.box for t in self.core.tracks if t.state is not TrackState.DELETED]
         for j in result.unmatched_detections:
@@ -292,7 +307,7 @@ class BoxTracker:
             t = self.core.spawn(ImageTrack(), float(dets.scores[j]))
             t.box = dets.boxes[j].astype(np.float64)
             t.detected_box = t.box.copy()
-            t.last_detected = self._n
+            t.last_detected, t.detected_frame = self._n, self._frame
             t.score = float(dets.scores[j])
             t.vote(str(dets.categories[j]), float(dets.scores[j]))
             t.detected_now = True
@@ -306,10 +321,32 @@ class BoxTracker:
         t.box = box
         t.flow_carried = False
         t.detected_box = box.copy()
-        t.last_detected = self._n
+        t.last_detected, t.detected_frame = self._n, self._frame
         t.score = float(dets.scores[j])
         t.vote(str(dets.categories[j]), float(dets.scores[j]))
         t.detected_now = True
+
+
+def _bridged(
+    carried: list[tuple[int, float, TrackedBox]],
+    box0: np.ndarray,
+    frame0: int,
+    box1: np.ndarray,
+    frame1: int,
+    size: tuple[int, int],
+) -> list[tuple[int, float, TrackedBox]]:
+    """The rows a track reported while carried between two detections (``box0`` at video frame ``frame0``,
+    ``box1`` at ``frame1``; x1, y1, x2, y2 px; ``size``: the frame's width and height, px) with their boxes
+    moved onto the straight line between the two:
+    the track was matched again by its constant-velocity box, so the optical flow had carried it off the road
+    user (dragged by one passing in front, or stalled)."""
+    span = max(frame1 - frame0, 1)
+    out = []
+    for f, s, row in carried:
+        a = min(max((f - frame0) / span, 0.0), 1.0)
+        b = (1.0 - a) * np.asarray(box0, float) + a * np.asarray(box1, float)
+        out.append((f, s, replace(row, box=_clip_box(b, *size))))
+    return out
 
 
 def _recovered(
@@ -469,7 +506,9 @@ _COLUMN_TYPES = ("int64", "float64", "int64", None, "float64", "float64", "float
 
 def records_table(records: list[tuple[object, ...]]) -> pd.DataFrame:
     """Rows of :data:`TRACK_COLUMNS` -> the tracks table (built column by column: extract makes one per
-    frame, and ``DataFrame.from_records`` + ``astype`` cost ~7x as much)."""
+    frame, and ``DataFrame.from_records`` + ``astype`` cost ~7x as much). A track's frame reported twice keeps its
+    later row: a track matched again by its constant-velocity box reports its carried frames again, bridged
+    (:func:`_bridged`)."""
     cols: list[tuple[object, ...]] = list(zip(*records, strict=True)) if records else [()] * len(TRACK_COLUMNS)
     data = {
         name: np.array(values, dtype=kind) if kind else np.array([str(v) for v in values], dtype=object)
@@ -477,7 +516,9 @@ def records_table(records: list[tuple[object, ...]]) -> pd.DataFrame:
     }
     import pandas as pd
 
-    return pd.DataFrame(data)
+    table = pd.DataFrame(data)
+    again = table.duplicated(["frame", "track_id"], keep="last")
+    return table[~again].reset_index(drop=True) if again.any() else table
 
 
 def tracks_dataframe(rows: Iterable[FrameTracks]) -> pd.DataFrame:
