@@ -164,7 +164,9 @@ def test_a_parked_car_a_scooter_passes_in_front_of_keeps_its_track(tmp_path):
     24 frames) and the car, detected again where it stood 0.5 s later, started a second track: two cars in one
     place in the scenario. A vehicle's track missed by the first matching is now matched where its
     constant-velocity box overlaps a detection by IoU >= 0.5 (``perception.track.REACQUIRE_IOU``): no vehicle
-    track is reborn where another's detections ended (main: tracks 4 -> 10 and 5 -> 14, IoU 0.95 / 0.97)."""
+    track is reborn where another's detections ended (main: tracks 4 -> 10 and 5 -> 14, IoU 0.95 / 0.97), and the
+    frames it was carried through are reported again on the line between its two detections
+    (``FrameTracks.bridged``)."""
     import pandas as pd
 
     from deepcrashtest.perception.boxes import iou_matrix
@@ -183,3 +185,9 @@ def test_a_parked_car_a_scooter_passes_in_front_of_keeps_its_track(tmp_path):
         if 0 < rb[0, 0] - ra[-1, 0] <= 30 and iou_matrix(ra[-1, 1:], rb[:1, 1:])[0, 0] >= 0.7
     ]
     assert reborn == []
+    # and the frames carried in between lie on the line between the detections, not where the flow dragged them
+    rows = df[df["track_id"].isin(tracks)]
+    for k, r in tracks.items():
+        if (iou_matrix(r[:1, 1:], r[:, 1:])[0] >= 0.8).all():  # a standing road user (the ego stands too)
+            own = rows[(rows["track_id"] == k) & rows["frame"].between(r[0, 0], r[-1, 0])]  # between its detections
+            assert iou_matrix(r[:1, 1:], own[["x1", "y1", "x2", "y2"]].to_numpy(float))[0].min() >= 0.5, k

@@ -115,7 +115,7 @@ class ImageTrack(TrackBase):
     detected_now: bool = False
     tentative_rows: list[tuple[int, float, TrackedBox]] = field(default_factory=list)
     carried_rows: list[tuple[int, float, TrackedBox]] = field(default_factory=list)  # reported since its last detection
-    corrected_rows: list[tuple[int, float, TrackedBox]] = field(default_factory=list)  # to report again (backfill)
+    corrected_rows: list[tuple[int, float, TrackedBox]] = field(default_factory=list)  # to report again (bridged)
     wheel: str = ""  # the two-wheeler class once the track was one
     flow_carried: bool = False  # moved by optical flow since its last detection (the height gate applies)
 
@@ -147,12 +147,16 @@ class TrackedBox:
 class FrameTracks:
     """The tracker's output for one frame; ``detections`` is None on frames without detection.
 
-    ``backfill``: (frame index, time s, box) of earlier frames of the tracks confirmed in this one."""
+    ``backfill``: (frame index, time s, box) of earlier frames of the tracks confirmed in this one;
+    ``bridged``: the same for earlier frames of tracks matched again in this one by their constant-velocity box
+    (their carried boxes set on the line between the two detections, :func:`_bridged`), replacing the rows
+    reported there."""
 
     frame: Frame
     tracks: list[TrackedBox]
     detections: Detections | None
     backfill: list[tuple[int, float, TrackedBox]] = field(default_factory=list)
+    bridged: list[tuple[int, float, TrackedBox]] = field(default_factory=list)
 
 
 class BoxTracker:
@@ -236,7 +240,9 @@ class BoxTracker:
                 self.core.delete(t)
         self.core.prune()
         self._n += 1
-        out, backfill = [], []
+        out: list[TrackedBox] = []
+        backfill: list[tuple[int, float, TrackedBox]] = []
+        bridged: list[tuple[int, float, TrackedBox]] = []
         for t in self.core.tracks:
             row = TrackedBox(
                 track_id=t.track_id,
@@ -250,13 +256,13 @@ class BoxTracker:
                 continue
             out.append(row)
             t.carried_rows = [] if t.detected_now else [*t.carried_rows, (int(index), float(time), row)]
-            backfill += t.corrected_rows
+            bridged += t.corrected_rows
             t.corrected_rows = []
             if id(t) not in was_confirmed:  # confirmed in this frame: report its tentative frames
                 backfill += [(f, s, replace(b, track_id=t.track_id)) for f, s, b in t.tentative_rows]
                 t.tentative_rows = []
         frame = Frame(int(index), float(time), image if image is not None else _NO_IMAGE)
-        return FrameTracks(frame, sorted(out, key=lambda b: b.track_id), dets, backfill)
+        return FrameTracks(frame, sorted(out, key=lambda b: b.track_id), dets, backfill, bridged)
 
     def _carry(self, grey: GreyFrame | None) -> None:
         """Move every track's box into the new frame: optical flow, else constant image velocity."""
@@ -475,12 +481,15 @@ def track_detected(
         yield tracker.update_boxes(dets, frame.index, frame.time, (w, h), frame.image)
 
 
-def frame_records(ft: FrameTracks) -> list[tuple[object, ...]]:
-    """Rows of :data:`TRACK_COLUMNS`: this frame's tracks, then the backfilled rows of earlier frames."""
+def frame_records(ft: FrameTracks, bridged: bool = True) -> list[tuple[object, ...]]:
+    """Rows of :data:`TRACK_COLUMNS`: this frame's tracks, then the backfilled rows of earlier frames, then (with
+    ``bridged``) the bridged rows of earlier frames (:attr:`FrameTracks.bridged`: a table keeps a frame's later
+    row, :func:`records_table`)."""
     rows: list[tuple[object, ...]] = [
         (ft.frame.index, ft.frame.time, b.track_id, b.category, *b.box, b.score, b.state) for b in ft.tracks
     ]
-    return rows + [(f, s, b.track_id, b.category, *b.box, b.score, b.state) for f, s, b in ft.backfill]
+    more = ft.backfill + ft.bridged if bridged else ft.backfill
+    return rows + [(f, s, b.track_id, b.category, *b.box, b.score, b.state) for f, s, b in more]
 
 
 def track_boxes(

@@ -465,8 +465,8 @@ class _Pass:
 
         def pairs() -> Iterator[tuple[Any, TrackRows]]:
             for ft in tracked:
-                rows = frame_records(ft)
-                records.extend(rows)
+                records.extend(frame_records(ft))
+                rows = frame_records(ft, bridged=False)  # bridged boxes of earlier frames mask nothing here
                 pending[ft.frame.index] = ft
                 yield ft.frame, rows
             self._imported()  # before the geometry's last steps import the self-calibration and world tracks
