@@ -62,6 +62,8 @@ EGO = 0  # the ego's id in a crash pair
 #: A knee (the box stops growing) is one when the box grows less than this (log size) in the next 0.5 s
 #: (chosen on dad_000487: a box jump 1.6 s before the contact).
 KNEE_MAX_LATER_GROWTH = 0.1
+#: ... and the box is at least this near (``ego_scores``' ``near``, 0..1) at the knee.
+KNEE_MIN_NEAR = 0.3
 #: A pair's contact must follow a time apart: the share of the previous ONSET_WINDOW_S (s) with the boxes
 #: apart, saturating at ONSET_APART (chosen on dad_000478 and the highway clip: image overlap all along).
 ONSET_WINDOW_S = 1.0
@@ -382,9 +384,13 @@ def knee_frame(s: pd.DataFrame, fps: float) -> int | None:
     """The first frame at which an approaching box stops growing (two frames in a row growing at less
     than a third of its rate over the previous half second, frames repeating the last one left out of
     that rate, and not more than ``KNEE_MAX_LATER_GROWTH``
-    in log size over the next half second: a detector's box jumping to a larger one is not it): the
-    other road user is at the bumper."""
+    in log size over the next half second: a detector's box jumping to a larger one is not it) while it is
+    near (at least ``KNEE_MIN_NEAR``, and half its track's nearest, as for a jolt): the other road user is at
+    the bumper. Half its nearest: at 5 fps the half second is two frames, and a car still 0.35 near (its
+    nearest 1.0) paused its growth for them (ccd_000031 at half its frame rate: the crash put 2.6 s early
+    there, scored under the cut, none found)."""
     ls_all = s["log_size"].to_numpy(float)
+    at_bumper = max(KNEE_MIN_NEAR, 0.5 * float(s["near"].max()))  # as near as a jolt must be (ego_best)
     # A resampled clip repeats frames (10 -> 30 fps: each one three times) and its boxes with them: the box
     # "stops growing" between any two repeats. Only frames whose box changed count, the half second in them.
     kept = np.r_[True, np.diff(ls_all) != 0.0]
@@ -396,7 +402,7 @@ def knee_frame(s: pd.DataFrame, fps: float) -> int | None:
         changed = prev[prev != 0.0]  # a resampled clip repeats frames: no growth there (ccd_000340 at 15 fps)
         rate = float(np.median(changed)) if len(changed) else 0.0
         stays = ls[k + 1 : k + 1 + n_prev].max() - ls[k] < KNEE_MAX_LATER_GROWTH  # not a box jump
-        if rate > 0.02 and near[k] >= 0.3 and g[k] < rate / 3 and g[k + 1] < rate / 3 and stays:
+        if rate > 0.02 and near[k] >= at_bumper and g[k] < rate / 3 and g[k + 1] < rate / 3 and stays:
             return int(frames[k])
     return None
 
