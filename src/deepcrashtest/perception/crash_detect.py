@@ -120,7 +120,7 @@ CHANGE_MIN_WIDTH = 20 / 1280
 CHANGE_HOLD_S = 0.1
 #: Box sizes (px) divided by are at least this share of the picture's width (10 px at 1280).
 MIN_BOX_SHARE = 10 / 1280
-#: Box growth (closing) and nearness are smoothed over at least this long (s; 3 frames at 10-20 fps).
+#: Box growth (closing) and nearness are smoothed over about this long (s; 3 frames at 10-20 fps, 1 at 5 fps).
 SMOOTH_S = 0.15
 #: A box edge within this share of the picture's width (4 px at 1280) of its border is cut off by it.
 BORDER_SHARE = 4 / 1280
@@ -263,9 +263,11 @@ def _growth(g: pd.DataFrame, fps: float) -> pd.Series:
 
 
 def _smooth_frames(fps: float) -> int:
-    """An odd number of frames, at least 3, spanning at least ``SMOOTH_S`` (3 at 10-20 fps, 5 at 30 fps: a
-    clip resampled to 30 fps repeats every third frame, its box growth 0 there and double the next)."""
-    return max(3, int(round(SMOOTH_S * fps)) | 1)
+    """The odd number of frames nearest to ``SMOOTH_S`` (3 at 10-20 fps, 5 at 30 fps: a clip resampled to 30 fps
+    repeats every third frame, its box growth 0 there and double the next; 1 below 6.7 fps: three frames at 5 fps
+    span 0.6 s, and the box of a bus cutting in was "near" a frame early, where the camera jolted as it swept the
+    view, ccd_001143 at half its frame rate 0.8 s early -> 0.2 s)."""
+    return max(1, int(round(SMOOTH_S * fps))) | 1
 
 
 def _border(width: int) -> float:
