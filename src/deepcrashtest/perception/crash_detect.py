@@ -62,6 +62,8 @@ EGO = 0  # the ego's id in a crash pair
 #: A knee (the box stops growing) is one when the box grows less than this (log size) in the next 0.5 s
 #: (chosen on dad_000487: a box jump 1.6 s before the contact).
 KNEE_MAX_LATER_GROWTH = 0.1
+#: ... and the box is at least this near (``ego_scores``' ``near``, 0..1) at the knee.
+KNEE_MIN_NEAR = 0.3
 #: A pair's contact must follow a time apart: the share of the previous ONSET_WINDOW_S (s) with the boxes
 #: apart, saturating at ONSET_APART (chosen on dad_000478 and the highway clip: image overlap all along).
 ONSET_WINDOW_S = 1.0
@@ -118,7 +120,7 @@ CHANGE_MIN_WIDTH = 20 / 1280
 CHANGE_HOLD_S = 0.1
 #: Box sizes (px) divided by are at least this share of the picture's width (10 px at 1280).
 MIN_BOX_SHARE = 10 / 1280
-#: Box growth (closing) and nearness are smoothed over at least this long (s; 3 frames at 10-20 fps).
+#: Box growth (closing) and nearness are smoothed over about this long (s; 3 frames at 10-20 fps, 1 at 5 fps).
 SMOOTH_S = 0.15
 #: A box edge within this share of the picture's width (4 px at 1280) of its border is cut off by it.
 BORDER_SHARE = 4 / 1280
@@ -261,9 +263,11 @@ def _growth(g: pd.DataFrame, fps: float) -> pd.Series:
 
 
 def _smooth_frames(fps: float) -> int:
-    """An odd number of frames, at least 3, spanning at least ``SMOOTH_S`` (3 at 10-20 fps, 5 at 30 fps: a
-    clip resampled to 30 fps repeats every third frame, its box growth 0 there and double the next)."""
-    return max(3, int(round(SMOOTH_S * fps)) | 1)
+    """The odd number of frames nearest to ``SMOOTH_S`` (3 at 10-20 fps, 5 at 30 fps: a clip resampled to 30 fps
+    repeats every third frame, its box growth 0 there and double the next; 1 below 6.7 fps: three frames at 5 fps
+    span 0.6 s, and the box of a bus cutting in was "near" a frame early, where the camera jolted as it swept the
+    view, ccd_001143 at half its frame rate 0.8 s early -> 0.2 s)."""
+    return max(1, int(round(SMOOTH_S * fps))) | 1
 
 
 def _border(width: int) -> float:
@@ -382,9 +386,13 @@ def knee_frame(s: pd.DataFrame, fps: float) -> int | None:
     """The first frame at which an approaching box stops growing (two frames in a row growing at less
     than a third of its rate over the previous half second, frames repeating the last one left out of
     that rate, and not more than ``KNEE_MAX_LATER_GROWTH``
-    in log size over the next half second: a detector's box jumping to a larger one is not it): the
-    other road user is at the bumper."""
+    in log size over the next half second: a detector's box jumping to a larger one is not it) while it is
+    near (at least ``KNEE_MIN_NEAR``, and half its track's nearest, as for a jolt): the other road user is at
+    the bumper. Half its nearest: at 5 fps the half second is two frames, and a car still 0.35 near (its
+    nearest 1.0) paused its growth for them (ccd_000031 at half its frame rate: the crash put 2.6 s early
+    there, scored under the cut, none found)."""
     ls_all = s["log_size"].to_numpy(float)
+    at_bumper = max(KNEE_MIN_NEAR, 0.5 * float(s["near"].max()))  # as near as a jolt must be (ego_best)
     # A resampled clip repeats frames (10 -> 30 fps: each one three times) and its boxes with them: the box
     # "stops growing" between any two repeats. Only frames whose box changed count, the half second in them.
     kept = np.r_[True, np.diff(ls_all) != 0.0]
@@ -396,7 +404,7 @@ def knee_frame(s: pd.DataFrame, fps: float) -> int | None:
         changed = prev[prev != 0.0]  # a resampled clip repeats frames: no growth there (ccd_000340 at 15 fps)
         rate = float(np.median(changed)) if len(changed) else 0.0
         stays = ls[k + 1 : k + 1 + n_prev].max() - ls[k] < KNEE_MAX_LATER_GROWTH  # not a box jump
-        if rate > 0.02 and near[k] >= 0.3 and g[k] < rate / 3 and g[k + 1] < rate / 3 and stays:
+        if rate > 0.02 and near[k] >= at_bumper and g[k] < rate / 3 and g[k + 1] < rate / 3 and stays:
             return int(frames[k])
     return None
 
