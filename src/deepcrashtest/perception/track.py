@@ -255,7 +255,10 @@ class BoxTracker:
                 t.tentative_rows.append((int(index), float(time), row))
                 continue
             out.append(row)
-            t.carried_rows = [] if t.detected_now else [*t.carried_rows, (int(index), float(time), row)]
+            if t.detected_now:
+                t.carried_rows = []
+            else:
+                t.carried_rows.append((int(index), float(time), row))
             bridged += t.corrected_rows
             t.corrected_rows = []
             if id(t) not in was_confirmed:  # confirmed in this frame: report its tentative frames
@@ -483,13 +486,22 @@ def track_detected(
 
 def frame_records(ft: FrameTracks, bridged: bool = True) -> list[tuple[object, ...]]:
     """Rows of :data:`TRACK_COLUMNS`: this frame's tracks, then the backfilled rows of earlier frames, then (with
-    ``bridged``) the bridged rows of earlier frames (:attr:`FrameTracks.bridged`: a table keeps a frame's later
-    row, :func:`records_table`)."""
+    ``bridged``) :func:`bridged_records`."""
     rows: list[tuple[object, ...]] = [
         (ft.frame.index, ft.frame.time, b.track_id, b.category, *b.box, b.score, b.state) for b in ft.tracks
     ]
-    more = ft.backfill + ft.bridged if bridged else ft.backfill
-    return rows + [(f, s, b.track_id, b.category, *b.box, b.score, b.state) for f, s, b in more]
+    rows += _earlier_records(ft.backfill)
+    return rows + bridged_records(ft) if bridged else rows
+
+
+def bridged_records(ft: FrameTracks) -> list[tuple[object, ...]]:
+    """Rows of :data:`TRACK_COLUMNS` of :attr:`FrameTracks.bridged` (earlier frames reported again: a table keeps
+    a frame's later row, :func:`records_table`)."""
+    return _earlier_records(ft.bridged)
+
+
+def _earlier_records(items: list[tuple[int, float, TrackedBox]]) -> list[tuple[object, ...]]:
+    return [(f, s, b.track_id, b.category, *b.box, b.score, b.state) for f, s, b in items]
 
 
 def track_boxes(

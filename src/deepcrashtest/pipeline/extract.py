@@ -36,7 +36,14 @@ from deepcrashtest.perception.detect import DEFAULT_DETECTOR, make_detector
 from deepcrashtest.perception.detections import Detector, in_picture
 from deepcrashtest.perception.global_motion import GlobalMotion  # no pandas: the crash modules load in the background
 from deepcrashtest.perception.lanes import LaneState, draw_lanes
-from deepcrashtest.perception.track import FrameTracks, detect_ahead, frame_records, records_table, track_detected
+from deepcrashtest.perception.track import (
+    FrameTracks,
+    bridged_records,
+    detect_ahead,
+    frame_records,
+    records_table,
+    track_detected,
+)
 from deepcrashtest.pipeline.geometry_pass import GeometryResult, TrackRows, cut_at_crash, extract_geometry
 from deepcrashtest.pipeline.threads import Worker, prefetch
 from deepcrashtest.scenario import Camera, VideoSource
@@ -465,8 +472,8 @@ class _Pass:
 
         def pairs() -> Iterator[tuple[Any, TrackRows]]:
             for ft in tracked:
-                records.extend(frame_records(ft))
                 rows = frame_records(ft, bridged=False)  # bridged boxes of earlier frames mask nothing here
+                records.extend(rows + bridged_records(ft))
                 pending[ft.frame.index] = ft
                 yield ft.frame, rows
             self._imported()  # before the geometry's last steps import the self-calibration and world tracks
