@@ -7,6 +7,7 @@ then extracted and replayed exactly like ``bench/fidelity_crashes.py``:
 * ``mirror``: left and right swapped (traffic on the other side of the road; label boxes mirrored);
 * ``small``: scaled to 854x480 (label boxes scaled);
 * ``halffps``: every second frame (DAD 20 -> 10 fps, CCD 10 -> 5 fps; contact frames halved);
+* ``large``: scaled up to 1920x1080, the size most dashcams record (label boxes scaled; not in the default set);
 * ``copy``: only re-encoded, the control: what the re-encoding alone changes.
 
 Clips are written by the project's own H.264 writer (CRF 23, ultrafast): PyAV's default x264 preset fed ``bgr24``
@@ -17,7 +18,7 @@ this makes a few plain variants of every labelled clip and prints one line per v
 
 Usage::
 
-    python bench/fidelity_perturbed.py [--variants mirror,small,halffps,copy] [--clips dad_000478,...]
+    python bench/fidelity_perturbed.py [--variants mirror,small,halffps,copy,large] [--clips dad_000478,...]
                                        [--work DIR] [--reuse] [--stage2 [--redetect]] [--json]
 
 Per variant: reproduced crashes / labelled, clips with a contact before the crash, mean reprojection IoU
@@ -39,7 +40,10 @@ import numpy as np
 from fidelity_crashes import DATA, all_labels, run_clip
 
 VARIANTS = ("mirror", "small", "halffps", "copy")
+#: Variants run only when asked for (``--variants large``).
+MORE_VARIANTS = ("large",)
 SMALL_WIDTH, SMALL_HEIGHT = 854, 480
+LARGE_WIDTH, LARGE_HEIGHT = 1920, 1080
 
 
 def variant_geometry(src: Path, variant: str) -> tuple[float, int, tuple[float, float], int]:
@@ -50,7 +54,8 @@ def variant_geometry(src: Path, variant: str) -> tuple[float, int, tuple[float, 
         stream = inp.streams.video[0]
         fps, width, height = float(stream.average_rate), int(stream.width), int(stream.height)
     step = 2 if variant == "halffps" else 1
-    scale = (SMALL_WIDTH / width, SMALL_HEIGHT / height) if variant == "small" else (1.0, 1.0)
+    size = {"small": (SMALL_WIDTH, SMALL_HEIGHT), "large": (LARGE_WIDTH, LARGE_HEIGHT)}.get(variant, (width, height))
+    scale = (size[0] / width, size[1] / height)
     return fps / step, step, scale, width
 
 
@@ -68,6 +73,8 @@ def rewrite_clip(src: Path, dst: Path, variant: str) -> None:
         frames = [cv2.flip(f, 1) for f in frames]
     elif variant == "small":
         frames = [cv2.resize(f, (SMALL_WIDTH, SMALL_HEIGHT), interpolation=cv2.INTER_AREA) for f in frames]
+    elif variant == "large":
+        frames = [cv2.resize(f, (LARGE_WIDTH, LARGE_HEIGHT), interpolation=cv2.INTER_CUBIC) for f in frames]
     frames = frames[::step]
     dst.parent.mkdir(parents=True, exist_ok=True)
     out = VideoWriter(dst, fps, frames[0].shape[1], frames[0].shape[0], force=True)  # the project's writer
@@ -142,8 +149,8 @@ def main() -> None:
                                   reuse=args.reuse, video=False)  # fmt: skip
     result = {}
     for variant in args.variants.split(","):
-        if variant not in VARIANTS:
-            sys.exit(f"unknown variant {variant!r} (one of {', '.join(VARIANTS)})")
+        if variant not in VARIANTS + MORE_VARIANTS:
+            sys.exit(f"unknown variant {variant!r} (one of {', '.join(VARIANTS + MORE_VARIANTS)})")
         labels_path = prepare(variant, names, args.work, args.reuse)
         labels = json.loads(labels_path.read_text())["clips"]
         from deepcrashtest.datasets.crash_labels import load_crash_labels

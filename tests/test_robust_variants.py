@@ -3,6 +3,7 @@ rate, frozen stretches, ...), made inside each test from the real clips."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import av
@@ -356,3 +357,53 @@ def test_a_rear_end_filmed_at_5_fps_is_found_where_the_box_stops_growing_at_the_
     assert label.contact_frame is not None
     assert found["found"] and found["pair"][0] == "ego"  # main: none found
     assert abs(found["frame"] - -(-label.contact_frame // 2)) <= 1  # within 0.2 s
+
+
+def test_a_crash_clip_recorded_at_twice_the_size_is_processed_as_the_clip(tmp_path):
+    """ccd_000031 (a rear-end, labelled frame 45) recorded at 2560x1440 (a 1440p dashcam) is processed at
+    1280 px (``extract --max-width``, the default): the same crash at the same frame as the 1280x720 clip, its
+    camera, tracks and annotated video in the 1280x720 frames' pixels, the file's size in the provenance; a
+    camera given in the file's pixels is scaled along. Processed as stored, the frames cost 4x the pixels."""
+    import cv2
+    import pandas as pd
+
+    from deepcrashtest.pipeline.extract import run_extract
+    from deepcrashtest.pipeline.fidelity import run_fidelity
+    from deepcrashtest.scenario import Camera, Scenario
+
+    clip = need(CCD / "ccd_000031.mp4")
+    with av.open(str(clip)) as c:
+        frames = [f.to_ndarray(format="bgr24") for f in c.decode(video=0)]
+    big = _write(tmp_path / "big.mp4", [cv2.resize(f, (2560, 1440), interpolation=cv2.INTER_CUBIC) for f in frames], 10)
+    ref = run_extract(clip, tmp_path / "ref", report=False, annotate=False)
+    res = run_extract(big, tmp_path / "big", report=False)
+    assert (res["width"], res["height"], res["scaled_from"]) == (1280, 720, [2560, 1440])
+    assert any("frames processed at 1280x720" in w for w in res["warnings"])
+    sc, sc_ref = Scenario.load(tmp_path / "big" / "scenario.json"), Scenario.load(tmp_path / "ref" / "scenario.json")
+    assert (sc.source.width, sc.source.height) == (1280, 720)
+    assert sc.provenance.parameters["frames_scaled_from"] == [2560, 1440]
+    assert sc.camera.cx == pytest.approx(sc_ref.camera.cx) and sc.camera.fx == pytest.approx(sc_ref.camera.fx, rel=0.05)
+    crash, crash_ref = res["crash_detection"], ref["crash_detection"]
+    assert crash["found"] and crash_ref["found"] and crash["frame"] == crash_ref["frame"]
+    assert crash["pair"][0] == crash_ref["pair"][0] == "ego"
+
+    def partner_box(out: Path, crash: dict) -> np.ndarray:  # the crash partner's tracked box at the crash frame
+        t = pd.read_csv(out / "tracks.csv")
+        return t[(t.frame == crash["frame"]) & (t.track_id == crash["pair"][1])][["x1", "y1", "x2", "y2"]].to_numpy()[0]
+
+    a, b = partner_box(tmp_path / "big", crash), partner_box(tmp_path / "ref", crash_ref)
+    inter = np.prod(np.clip(np.minimum(a[2:], b[2:]) - np.maximum(a[:2], b[:2]), 0, None))
+    assert inter / (np.prod(a[2:] - a[:2]) + np.prod(b[2:] - b[:2]) - inter) > 0.8  # the same road user
+    with av.open(str(tmp_path / "big" / "annotated.mp4")) as c:
+        assert (c.streams.video[0].width, c.streams.video[0].height) == (1280, 720)
+    # a crash label of the 2560x1440 file (bench/labels' box, doubled) is scored in the frames' pixels
+    label = {"video": str(big), "fps": 10.0, "crash": True, "contact_frame": 32, "participants": [
+        {"who": "ego"}, {"who": "road_user", "box": [1024, 40, 2520, 1200], "category": "car"}]}  # fmt: skip
+    labels = tmp_path / "labels.json"
+    labels.write_text(json.dumps({"format": "deepcrashtest-crash-labels", "version": 1, "clips": {"big": label}}))
+    _, summary = run_fidelity(tmp_path / "big" / "scenario.json", tmp_path / "fid", labels=labels, make_video=False)
+    assert summary["crash"]["label"]["scenario_ids"] == [0, crash["pair"][1]] and summary["crash"]["reproduced"]
+    user = Camera(fx=2000.0, fy=2000.0, cx=1280.0, cy=720.0, intrinsics_source="user")  # the file's pixels
+    run_extract(big, tmp_path / "cam", camera=user, max_frames=20, report=False, annotate=False, lanes=False)
+    cam = Scenario.load(tmp_path / "cam" / "scenario.json").camera
+    assert (cam.fx, cam.fy, cam.cx, cam.cy) == pytest.approx((1000.0, 1000.0, 640.0, 360.0))

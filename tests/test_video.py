@@ -187,3 +187,30 @@ def test_broken_timestamps_fall_back_to_index_over_fps(tmp_path):
     assert all(b > a for a, b in zip(times, times[1:], strict=False))
     assert times[1] == pytest.approx(times[0] + 1 / source.meta.fps)
     assert any("timestamps" in w for w in warnings)
+
+
+def test_frames_wider_than_max_width_come_scaled_down_with_the_files_size_kept(dad, tmp_path):
+    """``open_video(max_width=...)``: a 1280x720 clip read at 640 px gives 640x360 frames, pixel areas
+    averaged (as cv2's INTER_AREA), ``meta`` the frames' size and the file's; an image folder the same;
+    a narrower clip is read as stored."""
+    import cv2
+
+    from deepcrashtest.video.size import processed_size
+
+    with open_video(dad) as full, open_video(dad, max_width=640) as small:
+        assert (small.meta.width, small.meta.height, small.meta.scaled_from) == (640, 360, (1280, 720))
+        assert small.meta.scale == 0.5 and full.meta.scaled_from is None and full.meta.scale == 1.0
+        pairs = [(a.image, b.image) for (a, b), _ in zip(zip(full, small, strict=False), range(3), strict=False)]
+    for big, img in pairs:
+        assert img.shape == (360, 640, 3)
+        assert np.abs(cv2.resize(big, (640, 360), interpolation=cv2.INTER_AREA).astype(int) - img).mean() < 1.5
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k, (big, _) in enumerate(pairs):
+        cv2.imwrite(str(folder / f"{k:06d}.png"), big)
+    with open_video(folder, fps=10, max_width=640) as src:
+        assert [f.image.shape for f in src] == [(360, 640, 3)] * 3 and src.meta.scaled_from == (1280, 720)
+    with open_video(dad, max_width=1920) as same:
+        assert (same.meta.width, same.meta.scaled_from) == (1280, None)
+    assert processed_size(1280, 721, 640) == (640, 360) and processed_size(100, 75, 640) == (100, 75)
+    assert processed_size(3840, 1634, 1280) == (1280, 544)  # 2.35:1, height even

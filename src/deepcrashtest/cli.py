@@ -28,6 +28,7 @@ from deepcrashtest import __version__
 from deepcrashtest.errors import UserError
 from deepcrashtest.perception.detector_names import DEFAULT_DETECTOR, DETECTOR_HELP  # no NumPy
 from deepcrashtest.ui import console_err, set_quiet
+from deepcrashtest.video.size import DEFAULT_MAX_WIDTH  # no NumPy
 
 app = typer.Typer(
     name="deepcrashtest",
@@ -233,6 +234,9 @@ def extract(
         5, "--detect-every", help="Run the detector every N frames (at least every 0.25 s); track between."
     ),
     max_frames: int | None = typer.Option(None, "--max-frames", help="Stop after this many frames."),
+    max_width: int = typer.Option(
+        DEFAULT_MAX_WIDTH, "--max-width", help="Process frames wider than this (px) scaled down to it; 0: as stored."
+    ),
     camera: Path | None = typer.Option(None, "--camera", help="Camera YAML: fx, fy, cx, cy [, height_m, ...]."),
     hfov: float | None = typer.Option(None, "--hfov", help="Horizontal field of view, degrees (no YAML)."),
     chessboard: Path | None = typer.Option(None, "--chessboard", help="Folder of 9x6 chessboard photos."),
@@ -298,6 +302,7 @@ def extract(
         shots=shots,
         crash=crash,
         stage2=stage2,
+        max_width=max_width or None,
     )
     emit(result, as_json, _extract_summary)
 

@@ -25,7 +25,7 @@ not see has ``contact_frame: null`` and no participants.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -73,6 +73,14 @@ class CrashLabel:
     def third_party(self) -> bool:
         """True when neither participant is the ego."""
         return self.crash and not any(p.ego for p in self.participants)
+
+    def scaled(self, sx: float, sy: float) -> CrashLabel:
+        """The label for the clip's frames scaled by ``sx`` x ``sy`` (its boxes scaled; frames unchanged)."""
+        parts = tuple(
+            p if p.box is None else replace(p, box=(p.box[0] * sx, p.box[1] * sy, p.box[2] * sx, p.box[3] * sy))
+            for p in self.participants
+        )
+        return replace(self, participants=parts)
 
 
 def _participant(data: Any, where: str) -> Participant:

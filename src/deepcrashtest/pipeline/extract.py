@@ -30,7 +30,7 @@ import numpy as np
 
 from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import atomic_path, check_writable, ensure_output_dir, output_set
-from deepcrashtest.geometry.camera import default_camera
+from deepcrashtest.geometry.camera import default_camera, scale_camera
 from deepcrashtest.perception.annotate import Annotator
 from deepcrashtest.perception.detect import DEFAULT_DETECTOR, make_detector
 from deepcrashtest.perception.detections import Detector, in_picture
@@ -51,6 +51,7 @@ from deepcrashtest.trajectory.params import Stage2Params
 from deepcrashtest.ui import track as progress
 from deepcrashtest.video.bars import SAMPLE_FRAMES, picture_area
 from deepcrashtest.video.shots import Shot, ShotWatch
+from deepcrashtest.video.size import DEFAULT_MAX_WIDTH, MIN_MAX_WIDTH
 from deepcrashtest.video.source import Frame, VideoMeta, open_video
 from deepcrashtest.video.writer import VideoWriter
 from deepcrashtest.viz.sheet_thumbs import SheetThumbs
@@ -112,6 +113,7 @@ def run_extract(
     frame_range: tuple[int, int] | None = None,
     crash: str | None = None,
     stage2: Stage2Params | None = None,
+    max_width: int | None = DEFAULT_MAX_WIDTH,
 ) -> dict[str, Any]:
     """Extract a video in ONE decoding pass: detect + track, ego-motion, lanes, localisation.
 
@@ -130,9 +132,14 @@ def run_extract(
     The crash (:mod:`deepcrashtest.pipeline.crash`): detected from image evidence in the same pass,
     or ``crash`` = ``"FRAME[:ID,ID]"`` (the user's, ids as in tracks.csv, ``ego`` allowed); it is the
     raw scenario's ``collision`` and stage 2 makes it happen.
+
+    ``max_width`` (px, None: none): frames wider than this are processed scaled down to it
+    (:data:`DEFAULT_MAX_WIDTH`); ``tracks.csv``, ``annotated.mp4`` and the scenario's camera and source size are then
+    in the scaled frames' pixels, and the scenario's provenance says the file's size (``frames_scaled_from``). A
+    ``camera`` and ``dashboard_rows`` are in the file's pixels (scaled along).
     """
     crash_spec = _parse_crash(crash) if crash is not None else None
-    _check_options(detect_every, max_frames)
+    _check_options(detect_every, max_frames, max_width)
     src_path, out = Path(video), Path(output)
     paths = _output_paths(src_path, out, annotate, geometry, report, force)
     watch = shots and frame_range is None  # cuts are looked for in the same decoding pass
@@ -144,7 +151,7 @@ def run_extract(
             with output_set(out, OUTPUT_NAMES, force) as stage:  # the whole set of one run, or nothing
                 staged = {key: stage / path.name for key, path in paths.items()}
                 args = (src_path, out, staged, det, detect_every, max_frames, fps, False, frame_range, seed, watch)
-                plan = _Pass(*args)
+                plan = _Pass(*args, max_width=max_width)
                 plan.imports = imports
                 result = _run_pass(plan, camera, dashboard_rows, geometry, lanes, report, crash_spec, stage2)
     except _Compilation as comp:  # nothing was written: one extraction per shot instead
@@ -153,7 +160,7 @@ def run_extract(
         found = comp.shots or detect_shots(src_path, fps, max_frames)
         options: dict[str, Any] = dict(detector=detector, detect_every=detect_every, fps=fps, annotate=annotate)
         options |= dict(camera=camera, dashboard_rows=dashboard_rows, lanes=lanes, report=report, seed=seed)
-        options |= dict(stage2=stage2, geometry=geometry)
+        options |= dict(stage2=stage2, geometry=geometry, max_width=max_width)
         if len(found) > 1:
             return _extract_shots(src_path, out, found, force, options, crash_spec)
         return run_extract(src_path, out, force=force, shots=False, crash=crash, max_frames=max_frames, **options)
@@ -197,6 +204,9 @@ def _run_pass(
         raise UserError(f"{src_path}: no frame could be decoded")
     if plan.shot_watch is not None and len(shots := plan.shot_watch.shots()) > 1:
         raise _Compilation(shots)
+    if geo is not None and meta.scaled_from is not None:  # the file's size beside the frames' (the source's)
+        params = {**geo.scenario.provenance.parameters, "frames_scaled_from": list(meta.scaled_from)}
+        geo.scenario = geo.scenario.evolve(provenance=geo.scenario.provenance.model_copy(update={"parameters": params}))
     df = records_table(records).sort_values(["frame", "track_id"], ignore_index=True)
     crash_info: dict[str, Any] | None = None
     if geo is not None:  # before anything is written: a bad --crash id refuses the whole set
@@ -327,11 +337,13 @@ def _opencv_threads(n: int) -> Iterator[None]:
         cv2.setNumThreads(before)
 
 
-def _check_options(detect_every: int, max_frames: int | None) -> None:
+def _check_options(detect_every: int, max_frames: int | None, max_width: int | None = None) -> None:
     if detect_every < 1:
         raise UserError(f"--detect-every must be >= 1 (got {detect_every})")
     if max_frames is not None and max_frames < 1:
         raise UserError(f"--max-frames must be >= 1 (got {max_frames})")
+    if max_width is not None and max_width < MIN_MAX_WIDTH:
+        raise UserError(f"--max-width must be at least {MIN_MAX_WIDTH} px, or 0 for full resolution (got {max_width})")
 
 
 def _output_paths(
@@ -374,6 +386,8 @@ class _Pass:
     watch_shots: bool = False
     """Look for shot cuts in this pass (:class:`~deepcrashtest.video.shots.ShotWatch`); a cut raises
     :class:`_Compilation` (at the first cut found, or after the last frame)."""
+    max_width: int | None = DEFAULT_MAX_WIDTH
+    """Frames wider than this (px) are processed scaled down to it (:func:`~deepcrashtest.video.source.open_video`)."""
     motion: GlobalMotion = field(default_factory=GlobalMotion)
     """The camera's global image motion per frame (the ego's jolt, for crash detection)."""
     shot_watch: ShotWatch | None = field(default=None, init=False)
@@ -391,9 +405,10 @@ class _Pass:
     ) -> tuple[list[tuple[object, ...]], GeometryResult | None, VideoMeta]:
         """Decode, track, (geometry,) draw; returns the track records, the geometry result and the metadata."""
         records: list[tuple[object, ...]] = []
-        with open_video(self.src_path, self.fps) as source, contextlib.ExitStack() as stack:
+        with open_video(self.src_path, self.fps, self.max_width) as source, contextlib.ExitStack() as stack:
             meta = source.meta
             _check_dashboard_rows(dashboard_rows, meta)
+            dashboard_rows = None if dashboard_rows is None else int(round(dashboard_rows * meta.scale))
             ensure_output_dir(self.paths["tracks_csv"].parent)
             frames = _in_range(source, self.frame_range)
             if self.watch_shots:
@@ -417,8 +432,7 @@ class _Pass:
                     draw(ft, None)
                 self._imported()
                 return records, None, meta
-            cam = camera(meta.width, meta.height, area=self.motion.area) if callable(camera) else camera
-            cam = cam or default_camera(meta.width, meta.height, area=self.motion.area)
+            cam = _camera_for_frames(camera, meta, self.motion.area)
             return records, self._geometry(tracked, records, meta, cam, dashboard_rows, lanes, draw), meta
 
     def _imported(self) -> None:
@@ -496,12 +510,31 @@ class _Pass:
 
 def _check_dashboard_rows(rows: int | None, meta: VideoMeta) -> None:
     """Refuse ``--dashboard-rows`` that would hide the whole frame: a value meant for another resolution (as a
-    principal point outside the frame is refused), not one to cut down quietly."""
-    if rows is not None and rows >= meta.height:
+    principal point outside the frame is refused), not one to cut down quietly (the file's rows)."""
+    width, height = meta.scaled_from or (meta.width, meta.height)
+    if rows is not None and rows >= height:
         raise UserError(
-            f"--dashboard-rows {rows} hides the whole {meta.width}x{meta.height} frame of {meta.path} "
-            f"(give fewer than {meta.height} rows; a value for another resolution?)"
+            f"--dashboard-rows {rows} hides the whole {width}x{height} frame of {meta.path} "
+            f"(give fewer than {height} rows; a value for another resolution?)"
         )
+
+
+def _camera_for_frames(
+    camera: Camera | CameraForVideo | None, meta: VideoMeta, area: tuple[int, int, int, int] | None
+) -> Camera:
+    """The camera of the frames as processed: the user's (or the callable's, given the file's size and the
+    picture area in the file's pixels) scaled to the frames when they are scaled (``meta.scaled_from``)."""
+    if camera is None:
+        return default_camera(meta.width, meta.height, area=area)
+    if meta.scaled_from is None:
+        return camera(meta.width, meta.height, area=area) if callable(camera) else camera
+    (width, height), s = meta.scaled_from, meta.scale
+    sy = meta.height / height
+    if callable(camera):
+        x0, y0, x1, y1 = area if area is not None else (0, 0, 0, 0)
+        file_area = (round(x0 / s), round(y0 / sy), round(x1 / s), round(y1 / sy)) if area is not None else None
+        camera = camera(width, height, area=file_area)
+    return scale_camera(camera, s, sy)
 
 
 def _dashboard_note(asked: int | None, used: int, height: int) -> list[str]:
@@ -534,6 +567,7 @@ def _summary(plan: _Pass, meta: VideoMeta, df: pd.DataFrame, elapsed: float) -> 
         "fps_video_range": [round(r, 3) for r in meta.rate_range] if meta.rate_range else None,
         "width": meta.width,
         "height": meta.height,
+        "scaled_from": None if meta.scaled_from is None else list(meta.scaled_from),
         "frames": int(n_frames),
         "tracks": int(df["track_id"].nunique()) if len(df) else 0,
         "mean_track_length_frames": round(float(lengths.mean()), 2) if lengths is not None else 0.0,
@@ -542,8 +576,19 @@ def _summary(plan: _Pass, meta: VideoMeta, df: pd.DataFrame, elapsed: float) -> 
         "scenario_raw": None,
         "scenario": None,
         "report": None,
-        "warnings": list(meta.warnings) + ([] if len(df) else ["no vehicles found in the video"]),
+        "warnings": list(meta.warnings) + _scaled_note(meta) + ([] if len(df) else ["no vehicles found in the video"]),
     }
+
+
+def _scaled_note(meta: VideoMeta) -> list[str]:
+    """The note that the frames were processed scaled (none when they were not)."""
+    if meta.scaled_from is None:
+        return []
+    w, h = meta.scaled_from
+    return [
+        f"frames processed at {meta.width}x{meta.height} (the video is {w}x{h}; --max-width): tracks.csv, "
+        "annotated.mp4 and the scenario's camera are in those pixels"
+    ]
 
 
 def _finish_scenario(

@@ -36,12 +36,16 @@ def default_inputs(scenario_path: Path, scenario: Scenario) -> tuple[Path | None
 
 
 def pick_label(labels_path: Path, scenario: Scenario, clip: str | None = None) -> CrashLabel:
-    """The label of ``clip`` (default: the scenario's source video name) from a crash-label file."""
+    """The label of ``clip`` (default: the scenario's source video name) from a crash-label file, its boxes in the
+    scenario's pixels (a video processed scaled: provenance ``frames_scaled_from``, the file's size)."""
     labels = load_crash_labels(labels_path)
     name = clip or Path(scenario.source.path).stem
     if name not in labels:
         raise UserError(f"{labels_path}: no label for clip {name!r} (labelled: {', '.join(sorted(labels))})")
-    return labels[name]
+    stored = scenario.provenance.parameters.get("frames_scaled_from")
+    if not stored:
+        return labels[name]
+    return labels[name].scaled(scenario.source.width / stored[0], scenario.source.height / stored[1])
 
 
 def run_fidelity(

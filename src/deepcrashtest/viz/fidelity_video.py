@@ -162,7 +162,7 @@ def write_fidelity_video(
     painter = FidelityPainter(scenario, result, sim, label)
     by_frame = _by_frame(tracks)
     empty = tracks.iloc[:0]
-    with open_video(video, _folder_fps(video, scenario)) as src:
+    with open_video(video, _folder_fps(video, scenario), scenario.source.width) as src:
         meta = src.meta
         with VideoWriter(output, meta.fps, meta.width, meta.height, force=force) as writer:
             for frame in src:
@@ -184,7 +184,7 @@ def render_frames(
     want = set(frames)
     by_frame = _by_frame(tracks)
     paths = []
-    with open_video(video, _folder_fps(video, painter.sc)) as src:
+    with open_video(video, _folder_fps(video, painter.sc), painter.sc.source.width) as src:
         for frame in src:
             if frame.index in want:
                 p = out / f"fidelity_{frame.index:04d}.png"
