@@ -425,3 +425,22 @@ def test_no_kitti_road_point_counts_as_fixed_to_the_camera():
     _fixed_in_fits(off, frames)
     assert fits >= 40 and points >= 40 * 12 and fixed == 0
     assert np.array_equal(on.result().speed, off.result().speed)
+
+
+def test_the_warning_tells_pairs_without_features_from_pairs_without_a_consistent_motion():
+    """DAD 478 (camera as extract calibrates it from its first 2 s): hundreds of points tracked in every pair, yet
+    the camera motion of a quarter of them fits no single turn and translation (swaying trees line the street):
+    the warning says that, not "too few trackable features" (the features are there); a dark clip's pairs are
+    the ones without features."""
+    imgs = _frames(DAD / "dad_000478.mp4", 100)
+    cam, rows, _ = estimate_camera(imgs[:40], default_camera(imgs[0].shape[1], imgs[0].shape[0]))
+    est = EgoMotionEstimator(cam, mask_bottom_rows=rows)
+    for i, img in enumerate(imgs):
+        est.update(img, i / 20.0)
+    res = est.result()
+    text = " ".join(w for w in res.warnings if "not measured" in w)
+    assert "gave no consistent camera motion" in text and "too few trackable" not in text
+    dark = EgoMotionEstimator(default_camera(640, 360))
+    for i in range(12):
+        dark.update(np.full((360, 640, 3), 3, np.uint8), i / 10)
+    assert any("too few trackable" in w and "consistent" not in w for w in dark.result().warnings)

@@ -642,6 +642,7 @@ class EgoMotionEstimator:
         self._last_time: float | None = None
         self._frame = 0
         self._invalid = 0
+        self._unsolved = 0  # invalid pairs with features enough whose camera motion could not be solved
         self._static = 0
         self._pairs = 0
         self._unscaled = 0
@@ -975,6 +976,7 @@ class EgoMotionEstimator:
                 if res is None:
                     valid = False
                     self._invalid += 1
+                    self._unsolved += 1
                 else:
                     metres, dyaw, n_road, R, t, fit = res
                     rot = cv2.Rodrigues(R.T)[0].ravel()  # the camera's turn: about x = pitch up, about z = roll
@@ -1072,9 +1074,16 @@ class EgoMotionEstimator:
         if static:
             warnings.append("ego-motion: the camera does not move (static camera?); ego speed set to 0")
         if self._pairs and self._invalid > 0.2 * self._pairs:
+            few, unsolved = self._invalid - self._unsolved, self._unsolved
+            why = [f"{few} had too few trackable static-scene features (dark, blurred or featureless frames)"] * (
+                few > 0
+            ) + [
+                f"{unsolved} gave no consistent camera motion (the tracked points' motion fits no single turn and "
+                "translation: road users or swaying foliage filling the scene, or too little motion to tell)"
+            ] * (unsolved > 0)
             warnings.append(
-                f"ego-motion: {self._invalid} of {self._pairs} frame pairs had too few trackable static-scene "
-                "features (dark, blurred or featureless frames); speed held over those frames"
+                f"ego-motion: {self._invalid} of {self._pairs} frame pairs were not measured: {'; '.join(why)}; "
+                "speed held over those frames"
             )
         if self._pairs and self._unscaled > 0.5 * self._pairs:
             warnings.append(
