@@ -34,7 +34,8 @@ its ego "contact" without having been ahead (``EXIT_WINDOW_S``) drove past: no e
 "Near" for an ego crash is the box's width or, for narrow road users (a person, a two-wheeler), its
 height as a share of the image, with its bottom in the lower part of the image.
 
-The contact frame of an ego crash is the first camera jolt while the road user is near (or, when its
+The contact frame of an ego crash is the first camera jolt while the road user is near (where that jolt
+peaks when it starts while the box still grows fast, :func:`_jolt_peak`; or, when its
 box had already stopped growing at the bumper ``STILL_BEFORE_JOLT_S`` before that jolt, the frame it
 stopped: the jolt is the same crash going on), else the
 "knee" where its approaching box stops growing, else the first frame at which it is nearest; one
@@ -64,6 +65,11 @@ EGO = 0  # the ego's id in a crash pair
 KNEE_MAX_LATER_GROWTH = 0.1
 #: ... and the box is at least this near (``ego_scores``' ``near``, 0..1) at the knee.
 KNEE_MIN_NEAR = 0.3
+#: A camera jolt that starts while the road user's box still grows at least this fast (``closing``, 0..1: 1 is a
+#: time to contact of 0.67 s) has its contact where the jolt peaks (:func:`_jolt_peak`); chosen on ccd_000330 at
+#: 5 fps (``bench/fidelity_perturbed.py`` halffps, its box's closing 0.36-0.73 through the jolt's rise) against
+#: ccd_000487 (closing 0.08 at its jolt).
+JOLT_RISE_CLOSING = 0.3
 #: A pair's contact must follow a time apart: the share of the previous ONSET_WINDOW_S (s) with the boxes
 #: apart, saturating at ONSET_APART (chosen on dad_000478 and the highway clip: image overlap all along).
 ONSET_WINDOW_S = 1.0
@@ -457,17 +463,35 @@ def ego_best(s: pd.DataFrame, fps: float) -> tuple[float, int, dict[str, float]]
     still = _still_since(s, frame, fps) if len(jolted) else None
     if still is not None:  # the jolt is the crash going on: scored as it is, the contact is earlier
         ev["jolt_frame"], frame = frame, still
+    elif len(jolted):  # scored where the jolt starts, the contact where it peaks
+        frame = _jolt_peak(s, frame, near_enough)
+    jolt_at = frame if len(jolted) and still is None else None
     fallen = s["knocked_over"] if "knocked_over" in s else pd.Series(False, index=s.index)
     fell = s.index.to_numpy()[(fallen & near_enough).to_numpy()]
     if len(fell) and int(fell[0]) < frame:  # a pedestrian struck off their feet: contact before knee or jolt
         ev["later_frame"], frame = frame, int(fell[0])
-    if len(jolted) and frame == int(jolted[0]) and "reaches_border" in s:
+    if frame == jolt_at and "reaches_border" in s:
         nxt = _next_new_frame(s, frame)
         if nxt in s.index and bool(s.loc[nxt, "reaches_border"]):
             frame = nxt  # the jolt's second difference holds the next frame's shift: the box jumping onto the border
     if "reaches_border" in s and bool(s.loc[frame, "reaches_border"]):
         frame = _next_new_frame(s, frame)  # the box jumped onto the border there: filling the view, not touching
     return score, frame, ev
+
+
+def _jolt_peak(s: pd.DataFrame, first: int, near: pd.Series) -> int:
+    """The contact of a camera jolt that starts at ``first`` while the road user's box still grows fast (``closing``
+    at least ``JOLT_RISE_CLOSING``): the frame where the jolt peaks (on while the next frame jolts more, the road
+    user near). A box growing fast fills more of the view each frame and moves the image the jolt is measured
+    on: the jolt rises with it before the impact (ccd_000330 at 5 fps: 0.31 / 0.59 / 1.0 at frames 16-18, the box
+    growing until 19, the contact at 19). A box that has stopped growing is at the bumper: the jolt's first frame
+    is the contact (ccd_000487: 0.94 then 1.0, the contact at the first)."""
+    idx = s.index.to_numpy()
+    jolt, closing = s["jolt"].to_numpy(float), s["closing"].to_numpy(float)
+    k = int(np.searchsorted(idx, first))
+    while k + 1 < len(idx) and closing[k] >= JOLT_RISE_CLOSING and jolt[k + 1] > jolt[k] and bool(near.iloc[k + 1]):
+        k += 1
+    return int(idx[k])
 
 
 def _next_new_frame(s: pd.DataFrame, frame: int) -> int:
