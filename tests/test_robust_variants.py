@@ -404,9 +404,13 @@ def test_a_crash_clip_recorded_at_twice_the_size_is_processed_as_the_clip(tmp_pa
     _, summary = run_fidelity(tmp_path / "big" / "scenario.json", tmp_path / "fid", labels=labels, make_video=False)
     assert summary["crash"]["label"]["scenario_ids"] == [0, crash["pair"][1]] and summary["crash"]["reproduced"]
     user = Camera(fx=2000.0, fy=2000.0, cx=1280.0, cy=720.0, intrinsics_source="user")  # the file's pixels
-    run_extract(big, tmp_path / "cam", camera=user, max_frames=20, report=False, annotate=False, lanes=False)
+    out = run_extract(
+        big, tmp_path / "cam", camera=user, dashboard_rows=900, max_frames=20, report=False, annotate=False
+    )
     cam = Scenario.load(tmp_path / "cam" / "scenario.json").camera
     assert (cam.fx, cam.fy, cam.cx, cam.cy) == pytest.approx((1000.0, 1000.0, 640.0, 360.0))
+    # 900 of the file's 1440 rows are 450 of the frames' 720, cut to a third of the frame: said in the file's rows
+    assert any("--dashboard-rows 900 cut to 480 (a third of the 1440-row frame" in w for w in out["warnings"])
 
 
 def test_a_rear_end_filmed_at_5_fps_has_its_contact_where_the_camera_jolt_peaks(tmp_path):

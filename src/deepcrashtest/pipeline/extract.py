@@ -220,7 +220,7 @@ def _run_pass(
     result = _summary(plan, meta, df, elapsed)
     result["crash_detection"] = crash_info
     if geo is not None:
-        result["warnings"] += _dashboard_note(dashboard_rows, geo.dashboard_rows, meta.height)
+        result["warnings"] += _dashboard_note(dashboard_rows, geo.dashboard_rows, meta)
         result.update(_finish_scenario(geo, paths, force, seed, report, result["warnings"], stage2, plan.kept))
     return result
 
@@ -408,7 +408,7 @@ class _Pass:
         with open_video(self.src_path, self.fps, self.max_width) as source, contextlib.ExitStack() as stack:
             meta = source.meta
             _check_dashboard_rows(dashboard_rows, meta)
-            dashboard_rows = None if dashboard_rows is None else int(round(dashboard_rows * meta.scale))
+            dashboard_rows = None if dashboard_rows is None else round(dashboard_rows * meta.scale)  # the frames' rows
             ensure_output_dir(self.paths["tracks_csv"].parent)
             frames = _in_range(source, self.frame_range)
             if self.watch_shots:
@@ -537,13 +537,15 @@ def _camera_for_frames(
     return scale_camera(camera, s, sy)
 
 
-def _dashboard_note(asked: int | None, used: int, height: int) -> list[str]:
-    """The warning for a ``--dashboard-rows`` the geometry cut to the bottom third of the frame (none if kept)."""
-    if asked is None or used >= asked:
+def _dashboard_note(asked: int | None, used: int, meta: VideoMeta) -> list[str]:
+    """The warning for a ``--dashboard-rows`` the geometry cut to the bottom third of the frame (none if kept):
+    ``used`` in the frames' rows, ``asked`` and the message in the file's (frames scaled: ``meta.scale``)."""
+    if asked is None or used >= round(asked * meta.scale):
         return []
+    height = meta.scaled_from[1] if meta.scaled_from is not None else meta.height
     return [
-        f"--dashboard-rows {asked} cut to {used} (a third of the {height}-row frame: the geometry needs the road "
-        "below the horizon)"
+        f"--dashboard-rows {asked} cut to {round(used / meta.scale)} (a third of the {height}-row frame: the geometry "
+        "needs the road below the horizon)"
     ]
 
 
