@@ -8,6 +8,7 @@ then extracted and replayed exactly like ``bench/fidelity_crashes.py``:
 * ``small``: scaled to 854x480 (label boxes scaled);
 * ``halffps``: every second frame (DAD 20 -> 10 fps, CCD 10 -> 5 fps; contact frames halved);
 * ``large``: scaled up to 1920x1080, the size most dashcams record (label boxes scaled; not in the default set);
+* ``tiny``: scaled down to 426x240, an old upload's size (label boxes scaled; not in the default set);
 * ``copy``: only re-encoded, the control: what the re-encoding alone changes.
 
 Clips are written by the project's own H.264 writer (CRF 23, ultrafast): PyAV's default x264 preset fed ``bgr24``
@@ -18,7 +19,7 @@ this makes a few plain variants of every labelled clip and prints one line per v
 
 Usage::
 
-    python bench/fidelity_perturbed.py [--variants mirror,small,halffps,copy,large] [--clips dad_000478,...]
+    python bench/fidelity_perturbed.py [--variants mirror,small,halffps,copy,large,tiny] [--clips dad_000478,...]
                                        [--work DIR] [--reuse] [--stage2 [--redetect]] [--json]
 
 Per variant: reproduced crashes / labelled, clips with a contact before the crash, mean reprojection IoU
@@ -41,9 +42,10 @@ from fidelity_crashes import DATA, all_labels, run_clip
 
 VARIANTS = ("mirror", "small", "halffps", "copy")
 #: Variants run only when asked for (``--variants large``).
-MORE_VARIANTS = ("large",)
+MORE_VARIANTS = ("large", "tiny")
 SMALL_WIDTH, SMALL_HEIGHT = 854, 480
 LARGE_WIDTH, LARGE_HEIGHT = 1920, 1080
+TINY_WIDTH, TINY_HEIGHT = 426, 240
 
 
 def variant_geometry(src: Path, variant: str) -> tuple[float, int, tuple[float, float], int]:
@@ -54,7 +56,9 @@ def variant_geometry(src: Path, variant: str) -> tuple[float, int, tuple[float, 
         stream = inp.streams.video[0]
         fps, width, height = float(stream.average_rate), int(stream.width), int(stream.height)
     step = 2 if variant == "halffps" else 1
-    size = {"small": (SMALL_WIDTH, SMALL_HEIGHT), "large": (LARGE_WIDTH, LARGE_HEIGHT)}.get(variant, (width, height))
+    sizes = {"small": (SMALL_WIDTH, SMALL_HEIGHT), "large": (LARGE_WIDTH, LARGE_HEIGHT)}
+    sizes["tiny"] = (TINY_WIDTH, TINY_HEIGHT)
+    size = sizes.get(variant, (width, height))
     scale = (size[0] / width, size[1] / height)
     return fps / step, step, scale, width
 
@@ -73,6 +77,8 @@ def rewrite_clip(src: Path, dst: Path, variant: str) -> None:
         frames = [cv2.flip(f, 1) for f in frames]
     elif variant == "small":
         frames = [cv2.resize(f, (SMALL_WIDTH, SMALL_HEIGHT), interpolation=cv2.INTER_AREA) for f in frames]
+    elif variant == "tiny":
+        frames = [cv2.resize(f, (TINY_WIDTH, TINY_HEIGHT), interpolation=cv2.INTER_AREA) for f in frames]
     elif variant == "large":
         frames = [cv2.resize(f, (LARGE_WIDTH, LARGE_HEIGHT), interpolation=cv2.INTER_CUBIC) for f in frames]
     frames = frames[::step]
