@@ -302,7 +302,7 @@ def extract(
         shots=shots,
         crash=crash,
         stage2=stage2,
-        max_width=max_width or None,
+        max_width=max_width,
     )
     emit(result, as_json, _extract_summary)
 

@@ -133,12 +133,13 @@ def run_extract(
     or ``crash`` = ``"FRAME[:ID,ID]"`` (the user's, ids as in tracks.csv, ``ego`` allowed); it is the
     raw scenario's ``collision`` and stage 2 makes it happen.
 
-    ``max_width`` (px, None: none): frames wider than this are processed scaled down to it
+    ``max_width`` (px; None or 0: none): frames wider than this are processed scaled down to it
     (:data:`DEFAULT_MAX_WIDTH`); ``tracks.csv``, ``annotated.mp4`` and the scenario's camera and source size are then
     in the scaled frames' pixels, and the scenario's provenance says the file's size (``frames_scaled_from``). A
     ``camera`` and ``dashboard_rows`` are in the file's pixels (scaled along).
     """
     crash_spec = _parse_crash(crash) if crash is not None else None
+    max_width = max_width or None  # 0: the frames as stored
     _check_options(detect_every, max_frames, max_width)
     src_path, out = Path(video), Path(output)
     paths = _output_paths(src_path, out, annotate, geometry, report, force)
@@ -531,8 +532,10 @@ def _camera_for_frames(
     (width, height), s = meta.scaled_from, meta.scale
     sy = meta.height / height
     if callable(camera):
-        x0, y0, x1, y1 = area if area is not None else (0, 0, 0, 0)
-        file_area = (round(x0 / s), round(y0 / sy), round(x1 / s), round(y1 / sy)) if area is not None else None
+        file_area = None
+        if area is not None:
+            x0, y0, x1, y1 = area
+            file_area = (round(x0 / s), round(y0 / sy), round(x1 / s), round(y1 / sy))
         camera = camera(width, height, area=file_area)
     return scale_camera(camera, s, sy)
 
