@@ -1075,12 +1075,14 @@ class EgoMotionEstimator:
             warnings.append("ego-motion: the camera does not move (static camera?); ego speed set to 0")
         if self._pairs and self._invalid > 0.2 * self._pairs:
             few, unsolved = self._invalid - self._unsolved, self._unsolved
-            why = [f"{few} had too few trackable static-scene features (dark, blurred or featureless frames)"] * (
-                few > 0
-            ) + [
-                f"{unsolved} gave no consistent camera motion (the tracked points' motion fits no single turn and "
-                "translation: road users or swaying foliage filling the scene, or too little motion to tell)"
-            ] * (unsolved > 0)
+            why = []
+            if few:
+                why.append(f"{few} had too few trackable static-scene features (dark, blurred or featureless frames)")
+            if unsolved:
+                why.append(
+                    f"{unsolved} gave no consistent camera motion (the tracked points' motion fits no single turn and "
+                    "translation: road users or swaying foliage filling the scene, or too little motion to tell)"
+                )
             warnings.append(
                 f"ego-motion: {self._invalid} of {self._pairs} frame pairs were not measured: {'; '.join(why)}; "
                 "speed held over those frames"

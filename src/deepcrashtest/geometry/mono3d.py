@@ -578,10 +578,7 @@ def _kalman(
     kf.H = np.array([[1, 0, 0, 0], [0, 1, 0, 0]], float)
     first = int(np.nonzero(np.isfinite(meas[:, 0]))[0][0])  # rows before it: carried (smoothed back)
     lead_s = (frames[first] - frames[0]) * dt
-    kf.x = np.array([meas[first, 0], meas[first, 1], 0.0, 0.0])
-    kf.P = np.zeros((4, 4))
-    kf.P[:2, :2] = covs[first] + np.eye(2) * (cfg.init_speed_std * lead_s) ** 2
-    kf.P[2, 2] = kf.P[3, 3] = cfg.init_speed_std**2
+    _restart(kf, meas[first], covs[first] + np.eye(2) * (cfg.init_speed_std * lead_s) ** 2, cfg.init_speed_std)
     xs = np.zeros((len(span), 4))
     ps = np.zeros((len(span), 4, 4))
     updates = 0
@@ -610,7 +607,7 @@ def _kalman(
 
 
 def _restart(kf: KalmanFilter, z: np.ndarray, cov: np.ndarray, speed_std: float) -> None:
-    """Restart the filter at measurement ``z`` (its covariance ``cov``), the velocity unknown again."""
+    """(Re)start the filter at measurement ``z`` (position covariance ``cov``), the velocity unknown."""
     kf.x = np.array([z[0], z[1], 0.0, 0.0])
     kf.P = np.zeros((4, 4))
     kf.P[:2, :2] = cov

@@ -512,7 +512,7 @@ class _Pass:
 def _check_dashboard_rows(rows: int | None, meta: VideoMeta) -> None:
     """Refuse ``--dashboard-rows`` that would hide the whole frame: a value meant for another resolution (as a
     principal point outside the frame is refused), not one to cut down quietly (the file's rows)."""
-    width, height = meta.scaled_from or (meta.width, meta.height)
+    width, height = meta.stored_size
     if rows is not None and rows >= height:
         raise UserError(
             f"--dashboard-rows {rows} hides the whole {width}x{height} frame of {meta.path} "
@@ -529,7 +529,7 @@ def _camera_for_frames(
         return default_camera(meta.width, meta.height, area=area)
     if meta.scaled_from is None:
         return camera(meta.width, meta.height, area=area) if callable(camera) else camera
-    (width, height), s = meta.scaled_from, meta.scale
+    (width, height), s = meta.stored_size, meta.scale
     sy = meta.height / height
     if callable(camera):
         file_area = None
@@ -545,7 +545,7 @@ def _dashboard_note(asked: int | None, used: int, meta: VideoMeta) -> list[str]:
     ``used`` in the frames' rows, ``asked`` and the message in the file's (frames scaled: ``meta.scale``)."""
     if asked is None or used >= round(asked * meta.scale):
         return []
-    height = meta.scaled_from[1] if meta.scaled_from is not None else meta.height
+    height = meta.stored_size[1]
     return [
         f"--dashboard-rows {asked} cut to {round(used / meta.scale)} (a third of the {height}-row frame: the geometry "
         "needs the road below the horizon)"

@@ -64,9 +64,14 @@ class VideoMeta:
     scaled_from: tuple[int, int] | None = None
 
     @property
+    def stored_size(self) -> tuple[int, int]:
+        """The file's frame size (width, height px), whether or not the frames are scaled."""
+        return self.scaled_from or (self.width, self.height)
+
+    @property
     def scale(self) -> float:
         """Frame px per file px (1.0 unless the frames are scaled)."""
-        return 1.0 if self.scaled_from is None else self.width / self.scaled_from[0]
+        return self.width / self.stored_size[0]
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -125,13 +130,12 @@ def open_video(path: str | Path, fps: float | None = None, max_width: int | None
     return PyAVSource(p, fps, max_width)
 
 
-def _scaled_meta(meta: VideoMeta, max_width: int | None) -> VideoMeta:
-    """``meta`` describing frames scaled by :func:`processed_size` (unchanged when they are not)."""
+def _scale_meta(meta: VideoMeta, max_width: int | None) -> None:
+    """Make ``meta`` describe its frames scaled by :func:`processed_size` (unchanged when they are not)."""
     size = processed_size(meta.width, meta.height, max_width)
     if size != (meta.width, meta.height):
         meta.scaled_from = (meta.width, meta.height)
         meta.width, meta.height = size
-    return meta
 
 
 # --------------------------------------------------------------------------- video files
@@ -193,7 +197,7 @@ class PyAVSource(VideoSource):
             height=int(self._first.height),
             sha256=sha256_file(path),
         )
-        _scaled_meta(self.meta, max_width)
+        _scale_meta(self.meta, max_width)
         self._used = False
 
     _bad: str = ""
@@ -341,7 +345,7 @@ class ImageFolderSource(VideoSource):
             height=int(first.shape[0]),
             sha256=None,
         )
-        _scaled_meta(self.meta, max_width)
+        _scale_meta(self.meta, max_width)
 
     def __iter__(self) -> Iterator[Frame]:
         import cv2
@@ -353,7 +357,7 @@ class ImageFolderSource(VideoSource):
             if image is None:
                 self.meta.warnings.append(f"{f}: unreadable image, stopped after {k} frames")
                 return
-            stored = self.meta.scaled_from or (self.meta.width, self.meta.height)
+            stored = self.meta.stored_size
             if (image.shape[1], image.shape[0]) != stored:
                 raise UserError(
                     f"{f}: image size {image.shape[1]}x{image.shape[0]} differs from the first "
