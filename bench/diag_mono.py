@@ -39,6 +39,7 @@ from scipy.optimize import linear_sum_assignment
 
 from deepcrashtest.datasets.kitti.files import KITTI_FPS, KittiSequence, read_labels
 from deepcrashtest.datasets.kitti.results import scenario_result_table
+from deepcrashtest.datasets.kitti.world import world_table
 from deepcrashtest.eval.boxes import iou_2d
 from deepcrashtest.eval.clear_mot import clear_only
 from deepcrashtest.eval.kitti import hypotheses_from_table, match_rule
@@ -52,7 +53,6 @@ from deepcrashtest.eval.kitti_mono import (
     score_sequence,
 )
 from deepcrashtest.eval.kitti_rules import apply_kitti_rules
-from deepcrashtest.eval.kitti_world import world_table
 from deepcrashtest.geometry.mono3d import class_size, hull_factor, localize_tracks
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kitti_tracking"

@@ -9,9 +9,9 @@ import pytest
 from tests.conftest import need
 
 from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
+from deepcrashtest.datasets.kitti.world import KittiWorld
 from deepcrashtest.eval.kitti import evaluate_kitti, ground_truth_frames, prepare_sequence
 from deepcrashtest.eval.kitti_rules import MATCH_RULES, FrameObjects, GroundTruthFrame, apply_kitti_rules
-from deepcrashtest.eval.kitti_world import KittiWorld
 
 REFERENCE_SEQS = ["0000", "0003", "0010", "0013"]
 

@@ -15,6 +15,7 @@ import pytest
 from deepcrashtest.datasets.kitti.files import KittiSequence, read_calib, read_labels, read_poses
 from deepcrashtest.datasets.kitti.results import scenario_result_table, write_results
 from deepcrashtest.datasets.kitti.scenario import kitti_world_transform, scenario_from_kitti
+from deepcrashtest.datasets.kitti.world import KittiWorld
 from deepcrashtest.eval.clear_mot import EvalSequence, clear_only
 from deepcrashtest.eval.kitti import ground_truth_frames, hypotheses_from_results, hypotheses_from_table
 from deepcrashtest.eval.kitti_mono import (
@@ -26,7 +27,6 @@ from deepcrashtest.eval.kitti_mono import (
     prepare_mono,
 )
 from deepcrashtest.eval.kitti_rules import MATCH_RULES, apply_kitti_rules
-from deepcrashtest.eval.kitti_world import KittiWorld
 from deepcrashtest.geometry.egomotion import EgoMotion
 from deepcrashtest.geometry.mono3d import MonoConfig, _Cues, _oblique_width, _width_m, hull_factor
 from deepcrashtest.geometry.selfcalib import focal_from_motion, self_calibrate

@@ -5,13 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from deepcrashtest.datasets.kitti.boxes import project_box
 from deepcrashtest.datasets.kitti.track_smoothing import OfflineConfig, offline_tracks
 from deepcrashtest.datasets.kitti.world_tracker import (
     WorldDetections,
     WorldTracker,
     WorldTrackerConfig,
 )
-from deepcrashtest.eval.boxes import iou_2d, iou_3d, project_box
+from deepcrashtest.eval.boxes import iou_2d, iou_3d
 from deepcrashtest.perception.lifecycle import TrackBase, TrackCore, TrackState
 
 

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from deepcrashtest.datasets.kitti.boxes import WORLD_BOX_COLUMNS
 from deepcrashtest.datasets.kitti.files import (
     KittiCalib,
     KittiSequence,
@@ -26,9 +27,9 @@ from deepcrashtest.datasets.kitti.files import (
 )
 from deepcrashtest.datasets.kitti.scenario import labels_frame_table
 from deepcrashtest.datasets.kitti.track_smoothing import OfflineConfig, offline_tracks
+from deepcrashtest.datasets.kitti.world import KittiWorld, frame_index, world_table
 from deepcrashtest.datasets.kitti.world_tracker import WorldDetections, WorldTracker, WorldTrackerConfig
 from deepcrashtest.errors import UserError
-from deepcrashtest.eval.boxes import WORLD_BOX_COLUMNS
 from deepcrashtest.eval.clear_mot import EvalSequence, evaluate_sequences
 from deepcrashtest.eval.kitti_rules import (
     DISTRACTOR_CLASSES,
@@ -41,7 +42,6 @@ from deepcrashtest.eval.kitti_rules import (
     MatchRule,
     apply_kitti_rules,
 )
-from deepcrashtest.eval.kitti_world import KittiWorld, frame_index, world_table
 from deepcrashtest.ui import track
 
 #: The reference paper's table (world-frame CLEAR-MOT of its trajectory extraction), percentages.

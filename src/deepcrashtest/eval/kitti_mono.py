@@ -45,11 +45,11 @@ from deepcrashtest.datasets.kitti.files import (
 )
 from deepcrashtest.datasets.kitti.results import scenario_result_table
 from deepcrashtest.datasets.kitti.scenario import KITTI_CAMERA_FORWARD_OFFSET_M
+from deepcrashtest.datasets.kitti.world import KittiWorld
 from deepcrashtest.errors import UserError
 from deepcrashtest.eval.clear_mot import EvalSequence, clear_only, evaluate_sequences
 from deepcrashtest.eval.kitti import PAPER_TABLE, ground_truth_frames, hypotheses_from_table, match_rule
 from deepcrashtest.eval.kitti_rules import GroundTruthFrame, MatchRule, apply_kitti_rules
-from deepcrashtest.eval.kitti_world import KittiWorld
 from deepcrashtest.geometry.camera import default_camera
 from deepcrashtest.geometry.egomotion import EgoMotion
 from deepcrashtest.geometry.mono3d import MonoConfig

@@ -4,7 +4,7 @@ Each agent sample in a video frame becomes one line: ``frame track_id type trunc
 x1 y1 x2 y2 h w l x y z ry score`` with the 3D box in that frame's rectified camera-2 frame (bottom
 centre on the road, ``camera.height_m`` below the camera; metres, radians) and its 2D box the
 projection of the 3D box with ``P2`` (pixels). The world frame is the one of
-:mod:`deepcrashtest.eval.kitti_world` (ego centre at frame 0), so these files score with any KITTI
+:mod:`deepcrashtest.datasets.kitti.world` (ego centre at frame 0), so these files score with any KITTI
 tracking evaluation (TrackEval, ``deepcrashtest evaluate kitti --tracks``).
 """
 
@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from deepcrashtest.datasets.kitti.boxes import project_boxes
 from deepcrashtest.datasets.kitti.files import KITTI_IMAGE_SIZE, LABEL_COLUMNS
-from deepcrashtest.eval.boxes import project_boxes
-from deepcrashtest.eval.kitti_world import KittiWorld
+from deepcrashtest.datasets.kitti.world import KittiWorld
 from deepcrashtest.fileio import atomic_path
 from deepcrashtest.geometry.frames import camera_points_to_world
 from deepcrashtest.scenario import Scenario

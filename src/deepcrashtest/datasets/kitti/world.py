@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from deepcrashtest.datasets.kitti.boxes import WORLD_BOX_COLUMNS, project_box
 from deepcrashtest.datasets.kitti.files import KITTI_IMAGE_SIZE
 from deepcrashtest.datasets.kitti.scenario import kitti_world_transform
-from deepcrashtest.eval.boxes import WORLD_BOX_COLUMNS, project_box
 from deepcrashtest.geometry.frames import (
     CAM_TO_WORLD_AXES,
     camera_points_to_world,
