@@ -9,6 +9,11 @@ then extracted and replayed exactly like ``bench/fidelity_crashes.py``:
 * ``halffps``: every second frame (DAD 20 -> 10 fps, CCD 10 -> 5 fps; contact frames halved);
 * ``large``: scaled up to 1920x1080, the size most dashcams record (label boxes scaled; not in the default set);
 * ``tiny``: scaled down to 426x240, an old upload's size (label boxes scaled; not in the default set);
+* ``fisheye``: the barrel distortion of a wide-angle dashcam lens added (radial, the frame's corners kept in the
+  frame, the centre magnified ``1 + FISHEYE_K``; label boxes: the bounding box of each box's distorted outline;
+  not in the default set);
+* ``zoom``: the middle ``1 / ZOOM`` of the frame scaled back up to the frame's size, a narrower lens (a longer
+  focal length; label boxes scaled and clipped; not in the default set);
 * ``copy``: only re-encoded, the control: what the re-encoding alone changes.
 
 Clips are written by the project's own H.264 writer (CRF 23, ultrafast): PyAV's default x264 preset fed ``bgr24``
@@ -19,7 +24,7 @@ this makes a few plain variants of every labelled clip and prints one line per v
 
 Usage::
 
-    python bench/fidelity_perturbed.py [--variants mirror,small,halffps,copy,large,tiny] [--clips dad_000478,...]
+    python bench/fidelity_perturbed.py [--variants mirror,small,halffps,copy,large,tiny,fisheye,zoom] [--clips a,b]
                                        [--work DIR] [--reuse] [--stage2 [--redetect]] [--json]
 
 Per variant: reproduced crashes / labelled, clips with a contact before the crash, mean reprojection IoU
@@ -42,7 +47,12 @@ from fidelity_crashes import DATA, all_labels, run_clip
 
 VARIANTS = ("mirror", "small", "halffps", "copy")
 #: Variants run only when asked for (``--variants large``).
-MORE_VARIANTS = ("large", "tiny")
+MORE_VARIANTS = ("large", "tiny", "fisheye", "zoom")
+#: ``fisheye``: source radius = r (1 + k r^2) / (1 + k), r the output pixel's distance from the centre over the
+#: half diagonal: the corners stay, the centre is magnified 1 + k, straight lines bow outwards (barrel).
+FISHEYE_K = 0.35
+#: ``zoom``: the focal length's factor (the middle 1/ZOOM of the width and height kept).
+ZOOM = 1.3
 SMALL_WIDTH, SMALL_HEIGHT = 854, 480
 LARGE_WIDTH, LARGE_HEIGHT = 1920, 1080
 TINY_WIDTH, TINY_HEIGHT = 426, 240
@@ -81,12 +91,68 @@ def rewrite_clip(src: Path, dst: Path, variant: str) -> None:
         frames = [cv2.resize(f, (TINY_WIDTH, TINY_HEIGHT), interpolation=cv2.INTER_AREA) for f in frames]
     elif variant == "large":
         frames = [cv2.resize(f, (LARGE_WIDTH, LARGE_HEIGHT), interpolation=cv2.INTER_CUBIC) for f in frames]
+    elif variant in ("fisheye", "zoom"):
+        h, w = frames[0].shape[:2]
+        map_x, map_y = lens_maps(w, h, variant)
+        frames = [cv2.remap(f, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE) for f in frames]
     frames = frames[::step]
     dst.parent.mkdir(parents=True, exist_ok=True)
     out = VideoWriter(dst, fps, frames[0].shape[1], frames[0].shape[0], force=True)  # the project's writer
     for f in frames:
         out.write(f)
     out.close()
+
+
+def lens_maps(width: int, height: int, variant: str) -> tuple[np.ndarray, np.ndarray]:
+    """``cv2.remap`` maps (float32, output pixel -> source pixel) of the ``fisheye`` or ``zoom`` variant."""
+    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
+    src = lens_to_source(np.stack([u.ravel(), v.ravel()], axis=1), width, height, variant)
+    return (src[:, 0].reshape(height, width).astype(np.float32), src[:, 1].reshape(height, width).astype(np.float32))
+
+
+def lens_to_source(points: np.ndarray, width: int, height: int, variant: str) -> np.ndarray:
+    """(n, 2) output pixels of the ``fisheye`` / ``zoom`` variant -> (n, 2) pixels of the source frame."""
+    centre = np.array([(width - 1) / 2, (height - 1) / 2])
+    d = points - centre
+    if variant == "zoom":
+        return centre + d / ZOOM
+    half_diag = np.hypot(width / 2, height / 2)
+    r = np.hypot(d[:, 0], d[:, 1]) / half_diag
+    return centre + d * ((1 + FISHEYE_K * r**2) / (1 + FISHEYE_K))[:, None]
+
+
+def source_to_lens(points: np.ndarray, width: int, height: int, variant: str) -> np.ndarray:
+    """Inverse of :func:`lens_to_source`: (n, 2) source pixels -> output pixels (the fisheye's radius by Newton)."""
+    centre = np.array([(width - 1) / 2, (height - 1) / 2])
+    d = points - centre
+    if variant == "zoom":
+        return centre + d * ZOOM
+    half_diag = np.hypot(width / 2, height / 2)
+    target = np.hypot(d[:, 0], d[:, 1]) / half_diag  # source radius
+    r = target.copy()
+    for _ in range(30):  # r (1 + k r^2) / (1 + k) = target; monotonic for k > 0
+        f = r * (1 + FISHEYE_K * r**2) / (1 + FISHEYE_K) - target
+        r -= f / ((1 + 3 * FISHEYE_K * r**2) / (1 + FISHEYE_K))
+    gain = np.where(target > 1e-12, r / np.maximum(target, 1e-12), 1 + FISHEYE_K)
+    return centre + d * gain[:, None]
+
+
+def lens_box(box: list[float], width: int, height: int, variant: str) -> list[int]:
+    """A source-pixel box's bounding box in the ``fisheye`` / ``zoom`` output (its outline mapped, clipped)."""
+    x1, y1, x2, y2 = box
+    t = np.linspace(0.0, 1.0, 25)
+    outline = np.concatenate(
+        [
+            np.stack([x1 + (x2 - x1) * t, np.full_like(t, y1)], 1),
+            np.stack([x1 + (x2 - x1) * t, np.full_like(t, y2)], 1),
+            np.stack([np.full_like(t, x1), y1 + (y2 - y1) * t], 1),
+            np.stack([np.full_like(t, x2), y1 + (y2 - y1) * t], 1),
+        ]
+    )
+    out = source_to_lens(outline, width, height, variant)
+    lo = np.clip(out.min(axis=0), 0, [width - 1, height - 1])
+    hi = np.clip(out.max(axis=0), 0, [width - 1, height - 1])
+    return [round(lo[0]), round(lo[1]), round(hi[0]), round(hi[1])]
 
 
 def rewrite_label(
@@ -104,8 +170,18 @@ def rewrite_label(
             x1, y1, x2, y2 = p["box"]
             if variant == "mirror":
                 x1, x2 = width - x2, width - x1
+            if variant in ("fisheye", "zoom"):
+                p["box"] = lens_box([x1, y1, x2, y2], width, _height(video), variant)
+                continue
             p["box"] = [round(x1 * scale[0]), round(y1 * scale[1]), round(x2 * scale[0]), round(y2 * scale[1])]
     return out
+
+
+def _height(video: Path) -> int:
+    import av
+
+    with av.open(str(video)) as inp:
+        return int(inp.streams.video[0].height)
 
 
 def prepare(variant: str, names: list[str], work: Path, reuse: bool) -> Path:
