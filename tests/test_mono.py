@@ -662,3 +662,51 @@ def test_standing_vehicles_take_the_class_their_parallax_height_fits(kitti_root)
     off_cfg = dataclasses.replace(DEFAULT_MONO, mono=dataclasses.replace(DEFAULT_MONO.mono, static_class=False))
     mota_on, mota_off = quick_mota([prep], DEFAULT_MONO)[0], quick_mota([prep], off_cfg)[0]
     assert mota_on - mota_off > 2.0, (mota_on, mota_off)
+
+
+def _through_lens(boxes: np.ndarray, camera: Camera, dist: list[float], size: tuple[int, int]) -> np.ndarray:
+    """The boxes a detector would give on the image of a lens with OpenCV distortion ``dist`` (same intrinsics):
+    around each box's outline mapped through the lens; a side on the frame's border stays there (the road user
+    goes on beyond the frame)."""
+    import cv2
+
+    t = np.linspace(0.0, 1.0, 9)
+    out = np.array(boxes, dtype=np.float32)
+    for i, (x1, y1, x2, y2) in enumerate(boxes):
+        xs = np.r_[x1 + (x2 - x1) * t, x1 + (x2 - x1) * t, np.full(9, x1), np.full(9, x2)]
+        ys = np.r_[np.full(9, y1), np.full(9, y2), y1 + (y2 - y1) * t, y1 + (y2 - y1) * t]
+        rays = np.stack([(xs - camera.cx) / camera.fx, (ys - camera.cy) / camera.fy, np.ones_like(xs)], 1)
+        p, _ = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), camera.matrix(), np.array(dist))
+        p = p.reshape(-1, 2)
+        out[i] = [p[:, 0].min(), p[:, 1].min(), p[:, 0].max(), p[:, 1].max()]
+    w, h = size
+    at = np.array(boxes) <= 1, np.array(boxes) >= np.array([w, h, w, h]) - 2
+    out[:, :2] = np.where(at[0][:, :2], 0.0, out[:, :2])
+    out[:, 2:] = np.where(at[1][:, 2:], np.array([w - 1, h - 1]), out[:, 2:])
+    return out
+
+
+def test_a_wide_angle_lens_given_with_the_camera_is_taken_out_of_the_boxes_before_they_are_placed(kitti_root):
+    """KITTI 0001's PointRCNN boxes as a barrel-distorting wide-angle lens (k1 -0.3, k2 0.08: ~140 px at the
+    frame's sides) would show them. Placed as pinhole boxes the road users land metres off (MOTA 72.8 -> 33.1);
+    with the lens in the camera (a chessboard calibration's distortion) every box is measured in the pinhole
+    image first (``camera.undistort_boxes``) and the monocular path scores within 3 points of the undistorted
+    boxes (70.3). Before, a given distortion was used by the ego-motion and the drawings but not by localisation."""
+    from deepcrashtest.eval.kitti_mono import quick_mota
+    from deepcrashtest.perception.detections import Detections
+
+    dist = [-0.3, 0.08, 0.0, 0.0, 0.0]
+    prep = prepare_mono(kitti_root, 1)
+    lensed = dataclasses.replace(
+        prep,
+        detections=[
+            Detections(_through_lens(d.boxes, prep.camera, dist, prep.size), d.scores, d.categories)
+            for d in prep.detections
+        ],
+    )
+    pinhole = quick_mota([prep], DEFAULT_MONO)[0]
+    ignored = quick_mota([lensed], DEFAULT_MONO)[0]
+    with_lens = quick_mota([dataclasses.replace(lensed, camera=prep.camera.model_copy(update={"distortion": dist}))],
+                           DEFAULT_MONO)[0]  # fmt: skip
+    assert ignored < pinhole - 20
+    assert with_lens > pinhole - 4

@@ -154,6 +154,67 @@ def undistort(image: np.ndarray, camera: Camera) -> np.ndarray:
     return cv2.undistort(image, camera.matrix(), np.asarray(camera.distortion))
 
 
+def undistort_points(points: np.ndarray, camera: Camera) -> np.ndarray:
+    """(n, 2) pixels of the lens-distorted image -> (n, 2) pixels of the undistorted (pinhole) image with the
+    same intrinsics; returned unchanged when the camera has no distortion."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    if not camera.distortion or not len(pts):
+        return pts.copy()
+    K = camera.matrix()
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-6)  # strong wide-angle terms converge slowly
+    out = cv2.undistortPointsIter(pts.reshape(-1, 1, 2), K, np.asarray(camera.distortion, float), None, K, criteria)
+    return np.asarray(out, dtype=np.float64).reshape(-1, 2)
+
+
+#: A box side within this many pixels of the frame's border is cut off by it (the monocular cues' test).
+BORDER_PX = 2.0
+
+
+def undistort_boxes(boxes: np.ndarray, camera: Camera, size: tuple[int, int] | None = None) -> np.ndarray:
+    """(n, 4) boxes ``x1, y1, x2, y2`` (px) of the lens-distorted image -> the boxes of the same road users in the
+    undistorted image (same intrinsics): what the pinhole geometry (ground plane, box heights) must measure.
+
+    A road user's outline is taken as a rectangle of the undistorted image. A barrel-distorting (wide-angle) lens
+    bows its edges outwards: each side of the detector's box touches the bowed edge where that edge comes nearest
+    the image centre's row or column (the bottom edge at the column of the centre, or the box's side nearest it),
+    so each side moves as that point does. A pincushion lens bows them inwards: the box touches at the edge's
+    ends, the far corner. ``size`` (width, height px): a side on the frame's border stays on it or beyond (cut
+    off there, as the detector saw it) and every other side inside it (the undistorted image is larger than the
+    frame). Unchanged without distortion."""
+    b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    if not camera.distortion or not len(b):
+        return b.copy()
+    x1, y1, x2, y2 = b.T
+    corner = undistort_points(np.array([[0.0, 0.0]]), camera)[0]
+    barrel = bool(np.hypot(*(corner - (camera.cx, camera.cy))) >= np.hypot(camera.cx, camera.cy))
+    if barrel:  # the point of each edge nearest the centre's column (top, bottom) or row (sides)
+        xm, ym = np.clip(camera.cx, x1, x2), np.clip(camera.cy, y1, y2)
+    else:  # the end of each edge farthest from it
+        xm = np.where(np.abs(x1 - camera.cx) > np.abs(x2 - camera.cx), x1, x2)
+        ym = np.where(np.abs(y1 - camera.cy) > np.abs(y2 - camera.cy), y1, y2)
+    pts = np.concatenate([np.column_stack([x1, ym]), np.column_stack([x2, ym]), np.column_stack([xm, y1]),
+                          np.column_stack([xm, y2])])  # fmt: skip
+    u = undistort_points(pts, camera).reshape(4, len(b), 2)
+    out = np.column_stack([u[0, :, 0], u[2, :, 1], u[1, :, 0], u[3, :, 1]])
+    if size is not None:
+        lo, hi = BORDER_PX + 0.5, np.array([size[0], size[1]]) - 1.0 - BORDER_PX - 0.5
+        at_lo, at_hi = b[:, :2] <= BORDER_PX, b[:, 2:] >= hi + 0.5
+        out[:, :2] = np.where(at_lo, np.minimum(out[:, :2], 0.0), np.maximum(out[:, :2], lo))
+        out[:, 2:] = np.where(at_hi, np.maximum(out[:, 2:], hi + 1.0 + BORDER_PX), np.minimum(out[:, 2:], hi))
+    return out
+
+
+def undistorted_tracks(tracks: Any, camera: Camera, size: tuple[int, int] | None = None) -> Any:
+    """The tracks table (a DataFrame with ``x1, y1, x2, y2`` px) with its boxes in the undistorted image
+    (:func:`undistort_boxes`, ``size`` the frame's); the table itself when the camera has no distortion."""
+    if not camera.distortion or not len(tracks):
+        return tracks
+    out = tracks.copy()
+    cols = ["x1", "y1", "x2", "y2"]
+    out[cols] = undistort_boxes(tracks[cols].to_numpy(dtype=float), camera, size)
+    return out
+
+
 def with_horizon(camera: Camera, horizon_v: float, source: str) -> Camera:
     """Set the pitch so that the horizon lies on image row ``horizon_v`` (pixels)."""
     pitch = math.atan2(camera.cy - horizon_v, camera.fy)

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from deepcrashtest.geometry.camera import undistorted_tracks
 from deepcrashtest.geometry.egomotion import EgoMotion
 from deepcrashtest.geometry.mono3d import class_size
 from deepcrashtest.geometry.selfcalib_axis import axis_column_from_path, axis_column_from_standing
@@ -540,6 +541,7 @@ def self_calibrate(
     length, and ``SelfCalibration.ego_scale`` is the factor (measured over assumed focal x height) that
     rescales it. What cannot be measured keeps the prior."""
     notes: list[str] = []
+    tracks = undistorted_tracks(tracks, camera, size)  # a lens's distortion known: boxes in its pinhole image
     hh = horizon_and_height(tracks, size)
     cam = camera
     if hh is None:

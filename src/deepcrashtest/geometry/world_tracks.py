@@ -30,6 +30,7 @@ from scipy.signal import savgol_filter
 from deepcrashtest.errors import UserError
 from deepcrashtest.geometry.attitude import camera_wobble
 from deepcrashtest.geometry.box_heading import fit_box_headings
+from deepcrashtest.geometry.camera import undistorted_tracks
 from deepcrashtest.geometry.egomotion import EgoMotion
 from deepcrashtest.geometry.localize import Localizer
 from deepcrashtest.geometry.mono3d import MonoConfig, localize_tracks
@@ -164,6 +165,9 @@ def raw_scenario_from_tracks(
         raise UserError("ego motion has fewer than 2 frames: the video is too short")
     source = _video_source(meta).model_copy(update={"time_offset_s": -float(ego.t[0])})
     params: dict[str, Any] = {}
+    if camera.distortion:  # every box measured in the pinhole image of the camera's intrinsics
+        tracks = undistorted_tracks(tracks, camera, (source.width, source.height))
+        params["boxes_undistorted"] = True
     warnings = list(ego.warnings) + (list(lanes.warnings) if lanes is not None else [])
 
     # ego: camera path -> ego centre (camera forward_offset ahead of the centre)
