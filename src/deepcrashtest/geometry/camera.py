@@ -162,7 +162,8 @@ def undistort_points(points: np.ndarray, camera: Camera) -> np.ndarray:
         return pts.copy()
     K = camera.matrix()
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-6)  # strong wide-angle terms converge slowly
-    out = cv2.undistortPointsIter(pts.reshape(-1, 1, 2), K, np.asarray(camera.distortion, float), None, K, criteria)
+    dist = np.asarray(camera.distortion, float)
+    out = cv2.undistortPointsIter(pts.reshape(-1, 1, 2), K, dist, np.eye(3), K, criteria)
     return np.asarray(out, dtype=np.float64).reshape(-1, 2)
 
 
