@@ -33,6 +33,7 @@ import pandas as pd
 
 from deepcrashtest.geometry.camera import undistorted_tracks
 from deepcrashtest.geometry.egomotion import EgoMotion
+from deepcrashtest.geometry.lens import refocused
 from deepcrashtest.geometry.mono3d import class_size
 from deepcrashtest.geometry.selfcalib_axis import axis_column_from_path, axis_column_from_standing
 from deepcrashtest.geometry.selfcalib_image import focal_from_level_horizon
@@ -561,6 +562,7 @@ def self_calibrate(
         if focal is not None:
             fy, sig_f = focal[0], focal[0] * focal[1]
             upd |= {"fx": cam.fx * fy / cam.fy, "fy": fy, "intrinsics_source": "self_calibration"}
+            upd["distortion"] = refocused(cam.distortion, cam.fx, upd["fx"])
             upd["focal_sigma_px"] = sig_f
         cam = cam.model_copy(update=upd | {"pitch_rad": math.atan2(cam.cy - vh, fy)})
         scale = fy / camera.fy if ego_scaled_by_height else 1.0
@@ -620,6 +622,7 @@ def self_calibrate(
     }  # fmt: skip
     if focal is not None:
         update |= {"fx": cam.fx * scale, "fy": fy, "intrinsics_source": "self_calibration", "focal_sigma_px": sig_f}
+        update["distortion"] = refocused(cam.distortion, cam.fx, update["fx"])
     elif math.isfinite(sig_f):
         update["focal_sigma_px"] = sig_f
     cam = cam.model_copy(update=update)

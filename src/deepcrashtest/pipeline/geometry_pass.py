@@ -39,6 +39,7 @@ from deepcrashtest.geometry.camera import (
     with_horizon,
 )
 from deepcrashtest.geometry.egomotion import MAX_RATE_HZ, EgoMotion, EgoMotionEstimator, rescaled
+from deepcrashtest.geometry.lens import LensEstimate, estimate_lens, opencv_coefficients
 from deepcrashtest.geometry.localize import Localizer
 from deepcrashtest.perception.lanes import ClassicalLaneDetector, LaneDetector, LaneState, LaneTimelineResult
 from deepcrashtest.perception.track import TRACK_COLUMNS, records_table
@@ -94,6 +95,8 @@ class SpeedCut:
     scale: tuple[float, float]
     name: str
     seed: int
+    #: the lens distortion read from the video's straight edges (no calibration given), if looked for
+    lens: LensEstimate | None = None
 
     def cut(self, crash_time: float, min_change: float) -> GeometryResult | None:
         """The geometry with the ego speeds up to ``crash_time`` (s, video time) smoothed from the readings up
@@ -118,6 +121,8 @@ class SpeedCut:
         }
         if self.calibration is not None:
             params["self_calibration"] = self.calibration.summary()
+        if self.lens is not None:
+            params["lens_distortion"] = self.lens.summary()
         if cut_time is not None:
             params["ego_speed_cut_s"] = round(float(cut_time), 4)
         sc = sc.evolve(provenance=sc.provenance.model_copy(update={"parameters": params}))
@@ -182,6 +187,11 @@ def extract_geometry(
     buffer, rest = _calibration_frames(frames, calib_seconds)
     cam, rows, horizon_source = estimate_camera([f.image for f, _ in buffer], camera, dashboard_rows)
     size = (int(buffer[0][0].image.shape[1]), int(buffer[0][0].image.shape[0]))  # width, height (px)
+    lens = None
+    if cam.intrinsics_source == "default" and not cam.distortion:  # no calibration: the lens from straight edges
+        lens = estimate_lens([f.image for f, _ in buffer], size[1] - rows if rows else None, seed=seed)
+        if lens.used:
+            cam = cam.model_copy(update={"distortion": opencv_coefficients(lens.lam, size, cam.fx)})
     ego_est = EgoMotionEstimator(cam, mask_bottom_rows=rows, max_width=max_width, seed=seed)
     lane_det: LaneDetector | None = lane_detector or (
         ClassicalLaneDetector(cam, mask_bottom_rows=rows, seed=seed) if lanes else None
@@ -231,7 +241,7 @@ def extract_geometry(
     cut = SpeedCut(
         estimator=ego_est, indices=indices, ego=ego, tracks=tracks, meta=meta, camera=cam, lanes=lane_tl,
         lane_states=lane_states, localizer=localizer, dashboard_rows=rows, horizon_source=horizon_source,
-        calibration=calibration, scale=scale, name=name, seed=seed,
+        calibration=calibration, scale=scale, name=name, seed=seed, lens=lens,
     )  # fmt: skip
     return cut.result()
 
