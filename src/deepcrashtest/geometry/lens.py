@@ -16,8 +16,8 @@ line for any ``lam``). The estimate is the grid's minimum of the mean; its 1-sig
 minimum over bootstrap resamplings of the pieces (seeded). It is used only when it is clearly a lens
 (:func:`accepted`): KITTI's rectified frames read 0.
 
-The camera keeps OpenCV's model (``Camera.distortion``: k1, k2, p1, p2, k3 in the focal length's normalised
-coordinates): :func:`opencv_coefficients` fits k1 and k2 to the division model over the frame, and
+The camera keeps OpenCV's model (``Camera.distortion``: the rational model's k1, k2, p1, p2, k3, k4, k5, k6 in the
+focal length's normalised coordinates): :func:`opencv_coefficients` fits it to the division model, and
 :func:`refocused` keeps the pixel-space distortion when the focal length is later self-calibrated.
 Image coordinates: u right, v down, pixels of the frame; the distortion centre is the principal point.
 """
@@ -149,16 +149,20 @@ def accepted(est: LensEstimate) -> bool:
 
 
 def opencv_coefficients(lam: float, size: tuple[int, int], fx: float) -> list[float]:
-    """OpenCV's ``[k1, k2, 0, 0, 0]`` (normalised by the focal length ``fx`` px, centre at the frame's centre)
-    that distort as the division model ``lam`` does over the frame (least squares over its radii)."""
+    """OpenCV's rational model ``[k1, k2, p1, p2, k3, k4, k5, k6]`` (radius over the focal length ``fx`` px,
+    centre at the frame's centre, no tangential terms) that distorts as the division model ``lam`` does, fitted
+    over the frame's radii and a fifth beyond its corners (boxes partly outside the frame are projected there).
+    The polynomial model alone (k1, k2) misses a strong wide-angle lens by tens of pixels at the corners."""
     w, h = size
     s = float(np.hypot(w / 2, h / 2))
-    r_d = np.linspace(0.02, 1.0, 60) * s
+    top = 1.2 if lam >= 0 else min(1.2, 0.9 / np.sqrt(-lam))
+    r_d = np.linspace(0.02, top, 120) * s
     r_u = r_d / (1.0 + lam * (r_d / s) ** 2)
     rho2 = (r_u / fx) ** 2
-    A = np.column_stack([rho2, rho2**2])
-    k, *_ = np.linalg.lstsq(A, r_d / r_u - 1.0, rcond=None)
-    return [float(k[0]), float(k[1]), 0.0, 0.0, 0.0]
+    q = r_d / r_u  # (1 + k1 p + k2 p^2 + k3 p^3) / (1 + k4 p + k5 p^2 + k6 p^3), p = rho^2: linear in the k
+    A = np.column_stack([rho2, rho2**2, rho2**3, -q * rho2, -q * rho2**2, -q * rho2**3])
+    k, *_ = np.linalg.lstsq(A, q - 1.0, rcond=None)
+    return [float(k[0]), float(k[1]), 0.0, 0.0, float(k[2]), float(k[3]), float(k[4]), float(k[5])]
 
 
 def refocused(distortion: list[float], fx_old: float, fx_new: float) -> list[float]:
@@ -167,5 +171,10 @@ def refocused(distortion: list[float], fx_old: float, fx_new: float) -> list[flo
     if not distortion:
         return []
     g = (fx_new / fx_old) ** 2
-    d = list(distortion) + [0.0] * (5 - len(distortion))
-    return [d[0] * g, d[1] * g**2, d[2], d[3], d[4] * g**3]
+    d = list(distortion)
+    out = [d[0] * g, d[1] * g**2, *d[2:4]]
+    if len(d) > 4:
+        out.append(d[4] * g**3)
+    if len(d) > 5:
+        out += [d[5] * g, d[6] * g**2, d[7] * g**3, *d[8:]]
+    return out
