@@ -10,8 +10,8 @@ straight scene line is a circle in the image and ``lam < 0`` is barrel.
 Edge pieces (Canny, contour runs of ``PIECE_PX`` pixels that run nearly straight end to end) away from the
 image centre and above the car's bonnet are collected from a few frames. For each candidate ``lam`` on a grid,
 each piece's straightness is the RMS (px) of its points from the best line of the undistorted image, measured
-algebraically (``a x + b y + c (1 + lam r^2) = 0``, which is a distance in the distorted image's pixels, so that a
-lens that shrinks the picture is not favoured); capped at ``CAP_PX`` (a tree's outline or a bent kerb is no
+in the frame: each point against its foot on that line mapped back through the lens (so that a lens that
+shrinks or stretches the picture is not favoured); capped at ``CAP_PX`` (a tree's outline or a bent kerb is no
 line for any ``lam``). The estimate is the grid's minimum of the mean; its 1-sigma is the spread of that
 minimum over bootstrap resamplings of the pieces (seeded). It is used only when it is clearly a lens
 (:func:`accepted`): KITTI's rectified frames read 0.
@@ -85,23 +85,35 @@ def edge_pieces(image: np.ndarray, bottom_row: int | None = None) -> list[np.nda
     return out
 
 
+def _distort(q: np.ndarray, lam: float) -> np.ndarray:
+    """Undistorted -> distorted points (radius over the half diagonal) of the division model ``lam``."""
+    if abs(lam) < 1e-12:
+        return q
+    ru = np.hypot(q[..., 0], q[..., 1])
+    disc = np.maximum(1.0 - 4.0 * lam * ru**2, 0.0)
+    rd = np.where(ru > 1e-12, (1.0 - np.sqrt(disc)) / (2.0 * lam * np.maximum(ru, 1e-12)), 0.0)
+    return q * (rd / np.maximum(ru, 1e-12))[..., None]
+
+
 def residuals(pieces: np.ndarray, size: tuple[int, int], grid: np.ndarray = GRID) -> np.ndarray:
-    """(n, len(grid)) straightness RMS (px, capped at CAP_PX) of each (n, m, 2) piece under each ``lam``."""
+    """(n, len(grid)) straightness RMS (px, capped at CAP_PX) of each (n, m, 2) piece under each ``lam``: the
+    piece undistorted, its best line fitted there, and each point's distance in the frame (distorted pixels) from
+    its foot on that line mapped back through the lens: the same pixel noise weighs alike under every ``lam``."""
     w, h = size
     s = float(np.hypot(w / 2, h / 2))
     q = (pieces - np.array([w / 2, h / 2])) / s
-    x, y = q[..., 0], q[..., 1]
-    r2 = x * x + y * y
+    r2 = (q**2).sum(-1, keepdims=True)
     out = np.empty((len(q), len(grid)))
     for j, lam in enumerate(grid):
-        z = 1.0 + lam * r2
-        szz = (z * z).sum(1)
-        sxz, syz = (x * z).sum(1), (y * z).sum(1)
-        sxx = (x * x).sum(1) - sxz * sxz / szz
-        syy = (y * y).sum(1) - syz * syz / szz
-        sxy = (x * y).sum(1) - sxz * syz / szz
-        ev = (sxx + syy) / 2 - np.sqrt(((sxx - syy) / 2) ** 2 + sxy**2)  # least eigenvalue: the line's residual
-        out[:, j] = np.sqrt(np.maximum(ev, 0.0) / q.shape[1]) * s
+        u = q / (1.0 + lam * r2)
+        mean = u.mean(1, keepdims=True)
+        d = u - mean
+        cov = np.einsum("nmi,nmj->nij", d, d)
+        _, vecs = np.linalg.eigh(cov)
+        direction = vecs[:, :, 1][:, None, :]  # the line's direction (largest eigenvalue)
+        foot = mean + (d * direction).sum(-1, keepdims=True) * direction
+        back = _distort(foot, float(lam))
+        out[:, j] = np.sqrt(((back - q) ** 2).sum(-1).mean(1)) * s
     return np.minimum(out, CAP_PX)
 
 
