@@ -8,8 +8,8 @@ import av
 import cv2
 import numpy as np
 import pytest
-from conftest import DATA, need
 
+from conftest import DATA, need
 from deepcrashtest.geometry.camera import undistort_points
 from deepcrashtest.geometry.lens import estimate_lens, opencv_coefficients, refocused
 from deepcrashtest.scenario import Camera
@@ -42,7 +42,8 @@ def _through_division_lens(images: list[np.ndarray], lam: float) -> list[np.ndar
 
 def test_a_wide_angle_lens_is_read_from_a_street_s_straight_edges():
     """ccd_000053 (a street with buildings and poles, filmed without visible distortion) reads no lens; the same
-    frames through a barrel lens of coefficient -0.3 read -0.42 (the method reads 0.1-0.15 strong here), clearly (used)."""
+    frames through a barrel lens of coefficient -0.3 read -0.42 (the method reads such a lens 0.1-0.15 strong
+    here), clearly (used)."""
     frames = _frames(need(DATA / "crash_ccd" / "ccd_000053.mp4"))
     plain = estimate_lens(frames)
     assert not plain.used and abs(plain.lam) < 0.1
