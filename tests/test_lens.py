@@ -74,3 +74,31 @@ def test_the_opencv_model_distorts_as_the_division_model_at_any_focal_length(lam
         cam = Camera(fx=fx, fy=fx, cx=w / 2, cy=h / 2, distortion=dist)
         u = undistort_points(pts, cam)
         assert np.abs(np.hypot(u[:, 0] - w / 2, u[:, 1] - h / 2) - want).max() < 5.0
+
+
+def test_extract_with_lens_auto_reads_the_lens_and_places_boxes_in_its_pinhole_image(tmp_path):
+    """``extract --lens auto`` on ccd_000053 filmed through a barrel lens (-0.3): the scenario's camera carries
+    the lens (OpenCV coefficients that push the frame's corners outwards when undistorted) and the provenance says what was read; by default (``none``)
+    the frames are taken as a pinhole camera's. A wrong mode is one clear error."""
+    from deepcrashtest.errors import UserError
+    from deepcrashtest.pipeline.extract import run_extract
+    from deepcrashtest.scenario import Scenario
+    from deepcrashtest.video.writer import VideoWriter
+
+    frames = _through_division_lens(_frames(need(DATA / "crash_ccd" / "ccd_000053.mp4"), 50), -0.3)
+    video = tmp_path / "wide.mp4"
+    with VideoWriter(video, 10.0, frames[0].shape[1], frames[0].shape[0]) as writer:
+        for f in frames:
+            writer.write(f)
+    run_extract(video, tmp_path / "auto", report=False, annotate=False, lens="auto")
+    raw = Scenario.load(tmp_path / "auto" / "scenario_raw.json")
+    read = raw.provenance.parameters["lens_distortion"]
+    assert read["used"] and read["lambda"] < -0.15
+    corner = undistort_points(np.array([[0.0, 0.0]]), raw.camera)[0]  # barrel: the corner moves outwards
+    assert raw.camera.distortion and corner[0] < -50 and corner[1] < -25
+    assert raw.provenance.parameters.get("boxes_undistorted") is True
+    run_extract(video, tmp_path / "none", report=False, annotate=False)
+    plain = Scenario.load(tmp_path / "none" / "scenario_raw.json")
+    assert not plain.camera.distortion and "lens_distortion" not in plain.provenance.parameters
+    with pytest.raises(UserError, match="--lens"):
+        run_extract(video, tmp_path / "bad", lens="fisheye")

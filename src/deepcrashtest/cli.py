@@ -237,6 +237,12 @@ def extract(
     max_width: int = typer.Option(
         DEFAULT_MAX_WIDTH, "--max-width", help="Process frames wider than this (px) scaled down to it; 0: as stored."
     ),
+    lens: str = typer.Option(
+        "none",
+        "--lens",
+        help="none: frames as a pinhole camera's; auto: read a wide-angle lens's distortion from "
+        "straight edges when no calibration is given.",
+    ),
     camera: Path | None = typer.Option(None, "--camera", help="Camera YAML: fx, fy, cx, cy [, height_m, ...]."),
     hfov: float | None = typer.Option(None, "--hfov", help="Horizontal field of view, degrees (no YAML)."),
     chessboard: Path | None = typer.Option(None, "--chessboard", help="Folder of 9x6 chessboard photos."),
@@ -303,6 +309,7 @@ def extract(
         crash=crash,
         stage2=stage2,
         max_width=max_width,
+        lens=lens,
     )
     emit(result, as_json, _extract_summary)
 

@@ -27,6 +27,8 @@ from deepcrashtest.scenario import Camera, Scenario
 
 NEAR_M = 0.1
 """Near clipping plane, metres in front of the camera."""
+EDGE_SAMPLES = np.linspace(0.0, 1.0, 9)[1:-1]
+"""Where a distorting lens's box edges are sampled between their corners (share of each edge)."""
 
 #: The 12 edges of a box, as pairs of :func:`box_corners_world` corner indices.
 BOX_EDGES = np.array(
@@ -144,6 +146,10 @@ def project_box(
     clipped = clip_edges_near(cam, near_m)
     if len(clipped) == 0:
         return ProjectedBox(corners, None, depth)
+    if camera.distortion:  # a lens bows the edges: the box is around the whole of each edge, not its corners
+        a, b = cam[BOX_EDGES[:, 0]], cam[BOX_EDGES[:, 1]]
+        dense = (a[None] + EDGE_SAMPLES[:, None, None] * (b - a)[None]).reshape(-1, 3)
+        clipped = np.vstack([clipped, dense[dense[:, 2] >= near_m]])
     uv = project_camera_points(clipped, camera)
     box = np.array([uv[:, 0].min(), uv[:, 1].min(), uv[:, 0].max(), uv[:, 1].max()])
     if image_size is not None:

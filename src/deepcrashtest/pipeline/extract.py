@@ -94,6 +94,10 @@ class CameraForVideo(Protocol):
 MIN_EXTRACT_SHOT_S = 1.0
 
 
+#: ``extract --lens``: ``none`` (frames as a pinhole camera's) or ``auto`` (the lens read from straight edges).
+LENS_MODES = ("none", "auto")
+
+
 def run_extract(
     video: str | Path,
     output: str | Path,
@@ -114,6 +118,7 @@ def run_extract(
     crash: str | None = None,
     stage2: Stage2Params | None = None,
     max_width: int | None = DEFAULT_MAX_WIDTH,
+    lens: str = "none",
 ) -> dict[str, Any]:
     """Extract a video in ONE decoding pass: detect + track, ego-motion, lanes, localisation.
 
@@ -137,10 +142,16 @@ def run_extract(
     (:data:`DEFAULT_MAX_WIDTH`); ``tracks.csv``, ``annotated.mp4`` and the scenario's camera and source size are then
     in the scaled frames' pixels, and the scenario's provenance says the file's size (``frames_scaled_from``). A
     ``camera`` and ``dashboard_rows`` are in the file's pixels (scaled along).
+
+    ``lens``: ``"auto"`` reads a wide-angle lens's radial distortion from the video's straight edges when no
+    calibration is given (:mod:`deepcrashtest.geometry.lens`); ``"none"`` (default) takes the frames as a pinhole
+    camera's. A given camera's distortion is always used.
     """
     crash_spec = _parse_crash(crash) if crash is not None else None
     max_width = max_width or None  # 0: the frames as stored
     _check_options(detect_every, max_frames, max_width)
+    if lens not in LENS_MODES:
+        raise UserError(f"--lens must be one of {', '.join(LENS_MODES)} (got {lens!r})")
     src_path, out = Path(video), Path(output)
     paths = _output_paths(src_path, out, annotate, geometry, report, force)
     watch = shots and frame_range is None  # cuts are looked for in the same decoding pass
@@ -152,7 +163,7 @@ def run_extract(
             with output_set(out, OUTPUT_NAMES, force) as stage:  # the whole set of one run, or nothing
                 staged = {key: stage / path.name for key, path in paths.items()}
                 args = (src_path, out, staged, det, detect_every, max_frames, fps, False, frame_range, seed, watch)
-                plan = _Pass(*args, max_width=max_width)
+                plan = _Pass(*args, max_width=max_width, lens=lens)
                 plan.imports = imports
                 result = _run_pass(plan, camera, dashboard_rows, geometry, lanes, report, crash_spec, stage2)
     except _Compilation as comp:  # nothing was written: one extraction per shot instead
@@ -161,7 +172,7 @@ def run_extract(
         found = comp.shots or detect_shots(src_path, fps, max_frames)
         options: dict[str, Any] = dict(detector=detector, detect_every=detect_every, fps=fps, annotate=annotate)
         options |= dict(camera=camera, dashboard_rows=dashboard_rows, lanes=lanes, report=report, seed=seed)
-        options |= dict(stage2=stage2, geometry=geometry, max_width=max_width)
+        options |= dict(stage2=stage2, geometry=geometry, max_width=max_width, lens=lens)
         if len(found) > 1:
             return _extract_shots(src_path, out, found, force, options, crash_spec)
         return run_extract(src_path, out, force=force, shots=False, crash=crash, max_frames=max_frames, **options)
@@ -389,6 +400,8 @@ class _Pass:
     :class:`_Compilation` (at the first cut found, or after the last frame)."""
     max_width: int | None = DEFAULT_MAX_WIDTH
     """Frames wider than this (px) are processed scaled down to it (:func:`~deepcrashtest.video.source.open_video`)."""
+    lens: str = "none"
+    """``"auto"``: the lens's distortion read from the video when no calibration is given (:func:`run_extract`)."""
     motion: GlobalMotion = field(default_factory=GlobalMotion)
     """The camera's global image motion per frame (the ego's jolt, for crash detection)."""
     shot_watch: ShotWatch | None = field(default=None, init=False)
@@ -506,6 +519,7 @@ class _Pass:
             name=self.src_path.stem,
             seed=self.seed,
             on_frame=on_frame,
+            lens=self.lens == "auto",
         )
 
 

@@ -178,20 +178,22 @@ def extract_geometry(
     name: str = "scenario",
     seed: int = 0,
     on_frame: Callable[[FrameLike, TrackRows, LaneState | None], None] | None = None,
+    lens: bool = False,
 ) -> GeometryResult:
     """Run the geometry stage over one pass of frames (see the module docstring).
 
     ``on_frame(frame, tracks, lane_state)`` is called once per frame, in order, after the frame went
-    through ego-motion and lanes (annotation draws the lanes in the same pass).
+    through ego-motion and lanes (annotation draws the lanes in the same pass). ``lens``: without a calibration,
+    read the lens's radial distortion from the first frames' straight edges (:mod:`deepcrashtest.geometry.lens`).
     """
     buffer, rest = _calibration_frames(frames, calib_seconds)
     cam, rows, horizon_source = estimate_camera([f.image for f, _ in buffer], camera, dashboard_rows)
     size = (int(buffer[0][0].image.shape[1]), int(buffer[0][0].image.shape[0]))  # width, height (px)
-    lens = None
-    if cam.intrinsics_source == "default" and not cam.distortion:  # no calibration: the lens from straight edges
-        lens = estimate_lens([f.image for f, _ in buffer], size[1] - rows if rows else None, seed=seed)
-        if lens.used:
-            cam = cam.model_copy(update={"distortion": opencv_coefficients(lens.lam, size, cam.fx)})
+    lens_est = None
+    if lens and cam.intrinsics_source == "default" and not cam.distortion:  # the lens from straight edges
+        lens_est = estimate_lens([f.image for f, _ in buffer], size[1] - rows if rows else None, seed=seed)
+        if lens_est.used:
+            cam = cam.model_copy(update={"distortion": opencv_coefficients(lens_est.lam, size, cam.fx)})
     ego_est = EgoMotionEstimator(cam, mask_bottom_rows=rows, max_width=max_width, seed=seed)
     lane_det: LaneDetector | None = lane_detector or (
         ClassicalLaneDetector(cam, mask_bottom_rows=rows, seed=seed) if lanes else None
@@ -241,7 +243,7 @@ def extract_geometry(
     cut = SpeedCut(
         estimator=ego_est, indices=indices, ego=ego, tracks=tracks, meta=meta, camera=cam, lanes=lane_tl,
         lane_states=lane_states, localizer=localizer, dashboard_rows=rows, horizon_source=horizon_source,
-        calibration=calibration, scale=scale, name=name, seed=seed, lens=lens,
+        calibration=calibration, scale=scale, name=name, seed=seed, lens=lens_est,
     )  # fmt: skip
     return cut.result()
 
