@@ -78,8 +78,9 @@ def test_the_opencv_model_distorts_as_the_division_model_at_any_focal_length(lam
 
 def test_extract_with_lens_auto_reads_the_lens_and_places_boxes_in_its_pinhole_image(tmp_path):
     """``extract --lens auto`` on ccd_000053 filmed through a barrel lens (-0.3): the scenario's camera carries
-    the lens (OpenCV coefficients that push the frame's corners outwards when undistorted) and the provenance says what was read; by default (``none``)
-    the frames are taken as a pinhole camera's. A wrong mode is one clear error."""
+    the lens (OpenCV coefficients that push the frame's corners outwards when undistorted) and the provenance says
+    what was read; by default (``none``) the frames are taken as a pinhole camera's. A wrong mode is one clear
+    error."""
     from deepcrashtest.errors import UserError
     from deepcrashtest.pipeline.extract import run_extract
     from deepcrashtest.scenario import Scenario
