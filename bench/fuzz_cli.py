@@ -243,6 +243,8 @@ def odd_other_commands(fz: Fuzz, d: Path, tmp: Path) -> None:
         "--dashboard-rows": INTS + ["48", "47"],
         "--crash": ["", "-1", "x", "1:ego", "2:ego,ego", "1:7,8", "999999999999", "1:", ":", "1e3"],
         "--detector": ["", "nosuch", "/no/such/model.onnx"],
+        "--lens": ["", "AUTO", "fisheye", "auto", "none"],
+        "--max-width": INTS + ["159", "160"],
     }
     for k, (opt, values) in enumerate(extract_opts.items()):
         for j, v in enumerate(values):
