@@ -479,34 +479,60 @@ def test_a_vehicle_turning_across_a_junction_is_placed_where_its_boxes_are_after
         assert np.all(np.abs(bearing_world - bearing_image) < 10), agent.id  # main: the pickup 36 degrees off
 
 
+def _zoomed(clip: Path, out: Path, zoom: float = 1.3) -> Path:
+    """``clip`` as a lens ``zoom`` times longer films it (the middle 1/zoom of each frame scaled back up), written
+    as ``bench/fidelity_perturbed.py --variants zoom`` writes it (the project's H.264 writer)."""
+    import cv2
+
+    from deepcrashtest.video.writer import VideoWriter
+
+    with av.open(str(clip)) as c:
+        fps = float(c.streams.video[0].average_rate)
+        frames = [f.to_ndarray(format="bgr24") for f in c.decode(video=0)]
+    h, w = frames[0].shape[:2]
+    v, u = np.mgrid[0:h, 0:w].astype(np.float32)
+    cx, cy = (w - 1) / 2, (h - 1) / 2
+    map_x, map_y = cx + (u - cx) / zoom, cy + (v - cy) / zoom
+    with VideoWriter(out, fps, w, h) as writer:
+        for f in frames:
+            writer.write(cv2.remap(f, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
+    return out
+
+
 def test_a_jolt_while_the_road_user_still_closes_in_is_not_the_contact(tmp_path):
     """ccd_001143 (a bus ahead braking, the ego runs into it, labelled contact frame 33 at 10 fps) filmed through a
     1.3x longer lens (the middle 1/1.3 of each frame, as ``bench/fidelity_perturbed.py --variants zoom`` writes it):
     the bus fills the view early, and as its box grows by 0.5 in log size over frames 25-29 it moves the image the
     camera's jolt is measured on (jolt 0.55 / 1.0 / 1.0 at 25-27). The crash was put at frame 26, 0.7 s early. A
     road user whose box still grows that fast after a jolt has not touched the ego
-    (``crash_detect.APPROACH_AFTER_GROWTH``): the contact is the later jolt, within a frame of the label."""
-    import cv2
-
+    (``crash_detect.APPROACH_AFTER_GROWTH``): the contact is the later jolt, within a frame of the label. And the
+    replay makes it: the slow bus faces along its path at the crash (-354 deg) and faced its box (-274 deg) 0.1 s
+    later, on the path's continuation past the contact; the replay, turning it between the two samples, missed the
+    ego by 0.1 m. A crash participant now faces past the crash as at it (``agentheading.holding_yaw_after``)."""
     from deepcrashtest.datasets.crash_labels import load_crash_labels
     from deepcrashtest.pipeline.extract import run_extract
+    from deepcrashtest.pipeline.fidelity import run_fidelity
     from deepcrashtest.scenario import Scenario
-    from deepcrashtest.video.writer import VideoWriter
 
     root = Path(__file__).resolve().parents[1]
-    label = load_crash_labels(root / "bench" / "labels" / "ccd_crashes.json")["ccd_001143"]
-    with av.open(str(need(DATA / label.video))) as c:
-        frames = [f.to_ndarray(format="bgr24") for f in c.decode(video=0)]
-    h, w = frames[0].shape[:2]
-    v, u = np.mgrid[0:h, 0:w].astype(np.float32)
-    cx, cy = (w - 1) / 2, (h - 1) / 2
-    map_x, map_y = cx + (u - cx) / 1.3, cy + (v - cy) / 1.3
-    video = tmp_path / "ccd_001143_zoom.mp4"
-    with VideoWriter(video, 10.0, w, h) as writer:
-        for f in frames:
-            writer.write(cv2.remap(f, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
+    labels = root / "bench" / "labels" / "ccd_crashes.json"
+    label = load_crash_labels(labels)["ccd_001143"]
+    video = _zoomed(need(DATA / label.video), tmp_path / "ccd_001143_zoom.mp4")
     run_extract(video, tmp_path / "out", report=False, annotate=False)
     found = Scenario.load(tmp_path / "out" / "scenario_raw.json").provenance.parameters["crash_detection"]
     assert label.contact_frame is not None
     assert found["found"] and found["pair"][0] == "ego"
-    assert abs(found["frame"] - label.contact_frame) <= 1  # main: frame 26
+    assert abs(found["frame"] - label.contact_frame) <= 1  # main before jolt18: frame 26
+    zoomed = json.loads(labels.read_text())
+    entry = zoomed["clips"] = {"ccd_001143": zoomed["clips"]["ccd_001143"]}
+    entry["ccd_001143"]["video"] = str(video)
+    for part in entry["ccd_001143"]["participants"]:
+        if "box" in part:  # the label's box through the longer lens (1280x720: centre 639.5, 359.5)
+            b = (np.array(part["box"], float) - [639.5, 359.5, 639.5, 359.5]) * 1.3 + [639.5, 359.5, 639.5, 359.5]
+            part["box"] = [round(v) for v in np.clip(b, 0, [1279, 719, 1279, 719])]
+    (tmp_path / "labels.json").write_text(json.dumps(zoomed))
+    _, summary = run_fidelity(
+        tmp_path / "out" / "scenario.json", tmp_path / "fid", video=video, tracks=tmp_path / "out" / "tracks.csv",
+        labels=tmp_path / "labels.json", clip="ccd_001143", force=True,
+    )  # fmt: skip
+    assert summary["crash"]["reproduced"]  # before holding_yaw_after: no contact in the replay

@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from deepcrashtest.scenario import Collision, Vehicle
+from deepcrashtest.scenario import Collision, Vehicle, interp_heading
 from deepcrashtest.trajectory.collision import BoxTrack, Contact, first_contact, vehicle_box
 from deepcrashtest.trajectory.crash import contact_after_apart
 
@@ -90,6 +90,25 @@ def replayable_yaws(
             "heading would change (the replay must touch as the crash does)"
         )
     return kept
+
+
+def holding_yaw_after(vehicle: Vehicle, collision: Collision | None) -> Vehicle:
+    """A crash participant (not the ego) facing after the crash as it faced at it (``collision.time_s``, scenario
+    time): its path goes on past the contact only so that a replay lagging it still touches
+    (``ContactParams.penetration_s``), and a heading that turns there turns the box away from the contact in the
+    replay's steps between two samples. Zoomed ccd_001143: the bus, facing along its slow path at the crash (-354
+    deg), faced its box (-274 deg) 0.1 s later; the replay, 0.005 s past the crash, had turned it 4 deg and its
+    rear corner missed the ego by 0.1 m. Any other vehicle is returned as it is."""
+    if collision is None or vehicle.id == 0 or vehicle.id not in collision.participants:
+        return vehicle
+    a = vehicle.trajectory.arrays()
+    after = a["t"] > collision.time_s
+    if not after.any() or not (a["t"] <= collision.time_s).any():
+        return vehicle
+    yaw = np.unwrap(np.asarray(a["yaw"], dtype=float))
+    yaw[after] = float(interp_heading(np.array([collision.time_s]), a["t"], a["yaw"])[0])
+    traj = vehicle.trajectory.model_copy(update={"yaw": [float(v) for v in np.unwrap(yaw)]})
+    return vehicle.model_copy(update={"trajectory": traj})
 
 
 REVERT_WINDOW_S = 0.0
