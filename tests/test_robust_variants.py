@@ -508,7 +508,7 @@ def test_a_jolt_while_the_road_user_still_closes_in_is_not_the_contact(tmp_path)
     (``crash_detect.APPROACH_AFTER_GROWTH``): the contact is the later jolt, within a frame of the label. And the
     replay makes it: the slow bus faces along its path at the crash (-354 deg) and faced its box (-274 deg) 0.1 s
     later, on the path's continuation past the contact; the replay, turning it between the two samples, missed the
-    ego by 0.1 m. A crash participant now faces past the crash as at it (``agentheading.holding_yaw_after``)."""
+    ego by 0.1 m. A crash participant now faces past the crash as at it (``agentheading.holding_yaws_after``)."""
     from deepcrashtest.datasets.crash_labels import load_crash_labels
     from deepcrashtest.pipeline.extract import run_extract
     from deepcrashtest.pipeline.fidelity import run_fidelity
@@ -535,4 +535,4 @@ def test_a_jolt_while_the_road_user_still_closes_in_is_not_the_contact(tmp_path)
         tmp_path / "out" / "scenario.json", tmp_path / "fid", video=video, tracks=tmp_path / "out" / "tracks.csv",
         labels=tmp_path / "labels.json", clip="ccd_001143", force=True,
     )  # fmt: skip
-    assert summary["crash"]["reproduced"]  # before holding_yaw_after: no contact in the replay
+    assert summary["crash"]["reproduced"]  # before holding_yaws_after: no contact in the replay

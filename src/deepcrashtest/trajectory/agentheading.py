@@ -92,21 +92,32 @@ def replayable_yaws(
     return kept
 
 
-def holding_yaw_after(vehicle: Vehicle, collision: Collision | None) -> Vehicle:
-    """A crash participant (not the ego) facing after the crash as it faced at it (``collision.time_s``, scenario
-    time): its path goes on past the contact only so that a replay lagging it still touches
-    (``ContactParams.penetration_s``), and a heading that turns there turns the box away from the contact in the
-    replay's steps between two samples. Zoomed ccd_001143: the bus, facing along its slow path at the crash (-354
-    deg), faced its box (-274 deg) 0.1 s later; the replay, 0.005 s past the crash, had turned it 4 deg and its
-    rear corner missed the ego by 0.1 m. Any other vehicle is returned as it is."""
-    if collision is None or vehicle.id == 0 or vehicle.id not in collision.participants:
-        return vehicle
+def holding_yaws_after(vehicles: list[Vehicle], collision: Collision | None) -> list[Vehicle]:
+    """``vehicles`` with the crash participants other than the ego facing, once their boxes touch (the crash time or
+    the scenario's first contact of the pair, whichever is later), as they faced then: their paths go on past the
+    contact only so that a replay lagging them still touches (``ContactParams.penetration_s``), and a heading that
+    turns there turns the box away from the contact in the replay's steps between two samples. Zoomed ccd_001143:
+    the bus, facing along its slow path at the crash (-354 deg), faced its box (-274 deg) 0.1 s later; the replay,
+    0.005 s past the crash, had turned it 4 deg and its rear corner missed the ego by 0.1 m."""
+    if collision is None:
+        return vehicles
+    by_id = {v.id: v for v in vehicles}
+    if not all(i in by_id for i in collision.participants):
+        return vehicles
+    a, b = (by_id[i] for i in collision.participants)
+    hit = first_contact(vehicle_box(a), vehicle_box(b))
+    t_hold = collision.time_s if hit is None else max(collision.time_s, hit.time_s)
+    return [_holding_yaw(v, t_hold) if v.id != 0 and v.id in collision.participants else v for v in vehicles]
+
+
+def _holding_yaw(vehicle: Vehicle, t_hold: float) -> Vehicle:
+    """``vehicle`` facing after ``t_hold`` (s) as it faced at it."""
     a = vehicle.trajectory.arrays()
-    after = a["t"] > collision.time_s
-    if not after.any() or not (a["t"] <= collision.time_s).any():
+    after = a["t"] > t_hold
+    if not after.any() or not (a["t"] <= t_hold).any():
         return vehicle
     yaw = np.unwrap(np.asarray(a["yaw"], dtype=float))
-    yaw[after] = float(interp_heading(np.array([collision.time_s]), a["t"], a["yaw"])[0])
+    yaw[after] = float(interp_heading(np.array([t_hold]), a["t"], a["yaw"])[0])
     traj = vehicle.trajectory.model_copy(update={"yaw": [float(v) for v in np.unwrap(yaw)]})
     return vehicle.model_copy(update={"trajectory": traj})
 

@@ -59,7 +59,7 @@ from deepcrashtest.scenario import (
     format_validation_error,
     kinematics,
 )
-from deepcrashtest.trajectory.agentheading import holding_yaw_after, replayable_yaws, with_observed_yaw
+from deepcrashtest.trajectory.agentheading import holding_yaws_after, replayable_yaws, with_observed_yaw
 from deepcrashtest.trajectory.collision import MOVING_MPS, first_contact, headings, vehicle_box
 from deepcrashtest.trajectory.contact import ContactParams
 from deepcrashtest.trajectory.crash import CrashOutcome, earlier_touch, resolve_crash
@@ -145,7 +145,7 @@ def _process_scenario(raw: Scenario, seed: int, params: Stage2Params | None) -> 
     vehicles[0] = _with_measured_yaw(vehicles[0], run, t_max)
     observed = [vehicles[0], *_with_observed_yaws(vehicles[1:], crash.agents, t_max - run.t0)]
     vehicles = replayable_yaws(observed, vehicles, crash.collision, run.warnings)
-    vehicles = [holding_yaw_after(v, crash.collision) for v in vehicles]
+    vehicles = holding_yaws_after(vehicles, crash.collision)
     collision = _collision_record(crash, vehicles)
     road = _road_phase(run, ego, crash, ego_frame, t_max)
     return _assemble(run, vehicles, road, collision, crash, t_max, seed)
