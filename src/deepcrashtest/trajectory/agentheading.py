@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from deepcrashtest.scenario import Collision, Vehicle, interp_heading
-from deepcrashtest.trajectory.collision import BoxTrack, Contact, first_contact, vehicle_box
+from deepcrashtest.trajectory.collision import BoxTrack, Contact, first_contact, overlaps, vehicle_box
 from deepcrashtest.trajectory.crash import contact_after_apart
 
 BLEND_S = 0.5
@@ -94,11 +94,13 @@ def replayable_yaws(
 
 def holding_yaws_after(vehicles: list[Vehicle], collision: Collision | None) -> list[Vehicle]:
     """``vehicles`` with the crash participants other than the ego facing, once their boxes touch (the crash time or
-    the scenario's first contact of the pair, whichever is later), as they faced then: their paths go on past the
-    contact only so that a replay lagging them still touches (``ContactParams.penetration_s``), and a heading that
-    turns there turns the box away from the contact in the replay's steps between two samples. Zoomed ccd_001143:
-    the bus, facing along its slow path at the crash (-354 deg), faced its box (-274 deg) 0.1 s later; the replay,
-    0.005 s past the crash, had turned it 4 deg and its rear corner missed the ego by 0.1 m."""
+    the scenario's first contact of the pair, whichever is later), as they faced then, where that keeps their boxes
+    overlapping longer after it: their paths go on past the contact only so that a replay lagging them still
+    touches (``ContactParams.penetration_s``), and a heading that turns away there can take the box off the contact
+    between the replay's steps. Zoomed ccd_001143: the bus, facing along its slow path at the crash (-354 deg),
+    faced its box (-274 deg) 0.1 s later; the two touched at one instant, the replay 0.005 s later had turned the
+    bus 4 deg and its rear corner missed the ego by 0.1 m. A heading that turns into the other road user (a car
+    grazing a pedestrian, KITTI 0002) is kept."""
     if collision is None:
         return vehicles
     by_id = {v.id: v for v in vehicles}
@@ -107,7 +109,17 @@ def holding_yaws_after(vehicles: list[Vehicle], collision: Collision | None) -> 
     a, b = (by_id[i] for i in collision.participants)
     hit = first_contact(vehicle_box(a), vehicle_box(b))
     t_hold = collision.time_s if hit is None else max(collision.time_s, hit.time_s)
-    return [_holding_yaw(v, t_hold) if v.id != 0 and v.id in collision.participants else v for v in vehicles]
+    held = {i: _holding_yaw(by_id[i], t_hold) if i != 0 else by_id[i] for i in collision.participants}
+    if _overlap_after(held[a.id], held[b.id], t_hold) <= _overlap_after(a, b, t_hold):
+        return vehicles
+    return [held.get(v.id, v) for v in vehicles]
+
+
+def _overlap_after(a: Vehicle, b: Vehicle, t0: float) -> int:
+    """How many of the 0.01 s steps after ``t0`` (s) to the end of the shorter path have the two boxes overlapping."""
+    ba, bb = vehicle_box(a), vehicle_box(b)
+    t = np.arange(t0 + 0.01, min(ba.t[-1], bb.t[-1]) + 1e-9, 0.01)
+    return int(overlaps(ba, bb, t).sum()) if len(t) else 0
 
 
 def _holding_yaw(vehicle: Vehicle, t_hold: float) -> Vehicle:

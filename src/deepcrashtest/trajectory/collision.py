@@ -98,7 +98,7 @@ def boxes(x: np.ndarray, y: np.ndarray, yaw: np.ndarray, length: float, width: f
     return shapely.polygons(np.stack([px, py], axis=-1))
 
 
-def _overlaps(a: BoxTrack, b: BoxTrack, t: np.ndarray) -> np.ndarray:
+def overlaps(a: BoxTrack, b: BoxTrack, t: np.ndarray) -> np.ndarray:
     pa = boxes(*a.at(t), a.length, a.width)
     pb = boxes(*b.at(t), b.length, b.width)
     return np.asarray(shapely.intersects(pa, pb), dtype=bool)
@@ -120,7 +120,7 @@ def first_contact(ego: BoxTrack, agent: BoxTrack, t_from: float = -np.inf, tol_s
     t = np.unique(np.concatenate([[lo], ego.t[(ego.t > lo) & (ego.t < hi)], np.arange(lo, hi, CHECK_STEP_S), [hi]]))
     hit = np.zeros(len(t), dtype=bool)
     near = _within_reach(ego, agent, t)  # boxes farther apart than their half diagonals cannot touch
-    hit[near] = _overlaps(ego, agent, t[near])
+    hit[near] = overlaps(ego, agent, t[near])
     if not hit.any():
         return None
     k = int(np.argmax(hit))
@@ -130,7 +130,7 @@ def first_contact(ego: BoxTrack, agent: BoxTrack, t_from: float = -np.inf, tol_s
         a, b = float(t[k - 1]), float(t[k])
         while b - a > tol_s:
             m = 0.5 * (a + b)
-            if _overlaps(ego, agent, np.array([m]))[0]:
+            if overlaps(ego, agent, np.array([m]))[0]:
                 b = m
             else:
                 a = m
