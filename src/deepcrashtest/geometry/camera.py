@@ -167,8 +167,12 @@ def undistort_points(points: np.ndarray, camera: Camera) -> np.ndarray:
     return np.asarray(out, dtype=np.float64).reshape(-1, 2)
 
 
-#: A box side within this many pixels of the frame's border is cut off by it (the monocular cues' test).
-BORDER_PX = 2.0
+def cut_sides(boxes: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """(n, 4) bool: which sides ``x1, y1, x2, y2`` of (n, 4) boxes (px) the frame's border cuts off (a side within a
+    pixel or two of it), ``size`` = (width, height) px: the test every monocular cue and the self-calibration use."""
+    b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    w, h = size
+    return np.column_stack([b[:, 0] <= 1, b[:, 1] <= 1, b[:, 2] >= w - 2, b[:, 3] >= h - 2])
 
 
 def undistort_boxes(boxes: np.ndarray, camera: Camera, size: tuple[int, int] | None = None) -> np.ndarray:
@@ -179,9 +183,9 @@ def undistort_boxes(boxes: np.ndarray, camera: Camera, size: tuple[int, int] | N
     bows its edges outwards: each side of the detector's box touches the bowed edge where that edge comes nearest
     the image centre's row or column (the bottom edge at the column of the centre, or the box's side nearest it),
     so each side moves as that point does. A pincushion lens bows them inwards: the box touches at the edge's
-    ends, the far corner. ``size`` (width, height px): a side on the frame's border stays on it or beyond (cut
-    off there, as the detector saw it) and every other side inside it (the undistorted image is larger than the
-    frame). Unchanged without distortion."""
+    ends, the far corner. ``size`` (width, height px): a side the frame's border cuts off (:func:`cut_sides`)
+    stays cut, and every other side stays uncut (the undistorted image is larger than the frame). Unchanged
+    without distortion."""
     b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
     if not camera.distortion or not len(b):
         return b.copy()
@@ -197,11 +201,10 @@ def undistort_boxes(boxes: np.ndarray, camera: Camera, size: tuple[int, int] | N
                           np.column_stack([xm, y2])])  # fmt: skip
     u = undistort_points(pts, camera).reshape(4, len(b), 2)
     out = np.column_stack([u[0, :, 0], u[2, :, 1], u[1, :, 0], u[3, :, 1]])
-    if size is not None:
-        lo, hi = BORDER_PX + 0.5, np.array([size[0], size[1]]) - 1.0 - BORDER_PX - 0.5
-        at_lo, at_hi = b[:, :2] <= BORDER_PX, b[:, 2:] >= hi + 0.5
-        out[:, :2] = np.where(at_lo, np.minimum(out[:, :2], 0.0), np.maximum(out[:, :2], lo))
-        out[:, 2:] = np.where(at_hi, np.maximum(out[:, 2:], hi + 1.0 + BORDER_PX), np.minimum(out[:, 2:], hi))
+    if size is not None:  # each side cut off (:func:`cut_sides`) as the detector saw it, and only those
+        cut, far = cut_sides(b, size), np.array([size[0], size[1]], float)
+        out[:, :2] = np.where(cut[:, :2], np.minimum(out[:, :2], 0.0), np.maximum(out[:, :2], 1.5))
+        out[:, 2:] = np.where(cut[:, 2:], np.maximum(out[:, 2:], far - 1.0), np.minimum(out[:, 2:], far - 2.5))
     return out
 
 

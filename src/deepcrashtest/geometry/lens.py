@@ -24,7 +24,7 @@ Image coordinates: u right, v down, pixels of the frame; the distortion centre i
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -61,7 +61,6 @@ class LensEstimate:
     pieces: int
     gain: float
     used: bool
-    notes: list[str] = field(default_factory=list)
 
     def summary(self) -> dict[str, object]:
         return {
@@ -126,7 +125,7 @@ def estimate_lens(
     """The lens's division-model coefficient from a few frames (module docstring); ``bottom_row``: the first
     row of the bonnet / dashboard (px), left out."""
     if not images:
-        return LensEstimate(0.0, float("nan"), 0, 0.0, False, ["no frames"])
+        return LensEstimate(0.0, float("nan"), 0, 0.0, False)
     h, w = images[0].shape[:2]
     step = max(1, len(images) // max_images)
     centre, s = np.array([w / 2, h / 2]), float(np.hypot(w / 2, h / 2))
@@ -137,7 +136,7 @@ def estimate_lens(
         if np.hypot(*((p.mean(0) - centre) / s)) >= MIN_RADIUS
     ]
     if len(pieces) < MIN_PIECES:
-        return LensEstimate(0.0, float("nan"), len(pieces), 0.0, False, [f"{len(pieces)} straight edge pieces"])
+        return LensEstimate(0.0, float("nan"), len(pieces), 0.0, False)
     rng = np.random.default_rng(seed)
     chosen = np.stack(pieces)[:, ::POINT_STEP]
     if len(chosen) > MAX_PIECES:

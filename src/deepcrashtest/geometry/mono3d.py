@@ -65,6 +65,7 @@ import numpy as np
 import pandas as pd
 from filterpy.kalman import KalmanFilter
 
+from deepcrashtest.geometry.camera import cut_sides
 from deepcrashtest.geometry.egomotion import EgoMotion
 from deepcrashtest.geometry.localize import CLASS_DIMENSIONS, SIZE_PRIOR_SIGMA
 from deepcrashtest.geometry.standing import StandingFit, StandingNoise, Views, fit_standing
@@ -265,11 +266,9 @@ def _cues(
     b: np.ndarray, camera: Camera, image_size: tuple[int, int], vh: np.ndarray, cfg: MonoConfig,
     road: RoadProfile | None = None,
 ) -> _Cues:  # fmt: skip
-    img_w, img_h = image_size
     below = b[:, 3] - vh
-    cut_bottom = b[:, 3] >= img_h - 2
-    cut_top = b[:, 1] <= 1
-    cut_u = (b[:, 0] <= 1) | (b[:, 2] >= img_w - 2)
+    cut = cut_sides(b, image_size)
+    cut_bottom, cut_top, cut_u = cut[:, 3], cut[:, 1], cut[:, 0] | cut[:, 2]
     z_b = np.where((below > 2.0) & ~cut_bottom, _bottom_depth(below, camera, road), np.nan)
     r_b = np.hypot(cfg.bottom_sigma_px / np.maximum(below, 1e-3), cfg.road_height_rel)
     return _Cues(

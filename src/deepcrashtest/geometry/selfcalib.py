@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from deepcrashtest.geometry.camera import undistorted_tracks
+from deepcrashtest.geometry.camera import cut_sides, undistorted_tracks
 from deepcrashtest.geometry.egomotion import EgoMotion
 from deepcrashtest.geometry.lens import refocused
 from deepcrashtest.geometry.mono3d import class_size
@@ -107,12 +107,12 @@ def _huber_line(x: np.ndarray, y: np.ndarray, delta: float = 3.0, iters: int = 2
 
 
 def _usable(tracks: pd.DataFrame, size: tuple[int, int]) -> pd.DataFrame:
-    w, h = size
     d = tracks
     if "state" in d.columns:
         d = d[d["state"] == "detected"]
     bh = d["y2"] - d["y1"]
-    ok = (d["y1"] > 1) & (d["y2"] < h - 2) & (d["x1"] > 1) & (d["x2"] < w - 2) & (bh >= 10)
+    uncut = ~cut_sides(d[["x1", "y1", "x2", "y2"]].to_numpy(dtype=float), size).any(axis=1)
+    ok = (bh >= 10).to_numpy() & uncut
     ok &= d["category"].isin(["car", "van", "truck", "bus"])
     return d[ok]
 

@@ -149,9 +149,7 @@ def run_extract(
     """
     crash_spec = _parse_crash(crash) if crash is not None else None
     max_width = max_width or None  # 0: the frames as stored
-    _check_options(detect_every, max_frames, max_width)
-    if lens not in LENS_MODES:
-        raise UserError(f"--lens must be one of {', '.join(LENS_MODES)} (got {lens!r})")
+    _check_options(detect_every, max_frames, max_width, lens)
     src_path, out = Path(video), Path(output)
     paths = _output_paths(src_path, out, annotate, geometry, report, force)
     watch = shots and frame_range is None  # cuts are looked for in the same decoding pass
@@ -349,13 +347,15 @@ def _opencv_threads(n: int) -> Iterator[None]:
         cv2.setNumThreads(before)
 
 
-def _check_options(detect_every: int, max_frames: int | None, max_width: int | None = None) -> None:
+def _check_options(detect_every: int, max_frames: int | None, max_width: int | None = None, lens: str = "none") -> None:
     if detect_every < 1:
         raise UserError(f"--detect-every must be >= 1 (got {detect_every})")
     if max_frames is not None and max_frames < 1:
         raise UserError(f"--max-frames must be >= 1 (got {max_frames})")
     if max_width is not None and max_width < MIN_MAX_WIDTH:
         raise UserError(f"--max-width must be at least {MIN_MAX_WIDTH} px, or 0 for full resolution (got {max_width})")
+    if lens not in LENS_MODES:
+        raise UserError(f"--lens must be one of {', '.join(LENS_MODES)} (got {lens!r})")
 
 
 def _output_paths(
