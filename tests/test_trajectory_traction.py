@@ -72,3 +72,30 @@ def _distance_to_polyline(p: np.ndarray, line: np.ndarray) -> np.ndarray:
     w = np.clip(np.einsum("nmk,mk->nm", p[:, None] - a[None], ab) / np.maximum(np.sum(ab * ab, 1), 1e-12), 0, 1)
     closest = a[None] + w[..., None] * ab[None]
     return np.hypot(*(p[:, None] - closest).transpose(2, 0, 1)).min(axis=1)
+
+
+def test_speed_jumps_far_apart_are_retimed_each_on_its_own_and_the_path_between_is_kept():
+    """Two speed jumps 20 s apart (a 25 fps track, 10 -> 14 -> 10 m/s, seeded 3 cm jitter along it): each is
+    re-timed within ``WINDOW_S`` of itself, and the 17 s between keep their samples exactly (one least squares
+    over the whole stretch moved them and cost the cube of its samples: 2 s for a 770-sample highway track)."""
+    from deepcrashtest.trajectory.traction import WINDOW_S
+
+    t = np.arange(0.0, 30.0, 0.04)
+    speed = np.where((t >= 5.0) & (t < 25.0), 14.0, 10.0)
+    s = np.concatenate([[0.0], np.cumsum(speed[:-1] * np.diff(t))])
+    s += np.random.default_rng(0).normal(0.0, 0.03, len(t))
+    s = np.maximum.accumulate(s)
+    xy = np.column_stack([s, np.zeros_like(s)])
+    jumps = np.array([5.0, 25.0])
+    new = retimed_within(t, xy, VEHICLE_KINEMATICS, 0.85, around_s=jumps)
+    far = np.abs(t[:, None] - jumps[None]).min(axis=1) > WINDOW_S + 0.1
+    assert far.sum() > 400 and np.array_equal(new[far], xy[far])
+    for jump in jumps:  # each window as if re-timed alone
+        alone = retimed_within(t, xy, VEHICLE_KINEMATICS, 0.85, around_s=np.array([jump]))
+        near = np.abs(t - jump) <= WINDOW_S
+        np.testing.assert_array_equal(new[near], alone[near])
+        acc = along_accel(t[near], new[near, 0])[1:-1]  # its inner samples: the window's bounds hold there
+        assert acc.max() <= 0.85 * VEHICLE_KINEMATICS.max_accel_mps2 + 0.05
+        assert acc.min() >= -0.85 * VEHICLE_KINEMATICS.max_brake_mps2 - 0.05
+    moved = np.abs(new[:, 0] - xy[:, 0])
+    assert moved[~far].max() > 0.1  # the jumps were re-timed

@@ -82,8 +82,18 @@ def interp_heading(t_query: np.ndarray, t: np.ndarray, yaw: np.ndarray) -> np.nd
     read the other way round (a change of more than a quarter turn between two samples: a box fits both ways)
     flips at once instead of spinning through its neighbours; its axis turns the short way. Where no two
     samples differ by a quarter turn, exactly ``np.interp`` of the unwrapped headings."""
+    return interp_heading_axis(t_query, t, *heading_axis(yaw))
+
+
+def heading_axis(yaw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The samples' headings unwrapped (rad) and their boxes' axis (rad, continuous modulo a half turn): what
+    :func:`interp_heading` interpolates, for a caller that samples one track many times."""
     heading = np.unwrap(np.asarray(yaw, dtype=float))
-    axis = 0.5 * np.unwrap(2.0 * heading)  # the box's axis, continuous modulo a half turn
+    return heading, 0.5 * np.unwrap(2.0 * heading)
+
+
+def interp_heading_axis(t_query: np.ndarray, t: np.ndarray, heading: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """:func:`interp_heading` from :func:`heading_axis`'s arrays (at times ``t``, s)."""
     along = np.interp(t_query, t, axis)
     return along + math.pi * np.round((np.interp(t_query, t, heading) - along) / math.pi)
 

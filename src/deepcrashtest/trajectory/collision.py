@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from typing import TYPE_CHECKING
 
 import numpy as np
 import shapely
 
-from deepcrashtest.scenario import interp_heading
+from deepcrashtest.scenario import heading_axis, interp_heading_axis
 
 if TYPE_CHECKING:
     from deepcrashtest.scenario import Vehicle
@@ -73,8 +74,17 @@ class BoxTrack:
     length: float
     width: float
 
+    @cached_property
+    def _heading_axis(self) -> tuple[np.ndarray, np.ndarray]:
+        return heading_axis(self.yaw)  # unwrapped once: a contact search samples a track thousands of times
+
     def at(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        return np.interp(t, self.t, self.x), np.interp(t, self.t, self.y), interp_heading(t, self.t, self.yaw)
+        """Centre x, y (m) and heading (rad, :func:`~deepcrashtest.scenario.interp_heading`) at times ``t`` (s)."""
+        return *self.centre_at(t), interp_heading_axis(t, self.t, *self._heading_axis)
+
+    def centre_at(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Centre x, y (m) at times ``t`` (s)."""
+        return np.interp(t, self.t, self.x), np.interp(t, self.t, self.y)
 
     def velocity(self, t: float) -> np.ndarray:
         vx = np.interp(t, self.t, np.gradient(self.x, self.t)) if len(self.t) > 1 else 0.0
@@ -106,8 +116,8 @@ def overlaps(a: BoxTrack, b: BoxTrack, t: np.ndarray) -> np.ndarray:
 
 def _within_reach(a: BoxTrack, b: BoxTrack, t: np.ndarray) -> np.ndarray:
     """Whether the two boxes' centres are within the sum of their half diagonals at times ``t`` (s)."""
-    xa, ya, _ = a.at(t)
-    xb, yb, _ = b.at(t)
+    xa, ya = a.centre_at(t)
+    xb, yb = b.centre_at(t)
     reach = 0.5 * (math.hypot(a.length, a.width) + math.hypot(b.length, b.width))
     return np.hypot(xa - xb, ya - yb) <= reach + 1e-9
 
