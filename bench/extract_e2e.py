@@ -11,6 +11,9 @@ Run: PYTHONPATH=src python bench/extract_e2e.py [VIDEO] [--baseline-src ../main/
   ``--variant NAME=ARGS`` (repeatable) adds runs of this checkout with extra CLI arguments.
   ``--env-variant NAME=VAR=VALUE[,VAR=VALUE...]`` (repeatable) adds runs of this checkout with those environment
   variables set (thread pools, allocator: e.g. ``blas1=OPENBLAS_NUM_THREADS=1``).
+  ``--pingpong N``: the runs take a long single-shot clip made of the video played forward, backward, forward ...
+  N times (no cut at the joins; ``--pingpong 4`` of the 50 s highway clip: 200 s, 5,040 frames): how time and
+  memory grow with the length of a recording.
 """
 
 from __future__ import annotations
@@ -53,6 +56,25 @@ def run_once(src: Path, video: str, extra: list[str], out: Path, env_extra: dict
     }
 
 
+def pingpong(video: str, times: int, out: Path) -> str:
+    """``video`` played forward, backward, forward ... ``times`` times into ``out`` (H.264, crf 18): one shot."""
+    import av
+
+    with av.open(video) as src:
+        stream = src.streams.video[0]
+        rate = stream.average_rate
+        frames = [f.to_ndarray(format="rgb24") for f in src.decode(stream)]
+    with av.open(str(out), "w") as dst:
+        enc = dst.add_stream("libx264", rate=rate)
+        enc.height, enc.width = frames[0].shape[:2]
+        enc.pix_fmt, enc.options = "yuv420p", {"crf": "18", "preset": "ultrafast"}
+        for k in range(times):
+            for img in frames if k % 2 == 0 else frames[::-1]:
+                dst.mux(enc.encode(av.VideoFrame.from_ndarray(img, format="rgb24")))
+        dst.mux(enc.encode())
+    return str(out)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("video", nargs="?", default=str(DEFAULT))
@@ -61,6 +83,7 @@ def main() -> None:
     ap.add_argument("--variant", action="append", default=[], help="NAME=EXTRA CLI ARGS (this checkout)")
     ap.add_argument("--repeat", type=int, default=1)
     ap.add_argument("--env-variant", action="append", default=[], help="NAME=VAR=VALUE[,VAR=VALUE] (this checkout)")
+    ap.add_argument("--pingpong", type=int, default=1, help="play the video forward/backward N times (long clip)")
     ap.add_argument("--common", default="", help="extra CLI arguments of every run (e.g. '--max-frames 100')")
     args = ap.parse_args()
     variants: list[tuple[str, Path, list[str], dict[str, str]]] = []
@@ -77,6 +100,8 @@ def main() -> None:
     runs: dict[str, list[dict[str, float]]] = {name: [] for name, _, _, _ in variants}
     loads = []
     with tempfile.TemporaryDirectory() as tmp:
+        if args.pingpong > 1:
+            args.video = pingpong(args.video, args.pingpong, Path(tmp) / "pingpong.mp4")
         for _ in range(args.repeat):
             for name, src, extra, env in variants:
                 loads.append(os.getloadavg()[0])

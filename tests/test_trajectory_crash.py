@@ -192,3 +192,21 @@ def test_a_parked_car_in_the_egos_way_is_shifted_whole_and_keeps_its_heading():
     assert np.ptp(p["x"]) < 0.01 and np.ptp(p["y"]) < 0.01  # one shift of the whole track
     assert np.abs(p["yaw"]).max() < 1e-6  # it faces where it was seen facing
     assert p["y"][0] > 1.6 + 0.2  # moved out of the ego's way
+
+
+def test_a_bystander_is_nudged_apart_only_where_it_comes_near():
+    """A car overtaking a parked one 0.3 m too close (at 8-12 s of a 40 s track) is moved apart; the clearance is
+    asked only where the two can come within ``reach_m`` of each other (the rest cannot touch after a move that
+    small), and the move is the one asking it at every sample gives (a 200 s highway track asked it at each of its
+    5,000 samples of each of 30 others: 90 s and gigabytes of SLSQP)."""
+    from deepcrashtest.trajectory.contact import nudge_apart
+
+    t = np.arange(0.0, 40.0, 0.04)
+    car = Movable(t, np.column_stack([-100 + 10 * t, 2.1 + 0 * t]), 4.5, 1.8, 0.0)
+    parked = Movable(t, np.column_stack([0 * t, 0 * t]), 4.5, 1.8, 0.0, kin=None)
+    near = nudge_apart(car, [parked], t[-1], reach_m=6.0)
+    every = nudge_apart(car, [parked], t[-1])
+    assert near.ok and every.ok and 0.1 < near.max_m < 1.0
+    assert np.abs(near.deltas[0] - every.deltas[0]).max() < 0.005
+    moved = box_track(Movable(t, car.xy + near.deltas[0], 4.5, 1.8, 0.0))
+    assert separation(moved, box_track(parked), t).min() >= 0.5 - 0.02  # the clearance (ContactParams)

@@ -99,3 +99,21 @@ def test_speed_jumps_far_apart_are_retimed_each_on_its_own_and_the_path_between_
         assert acc.min() >= -0.85 * VEHICLE_KINEMATICS.max_brake_mps2 - 0.05
     moved = np.abs(new[:, 0] - xy[:, 0])
     assert moved[~far].max() > 0.1  # the jumps were re-timed
+
+
+def test_a_long_stretch_is_retimed_in_pieces_as_one_least_squares_would():
+    """900 samples (36 s at 25 fps, seeded 0.3 m jitter: the limits bind all along) are solved in pieces of at
+    most ``MAX_SAMPLES`` (one least squares grows as the cube of its samples: a 200 s highway track's took minutes
+    and gigabytes); each piece looks ``LOOK_AHEAD`` samples beyond what it keeps, so the pieces join as the one
+    solve would: within a centimetre, the limits kept at the joins too. Without the look-ahead they were 0.58 m
+    apart."""
+    from deepcrashtest.trajectory import alongpath
+
+    t = np.arange(900) / 25.0
+    s = np.cumsum(15.0 + 3.0 * np.sin(t / 3.0)) / 25.0 + np.random.default_rng(0).normal(0.0, 0.3, len(t))
+    assert len(t) > 2 * alongpath.MAX_SAMPLES
+    pieces = alongpath.bounded_distances(t, s, 3.0, 6.0)
+    whole = alongpath._bounded(t, s, 3.0, 6.0, np.ones(len(t)), np.inf, -np.inf)
+    assert np.abs(pieces - whole).max() < 0.01
+    acc = along_accel(t, pieces)
+    assert acc.max() <= 3.0 + 0.02 and acc.min() >= -6.0 - 0.02

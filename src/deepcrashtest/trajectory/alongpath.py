@@ -43,6 +43,16 @@ def along_accel(t: np.ndarray, s: np.ndarray) -> np.ndarray:
     return np.diff(v) / (0.5 * (t[2:] - t[:-2]))
 
 
+MAX_SAMPLES = 300
+"""The most samples one least squares takes (its cost grows as their cube: 1,200 took 1.8 s, the 5,000 of a 200 s
+track minutes and gigabytes); a longer stretch is re-timed in consecutive pieces. 300: 12 s at 25 fps, 30 s on the
+ego's 0.1 s grid, longer than any crash clip's road user."""
+LOOK_AHEAD = 100
+"""Samples each piece solves beyond what it keeps, so that it ends heading where the next one goes."""
+JOIN_WEIGHT = 1e3
+"""Weight of a piece's first two samples, held where the piece before put them (position and speed carry on)."""
+
+
 def bounded_distances(
     t: np.ndarray,
     s: np.ndarray,
@@ -55,7 +65,33 @@ def bounded_distances(
     """The distances (m, N) at the increasing times ``t`` (s, N) closest to ``s`` (weighted least squares,
     ``weight`` (N,) or all 1) whose first speed is >= 0 and whose :func:`along_accel` lies in
     [-``b_max``, ``a_max``] (m/s^2) after ``lead_s`` and up to ``free_s`` (s; elsewhere unbounded); never
-    decreasing."""
+    decreasing. More than ``MAX_SAMPLES`` samples are solved in consecutive pieces of at most that many, each
+    kept but for its last ``LOOK_AHEAD`` samples and the next starting on the last two kept (held there,
+    ``JOIN_WEIGHT``)."""
+    n = len(t)
+    w = np.ones(n) if weight is None else np.asarray(weight, float)
+    if n <= MAX_SAMPLES:
+        return _bounded(t, s, a_max, b_max, w, free_s, lead_s)
+    out = np.empty(n)
+    lo = 0
+    while True:
+        hi = min(n, lo + MAX_SAMPLES)
+        ss, ww = s[lo:hi].copy(), w[lo:hi].copy()
+        if lo:
+            ss[:2], ww[:2] = out[lo : lo + 2], np.maximum(ww[:2], JOIN_WEIGHT)
+        piece = _bounded(t[lo:hi], ss, a_max, b_max, ww, free_s, lead_s)
+        if hi == n:
+            out[lo:hi] = piece
+            return np.maximum.accumulate(out)
+        keep = MAX_SAMPLES - LOOK_AHEAD  # the rest only shapes where the kept part ends
+        out[lo : lo + keep] = piece[:keep]
+        lo += keep - 2
+
+
+def _bounded(
+    t: np.ndarray, s: np.ndarray, a_max: float, b_max: float, w: np.ndarray, free_s: float, lead_s: float
+) -> np.ndarray:
+    """:func:`bounded_distances` in one least squares (SciPy's ``lsq_linear``, bvls)."""
     n = len(t)
     A = np.hstack([np.ones((n, 1)), (t - t[0])[:, None], np.maximum(t[:, None] - t[None, 1:-1], 0.0)])
     inner = t[1:-1]
@@ -63,6 +99,5 @@ def bounded_distances(
     half = np.where(unbounded, np.inf, 0.5 * (t[2:] - t[:-2]))
     lb = np.concatenate([[-np.inf, 0.0], -b_max * half])
     ub = np.concatenate([[np.inf, np.inf], a_max * half])
-    w = np.ones(n) if weight is None else weight
     x = lsq_linear(A * w[:, None], s * w, bounds=(lb, ub), method="bvls").x
     return np.maximum.accumulate(A @ x)

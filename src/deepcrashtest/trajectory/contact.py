@@ -714,15 +714,33 @@ def _closing_overlap(a: Movable, b: Movable, t_touch: float, t_end: float, cp: C
     return float(max(cp.penetration_m[0], sep[0] - sep[1]))
 
 
+def _within(a: Movable, b: Movable, ts: np.ndarray, margin_m: float) -> np.ndarray:
+    """Whether the boxes of ``a`` and ``b`` at times ``ts`` (s) are nearer than ``margin_m`` (m) could close:
+    their centres within their half diagonals plus ``margin_m``."""
+    if not np.isfinite(margin_m):
+        return np.ones(len(ts), bool)
+    gap = np.hypot(*(_centres(a, ts) - _centres(b, ts)).T)
+    return gap <= 0.5 * (np.hypot(a.length, a.width) + np.hypot(b.length, b.width)) + margin_m
+
+
+def _centres(m: Movable, ts: np.ndarray) -> np.ndarray:
+    """(len(ts), 2) centres (m) of ``m`` at times ``ts`` (s)."""
+    return np.column_stack([np.interp(ts, m.t, m.xy[:, 0]), np.interp(ts, m.t, m.xy[:, 1])])
+
+
 def _full(ds: list[np.ndarray], movable: tuple[bool, ...]) -> list[np.ndarray]:
     it = iter(ds)
     return [next(it) if free else np.zeros((0, 2)) for free in movable]
 
 
-def nudge_apart(m: Movable, others: list[Movable], t_end: float, cp: ContactParams | None = None) -> Correction:
+def nudge_apart(
+    m: Movable, others: list[Movable], t_end: float, cp: ContactParams | None = None, reach_m: float = np.inf
+) -> Correction:
     """Smallest smooth displacement of ``m`` (its whole track may shift; ``rigid``: only that, a parked
     car's depth error, never a motion that would turn its box) that keeps it at least ``clearance_m``
-    from every vehicle of ``others`` up to ``t_end`` (s)."""
+    from every vehicle of ``others`` up to ``t_end`` (s). ``reach_m``: a displacement larger than this (m) will
+    not be used, so the clearance is asked only where ``m`` comes that near another (a 200 s highway track
+    asked it at each of its 5,000 samples of each of 30 others: 90 s and gigabytes of SLSQP)."""
     cp = cp or ContactParams()
     lo, hi = float(m.t[0]), float(min(m.t[-1], t_end))
     if hi - lo < 1e-6:
@@ -731,7 +749,7 @@ def nudge_apart(m: Movable, others: list[Movable], t_end: float, cp: ContactPara
     ineq = []
     for j, o in enumerate(others):
         ts = m.t[(m.t >= max(lo, o.t[0])) & (m.t <= min(hi, o.t[-1]))]
-        ineq.append((0, 1 + j, ts, cp.clearance_m))
+        ineq.append((0, 1 + j, ts[_within(m, o, ts, cp.clearance_m + reach_m)], cp.clearance_m))
     ds, ok, msg = _solve([m], others, bases, [], ineq, cp, budget=_Budget())
     d = ds[0]
     size = float(np.hypot(*d.T).max()) if len(d) else 0.0
