@@ -30,6 +30,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
+from scipy import sparse
 from scipy.interpolate import BSpline, make_interp_spline
 from scipy.optimize import minimize
 
@@ -359,7 +360,7 @@ class _Paths:
         self.movers, self.mats, self.offs, self.budget = movers, mats, offs, budget
         self.fixed = [box_track(m) for m in fixed]
         # d(velocity at the samples)/d(coefficients): np.gradient is linear in the positions
-        self.grad_b = [_gradient_matrix(m.t) @ b for m, b in zip(movers, mats, strict=True)]
+        self.grad_b = [_gradient_of(b, m.t) for m, b in zip(movers, mats, strict=True)]
         self._z: np.ndarray | None = None
         self._tracks: list[BoxTrack] = []
         self._vel: list[np.ndarray] = []
@@ -403,26 +404,23 @@ class _Paths:
         return self._yaw_jac[i]
 
 
-def _gradient_matrix(t: np.ndarray) -> np.ndarray:
-    """(N, N) matrix G with ``G @ x == np.gradient(x, t)`` (zeros for a single sample)."""
-    n = len(t)
-    return np.asarray(np.gradient(np.eye(n), t, axis=0)) if n > 1 else np.zeros((n, n))
+def _gradient_of(b: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """``G @ b`` for the (N, N) matrix G with ``G @ x == np.gradient(x, t)`` (zeros for a single sample), without
+    G: np.gradient is linear, column by column (G of a 200 s track's 5,000 samples took a gigabyte)."""
+    return np.asarray(np.gradient(b, t, axis=0)) if len(t) > 1 else np.zeros_like(b)
 
 
-def _interp_matrix(t: np.ndarray, ts: np.ndarray) -> np.ndarray:
-    """(len(ts), len(t)) matrix W with ``W @ x == np.interp(ts, t, x)`` (held constant outside ``t``)."""
-    n = len(t)
-    out = np.zeros((len(ts), n))
+def _interp_matrix(t: np.ndarray, ts: np.ndarray) -> sparse.csr_array:
+    """(len(ts), len(t)) sparse matrix W with ``W @ x == np.interp(ts, t, x)`` (held constant outside ``t``):
+    two entries a row (dense, a long track's rows took hundreds of megabytes)."""
+    n, rows = len(t), np.arange(len(ts))
     if n == 1:
-        out[:, 0] = 1.0
-        return out
+        return sparse.csr_array((np.ones(len(ts)), (rows, np.zeros(len(ts), int))), shape=(len(ts), 1))
     j = np.clip(np.searchsorted(t, ts, side="right") - 1, 0, n - 2)
     span = t[j + 1] - t[j]
     w = np.clip(np.divide(ts - t[j], span, out=np.zeros_like(ts), where=span > 0), 0.0, 1.0)
-    rows = np.arange(len(ts))
-    out[rows, j] = 1.0 - w
-    out[rows, j + 1] += w
-    return out
+    vals = np.concatenate([1.0 - w, w])
+    return sparse.csr_array((vals, (np.concatenate([rows, rows]), np.concatenate([j, j + 1]))), shape=(len(ts), n))
 
 
 class _Gap:
