@@ -14,6 +14,9 @@ then extracted and replayed exactly like ``bench/fidelity_crashes.py``:
   not in the default set);
 * ``zoom``: the middle ``1 / ZOOM`` of the frame scaled back up to the frame's size, a narrower lens (a longer
   focal length; label boxes scaled and clipped; not in the default set);
+* ``portrait``: the frame scaled to 720 px wide inside a 720x1280 portrait frame, black bars above and below (a
+  dashcam clip played on a phone held upright and screen-recorded, as social media carry them; label boxes scaled
+  and moved down; not in the default set);
 * ``copy``: only re-encoded, the control: what the re-encoding alone changes.
 
 Clips are written by the project's own H.264 writer (CRF 23, ultrafast): PyAV's default x264 preset fed ``bgr24``
@@ -24,7 +27,7 @@ this makes a few plain variants of every labelled clip and prints one line per v
 
 Usage::
 
-    python bench/fidelity_perturbed.py [--variants mirror,small,halffps,copy,large,tiny,fisheye,zoom] [--clips a,b]
+    python bench/fidelity_perturbed.py [--variants mirror,small,halffps,copy,large,tiny,fisheye,zoom,portrait] [--clips a,b]
                                        [--work DIR] [--reuse] [--stage2 [--redetect]] [--json]
 
 Per variant: reproduced crashes / labelled, clips with a contact before the crash, mean reprojection IoU
@@ -47,7 +50,7 @@ from fidelity_crashes import DATA, all_labels, run_clip
 
 VARIANTS = ("mirror", "small", "halffps", "copy")
 #: Variants run only when asked for (``--variants large``).
-MORE_VARIANTS = ("large", "tiny", "fisheye", "zoom")
+MORE_VARIANTS = ("large", "tiny", "fisheye", "zoom", "portrait")
 #: ``fisheye``: source radius = r (1 + k r^2) / (1 + k), r the output pixel's distance from the centre over the
 #: half diagonal: the corners stay, the centre is magnified 1 + k, straight lines bow outwards (barrel).
 FISHEYE_K = 0.35
@@ -56,6 +59,7 @@ ZOOM = 1.3
 SMALL_WIDTH, SMALL_HEIGHT = 854, 480
 LARGE_WIDTH, LARGE_HEIGHT = 1920, 1080
 TINY_WIDTH, TINY_HEIGHT = 426, 240
+PORTRAIT_WIDTH, PORTRAIT_HEIGHT = 720, 1280
 
 
 def variant_geometry(src: Path, variant: str) -> tuple[float, int, tuple[float, float], int]:
@@ -91,6 +95,8 @@ def rewrite_clip(src: Path, dst: Path, variant: str) -> None:
         frames = [cv2.resize(f, (TINY_WIDTH, TINY_HEIGHT), interpolation=cv2.INTER_AREA) for f in frames]
     elif variant == "large":
         frames = [cv2.resize(f, (LARGE_WIDTH, LARGE_HEIGHT), interpolation=cv2.INTER_CUBIC) for f in frames]
+    elif variant == "portrait":
+        frames = [_portrait(f) for f in frames]
     elif variant in ("fisheye", "zoom"):
         h, w = frames[0].shape[:2]
         map_x, map_y = lens_maps(w, h, variant)
@@ -101,6 +107,24 @@ def rewrite_clip(src: Path, dst: Path, variant: str) -> None:
     for f in frames:
         out.write(f)
     out.close()
+
+
+def portrait_picture(width: int, height: int) -> tuple[float, int]:
+    """The ``portrait`` variant's picture of a ``width`` x ``height`` frame: (scale, top row in the portrait frame)."""
+    scale = PORTRAIT_WIDTH / width
+    return scale, (PORTRAIT_HEIGHT - round(height * scale)) // 2
+
+
+def _portrait(frame: np.ndarray) -> np.ndarray:
+    """``frame`` scaled into the middle of a black portrait frame (:func:`portrait_picture`)."""
+    import cv2
+
+    h, w = frame.shape[:2]
+    scale, top = portrait_picture(w, h)
+    out = np.zeros((PORTRAIT_HEIGHT, PORTRAIT_WIDTH, 3), np.uint8)
+    picture = cv2.resize(frame, (PORTRAIT_WIDTH, round(h * scale)), interpolation=cv2.INTER_AREA)
+    out[top : top + picture.shape[0]] = picture
+    return out
 
 
 def lens_maps(width: int, height: int, variant: str) -> tuple[np.ndarray, np.ndarray]:
@@ -172,6 +196,10 @@ def rewrite_label(
                 x1, x2 = width - x2, width - x1
             if variant in ("fisheye", "zoom"):
                 p["box"] = lens_box([x1, y1, x2, y2], width, _height(video), variant)
+                continue
+            if variant == "portrait":
+                k, top = portrait_picture(width, _height(DATA / label["video"]))  # the source clip's height
+                p["box"] = [round(x1 * k), round(y1 * k) + top, round(x2 * k), round(y2 * k) + top]
                 continue
             p["box"] = [round(x1 * scale[0]), round(y1 * scale[1]), round(x2 * scale[0]), round(y2 * scale[1])]
     return out
