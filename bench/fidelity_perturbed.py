@@ -27,8 +27,8 @@ this makes a few plain variants of every labelled clip and prints one line per v
 
 Usage::
 
-    python bench/fidelity_perturbed.py [--variants mirror,small,halffps,copy,large,tiny,fisheye,zoom,portrait] [--clips a,b]
-                                       [--work DIR] [--reuse] [--stage2 [--redetect]] [--json]
+    python bench/fidelity_perturbed.py [--variants mirror,small,halffps,copy,large,tiny,fisheye,zoom,portrait]
+                                       [--clips a,b] [--work DIR] [--reuse] [--stage2 [--redetect]] [--json]
 
 Per variant: reproduced crashes / labelled, clips with a contact before the crash, mean reprojection IoU
 (processed / replay), and the clips not reproduced with their first replay contact. ``--reuse`` keeps the
