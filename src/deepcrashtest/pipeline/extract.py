@@ -48,6 +48,7 @@ from deepcrashtest.pipeline.geometry_pass import GeometryResult, TrackRows, cut_
 from deepcrashtest.pipeline.threads import Worker, prefetch
 from deepcrashtest.scenario import Camera, VideoSource
 from deepcrashtest.trajectory.params import Stage2Params
+from deepcrashtest.ui import status
 from deepcrashtest.ui import track as progress
 from deepcrashtest.video.bars import SAMPLE_FRAMES, picture_area
 from deepcrashtest.video.shots import Shot, ShotWatch
@@ -205,7 +206,7 @@ def _run_pass(
     stage2: Stage2Params | None = None,
 ) -> dict[str, Any]:
     """The decoding pass, the tracks table, the crash and stage 2, all written to ``plan.paths``."""
-    src_path, paths, force, seed = plan.src_path, plan.paths, plan.force, plan.seed
+    src_path = plan.src_path
     t0 = time.perf_counter()
     with _few_gc_passes(), _opencv_threads(1):
         records, geo, meta = plan.run(camera, dashboard_rows, geometry, lanes)
@@ -217,6 +218,23 @@ def _run_pass(
     if geo is not None and meta.scaled_from is not None:  # the file's size beside the frames' (the source's)
         params = {**geo.scenario.provenance.parameters, "frames_scaled_from": list(meta.scaled_from)}
         geo.scenario = geo.scenario.evolve(provenance=geo.scenario.provenance.model_copy(update={"parameters": params}))
+    with status("building the scenario: crash, stage 2, report" if geo is not None else "writing the tracks"):
+        return _after_pass(plan, records, geo, meta, elapsed, dashboard_rows, report, crash_spec, stage2)
+
+
+def _after_pass(
+    plan: _Pass,
+    records: list[tuple[object, ...]],
+    geo: GeometryResult | None,
+    meta: VideoMeta,
+    elapsed: float,
+    dashboard_rows: int | None,
+    report: bool,
+    crash_spec: CrashSpec | None,
+    stage2: Stage2Params | None,
+) -> dict[str, Any]:
+    """:func:`_run_pass` after the decoding pass: the tracks table, the crash, stage 2 and the report."""
+    paths, force, seed = plan.paths, plan.force, plan.seed
     df = records_table(records).sort_values(["frame", "track_id"], ignore_index=True)
     crash_info: dict[str, Any] | None = None
     if geo is not None:  # before anything is written: a bad --crash id refuses the whole set
