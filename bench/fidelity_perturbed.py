@@ -17,6 +17,8 @@ then extracted and replayed exactly like ``bench/fidelity_crashes.py``:
 * ``portrait``: the frame scaled to 720 px wide inside a 720x1280 portrait frame, black bars above and below (a
   dashcam clip played on a phone held upright and screen-recorded, as social media carry them; label boxes scaled
   and moved down; not in the default set);
+* ``dark``: a dusk / low-light copy: every pixel's brightness x ``DARK_GAIN``, seeded Gaussian sensor noise of
+  ``DARK_NOISE`` grey levels added (labels unchanged; not in the default set);
 * ``copy``: only re-encoded, the control: what the re-encoding alone changes.
 
 Clips are written by the project's own H.264 writer (CRF 23, ultrafast): PyAV's default x264 preset fed ``bgr24``
@@ -27,7 +29,7 @@ this makes a few plain variants of every labelled clip and prints one line per v
 
 Usage::
 
-    python bench/fidelity_perturbed.py [--variants mirror,small,halffps,copy,large,tiny,fisheye,zoom,portrait]
+    python bench/fidelity_perturbed.py [--variants mirror,small,halffps,copy,large,tiny,fisheye,zoom,portrait,dark]
                                        [--clips a,b] [--work DIR] [--reuse] [--stage2 [--redetect]] [--json]
 
 Per variant: reproduced crashes / labelled, clips with a contact before the crash, mean reprojection IoU
@@ -50,7 +52,7 @@ from fidelity_crashes import DATA, all_labels, run_clip
 
 VARIANTS = ("mirror", "small", "halffps", "copy")
 #: Variants run only when asked for (``--variants large``).
-MORE_VARIANTS = ("large", "tiny", "fisheye", "zoom", "portrait")
+MORE_VARIANTS = ("large", "tiny", "fisheye", "zoom", "portrait", "dark")
 #: ``fisheye``: source radius = r (1 + k r^2) / (1 + k), r the output pixel's distance from the centre over the
 #: half diagonal: the corners stay, the centre is magnified 1 + k, straight lines bow outwards (barrel).
 FISHEYE_K = 0.35
@@ -60,6 +62,8 @@ SMALL_WIDTH, SMALL_HEIGHT = 854, 480
 LARGE_WIDTH, LARGE_HEIGHT = 1920, 1080
 TINY_WIDTH, TINY_HEIGHT = 426, 240
 PORTRAIT_WIDTH, PORTRAIT_HEIGHT = 720, 1280
+#: ``dark``: the brightness factor and the sensor noise's sigma (grey levels, 0-255).
+DARK_GAIN, DARK_NOISE = 0.3, 3.0
 
 
 def variant_geometry(src: Path, variant: str) -> tuple[float, int, tuple[float, float], int]:
@@ -97,6 +101,11 @@ def rewrite_clip(src: Path, dst: Path, variant: str) -> None:
         frames = [cv2.resize(f, (LARGE_WIDTH, LARGE_HEIGHT), interpolation=cv2.INTER_CUBIC) for f in frames]
     elif variant == "portrait":
         frames = [_portrait(f) for f in frames]
+    elif variant == "dark":
+        rng = np.random.default_rng(0)
+        frames = [
+            np.clip(f * DARK_GAIN + rng.normal(0.0, DARK_NOISE, f.shape), 0, 255).astype(np.uint8) for f in frames
+        ]
     elif variant in ("fisheye", "zoom"):
         h, w = frames[0].shape[:2]
         map_x, map_y = lens_maps(w, h, variant)

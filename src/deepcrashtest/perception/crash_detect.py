@@ -778,12 +778,16 @@ def crash_candidates(
     cats = _categories(tracks)
     first = int(tracks["frame"].min()) if len(tracks) else 0
     world = {k: _ground_seen(w, per.get(k), width, height) for k, w in (world or {}).items()}
+    span = {k: (int(g.index.min()), int(g.index.max())) for k, g in per.items() if len(g)}
+    came_in = {k: entered_view(g, width, height, first) for k, g in per.items()}
     for i, ta in enumerate(ids):
         for tb in ids[i + 1 :]:
             if cats.get(ta) == cats.get(tb) == "pedestrian":
                 continue
+            if ta not in span or tb not in span or span[ta][1] < span[tb][0] or span[tb][1] < span[ta][0]:
+                continue  # never in view together (a long recording's road users mostly are not)
             wpair = (world[ta], world[tb]) if ta in world and tb in world else None
-            entered = entered_view(per[ta], width, height, first) or entered_view(per[tb], width, height, first)
+            entered = came_in[ta] or came_in[tb]
             s = pair_scores(per[ta], per[tb], width, height, wpair, fps, entered, scene)
             s = s[(s.index >= lo) & (s.index <= hi)]
             if len(s):  # something at the ego's bumper makes an ego crash the likelier one
