@@ -536,3 +536,40 @@ def test_a_jolt_while_the_road_user_still_closes_in_is_not_the_contact(tmp_path)
         labels=tmp_path / "labels.json", clip="ccd_001143", force=True,
     )  # fmt: skip
     assert summary["crash"]["reproduced"]  # before holding_yaws_after: no contact in the replay
+
+
+def _dusk(clip: Path, out: Path, gain: float = 0.3, noise: float = 3.0) -> Path:
+    """``clip`` at dusk: brightness x ``gain`` and seeded sensor noise of ``noise`` grey levels, written as
+    ``bench/fidelity_perturbed.py --variants dark`` writes it (the project's H.264 writer)."""
+    from deepcrashtest.video.writer import VideoWriter
+
+    with av.open(str(clip)) as c:
+        fps = float(c.streams.video[0].average_rate)
+        frames = [f.to_ndarray(format="bgr24") for f in c.decode(video=0)]
+    rng = np.random.default_rng(0)
+    h, w = frames[0].shape[:2]
+    with VideoWriter(out, fps, w, h) as writer:
+        for f in frames:
+            writer.write(np.clip(f * gain + rng.normal(0.0, noise, f.shape), 0, 255).astype(np.uint8))
+    return out
+
+
+def test_two_boxes_cut_by_the_picture_side_are_no_crash(tmp_path):
+    """ccd_000031 at dusk (the ego runs into the car ahead, labelled contact frame 31 at 10 fps): a car and a snow
+    bank detected as a car leave the view at the left border, their boxes cut by it and overlapping; as a border
+    cuts a box its centre moves with the cut, not with the road user, and that read as a sudden change of motion
+    for both: a third-party crash at frame 10 (score 1.0, discounted 0.54) outranked the ego's (0.53: its box grows
+    slower in the dark). A box's motion change is not read where the picture's side cuts it: the ego's crash with
+    the car ahead is found, at the label."""
+    from deepcrashtest.datasets.crash_labels import load_crash_labels
+    from deepcrashtest.pipeline.extract import run_extract
+    from deepcrashtest.scenario import Scenario
+
+    root = Path(__file__).resolve().parents[1]
+    label = load_crash_labels(root / "bench" / "labels" / "ccd_crashes.json")["ccd_000031"]
+    video = _dusk(need(DATA / label.video), tmp_path / "ccd_000031_dark.mp4")
+    run_extract(video, tmp_path / "out", report=False, annotate=False)
+    found = Scenario.load(tmp_path / "out" / "scenario_raw.json").provenance.parameters["crash_detection"]
+    assert label.contact_frame is not None
+    assert found["found"] and found["pair"][0] == "ego"  # main: [1, 7] at frame 10
+    assert abs(found["frame"] - label.contact_frame) <= 2

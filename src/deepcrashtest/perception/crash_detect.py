@@ -308,6 +308,11 @@ def _motion_change(g: pd.DataFrame, width: int, fps: float) -> pd.Series:
         tr = t[g["reacquired"].to_numpy(bool)]
         if len(tr):
             a[np.abs(t[:, None] - tr[None, :]).min(axis=1) <= max(tau, 1 / fps) + 1e-9] = 0.0
+    m = _border(width)
+    side = ((g["x1"] <= m) | (g["x2"] >= width - m)).to_numpy(bool)
+    if side.any():  # a box cut by the picture's side: its centre moves as it is cut, not with the road user
+        ts = t[side]
+        a[np.abs(t[:, None] - ts[None, :]).min(axis=1) <= max(tau, 1 / fps) + 1e-9] = 0.0
     hold = 2 * int(round(CHANGE_HOLD_S * fps)) + 1
     return pd.Series(np.clip(a / CHANGE_FULL, 0, 1), index=g.index).rolling(hold, center=True, min_periods=1).max()
 
