@@ -289,11 +289,18 @@ def _border(width: int) -> float:
     return BORDER_SHARE * width
 
 
+def _on_side(g: pd.DataFrame, width: int) -> np.ndarray:
+    """Per frame (bool): the box is on the picture's left or right border (within :func:`_border`)."""
+    m = _border(width)
+    return ((g["x1"] <= m) | (g["x2"] >= width - m)).to_numpy(bool)
+
+
 def _motion_change(g: pd.DataFrame, width: int, fps: float) -> pd.Series:
     """0..1 per frame: a sudden change of the box centre's velocity (:data:`CHANGE_SPAN_S` before against
     after, in box widths per second, at least :data:`CHANGE_MIN_WIDTH` of the image), full at
     :data:`CHANGE_FULL` and held :data:`CHANGE_HOLD_S` either side; none within a span of either end of the
-    track or where a track coasting on its prediction is detected again (``reacquired``)."""
+    track, where a track coasting on its prediction is detected again (``reacquired``), or where the picture's
+    left or right side cuts the box (:func:`_on_side`)."""
     t = g.index.to_numpy(float) / fps
     cx = ((g["x1"] + g["x2"]) / 2).to_numpy(float)
     cy = ((g["y1"] + g["y2"]) / 2).to_numpy(float)
@@ -304,15 +311,11 @@ def _motion_change(g: pd.DataFrame, width: int, fps: float) -> pd.Series:
     if inside.any():
         d2 = [np.interp(t + tau, t, c) - 2 * c + np.interp(t - tau, t, c) for c in (cx, cy)]
         a = np.where(inside, np.hypot(*d2) / tau / w, 0.0)  # velocity change, widths/s
+    quiet = _on_side(g, width)  # a box cut by the picture's side: its centre moves as it is cut, not with it
     if "reacquired" in g.columns:  # the tracker correcting its prediction, not the road user's motion
-        tr = t[g["reacquired"].to_numpy(bool)]
-        if len(tr):
-            a[np.abs(t[:, None] - tr[None, :]).min(axis=1) <= max(tau, 1 / fps) + 1e-9] = 0.0
-    m = _border(width)
-    side = ((g["x1"] <= m) | (g["x2"] >= width - m)).to_numpy(bool)
-    if side.any():  # a box cut by the picture's side: its centre moves as it is cut, not with the road user
-        ts = t[side]
-        a[np.abs(t[:, None] - ts[None, :]).min(axis=1) <= max(tau, 1 / fps) + 1e-9] = 0.0
+        quiet |= g["reacquired"].to_numpy(bool)
+    if quiet.any():
+        a[np.abs(t[:, None] - t[quiet][None, :]).min(axis=1) <= max(tau, 1 / fps) + 1e-9] = 0.0
     hold = 2 * int(round(CHANGE_HOLD_S * fps)) + 1
     return pd.Series(np.clip(a / CHANGE_FULL, 0, 1), index=g.index).rolling(hold, center=True, min_periods=1).max()
 
@@ -374,8 +377,7 @@ def _exits(g: pd.DataFrame, width: int, fps: float, clip_end: int | None = None)
     frame): it drove past the ego, out of the view."""
     f = g.index.to_numpy(int)
     w = (g["x2"] - g["x1"]).to_numpy(float)
-    m = _border(width)
-    side = ((g["x1"] <= m) | (g["x2"] >= width - m)).to_numpy()
+    side = _on_side(g, width)
     n = EXIT_WINDOW_S * fps
     gone = bool(side[-1]) and clip_end is not None and f[-1] < clip_end  # the track ends on a side border
     out = np.zeros(len(f), bool)
