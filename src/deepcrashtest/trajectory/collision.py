@@ -114,11 +114,12 @@ def overlaps(a: BoxTrack, b: BoxTrack, t: np.ndarray) -> np.ndarray:
     return np.asarray(shapely.intersects(pa, pb), dtype=bool)
 
 
-def _within_reach(a: BoxTrack, b: BoxTrack, t: np.ndarray) -> np.ndarray:
-    """Whether the two boxes' centres are within the sum of their half diagonals at times ``t`` (s)."""
+def within_reach(a: BoxTrack, b: BoxTrack, t: np.ndarray, margin_m: float = 0.0) -> np.ndarray:
+    """Whether the two boxes' centres are within the sum of their half diagonals plus ``margin_m`` (m) at times
+    ``t`` (s): farther apart, the boxes cannot touch, nor come within ``margin_m`` of touching."""
     xa, ya = a.centre_at(t)
     xb, yb = b.centre_at(t)
-    reach = 0.5 * (math.hypot(a.length, a.width) + math.hypot(b.length, b.width))
+    reach = 0.5 * (math.hypot(a.length, a.width) + math.hypot(b.length, b.width)) + margin_m
     return np.hypot(xa - xb, ya - yb) <= reach + 1e-9
 
 
@@ -129,7 +130,7 @@ def first_contact(ego: BoxTrack, agent: BoxTrack, t_from: float = -np.inf, tol_s
         return None
     t = np.unique(np.concatenate([[lo], ego.t[(ego.t > lo) & (ego.t < hi)], np.arange(lo, hi, CHECK_STEP_S), [hi]]))
     hit = np.zeros(len(t), dtype=bool)
-    near = _within_reach(ego, agent, t)  # boxes farther apart than their half diagonals cannot touch
+    near = within_reach(ego, agent, t)  # boxes farther apart than their half diagonals cannot touch
     hit[near] = overlaps(ego, agent, t[near])
     if not hit.any():
         return None

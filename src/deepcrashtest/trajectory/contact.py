@@ -35,7 +35,7 @@ from scipy.interpolate import BSpline, make_interp_spline
 from scipy.optimize import minimize
 
 from deepcrashtest.scenario import VEHICLE_KINEMATICS, Kinematics
-from deepcrashtest.trajectory.collision import BoxTrack, heading_sources, headings
+from deepcrashtest.trajectory.collision import BoxTrack, heading_sources, headings, within_reach
 
 
 def separation(a: BoxTrack, b: BoxTrack, t: np.ndarray) -> np.ndarray:
@@ -723,20 +723,6 @@ def _closing_overlap(a: Movable, b: Movable, t_touch: float, t_end: float, cp: C
     return float(max(cp.penetration_m[0], sep[0] - sep[1]))
 
 
-def _within(a: Movable, b: Movable, ts: np.ndarray, margin_m: float) -> np.ndarray:
-    """Whether the boxes of ``a`` and ``b`` at times ``ts`` (s) are nearer than ``margin_m`` (m) could close:
-    their centres within their half diagonals plus ``margin_m``."""
-    if not np.isfinite(margin_m):
-        return np.ones(len(ts), bool)
-    gap = np.hypot(*(_centres(a, ts) - _centres(b, ts)).T)
-    return gap <= 0.5 * (np.hypot(a.length, a.width) + np.hypot(b.length, b.width)) + margin_m
-
-
-def _centres(m: Movable, ts: np.ndarray) -> np.ndarray:
-    """(len(ts), 2) centres (m) of ``m`` at times ``ts`` (s)."""
-    return np.column_stack([np.interp(ts, m.t, m.xy[:, 0]), np.interp(ts, m.t, m.xy[:, 1])])
-
-
 def _full(ds: list[np.ndarray], movable: tuple[bool, ...]) -> list[np.ndarray]:
     it = iter(ds)
     return [next(it) if free else np.zeros((0, 2)) for free in movable]
@@ -756,9 +742,11 @@ def nudge_apart(
         return Correction([np.zeros_like(m.xy)], 0.0, 0.0, 0.0, False, "too short to move")
     bases = [_rigid(m) if m.rigid else _basis(lo, hi, max(cp.knot_step_s, (hi - lo) / 12), anchored=False)]
     ineq = []
+    mine = box_track(m)
     for j, o in enumerate(others):
         ts = m.t[(m.t >= max(lo, o.t[0])) & (m.t <= min(hi, o.t[-1]))]
-        ineq.append((0, 1 + j, ts[_within(m, o, ts, cp.clearance_m + reach_m)], cp.clearance_m))
+        near = within_reach(mine, box_track(o), ts, cp.clearance_m + reach_m)  # a farther one cannot come near
+        ineq.append((0, 1 + j, ts[near], cp.clearance_m))
     ds, ok, msg = _solve([m], others, bases, [], ineq, cp, budget=_Budget())
     d = ds[0]
     size = float(np.hypot(*d.T).max()) if len(d) else 0.0

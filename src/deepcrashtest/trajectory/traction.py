@@ -59,11 +59,11 @@ def retimed_within(
     weight[t <= lead_s + 1e-6] = PIN_WEIGHT
     free = np.inf if pin_s is None else pin_s  # the held samples' own speed changes (the impact's) are left
     s_new = s.copy()
+    a_max, b_max = margin * kin.max_accel_mps2, margin * kin.max_brake_mps2
     for lo, hi in _windows(t, around_s):
         w = weight[lo:hi].copy()
         w[: 2 if lo else 0] = PIN_WEIGHT  # held where it joins the rest: position and speed
         w[len(w) - 2 if hi < len(t) else len(w) :] = PIN_WEIGHT
-        a_max, b_max = margin * kin.max_accel_mps2, margin * kin.max_brake_mps2
         s_new[lo:hi] = bounded_distances(t[lo:hi], s[lo:hi], a_max, b_max, w, free, lead_s)
     return along_path(xy, s, s_new)
 
