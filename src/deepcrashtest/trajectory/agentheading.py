@@ -26,7 +26,10 @@ def with_observed_yaw(final: Vehicle, raw: Vehicle, t_shift: float, blend_s: flo
     """``final`` (a processed agent) with its heading replaced by ``raw``'s over ``raw``'s span.
 
     ``t_shift``: scenario time minus the raw scenario's time (s). The raw heading is turned by a half turn
-    where it points against the path's direction (a box fits both ways)."""
+    where it points against the path's direction (a box fits both ways): once for the whole span, where it
+    agrees less with the path's direction, weighted by speed (a body does not turn half round between two
+    samples while a slow road user's path can reverse), and outside the span towards whichever of the path's
+    direction or its reverse is nearer."""
     a = final.trajectory.arrays()
     r = raw.trajectory.arrays()
     if len(r["t"]) < 2 or len(a["t"]) < 2:
@@ -34,10 +37,14 @@ def with_observed_yaw(final: Vehicle, raw: Vehicle, t_shift: float, blend_s: flo
     t_raw = r["t"] + t_shift
     motion = np.unwrap(a["yaw"])
     box = np.interp(a["t"], t_raw, np.unwrap(r["yaw"]))
-    diff = (box - motion + 0.5 * math.pi) % math.pi - 0.5 * math.pi  # modulo a half turn
     outside = np.maximum(t_raw[0] - a["t"], a["t"] - t_raw[-1])
     w = np.clip(1.0 - np.maximum(outside, 0.0) / max(blend_s, 1e-6), 0.0, 1.0)
-    yaw = np.unwrap(motion + w * diff)
+    inside = outside <= 0.0
+    speed = np.abs(a["speed"])
+    agree = float(np.sum((speed**2 * np.cos(box - motion))[inside])) if inside.any() else 1.0
+    if agree < 0.0:
+        box = box + math.pi
+    yaw = box + (1.0 - w) * _towards(motion - box, inside)
     traj = final.trajectory.model_copy(update={"yaw": [float(v) for v in yaw]})
     return final.model_copy(update={"trajectory": traj})
 
@@ -142,17 +149,34 @@ crash pairs of ccd_000014/132/721 face their boxes longer), all 18 crashes repro
 
 
 def _path_heading_within(observed: Vehicle, path: Vehicle, spans: list[tuple[float, float]]) -> Vehicle:
-    """``observed`` facing as ``path`` within the time ``spans`` (s), blended over ``BLEND_S`` outside them."""
+    """``observed`` facing as ``path`` (or half round from it: the same box) within the time ``spans`` (s), blended
+    over ``BLEND_S`` outside them."""
     o, p = observed.trajectory.arrays(), path.trajectory.arrays()
     t = o["t"]
     w = np.zeros(len(t))
     for lo, hi in spans:
         out = np.maximum(np.maximum(lo - t, t - hi), 0.0)
         w = np.maximum(w, np.clip(1.0 - out / BLEND_S, 0.0, 1.0))
-    diff = (np.unwrap(p["yaw"]) - np.unwrap(o["yaw"]) + math.pi) % (2 * math.pi) - math.pi
-    yaw = np.unwrap(np.unwrap(o["yaw"]) + w * diff)
+    yaw = np.unwrap(o["yaw"]) + w * _towards(np.unwrap(p["yaw"]) - np.unwrap(o["yaw"]), w <= 0.0)
     traj = observed.trajectory.model_copy(update={"yaw": [float(v) for v in yaw]})
     return observed.model_copy(update={"trajectory": traj})
+
+
+def _towards(diff: np.ndarray, anchor: np.ndarray) -> np.ndarray:
+    """The turn (rad, per sample) from a heading to a target ``diff`` away from it, the target taken half round where
+    that is nearer (a box fits both ways) at each stretch's sample next to an ``anchor`` sample (bool) and kept so
+    along the stretch: a target that crosses a right angle to the heading flips a per-sample choice half round
+    between two samples (a road user turned by its extrapolated path away from its held box heading)."""
+    near = (diff + 0.5 * math.pi) % math.pi - 0.5 * math.pi
+    cont = np.unwrap(near, period=math.pi)
+    out = np.empty_like(near)
+    bounds = np.flatnonzero(np.diff(anchor.astype(np.int8))) + 1
+    for run in np.split(np.arange(len(diff)), bounds):
+        if not len(run):
+            continue
+        edge = run[-1] if run[0] == 0 and len(run) < len(diff) else run[0]  # the sample next to an anchor
+        out[run] = cont[run] - math.pi * round(float(cont[edge] - near[edge]) / math.pi)
+    return out
 
 
 def _broken_contact(
