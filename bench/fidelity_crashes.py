@@ -95,6 +95,7 @@ def run_clip(name: str, label_file: Path, label: CrashLabel, work: Path, args: a
         "share50_processed": rep["processed"]["share_iou_ge_0_5"],
         "centre_px_processed": rep["processed"]["median_centre_px"],
         "tracks_in_scenario": f"{rep['tracks_in_scenario']}/{rep['tracks']}",
+        "plausibility": {k: v for k, v in summary.get("plausibility", {}).items() if k != "rule"},
         "scenario_collision_same_pair": (crash.get("scenario_collision") or {}).get("same_pair"),
         "notes": summary["notes"],
         "extract_s": round(t_extract, 1),
@@ -181,7 +182,21 @@ def markdown(rows: list[dict[str, Any]]) -> str:
         "the same over every tracked box (coasting ones included): "
         + " / ".join(_mean_of(rows, k, every=True) for k in ("processed", "simulated"))
     )
+    lines.append(plausibility_line(rows))
     return "\n".join(lines)
+
+
+def plausibility_line(rows: list[dict[str, Any]]) -> str:
+    """The clips' vehicles' plausibility (``eval.plausibility``) summed over the clips, as one line."""
+    p = [r["plausibility"] for r in rows if r.get("plausibility")]
+    steps, over = sum(x["steps"] for x in p), sum(x["over_turning"] for x in p)
+    moving, sliding = sum(x["moving"] for x in p), sum(x["sliding"] for x in p)
+    flipped = sum(len(x["vehicles_with_half_turns"]) for x in p)
+    return (
+        f"vehicles turned half round between two samples: {flipped} of {sum(x['vehicles'] for x in p)}; "
+        f"steps turning beyond the steering limit {over}/{steps} ({100 * over / max(steps, 1):.1f} %); "
+        f"moving samples sliding > 20 deg off their motion {sliding}/{moving} ({100 * sliding / max(moving, 1):.1f} %)"
+    )
 
 
 def _mean_of(rows: list[dict[str, Any]], source: str, every: bool = False) -> str:

@@ -119,6 +119,28 @@ def test_demo_birdseye_draws_the_oncoming_lanes(demo, tmp_path):
     assert yellow.sum() > 500
 
 
+def test_birdseye_marks_each_vehicles_front(demo):
+    """A box fits a vehicle both ways round: the bird's-eye view draws each vehicle's front edge dark, so a car
+    facing against its path (or turned half round) shows. Checked on the ego of the demo's replay, just inside its
+    front and its rear edge."""
+    from deepcrashtest.sim import simulate
+    from deepcrashtest.viz import birdseye
+
+    res = simulate(demo, controller="replay")
+    frame = next(birdseye.render_frames(demo, res)).astype(float).mean(axis=2)
+    x, y, yaw, _ = res.states[0, 0]
+    view = birdseye._View(np.array([x + birdseye.AHEAD_M * np.cos(yaw), y + birdseye.AHEAD_M * np.sin(yaw)]))
+    pts = view.px(birdseye._box(x, y, yaw, demo.ego.length, demo.ego.width)).astype(float)
+    front, rear = (pts[0] + pts[3]) / 2, (pts[1] + pts[2]) / 2
+    axis = (front - rear) / np.linalg.norm(front - rear)
+
+    def shade(p: np.ndarray) -> float:
+        c, r = np.round(p).astype(int)
+        return float(frame[r - 1 : r + 2, c - 1 : c + 2].mean())
+
+    assert shade(front - 1.5 * axis) < shade(rear + 1.5 * axis) - 40
+
+
 @pytest.mark.parametrize("seq", [9])
 def test_kitti_oncoming_cars_drive_on_the_oncoming_lanes(seq):
     """KITTI training sequences from labels (no lane lines: the road is inferred from the road users): the

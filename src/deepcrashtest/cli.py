@@ -732,6 +732,13 @@ def _print_fidelity(r: dict[str, Any]) -> None:
         )
     else:
         typer.echo(f"  video has a crash: {crash['video_has_crash']} ({crash['video_has_crash_source']})")
+    p = r.get("plausibility") or {}
+    if p.get("vehicles"):
+        typer.echo(
+            f"  vehicles as vehicles move ({p['vehicles']}): turned half round {p['half_turns']} times, beyond the "
+            f"steering limit {p['over_turning']} of {p['steps']} steps, sliding > 20 deg {p['sliding']} of "
+            f"{p['moving']} moving samples"
+        )
     typer.echo(f"  time mapping: {r['time_mapping']['rule']}, offset {r['time_mapping']['time_offset_s']:.3f} s")
     for note in r["notes"]:
         typer.echo(f"  note: {note}")

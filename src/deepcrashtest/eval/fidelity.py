@@ -34,6 +34,7 @@ import pandas as pd
 
 from deepcrashtest.datasets.crash_labels import CrashLabel
 from deepcrashtest.errors import UserError
+from deepcrashtest.eval.plausibility import plausibility
 from deepcrashtest.geometry.project import project_box, scenario_poses
 from deepcrashtest.perception.boxes import iou_matrix
 from deepcrashtest.scenario import Scenario
@@ -60,6 +61,7 @@ class FidelityResult:
     per_agent: dict[str, dict[str, Any]]
     crash: dict[str, Any]
     notes: list[str] = field(default_factory=list)
+    plausibility: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -68,6 +70,7 @@ class FidelityResult:
             "reprojection": self.reprojection,
             "per_agent": self.per_agent,
             "crash": self.crash,
+            "plausibility": self.plausibility,
             "notes": self.notes,
         }
 
@@ -344,7 +347,7 @@ def evaluate_fidelity(
         "time_offset_s": scenario.source.time_offset_s,
         "rule": "scenario time = frame / fps + time_offset_s (Scenario.frame_time / video_time)",
     }
-    return FidelityResult(name or scenario.name, mapping, pairs, overall, per, crash, notes)
+    return FidelityResult(name or scenario.name, mapping, pairs, overall, per, crash, notes, plausibility(scenario))
 
 
 def fidelity_json(result: FidelityResult | dict[str, Any]) -> str:

@@ -137,6 +137,7 @@ def render_frames(scenario: Scenario, result: Any, stride: int | None = None) ->
                 pts = view.px(_box(x, y, yaw, *sizes[vid]))
                 cv2.fillPoly(img, [pts], colour, cv2.LINE_AA)
                 cv2.polylines(img, [pts], True, (20, 20, 20), 1, cv2.LINE_AA)
+                cv2.line(img, tuple(map(int, pts[0])), tuple(map(int, pts[3])), (20, 20, 20), 3, cv2.LINE_AA)  # front
             tag = f"{vid} {SHORT[cat]}" if cat in SHORT else str(vid)
             _text(img, tag, (int(p[0]) - 6, int(p[1]) - 14), 0.45, TEXT)
         label = f"t = {t:6.2f} s   ego {ego[3] * 3.6:5.1f} km/h   controller: {result.controller}"

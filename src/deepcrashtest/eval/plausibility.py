@@ -1,0 +1,73 @@
+"""Whether a scenario's vehicles move as vehicles can: the physical side of its fidelity to the video.
+
+A scenario can reproduce its video's boxes and crash while its road users do what no vehicle does: turn half
+round between two samples (a box fits both ways round), turn faster than their steering allows at their speed,
+or slide sideways (a heading far off the direction of motion). A replay or an exported OpenSCENARIO shows all
+three. Counted over every vehicle's samples the video saw (``Trajectory.observed``; pedestrians, who step
+sideways and turn on the spot, are left out), with the simulator's kinematic bicycle
+(:data:`deepcrashtest.scenario.VEHICLE_KINEMATICS`). Times in seconds, angles in radians (world frame),
+speeds in m/s.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from deepcrashtest.scenario import Scenario, Vehicle, kinematics
+
+#: A heading change between two samples larger than this (rad) is a half turn, not a turn.
+HALF_TURN_RAD = 0.5 * math.pi
+#: Speed (m/s) added to a vehicle's own before its turning limit is applied: a track's speed is that uncertain.
+TURN_SPEED_MARGIN_MPS = 1.0
+#: Speed (m/s) from which a heading off the direction of motion counts as sliding ...
+SLIDE_MIN_SPEED_MPS = 3.0
+#: ... when it is more than this off it (rad), or off its reverse (reversing is allowed).
+SLIDE_MAX_RAD = math.radians(20.0)
+
+
+def vehicle_plausibility(vehicle: Vehicle) -> dict[str, int]:
+    """Counts for one vehicle over its observed samples: ``steps`` (consecutive observed pairs), ``half_turns``
+    and ``over_turning`` among them (heading change above ``dt (v + TURN_SPEED_MARGIN_MPS) tan(max_steer) /
+    wheelbase`` at the pair's mean speed, half turns included), ``moving`` samples (speed of the path >=
+    ``SLIDE_MIN_SPEED_MPS``) and ``sliding`` among them."""
+    a = vehicle.trajectory.arrays()
+    t, yaw = a["t"], np.unwrap(a["yaw"])
+    seen = np.ones(len(t), bool) if vehicle.trajectory.observed is None else np.asarray(vehicle.trajectory.observed)
+    out = {"steps": 0, "half_turns": 0, "over_turning": 0, "moving": 0, "sliding": 0}
+    if len(t) < 3:
+        return out
+    kin = kinematics(vehicle.category)
+    pair = seen[1:] & seen[:-1] & (np.diff(t) > 0)
+    turn = np.abs(np.diff(yaw))
+    speed = 0.5 * (np.abs(a["speed"][1:]) + np.abs(a["speed"][:-1])) + TURN_SPEED_MARGIN_MPS
+    limit = np.diff(t) * speed * math.tan(kin.max_steer_rad) / (kin.wheelbase_fraction * vehicle.length)
+    vx, vy = np.gradient(a["x"], t), np.gradient(a["y"], t)
+    moving = seen & (np.hypot(vx, vy) >= SLIDE_MIN_SPEED_MPS)
+    off = np.abs((np.arctan2(vy, vx) - yaw + 0.5 * math.pi) % math.pi - 0.5 * math.pi)
+    out["steps"] = int(pair.sum())
+    out["half_turns"] = int((pair & (turn > HALF_TURN_RAD)).sum())
+    out["over_turning"] = int((pair & (turn > limit)).sum())
+    out["moving"] = int(moving.sum())
+    out["sliding"] = int((moving & (off > SLIDE_MAX_RAD)).sum())
+    return out
+
+
+def plausibility(scenario: Scenario) -> dict[str, Any]:
+    """The scenario's agents that are vehicles, summed (:func:`vehicle_plausibility`), with the shares
+    ``over_turning_share`` (of steps), ``sliding_share`` (of moving samples) and ``vehicles_with_half_turns``."""
+    rows = [(v.id, vehicle_plausibility(v)) for v in scenario.agents if not kinematics(v.category).holonomic]
+    total = {k: sum(r[k] for _, r in rows) for k in ("steps", "half_turns", "over_turning", "moving", "sliding")}
+    return total | {
+        "vehicles": len(rows),
+        "vehicles_with_half_turns": sorted(i for i, r in rows if r["half_turns"]),
+        "over_turning_share": round(total["over_turning"] / total["steps"], 4) if total["steps"] else None,
+        "sliding_share": round(total["sliding"] / total["moving"], 4) if total["moving"] else None,
+        "rule": (
+            f"vehicles' observed samples; over turning: heading change > dt (v + {TURN_SPEED_MARGIN_MPS:g} m/s) "
+            f"tan(max steer) / wheelbase; sliding: speed >= {SLIDE_MIN_SPEED_MPS:g} m/s and heading > "
+            f"{math.degrees(SLIDE_MAX_RAD):g} deg off the direction of motion (or its reverse)"
+        ),
+    }

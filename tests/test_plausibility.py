@@ -1,0 +1,41 @@
+"""Whether a scenario's vehicles move as vehicles can (``eval.plausibility``), on KITTI's labelled tracks."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
+from deepcrashtest.eval.plausibility import plausibility
+from deepcrashtest.scenario import Scenario
+
+
+def _turned(sc: Scenario, every_other: float, moving_by: float) -> Scenario:
+    """Each agent's heading turned by ``every_other`` rad at every second sample and by ``moving_by`` rad where
+    it moves faster than 3 m/s."""
+    agents = []
+    for a in sc.agents:
+        arr = a.trajectory.arrays()
+        yaw = arr["yaw"] + every_other * (np.arange(len(arr["t"])) % 2) + moving_by * (arr["speed"] > 3.0)
+        agents.append(a.model_copy(update={"trajectory": a.trajectory.model_copy(update={"yaw": yaw.tolist()})}))
+    return sc.evolve(agents=agents)
+
+
+def test_labelled_kitti_vehicles_move_as_vehicles(kitti_root):
+    """KITTI 0011's labelled cars (positions and headings from LiDAR boxes, a town street with turning, crossing and
+    parked cars) pass: no half turn, almost no step beyond the steering limit, few moving samples sliding. The
+    same tracks turned half round at every other sample, or turned 40 deg off their motion, fail."""
+    truth = scenario_from_kitti(kitti_root, 11)
+    p = plausibility(truth)
+    assert p["vehicles"] >= 20 and p["moving"] >= 200
+    assert p["half_turns"] == 0 and p["vehicles_with_half_turns"] == []
+    assert p["over_turning_share"] < 0.01  # measured 0.0003
+    assert p["sliding_share"] < 0.02  # measured 0.0
+    flipped = plausibility(_turned(truth, math.pi, 0.0))
+    assert flipped["half_turns"] >= 0.9 * flipped["steps"]
+    assert len(flipped["vehicles_with_half_turns"]) == p["vehicles"] - sum(
+        1 for a in truth.agents if len(a.trajectory.t) < 3
+    )
+    sliding = plausibility(_turned(truth, 0.0, math.radians(40.0)))
+    assert sliding["sliding_share"] > 0.9
