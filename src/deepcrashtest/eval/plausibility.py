@@ -56,9 +56,10 @@ def vehicle_plausibility(vehicle: Vehicle) -> dict[str, int]:
 
 
 def plausibility(scenario: Scenario) -> dict[str, Any]:
-    """The scenario's agents that are vehicles, summed (:func:`vehicle_plausibility`), with the shares
+    """The scenario's vehicles (the ego and the agents that are not pedestrians), summed
+    (:func:`vehicle_plausibility`), with the shares
     ``over_turning_share`` (of steps), ``sliding_share`` (of moving samples) and ``vehicles_with_half_turns``."""
-    rows = [(v.id, vehicle_plausibility(v)) for v in scenario.agents if not kinematics(v.category).holonomic]
+    rows = [(v.id, vehicle_plausibility(v)) for v in scenario.vehicles() if not kinematics(v.category).holonomic]
     total = {k: sum(r[k] for _, r in rows) for k in ("steps", "half_turns", "over_turning", "moving", "sliding")}
     return total | {
         "vehicles": len(rows),
