@@ -107,20 +107,51 @@ def test_bad_files(tmp_path, content, fragment):
         open_video(p)
 
 
-def test_rotated_video_is_refused(tmp_path):
-    path = tmp_path / "rotated.mp4"
+def _rotated_clip(path, rotation: int, size=(64, 48)):  # type: ignore[no-untyped-def]
+    """A 3-frame clip stored ``size`` (w, h) with a white block at its top left, tagged with a display rotation."""
+    w, h = size
     with av.open(str(path), "w") as out:
         stream = out.add_stream("libx264", rate=10)
-        stream.width, stream.height, stream.pix_fmt = 64, 48, "yuv420p"
-        stream.set_display_rotation(90)
-        for i in range(3):
-            frame = av.VideoFrame.from_ndarray(np.full((48, 64, 3), 40 * i, np.uint8), format="bgr24")
-            for p in stream.encode(frame):
+        stream.width, stream.height, stream.pix_fmt = w, h, "yuv420p"
+        stream.set_display_rotation(rotation)
+        for _ in range(3):
+            image = np.zeros((h, w, 3), np.uint8)
+            image[: h // 4, : w // 4] = 255
+            for p in stream.encode(av.VideoFrame.from_ndarray(image, format="bgr24")):
                 out.mux(p)
         for p in stream.encode():
             out.mux(p)
-    with pytest.raises(UserError, match="rotated by 90"):
-        open_video(path)
+    return path
+
+
+@pytest.mark.parametrize(
+    ("rotation", "corner"),
+    [(-90, (0, 1)), (90, (1, 0)), (180, (1, 1)), (0, (0, 0))],
+    ids=["phone-portrait", "ccw", "upside-down", "none"],
+)
+def test_rotated_video_is_turned_upright(tmp_path, rotation, corner):
+    """A clip stored on its side with a display rotation (how phones record portrait video) comes out upright,
+    turned as FFmpeg's autorotate turns it: "rotate 90" (a display matrix of -90 deg) a quarter turn clockwise, the
+    stored top-left corner then at the top right. Scaled (``max_width``) the same way."""
+    path = _rotated_clip(tmp_path / "rotated.mp4", rotation)
+    for max_width in (None, 24):
+        with open_video(path, max_width=max_width) as src:
+            frames = [f.image for f in src]
+            meta = src.meta
+        upright = (48, 64) if rotation % 180 else (64, 48)
+        assert (meta.width, meta.height) == (upright if max_width is None else (24, 24 * upright[1] // upright[0]))
+        assert frames[0].shape[:2] == (meta.height, meta.width)
+        assert len(frames) == 3
+        h, w = frames[0].shape[:2]
+        grey = frames[0].mean(axis=2)
+        corners = {(r, c): grey[r * (h - 1), c * (w - 1)] for r in (0, 1) for c in (0, 1)}
+        assert max(corners, key=lambda k: corners[k]) == corner
+        assert any("turned upright" in m for m in meta.warnings) == (rotation != 0)
+
+
+def test_video_rotated_off_right_angles_is_refused(tmp_path):
+    with pytest.raises(UserError, match="rotated by 45"):
+        open_video(_rotated_clip(tmp_path / "r45.mp4", 45))
 
 
 def test_folder_errors(tmp_path):

@@ -176,13 +176,15 @@ class PyAVSource(VideoSource):
             self._container.close()
             why = f" ({n_bad})" if n_bad else ""
             raise UserError(f"{path}: no frame could be decoded (0-frame or unreadable video){why}")
-        rotation = int(getattr(self._first, "rotation", 0) or 0) % 360
-        if rotation:
+        rotation = float(getattr(self._first, "rotation", 0) or 0)
+        turns = _quarter_turns(rotation)
+        if turns is None:
             self._container.close()
             raise UserError(
-                f"{path}: video is stored rotated by {rotation} degrees (display matrix); "
-                "re-encode it upright first, e.g. ffmpeg -i IN -c:v libx264 OUT.mp4 (ffmpeg applies the rotation)"
+                f"{path}: video is stored rotated by {rotation:g} degrees (display matrix), not a multiple "
+                "of 90; re-encode it upright first, e.g. ffmpeg -i IN -c:v libx264 OUT.mp4"
             )
+        self._quarter_turns: int = turns
         frames = int(stream.frames or 0)
         if frames <= 0:
             dur = _duration_s(self._container, stream)
@@ -193,10 +195,15 @@ class PyAVSource(VideoSource):
             kind="video",
             fps=float(use_fps),
             frame_count=frames,
-            width=int(self._first.width),
-            height=int(self._first.height),
+            width=int(self._first.height if self._quarter_turns % 2 else self._first.width),
+            height=int(self._first.width if self._quarter_turns % 2 else self._first.height),
             sha256=sha256_file(path),
         )
+        if self._quarter_turns:
+            self.meta.warnings.append(
+                f"{path}: stored turned (display matrix rotation {rotation:g} degrees: a phone held upright or "
+                "upside down); frames turned upright as players show them"
+            )
         _scale_meta(self.meta, max_width)
         self._used = False
 
@@ -241,7 +248,10 @@ class PyAVSource(VideoSource):
                 image = raw.to_ndarray(format="bgr24")
             else:  # FFmpeg's swscale, averaging areas: ~10 ms for a 4K frame against ~30 with cv2.resize after
                 w, h = self.meta.width, self.meta.height
+                w, h = (h, w) if self._quarter_turns % 2 else (w, h)  # the stored frame's orientation
                 image = raw.to_ndarray(format="bgr24", width=w, height=h, interpolation="AREA")
+            if self._quarter_turns:
+                image = np.ascontiguousarray(np.rot90(image, self._quarter_turns))
             self.meta.decoded_frames = index + 1
             yield Frame(index=index, time=t, image=image)
             index += 1
@@ -277,6 +287,17 @@ class _FrameGaps:
     def add(self, gap: float) -> tuple[float, float] | None:
         self.lo, self.hi = min(self.lo, gap), max(self.hi, gap)
         return (1.0 / self.hi, 1.0 / self.lo) if self.hi - self.lo > max(self.tick, 1e-3) + 1e-6 else None
+
+
+def _quarter_turns(rotation_deg: float) -> int | None:
+    """Counter-clockwise quarter turns (0-3) that bring a frame upright from its display matrix's rotation
+    (PyAV's ``VideoFrame.rotation``: libavutil's ``av_display_rotation_get``, degrees), as FFmpeg's autorotate
+    applies it (a phone's portrait clip tagged "rotate 90" reads -90: one quarter turn clockwise); None where the
+    rotation is not a multiple of 90 degrees."""
+    turns = rotation_deg / 90.0
+    if abs(turns - round(turns)) > 1.0 / 90.0:
+        return None
+    return int(round(turns)) % 4
 
 
 def _duration_s(container: Any, stream: Any) -> float:
