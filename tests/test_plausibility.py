@@ -39,3 +39,16 @@ def test_labelled_kitti_vehicles_move_as_vehicles(kitti_root):
     sliding = plausibility(_turned(truth, 0.0, math.radians(40.0)))
     agents_moving = sliding["moving"] - vehicle_plausibility(truth.ego)["moving"]
     assert sliding["sliding"] > 0.9 * agents_moving
+
+
+def test_report_lists_the_vehicles_that_do_not_move_as_vehicles(kitti_root):
+    """The report's plausibility section: KITTI 0011's labelled cars all pass; turned half round at every other
+    sample, every car gets its row."""
+    from deepcrashtest.viz.report import plausibility_section
+
+    truth = scenario_from_kitti(kitti_root, 11)
+    assert "Every vehicle moves as a vehicle can" in plausibility_section(truth).body
+    body = plausibility_section(_turned(truth, math.pi, 0.0)).body
+    turned = [a for a in truth.agents if a.category != "pedestrian" and len(a.trajectory.t) >= 3]
+    assert body.count("<tr><td>") == len(turned)
+    assert "Every vehicle" not in body

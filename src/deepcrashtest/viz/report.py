@@ -605,6 +605,38 @@ def search_section(results: Any, title: str = "Search: start positions") -> Sect
     return Section(title, table(rows) + img(figure_png(fig), "start-position map coloured by outcome"))
 
 
+def plausibility_section(sc: Scenario) -> Section:
+    """Whether each vehicle moves as a vehicle can (:mod:`deepcrashtest.eval.plausibility`) where the video saw it:
+    one line for the scenario and a row for each vehicle that turns half round, turns beyond its steering limit on
+    more than 5 % of its steps or slides on more than a fifth of its moving samples (a replay and an export show
+    all three)."""
+    from deepcrashtest.eval import plausibility as pl
+
+    summary = pl.plausibility(sc)
+    rows = []
+    for v in sc.vehicles():
+        if v.category == "pedestrian":
+            continue
+        p = pl.vehicle_plausibility(v)
+        sliding = p["sliding"] / p["moving"] if p["moving"] else 0.0
+        if p["half_turns"] or p["over_turning"] > 0.05 * p["steps"] or sliding > 0.2:
+            rows.append(
+                f"<tr><td>{esc(who(sc, v.id))}</td><td>{p['half_turns']}</td><td>{p['over_turning']} of {p['steps']}"
+                f"</td><td>{p['sliding']} of {p['moving']}</td></tr>"
+            )
+    line = (
+        f"{summary['vehicles']} vehicles, their observed samples: {summary['half_turns']} half turns between two "
+        f"samples, {summary['over_turning']} of {summary['steps']} steps turning beyond the steering limit, "
+        f"{summary['sliding']} of {summary['moving']} moving samples sliding > "
+        f"{math.degrees(pl.SLIDE_MAX_RAD):.0f} deg off their direction of motion."
+    )
+    head = "<tr><th>vehicle</th><th>half turns</th><th>steps beyond the steering limit</th><th>sliding</th></tr>"
+    body = f"<p>{esc(line)}</p>" + (
+        f'<table class="kv">{head}{"".join(rows)}</table>' if rows else "<p>Every vehicle moves as a vehicle can.</p>"
+    )
+    return Section("Vehicle plausibility", body + f"<p><small>{esc(summary['rule'])}</small></p>")
+
+
 def warnings_section(sc: Scenario) -> Section | None:
     if not sc.warnings:
         return None
@@ -644,6 +676,7 @@ def scenario_sections(
         camera_section(sc),
         sheet.result() if sheet is not None else None,
         *plots,
+        plausibility_section(sc),
         simulation_section(sim_metrics, sc=sc) if sim_metrics is not None else None,
         search_section(search) if search is not None else None,
         fidelity_section(fidelity) if fidelity is not None else None,
