@@ -189,6 +189,8 @@ def markdown(rows: list[dict[str, Any]]) -> str:
 def plausibility_line(rows: list[dict[str, Any]]) -> str:
     """The clips' vehicles' plausibility (``eval.plausibility``) summed over the clips, as one line."""
     p = [r["plausibility"] for r in rows if r.get("plausibility")]
+    if not p:
+        return "plausibility: not in these rows (written before it was measured)"
     steps, over = sum(x["steps"] for x in p), sum(x["over_turning"] for x in p)
     moving, sliding = sum(x["moving"] for x in p), sum(x["sliding"] for x in p)
     flipped = sum(len(x["vehicles_with_half_turns"]) for x in p)
