@@ -68,6 +68,7 @@ def test_report_of_kitti_0008_is_one_self_contained_file(tmp_path, kitti8_raw):
         "Camera and calibration",
         "Bird's-eye view",
         "Speed and distance over time",
+        "Vehicle plausibility",
         "Simulation outcome",
         "Search: start positions",
     ]
