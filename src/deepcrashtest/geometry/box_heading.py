@@ -162,7 +162,7 @@ def one_way_round(psi: np.ndarray, yaw_motion: np.ndarray, speed: np.ndarray) ->
 
     One choice for the whole track: a road user's body does not turn half round between two frames, while a
     slow one's direction of motion does (range noise, reversing); turning each frame towards it spun parked and
-    crawling cars half round in the scenario (10 of the 20 fidelity clips' scenarios)."""
+    crawling cars half round in the scenario (17 raw tracks of the 20 fidelity clips)."""
     w = speed**2 / (speed**2 + MOTION_NOISE_MPS**2) + 1e-3  # a parked one's: towards its raw heading
     return psi if float(np.sum(w * np.cos(psi - yaw_motion))) >= 0.0 else psi + math.pi
 
