@@ -128,5 +128,13 @@ def test_batch_extracts_real_videos_and_records_a_broken_one(kitti_root, tmp_pat
     assert extracted.stage == "processed" and extracted.source.fps == 20.0
     summary = json.loads((tmp_path / "out" / "crash" / "search" / "summary.json").read_text())
     assert summary["methods"]["random"]["simulations"] == 4
+    entry = read_manifest(tmp_path / "out" / "manifest.json")["items"]["crash"]["result"]
+    crash = extracted.collision
+    assert entry["crash"] == (
+        None
+        if crash is None
+        else {"participants": list(crash.participants), "time_s": crash.time_s, "source": crash.source}
+    )
+    assert set(entry["plausibility"]) == {"vehicles_with_half_turns", "over_turning_share", "sliding_share"}
     with pytest.raises(UserError):
         process_video(folder / "broken.mp4", tmp_path / "one", cfg)

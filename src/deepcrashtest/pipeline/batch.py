@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from deepcrashtest.errors import UserError
+from deepcrashtest.eval.plausibility import plausibility
 from deepcrashtest.fileio import atomic_write_text, ensure_output_dir
 from deepcrashtest.scenario import Scenario
 from deepcrashtest.search.run import SearchConfig, run_search
@@ -48,7 +49,9 @@ def process_video(
     workers: int = 1,
     force: bool = False,
 ) -> dict[str, Any]:
-    """One input end to end: extract (videos only) -> Scenario -> search. Returns a short summary.
+    """One input end to end: extract (videos only) -> Scenario -> search. Returns a short summary (with the
+    scenario's crash and whether its vehicles move as vehicles can, :mod:`deepcrashtest.eval.plausibility`: what
+    to look at first among thousands of clips).
 
     Videos go through ``deepcrashtest.pipeline.extract.extract_video(video, outdir / "extract", ...)``;
     ``*.json`` inputs are Scenario files and go straight to the search.
@@ -62,8 +65,14 @@ def process_video(
         scenario = _extract(src, out / "extract", cfg.seed, force)
     summary = run_search(scenario, out / "search", cfg, engine=engine, workers=workers, force=force)
     methods = summary["methods"]
+    col = scenario.collision
+    plaus = plausibility(scenario)
     return {
         "scenario": scenario.name,
+        "crash": None
+        if col is None
+        else {"participants": list(col.participants), "time_s": col.time_s, "source": col.source},
+        "plausibility": {k: plaus[k] for k in ("vehicles_with_half_turns", "over_turning_share", "sliding_share")},
         "original_collided": summary["original"]["collided"],
         "simulations": summary["simulations"],
         "safe_random": methods.get("random", {}).get("safe"),
