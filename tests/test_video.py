@@ -149,6 +149,35 @@ def test_rotated_video_is_turned_upright(tmp_path, rotation, corner):
         assert any("turned upright" in m for m in meta.warnings) == (rotation != 0)
 
 
+def test_pixels_wider_than_high_are_resampled_square(tmp_path):
+    """A clip whose pixels are 4:3 as wide as high (sample aspect ratio: anamorphic HDV, DVD) comes out with square
+    pixels, as players show it: a block stored 18 px wide and 24 high is 24 x 24, the frame 128 x 64 (the geometry
+    takes every pixel as square: read as stored, every angle across the picture would be 25 % short)."""
+    from fractions import Fraction
+
+    path = tmp_path / "anamorphic.mp4"
+    with av.open(str(path), "w") as out:
+        stream = out.add_stream("libx264", rate=10)
+        stream.width, stream.height, stream.pix_fmt = 96, 64, "yuv420p"
+        stream.codec_context.sample_aspect_ratio = Fraction(4, 3)
+        for _ in range(3):
+            image = np.zeros((64, 96, 3), np.uint8)
+            image[20:44, 30:48] = 255
+            for p in stream.encode(av.VideoFrame.from_ndarray(image, format="bgr24")):
+                out.mux(p)
+        for p in stream.encode():
+            out.mux(p)
+    with open_video(path) as src:
+        frame = next(iter(src)).image
+        meta = src.meta
+    assert (meta.width, meta.height) == (128, 64) and frame.shape[:2] == (64, 128)
+    grey = frame.mean(axis=2)
+    cols = np.flatnonzero(grey[32] > 128)  # the block's middle row and column (stored columns 30-47)
+    rows = np.flatnonzero(grey[:, 52] > 128)
+    assert abs(len(cols) - 24) <= 2 and abs(len(rows) - 24) <= 2
+    assert any("square pixels" in m for m in meta.warnings)
+
+
 def test_video_rotated_off_right_angles_is_refused(tmp_path):
     with pytest.raises(UserError, match="rotated by 45"):
         open_video(_rotated_clip(tmp_path / "r45.mp4", 45))

@@ -190,15 +190,22 @@ class PyAVSource(VideoSource):
             dur = _duration_s(self._container, stream)
             frames = int(round(dur * use_fps)) if dur else 0
         self._start = self._first.time if self._first.time is not None else 0.0
+        self._square = _square_pixels(self._first.width, self._first.height, stream.sample_aspect_ratio)
+        w, h = self._square or (int(self._first.width), int(self._first.height))
         self.meta = VideoMeta(
             path=path,
             kind="video",
             fps=float(use_fps),
             frame_count=frames,
-            width=int(self._first.height if self._quarter_turns % 2 else self._first.width),
-            height=int(self._first.width if self._quarter_turns % 2 else self._first.height),
+            width=h if self._quarter_turns % 2 else w,
+            height=w if self._quarter_turns % 2 else h,
             sha256=sha256_file(path),
         )
+        if self._square is not None:
+            self.meta.warnings.append(
+                f"{path}: pixels {stream.sample_aspect_ratio} as wide as high (sample aspect ratio); frames resampled "
+                f"to square pixels, {self._first.width}x{self._first.height} -> {w}x{h}, as players show them"
+            )
         if self._quarter_turns:
             self.meta.warnings.append(
                 f"{path}: stored turned (display matrix rotation {rotation:g} degrees: a phone held upright or "
@@ -244,7 +251,7 @@ class PyAVSource(VideoSource):
             elif index > 0:
                 self.meta.rate_range = gaps.add(t - last_t)
             last_t = t
-            if self.meta.scaled_from is None:
+            if self.meta.scaled_from is None and self._square is None:
                 image = raw.to_ndarray(format="bgr24")
             else:  # FFmpeg's swscale, averaging areas: ~10 ms for a 4K frame against ~30 with cv2.resize after
                 w, h = self.meta.width, self.meta.height
@@ -287,6 +294,16 @@ class _FrameGaps:
     def add(self, gap: float) -> tuple[float, float] | None:
         self.lo, self.hi = min(self.lo, gap), max(self.hi, gap)
         return (1.0 / self.hi, 1.0 / self.lo) if self.hi - self.lo > max(self.tick, 1e-3) + 1e-6 else None
+
+
+def _square_pixels(width: int, height: int, sar: Any) -> tuple[int, int] | None:
+    """The frame size (px, even width) with square pixels for a stored ``width`` x ``height`` whose pixels are
+    ``sar`` (the stream's sample aspect ratio, a Fraction or None) as wide as high; None when they are square
+    (or the ratio is missing or implausible: outside 1/4-4, as an unset 0:1 reads)."""
+    ratio = float(sar) if sar else 1.0
+    if abs(ratio - 1.0) < 0.01 or not 0.25 <= ratio <= 4.0:
+        return None
+    return 2 * max(1, round(width * ratio / 2)), int(height)
 
 
 def _quarter_turns(rotation_deg: float) -> int | None:
