@@ -13,6 +13,7 @@ from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import sha256_file
 from deepcrashtest.video.source import open_video
 from deepcrashtest.video.writer import VideoWriter
+from deepcrashtest.viz.video_frames import VideoFrames
 
 DAD = DATA / "crash_dad" / "dad_000512.mp4"
 
@@ -147,6 +148,12 @@ def test_rotated_video_is_turned_upright(tmp_path, rotation, corner):
         corners = {(r, c): grey[r * (h - 1), c * (w - 1)] for r in (0, 1) for c in (0, 1)}
         assert max(corners, key=lambda k: corners[k]) == corner
         assert any("turned upright" in m for m in meta.warnings) == (rotation != 0)
+    with open_video(path) as src:
+        first = next(iter(src)).image
+    shown = VideoFrames(path)  # the viewer's and the report's frames: the same upright picture
+    assert (shown.width, shown.height) == upright
+    assert np.abs(shown.frame(0)[..., ::-1].astype(int) - first.astype(int)).max() <= 2
+    shown.close()
 
 
 def test_pixels_wider_than_high_are_resampled_square(tmp_path):

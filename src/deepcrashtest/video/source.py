@@ -251,14 +251,8 @@ class PyAVSource(VideoSource):
             elif index > 0:
                 self.meta.rate_range = gaps.add(t - last_t)
             last_t = t
-            if self.meta.scaled_from is None and self._square is None:
-                image = raw.to_ndarray(format="bgr24")
-            else:  # FFmpeg's swscale, averaging areas: ~10 ms for a 4K frame against ~30 with cv2.resize after
-                w, h = self.meta.width, self.meta.height
-                w, h = (h, w) if self._quarter_turns % 2 else (w, h)  # the stored frame's orientation
-                image = raw.to_ndarray(format="bgr24", width=w, height=h, interpolation="AREA")
-            if self._quarter_turns:
-                image = np.ascontiguousarray(np.rot90(image, self._quarter_turns))
+            resampled = self.meta.scaled_from is not None or self._square is not None
+            image = display_array(raw, "bgr24", size=(self.meta.width, self.meta.height) if resampled else None)
             self.meta.decoded_frames = index + 1
             yield Frame(index=index, time=t, image=image)
             index += 1
@@ -294,6 +288,25 @@ class _FrameGaps:
     def add(self, gap: float) -> tuple[float, float] | None:
         self.lo, self.hi = min(self.lo, gap), max(self.hi, gap)
         return (1.0 / self.hi, 1.0 / self.lo) if self.hi - self.lo > max(self.tick, 1e-3) + 1e-6 else None
+
+
+def display_array(frame: Any, fmt: str = "bgr24", sar: Any = None, size: tuple[int, int] | None = None) -> np.ndarray:
+    """A decoded PyAV frame as players show it, (H, W, 3) uint8 in ``fmt``: resampled to square pixels
+    (``sar``: the stream's sample aspect ratio) and turned upright by its display matrix's rotation (a
+    rotation off the right angles is left as stored); ``size`` (width, height px, upright): scaled to it
+    (FFmpeg's swscale averaging areas: ~10 ms for a 4K frame against ~30 with cv2.resize after). Used by
+    :func:`open_video`'s frames and by readers of a file outside it (the viewer's and the report's frames), so
+    that every view of a video shows the frames extract saw."""
+    turns = _quarter_turns(float(getattr(frame, "rotation", 0) or 0)) or 0
+    if size is None:
+        stored = _square_pixels(frame.width, frame.height, sar)
+    else:
+        stored = (size[1], size[0]) if turns % 2 else size  # the stored frame's orientation
+    if stored is None:
+        image = frame.to_ndarray(format=fmt)
+    else:
+        image = frame.to_ndarray(format=fmt, width=stored[0], height=stored[1], interpolation="AREA")
+    return np.ascontiguousarray(np.rot90(image, turns)) if turns else image
 
 
 def _square_pixels(width: int, height: int, sar: Any) -> tuple[int, int] | None:

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from deepcrashtest.errors import UserError
+from deepcrashtest.video.source import display_array
 
 #: Decode on instead of seeking when the requested time is at most this far ahead (seconds).
 _DECODE_AHEAD_S = 2.0
@@ -45,11 +46,29 @@ class VideoFrames:
         self.frame_count = int(self._stream.frames or round(self.duration_s * self.fps))
         start = self._stream.start_time
         self.start_s = float(start * tb) if start is not None and tb is not None else 0.0
-        self.width = int(self._stream.codec_context.width)
-        self.height = int(self._stream.codec_context.height)
         self._lock = threading.Lock()
         self._frames: Any = None
         self._last: tuple[float, np.ndarray] | None = None
+        first = self._first_frame()
+        if first is None:
+            self.width = int(self._stream.codec_context.width)
+            self.height = int(self._stream.codec_context.height)
+        else:  # as players show it (square pixels, upright), like extract's frames
+            self.height, self.width = first.shape[:2]
+
+    def _first_frame(self) -> np.ndarray | None:
+        """The first frame as shown, or None when none decodes (the next request seeks back to the start)."""
+        import av
+
+        try:
+            frame = next(iter(self._container.decode(self._stream)), None)
+        except (av.error.FFmpegError, OSError):  # type: ignore[attr-defined]
+            frame = None
+        self._frames = None
+        return None if frame is None else self._shown(frame)
+
+    def _shown(self, frame: Any) -> np.ndarray:
+        return display_array(frame, "rgb24", self._stream.sample_aspect_ratio)
 
     def info(self) -> dict[str, Any]:
         return {
@@ -90,11 +109,11 @@ class VideoFrames:
             last = frame
             ft = float(frame.time) if frame.time is not None else 0.0
             if ft >= t - 0.5 / self.fps:
-                self._last = (ft, frame.to_ndarray(format="rgb24"))
+                self._last = (ft, self._shown(frame))
                 return self._last[1]
         self._frames = None  # end of stream: the next request seeks
         if last is not None:
-            self._last = (float(last.time or 0.0), last.to_ndarray(format="rgb24"))
+            self._last = (float(last.time or 0.0), self._shown(last))
         if self._last is None:
             raise UserError(f"{self.path}: no frame could be decoded at {t:.3f} s")
         return self._last[1]
