@@ -653,6 +653,14 @@ def _print_kitti_table(result: dict[str, Any]) -> None:
         for name, row in errors.items():
             err.add_row(name, *(_err_cell(row[b]) for b in bins))
         console.print(err)
+    for name, row in result["sequences"].items():
+        h = row.get("heading_error")
+        if h and h["n"]:
+            console.print(
+                f"{name}: heading of matched cars (modulo a half turn) median {h['median_deg']:.1f} deg, p90 "
+                f"{h['p90_deg']:.1f} deg, {100 * h['share_over_20_deg']:.0f} % over 20 deg, "
+                f"{100 * h['share_reversed']:.0f} % facing the other way round"
+            )
     for note in result.get("notes", []):
         console.print(f"note: {note}", style="dim")
 

@@ -275,10 +275,12 @@ def score_sequence(
 def _position_errors(prep: MonoSequence, hyps: list) -> dict[str, Any]:
     """Ground-position error of evaluated cars matched to a track (Hungarian on distance, gate
     max(2 m, 25 % of the range)), by the car's range: median and 90th percentile (m), and the
-    median as a percentage of the range; the median signed range error (percent, > 0: too far)."""
+    median as a percentage of the range; the median signed range error (percent, > 0: too far); and under
+    ``heading`` the matched cars' heading error (:func:`heading_errors`)."""
     err: list[np.ndarray] = []
     rng: list[np.ndarray] = []
     bias: list[np.ndarray] = []
+    turn: list[np.ndarray] = []
     for f, (g, h, r) in enumerate(zip(prep.ground_truth, hyps, prep.gt_range, strict=True)):
         ev = g.evaluated
         if not ev.any() or len(h) == 0:
@@ -293,6 +295,7 @@ def _position_errors(prep: MonoSequence, hyps: list) -> dict[str, Any]:
         rng.append(gr[rows[ok]])
         hc = prep.world.world_to_camera(f, h.world[cols[ok], :3])
         bias.append(np.hypot(hc[:, 0], hc[:, 2]) - gr[rows[ok]])
+        turn.append(h.world[cols[ok], 6] - g.objects.world[ev, 6][rows[ok]])
     e = np.concatenate(err) if err else np.zeros(0)
     rr = np.concatenate(rng) if rng else np.zeros(0)
     bb = np.concatenate(bias) if bias else np.zeros(0)
@@ -310,7 +313,26 @@ def _position_errors(prep: MonoSequence, hyps: list) -> dict[str, Any]:
             "median_pct": round(float(np.median(e[m] / np.maximum(rr[m], 1e-6))) * 100, 2),
             "range_bias_pct": round(float(np.median(bb[m] / np.maximum(rr[m], 1e-6))) * 100, 2),
         }
+    out["heading"] = heading_errors(np.concatenate(turn) if turn else np.zeros(0))
     return out
+
+
+def heading_errors(diff: np.ndarray) -> dict[str, Any]:
+    """Heading error of matched cars from the differences ``diff`` (rad, hypothesis minus label): median and 90th
+    percentile (deg) of the box's error (modulo a half turn: a box fits both ways round), the share above 20 deg,
+    and the share facing the other way round (full-turn error above 90 deg)."""
+    diff = diff[np.isfinite(diff)]
+    if not len(diff):
+        return {"n": 0, "median_deg": None, "p90_deg": None, "share_over_20_deg": None, "share_reversed": None}
+    box = np.degrees(np.abs((diff + 0.5 * np.pi) % np.pi - 0.5 * np.pi))
+    full = np.degrees(np.abs((diff + np.pi) % (2 * np.pi) - np.pi))
+    return {
+        "n": len(diff),
+        "median_deg": round(float(np.median(box)), 2),
+        "p90_deg": round(float(np.percentile(box, 90)), 2),
+        "share_over_20_deg": round(float(np.mean(box > 20.0)), 3),
+        "share_reversed": round(float(np.mean(full > 90.0)), 3),
+    }
 
 
 def evaluate_mono(
@@ -338,6 +360,7 @@ def evaluate_mono(
     rows = evaluate_sequences(evaluated, rule)
     for name, row in rows.items():
         if name in errors:
+            row["heading_error"] = errors[name].pop("heading")
             row["position_error"] = errors[name]
             row["camera"] = cameras[name]
     return {
