@@ -6,7 +6,8 @@
 Prints, per camera, the combined CLEAR-MOT MOTA (summed FN, FP, IDSW over summed ground truth) of the 18
 training sequences other than 3, 8, 10 (never the held-out ones), its FN / FP, each sequence's MOTA, and with
 ``--errors`` the median position error / median signed range error (percent of the range) and the matched count
-per sequence in each distance bin (``kitti_mono.ERROR_BINS``). ``--mono`` / ``--tracker`` override
+per sequence in each distance bin (``kitti_mono.ERROR_BINS``), and the matched cars' median heading error / share
+over 20 deg (``kitti_mono.heading_errors``). ``--mono`` / ``--tracker`` override
 ``MonoConfig`` / ``MonoTracking`` fields (Python literals); ``--kitti-height`` replaces the KITTI camera's
 1.65 m. The image tracks (default tracker setting) and the unknown camera's self-calibration are cached per
 sequence under ``--cache`` (use a fresh directory after a change to the image tracker or self-calibration).
@@ -95,6 +96,9 @@ def main() -> None:
                 cells = [(s, rows[s][which][1][key]) for s in seqs if rows[s][which][1][key]["n"]]
                 text = " ".join(f"{s}:{e['median_pct']}/{e['range_bias_pct']}({e['n']})" for s, e in cells)
                 print(f"{which} {key} median % / bias % (n): {text}")
+            cells = [(s, rows[s][which][1]["heading"]) for s in seqs if rows[s][which][1]["heading"]["n"]]
+            text = " ".join(f"{s}:{h['median_deg']}/{round(100 * h['share_over_20_deg'])}({h['n']})" for s, h in cells)
+            print(f"{which} heading median deg / % over 20 deg (n): {text}")
         per = " ".join(f"{s}:{100 * float(r['MOTA']):.1f}" for s, r in zip(seqs, res, strict=True))
         fn, fp = (sum(float(r[k]) for r in res) for k in ("CLR_FN", "CLR_FP"))
         print(f"{which} combined MOTA {_combined(res):.2f} FN {fn:.0f} FP {fp:.0f} | {per}", flush=True)
