@@ -184,29 +184,29 @@ class PyAVSource(VideoSource):
                 f"{path}: video is stored rotated by {rotation:g} degrees (display matrix), not a multiple "
                 "of 90; re-encode it upright first, e.g. ffmpeg -i IN -c:v libx264 OUT.mp4"
             )
-        self._quarter_turns: int = turns
         frames = int(stream.frames or 0)
         if frames <= 0:
             dur = _duration_s(self._container, stream)
             frames = int(round(dur * use_fps)) if dur else 0
         self._start = self._first.time if self._first.time is not None else 0.0
         self._square = _square_pixels(self._first.width, self._first.height, stream.sample_aspect_ratio)
-        w, h = self._square or (int(self._first.width), int(self._first.height))
+        width, height = display_size(self._first, stream.sample_aspect_ratio)
         self.meta = VideoMeta(
             path=path,
             kind="video",
             fps=float(use_fps),
             frame_count=frames,
-            width=h if self._quarter_turns % 2 else w,
-            height=w if self._quarter_turns % 2 else h,
+            width=width,
+            height=height,
             sha256=sha256_file(path),
         )
         if self._square is not None:
             self.meta.warnings.append(
                 f"{path}: pixels {stream.sample_aspect_ratio} as wide as high (sample aspect ratio); frames resampled "
-                f"to square pixels, {self._first.width}x{self._first.height} -> {w}x{h}, as players show them"
+                f"to square pixels, {self._first.width}x{self._first.height} -> {self._square[0]}x{self._square[1]}, "
+                "as players show them"
             )
-        if self._quarter_turns:
+        if turns:
             self.meta.warnings.append(
                 f"{path}: stored turned (display matrix rotation {rotation:g} degrees: a phone held upright or "
                 "upside down); frames turned upright as players show them"
@@ -307,6 +307,13 @@ def display_array(frame: Any, fmt: str = "bgr24", sar: Any = None, size: tuple[i
     else:
         image = frame.to_ndarray(format=fmt, width=stored[0], height=stored[1], interpolation="AREA")
     return np.ascontiguousarray(np.rot90(image, turns)) if turns else image
+
+
+def display_size(frame: Any, sar: Any = None) -> tuple[int, int]:
+    """(width, height) px of a decoded PyAV frame as :func:`display_array` gives it (square pixels, upright)."""
+    width, height = _square_pixels(frame.width, frame.height, sar) or (int(frame.width), int(frame.height))
+    turns = _quarter_turns(float(getattr(frame, "rotation", 0) or 0)) or 0
+    return (height, width) if turns % 2 else (width, height)
 
 
 def _square_pixels(width: int, height: int, sar: Any) -> tuple[int, int] | None:

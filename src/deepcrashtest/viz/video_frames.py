@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from deepcrashtest.errors import UserError
-from deepcrashtest.video.source import display_array
+from deepcrashtest.video.source import display_array, display_size
 
 #: Decode on instead of seeking when the requested time is at most this far ahead (seconds).
 _DECODE_AHEAD_S = 2.0
@@ -54,10 +54,11 @@ class VideoFrames:
             self.width = int(self._stream.codec_context.width)
             self.height = int(self._stream.codec_context.height)
         else:  # as players show it (square pixels, upright), like extract's frames
-            self.height, self.width = first.shape[:2]
+            self.width, self.height = display_size(first, self._stream.sample_aspect_ratio)
 
-    def _first_frame(self) -> np.ndarray | None:
-        """The first frame as shown, or None when none decodes (the next request seeks back to the start)."""
+    def _first_frame(self) -> Any:
+        """The first decoded frame (its rotation is per frame), or None when none decodes (the next request seeks
+        back to the start)."""
         import av
 
         try:
@@ -65,7 +66,7 @@ class VideoFrames:
         except (av.error.FFmpegError, OSError):  # type: ignore[attr-defined]
             frame = None
         self._frames = None
-        return None if frame is None else self._shown(frame)
+        return frame
 
     def _shown(self, frame: Any) -> np.ndarray:
         return display_array(frame, "rgb24", self._stream.sample_aspect_ratio)
