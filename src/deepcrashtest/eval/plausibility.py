@@ -55,15 +55,20 @@ def vehicle_plausibility(vehicle: Vehicle) -> dict[str, int]:
     return out
 
 
-def plausibility(scenario: Scenario) -> dict[str, Any]:
-    """The scenario's vehicles (the ego and the agents that are not pedestrians), summed
-    (:func:`vehicle_plausibility`), with the shares
-    ``over_turning_share`` (of steps), ``sliding_share`` (of moving samples) and ``vehicles_with_half_turns``."""
-    rows = [(v.id, vehicle_plausibility(v)) for v in scenario.vehicles() if not kinematics(v.category).holonomic]
+def per_vehicle(scenario: Scenario) -> list[tuple[Vehicle, dict[str, int]]]:
+    """:func:`vehicle_plausibility` of each of the scenario's vehicles (the ego and the agents that are not
+    pedestrians), in the scenario's order."""
+    return [(v, vehicle_plausibility(v)) for v in scenario.vehicles() if not kinematics(v.category).holonomic]
+
+
+def plausibility(scenario: Scenario, rows: list[tuple[Vehicle, dict[str, int]]] | None = None) -> dict[str, Any]:
+    """The scenario's vehicles' counts (``rows``: :func:`per_vehicle`'s, computed when not given) summed, with the
+    shares ``over_turning_share`` (of steps), ``sliding_share`` (of moving samples) and ``vehicles_with_half_turns``."""
+    rows = per_vehicle(scenario) if rows is None else rows
     total = {k: sum(r[k] for _, r in rows) for k in ("steps", "half_turns", "over_turning", "moving", "sliding")}
     return total | {
         "vehicles": len(rows),
-        "vehicles_with_half_turns": sorted(i for i, r in rows if r["half_turns"]),
+        "vehicles_with_half_turns": sorted(v.id for v, r in rows if r["half_turns"]),
         "over_turning_share": round(total["over_turning"] / total["steps"], 4) if total["steps"] else None,
         "sliding_share": round(total["sliding"] / total["moving"], 4) if total["moving"] else None,
         "rule": (

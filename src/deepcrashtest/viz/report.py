@@ -612,12 +612,10 @@ def plausibility_section(sc: Scenario) -> Section:
     all three)."""
     from deepcrashtest.eval import plausibility as pl
 
-    summary = pl.plausibility(sc)
+    counts = pl.per_vehicle(sc)
+    summary = pl.plausibility(sc, counts)
     rows = []
-    for v in sc.vehicles():
-        if v.category == "pedestrian":
-            continue
-        p = pl.vehicle_plausibility(v)
+    for v, p in counts:
         sliding = p["sliding"] / p["moving"] if p["moving"] else 0.0
         if p["half_turns"] or p["over_turning"] > 0.05 * p["steps"] or sliding > 0.2:
             rows.append(
