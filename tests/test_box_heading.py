@@ -152,7 +152,7 @@ def test_processed_heading_never_flips_half_round():
     t_raw = t[seen]
     box = np.full(len(t_raw), 0.1)
     raw = Vehicle(id=1, trajectory=Trajectory.from_arrays(t_raw, x[seen], 0 * t_raw, box, speed[seen]))
-    yaw = np.asarray(with_observed_yaw(final, raw, 0.0).trajectory.yaw)
+    yaw = np.asarray(with_observed_yaw(final, raw.trajectory.arrays(), 0.0).trajectory.yaw)
     assert np.degrees(np.abs(np.diff(yaw))).max() < 10.0
     assert np.allclose(yaw[seen], 0.1)  # the box's heading where the video saw it
     assert yaw[-1] == pytest.approx(motion[-1])  # the path's direction, not its reverse

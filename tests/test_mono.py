@@ -289,6 +289,36 @@ def test_far_receding_tracks_are_carried_past_their_end(kitti_root):
     assert (np.hypot(ex["x"] - ex["ex"], ex["y"] - ex["ey"]) >= cfg.extend_min_range_m - 1.0).all()
 
 
+def test_a_carried_track_is_seen_only_where_the_video_showed_it(kitti_root):
+    """The extension that carries far tracks past their end (KITTI 0002: cars driving away) is the monocular
+    tracker's guess, not what the video showed: the raw agent's first and last frames are its tracked ones, and
+    stage 2 neither smooths nor flags the extension as observed; it continues the track by its own rules (on
+    d0d1f6b the processed agents were "observed" over the whole extension, up to 4 s past their last box)."""
+    from deepcrashtest.eval.kitti_mono import mono_scenario
+    from deepcrashtest.trajectory.params import Stage2Params
+    from deepcrashtest.trajectory.pipeline import process_scenario
+
+    prep = prepare_mono(kitti_root, 2)
+    tracks = image_tracks(prep, DEFAULT_MONO)
+    raw, _ = mono_scenario(prep, DEFAULT_MONO, tracks=tracks)
+    sc = process_scenario(raw)
+    pad = Stage2Params().observed_pad_s
+    processed = {a.id: a for a in sc.agents}
+    carried = 0
+    for a in raw.agents:
+        rows = tracks[tracks["track_id"] == a.id]
+        assert rows["frame"].min() <= a.first_frame <= a.last_frame <= rows["frame"].max()  # frames it was tracked in
+        t, seen = np.asarray(a.trajectory.t), np.asarray(a.trajectory.observed, bool)
+        shown = t[seen][-1] - t[seen][0] + 2 * pad
+        if a.id not in processed or t[-1] - t[0] <= shown + 0.2:
+            continue
+        carried += 1
+        p = processed[a.id].trajectory
+        t_obs = np.asarray(p.t)[np.asarray(p.observed, bool)]
+        assert t_obs[-1] - t_obs[0] <= shown + 1e-6
+    assert carried >= 3
+
+
 def test_near_ground_contacts_size_the_track(kitti_root):
     """A track's height fused with its near ground contacts (bottom edge far below the horizon) is
     closer to the labelled car's than the class prior's posterior alone, and it lifts the MOTA of

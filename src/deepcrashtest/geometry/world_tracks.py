@@ -253,6 +253,7 @@ def _mono_agents(
             clipped += 1
             speed = np.minimum(speed, MAX_SPEED_MPS)
         t = g["time"].to_numpy(float) - t0
+        tracked = g["frame"].to_numpy(int)[np.isfinite(g["x1"].to_numpy(float))]  # not the far-track extension
         agents.append(
             Vehicle(
                 id=int(tid),  # type: ignore[arg-type]
@@ -261,8 +262,8 @@ def _mono_agents(
                 width=float(g["width"].iloc[0]),
                 height=float(g["height"].iloc[0]),
                 confidence=float(np.clip(g["score"].to_numpy(float)[det].mean(), 0.0, 1.0)),
-                first_frame=int(g["frame"].iloc[0]),
-                last_frame=int(g["frame"].iloc[-1]),
+                first_frame=int(tracked[0]) if len(tracked) else int(g["frame"].iloc[0]),
+                last_frame=int(tracked[-1]) if len(tracked) else int(g["frame"].iloc[-1]),
                 start_delay_s=max(0.0, float(t[0])),
                 trajectory=Trajectory.from_arrays(
                     t,

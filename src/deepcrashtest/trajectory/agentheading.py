@@ -22,8 +22,9 @@ BLEND_S = 0.5
 """Seconds over which the observed heading hands over to the path's direction outside the observed span."""
 
 
-def with_observed_yaw(final: Vehicle, raw: Vehicle, t_shift: float, blend_s: float = BLEND_S) -> Vehicle:
-    """``final`` (a processed agent) with its heading replaced by ``raw``'s over ``raw``'s span.
+def with_observed_yaw(final: Vehicle, raw: dict[str, np.ndarray], t_shift: float, blend_s: float = BLEND_S) -> Vehicle:
+    """``final`` (a processed agent) with its heading replaced by ``raw``'s over ``raw``'s span (``raw``: the raw
+    agent's trajectory arrays where the video saw it, ``t``, ``yaw``).
 
     ``t_shift``: scenario time minus the raw scenario's time (s). The raw heading is turned by a half turn
     where it points against the path's direction (a box fits both ways): once for the whole span, where it
@@ -31,7 +32,7 @@ def with_observed_yaw(final: Vehicle, raw: Vehicle, t_shift: float, blend_s: flo
     samples while a slow road user's path can reverse), and outside the span towards whichever of the path's
     direction or its reverse is nearer."""
     a = final.trajectory.arrays()
-    r = raw.trajectory.arrays()
+    r = raw
     if len(r["t"]) < 2 or len(a["t"]) < 2:
         return final
     t_raw = r["t"] + t_shift

@@ -152,7 +152,7 @@ def moves_in_video(v: Vehicle, p: Stage2Params) -> bool:
 
 
 def _observe(agent: Vehicle, t0: float, ego: EgoFrame, p: Stage2Params, warnings: list[str]) -> _Observed | None:
-    a = agent.trajectory.arrays()
+    a = seen_part(agent, p.observed_pad_s)
     t = a["t"] - t0
     t_end = float(ego.grid[-1])
     if len(t) < p.min_track_samples:
@@ -177,6 +177,18 @@ def _observe(agent: Vehicle, t0: float, ego: EgoFrame, p: Stage2Params, warnings
     s_obs, d_obs = ego.frame.project(xy)
     in_view = bool(t[0] <= p.first_seen_tolerance_s)
     return _Observed(t, xy, a["yaw"][keep], sm, in_view, s_obs, float(np.median(d_obs)))
+
+
+def seen_part(agent: Vehicle, pad_s: float) -> dict[str, np.ndarray]:
+    """The agent's trajectory arrays from its first to its last observed sample, ``pad_s`` (s) wider: what the video
+    showed, without a stage 1 continuation beyond it (all of it when nothing, or every sample, is flagged)."""
+    a = agent.trajectory.arrays()
+    obs = agent.trajectory.observed
+    if obs is None or not any(obs) or all(obs):
+        return a
+    seen = a["t"][np.asarray(obs, bool)]
+    keep = (a["t"] >= seen[0] - pad_s - EPS_T) & (a["t"] <= seen[-1] + pad_s + EPS_T)
+    return {k: v[keep] for k, v in a.items()}
 
 
 def _static_dense(agent: Vehicle, obs: _Observed, ego: EgoFrame, p: Stage2Params) -> Dense:

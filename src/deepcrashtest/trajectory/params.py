@@ -42,6 +42,13 @@ class Stage2Params:
     """Agent tracks with fewer samples are dropped (with a warning): too short to smooth or classify."""
     first_seen_tolerance_s: float = 0.25
     """An agent first seen within this time of the video's start counts as "in view at the start"."""
+    observed_pad_s: float = 0.5
+    """An agent's samples from its first to its last observed (detected) one, this much wider (s), are its observed
+    part; stage 2 continues it outside by its own rules. Stage 1 may carry a track beyond what the video showed (the
+    monocular tracker's constant-velocity extension of far tracks, ``MonoConfig.extend_s``; its tracked span ends
+    within ``MonoConfig.carry_cut_s`` = 0.5 s of a detection): such samples were smoothed, classified ("in view at
+    the start") and flagged observed as if seen (the Udacity highway clip: an oncoming car first detected at 4.2 s,
+    282 m ahead "observed" from 0.2 s)."""
     static_speed_mps: float = 1.0
     """An agent whose net displacement / observed duration is below this is parked/static ..."""
     static_min_displacement_m: float = 1.0

@@ -63,7 +63,7 @@ from deepcrashtest.trajectory.agentheading import holding_yaws_after, replayable
 from deepcrashtest.trajectory.collision import MOVING_MPS, first_contact, headings, vehicle_box
 from deepcrashtest.trajectory.contact import ContactParams
 from deepcrashtest.trajectory.crash import CrashOutcome, earlier_touch, resolve_crash
-from deepcrashtest.trajectory.dense import EPS_T, Dense, EgoFrame, agent_dense, moves_in_video, span
+from deepcrashtest.trajectory.dense import EPS_T, Dense, EgoFrame, agent_dense, moves_in_video, seen_part, span
 from deepcrashtest.trajectory.egoheading import ego_along_measured_yaw, smooth_series
 from deepcrashtest.trajectory.egotraction import ego_within_traction
 from deepcrashtest.trajectory.params import Stage2Params
@@ -143,7 +143,7 @@ def _process_scenario(raw: Scenario, seed: int, params: Stage2Params | None) -> 
     crash = _crash_phase(run, ego, agents, t_max)
     vehicles = _final_phase(run, ego, crash, t_max)
     vehicles[0] = _with_measured_yaw(vehicles[0], run, t_max)
-    observed = [vehicles[0], *_with_observed_yaws(vehicles[1:], crash.agents, t_max - run.t0)]
+    observed = [vehicles[0], *_with_observed_yaws(vehicles[1:], crash.agents, t_max - run.t0, run.p.observed_pad_s)]
     vehicles = replayable_yaws(observed, vehicles, crash.collision, run.warnings)
     vehicles = holding_yaws_after(vehicles, crash.collision)
     collision = _collision_record(crash, vehicles)
@@ -498,11 +498,12 @@ def _with_measured_yaw(ego: Vehicle, run: _Run, t_max: float) -> Vehicle:
     return ego.model_copy(update={"trajectory": traj})
 
 
-def _with_observed_yaws(vehicles: list[Vehicle], dense: list[Dense], t_shift: float) -> list[Vehicle]:
-    """Moving agents keep the raw heading (fitted to their boxes) where the video saw them
-    (:func:`~deepcrashtest.trajectory.agentheading.with_observed_yaw`); parked ones already face it."""
+def _with_observed_yaws(vehicles: list[Vehicle], dense: list[Dense], t_shift: float, pad_s: float) -> list[Vehicle]:
+    """Moving agents keep the raw heading (fitted to their boxes) where the video saw them (their seen part,
+    ``pad_s``: :func:`~deepcrashtest.trajectory.dense.seen_part`;
+    :func:`~deepcrashtest.trajectory.agentheading.with_observed_yaw`); parked ones already face it."""
     static = {d.id for d in dense if d.static}
-    raw = {d.id: d.vehicle for d in dense}
+    raw = {d.id: seen_part(d.vehicle, pad_s) for d in dense}
     return [v if v.id in static or v.id not in raw else with_observed_yaw(v, raw[v.id], t_shift) for v in vehicles]
 
 
