@@ -31,6 +31,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
 from deepcrashtest.datasets.crash_labels import CrashLabel, load_crash_labels  # noqa: E402
+from deepcrashtest.eval.plausibility import SLIDE_MAX_DEG  # noqa: E402
 from deepcrashtest.pipeline.extract import run_extract  # noqa: E402
 from deepcrashtest.pipeline.fidelity import run_fidelity  # noqa: E402
 
@@ -197,7 +198,8 @@ def plausibility_line(rows: list[dict[str, Any]]) -> str:
     return (
         f"vehicles turned half round between two samples: {flipped} of {sum(x['vehicles'] for x in p)}; "
         f"steps turning beyond the steering limit {over}/{steps} ({100 * over / max(steps, 1):.1f} %); "
-        f"moving samples sliding > 20 deg off their motion {sliding}/{moving} ({100 * sliding / max(moving, 1):.1f} %)"
+        f"moving samples sliding > {SLIDE_MAX_DEG:g} deg off their motion {sliding}/{moving} "
+        f"({100 * sliding / max(moving, 1):.1f} %)"
     )
 
 

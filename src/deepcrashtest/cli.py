@@ -716,6 +716,8 @@ def evaluate_fidelity(
 
 
 def _print_fidelity(r: dict[str, Any]) -> None:
+    from deepcrashtest.eval.plausibility import SLIDE_MAX_DEG
+
     rep, crash = r["reprojection"], r["crash"]
     typer.echo(f"{r['scenario']}: {rep['tracked_boxes']} tracked boxes of {rep['tracks_in_scenario']} agents")
     for src in ("processed", "simulated"):
@@ -744,8 +746,8 @@ def _print_fidelity(r: dict[str, Any]) -> None:
     if p.get("vehicles"):
         typer.echo(
             f"  vehicles as vehicles move ({p['vehicles']}): turned half round {p['half_turns']} times, beyond the "
-            f"steering limit {p['over_turning']} of {p['steps']} steps, sliding > 20 deg {p['sliding']} of "
-            f"{p['moving']} moving samples"
+            f"steering limit {p['over_turning']} of {p['steps']} steps, sliding > {SLIDE_MAX_DEG:g} deg "
+            f"{p['sliding']} of {p['moving']} moving samples"
         )
     typer.echo(f"  time mapping: {r['time_mapping']['rule']}, offset {r['time_mapping']['time_offset_s']:.3f} s")
     for note in r["notes"]:

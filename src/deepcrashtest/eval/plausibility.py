@@ -24,8 +24,9 @@ HALF_TURN_RAD = 0.5 * math.pi
 TURN_SPEED_MARGIN_MPS = 1.0
 #: Speed (m/s) from which a heading off the direction of motion counts as sliding ...
 SLIDE_MIN_SPEED_MPS = 3.0
-#: ... when it is more than this off it (rad), or off its reverse (reversing is allowed).
-SLIDE_MAX_RAD = math.radians(20.0)
+#: ... when it is more than this off it (deg, rad), or off its reverse (reversing is allowed).
+SLIDE_MAX_DEG = 20.0
+SLIDE_MAX_RAD = math.radians(SLIDE_MAX_DEG)
 
 
 def vehicle_plausibility(vehicle: Vehicle) -> dict[str, int]:
@@ -74,6 +75,6 @@ def plausibility(scenario: Scenario, rows: list[tuple[Vehicle, dict[str, int]]] 
         "rule": (
             f"vehicles' observed samples; over turning: heading change > dt (v + {TURN_SPEED_MARGIN_MPS:g} m/s) "
             f"tan(max steer) / wheelbase; sliding: speed >= {SLIDE_MIN_SPEED_MPS:g} m/s and heading > "
-            f"{math.degrees(SLIDE_MAX_RAD):g} deg off the direction of motion (or its reverse)"
+            f"{SLIDE_MAX_DEG:g} deg off the direction of motion (or its reverse)"
         ),
     }
