@@ -19,6 +19,9 @@ then extracted and replayed exactly like ``bench/fidelity_crashes.py``:
   and moved down; not in the default set);
 * ``dark``: a dusk / low-light copy: every pixel's brightness x ``DARK_GAIN``, seeded Gaussian sensor noise of
   ``DARK_NOISE`` grey levels added (labels unchanged; not in the default set);
+* ``wiper``: filmed through a windscreen in the rain: two wiper blades (dark, out of focus, ``WIPER_WIDTH`` of the
+  frame's width wide) pivoting below the frame's bottom sweep up across the view and back every ``WIPER_PERIOD_S``
+  (labels unchanged; not in the default set);
 * ``copy``: only re-encoded, the control: what the re-encoding alone changes.
 
 Clips are written by the project's own H.264 writer (CRF 23, ultrafast): PyAV's default x264 preset fed ``bgr24``
@@ -29,8 +32,9 @@ this makes a few plain variants of every labelled clip and prints one line per v
 
 Usage::
 
-    python bench/fidelity_perturbed.py [--variants mirror,small,halffps,copy,large,tiny,fisheye,zoom,portrait,dark]
-                                       [--clips a,b] [--work DIR] [--reuse] [--stage2 [--redetect]] [--json]
+    python bench/fidelity_perturbed.py
+        [--variants mirror,small,halffps,copy,large,tiny,fisheye,zoom,portrait,dark,wiper] [--clips a,b]
+        [--work DIR] [--reuse] [--stage2 [--redetect]] [--json]
 
 Per variant: reproduced crashes / labelled, clips with a contact before the crash, mean reprojection IoU
 (processed / replay), and the clips not reproduced with their first replay contact. ``--reuse`` keeps the
@@ -52,7 +56,7 @@ from fidelity_crashes import DATA, all_labels, run_clip
 
 VARIANTS = ("mirror", "small", "halffps", "copy")
 #: Variants run only when asked for (``--variants large``).
-MORE_VARIANTS = ("large", "tiny", "fisheye", "zoom", "portrait", "dark")
+MORE_VARIANTS = ("large", "tiny", "fisheye", "zoom", "portrait", "dark", "wiper")
 #: ``fisheye``: source radius = r (1 + k r^2) / (1 + k), r the output pixel's distance from the centre over the
 #: half diagonal: the corners stay, the centre is magnified 1 + k, straight lines bow outwards (barrel).
 FISHEYE_K = 0.35
@@ -64,6 +68,14 @@ TINY_WIDTH, TINY_HEIGHT = 426, 240
 PORTRAIT_WIDTH, PORTRAIT_HEIGHT = 720, 1280
 #: ``dark``: the brightness factor and the sensor noise's sigma (grey levels, 0-255).
 DARK_GAIN, DARK_NOISE = 0.3, 3.0
+#: ``wiper``: one sweep up and back (s; ~45 wipes a minute, a wiper's low speed), the blade's width (share of the
+#: frame's width, blurred: the camera focuses on the road), its opacity, and the pivots (shares of the frame's
+#: width and height, below its bottom) with the blades' length (share of the frame's height).
+WIPER_PERIOD_S = 1.3
+WIPER_WIDTH = 0.035
+WIPER_OPACITY = 0.9
+WIPER_PIVOTS = ((0.12, 1.2), (0.62, 1.2))
+WIPER_LENGTH = 1.15
 
 
 def variant_geometry(src: Path, variant: str) -> tuple[float, int, tuple[float, float], int]:
@@ -106,6 +118,8 @@ def rewrite_clip(src: Path, dst: Path, variant: str) -> None:
         frames = [
             np.clip(f * DARK_GAIN + rng.normal(0.0, DARK_NOISE, f.shape), 0, 255).astype(np.uint8) for f in frames
         ]
+    elif variant == "wiper":
+        frames = [wiped(f, k / fps) for k, f in enumerate(frames)]
     elif variant in ("fisheye", "zoom"):
         h, w = frames[0].shape[:2]
         map_x, map_y = lens_maps(w, h, variant)
@@ -116,6 +130,30 @@ def rewrite_clip(src: Path, dst: Path, variant: str) -> None:
     for f in frames:
         out.write(f)
     out.close()
+
+
+def wiper_angle(t: float) -> float:
+    """The blades' angle (rad, from pointing left along the frame's bottom, turning clockwise up) at ``t`` (s): a sweep
+    up to 100 deg and back, each half in a third of the period, resting flat for the last third."""
+    phase = (t / WIPER_PERIOD_S) % 1.0
+    up = min(phase * 3.0, 1.0) if phase < 1 / 3 else max(0.0, 2.0 - phase * 3.0)
+    return np.radians(100.0) * (0.5 - 0.5 * np.cos(np.pi * up))  # slow at the ends, as a wiper's crank moves
+
+
+def wiped(frame: np.ndarray, t: float) -> np.ndarray:
+    """``frame`` with the ``wiper`` variant's two blades drawn over it at time ``t`` (s)."""
+    import cv2
+
+    h, w = frame.shape[:2]
+    mask = np.zeros((h, w), np.float32)
+    a = wiper_angle(t)
+    for px, py in WIPER_PIVOTS:
+        pivot = np.array([px * w, py * h])
+        tip = pivot + WIPER_LENGTH * h * np.array([-np.cos(a), -np.sin(a)])
+        cv2.line(mask, tuple(int(v) for v in pivot), tuple(int(v) for v in tip), 1.0, max(1, round(WIPER_WIDTH * w)))
+    k = 2 * round(WIPER_WIDTH * w / 2) + 1
+    mask = cv2.GaussianBlur(mask, (k, k), 0) * WIPER_OPACITY
+    return (frame * (1.0 - mask[..., None]) + 15.0 * mask[..., None]).astype(np.uint8)
 
 
 def portrait_picture(width: int, height: int) -> tuple[float, int]:
