@@ -444,3 +444,19 @@ def test_the_warning_tells_pairs_without_features_from_pairs_without_a_consisten
     for i in range(12):
         dark.update(np.full((360, 640, 3), 3, np.uint8), i / 10)
     assert any("too few trackable" in w and "consistent" not in w for w in dark.result().warnings)
+
+
+def test_an_ego_speed_barely_measured_says_so():
+    """CCD 487 (a pickup at highway speed on a textureless rural road, 10 fps, camera as extract calibrates it):
+    the road gives no metric scale in any pair, the speed stays at the filter's 0 km/h, and the warnings said
+    nothing about it; now one says the speed is barely measured. DAD 478, measured all along, does not get it."""
+    imgs = _frames(DATA / "crash_ccd" / "ccd_000487.mp4", 50)
+    cam, rows, _ = estimate_camera(imgs[:20], default_camera(imgs[0].shape[1], imgs[0].shape[0]))
+    est = EgoMotionEstimator(cam, mask_bottom_rows=rows)
+    for i, img in enumerate(imgs):
+        est.update(img, i / 10.0)
+    res = est.result()
+    assert not res.static
+    assert any("barely measured" in w for w in res.warnings)
+    est, _ = _run(DAD / "dad_000478.mp4", 30)
+    assert not any("barely measured" in w for w in est.result().warnings)

@@ -46,6 +46,10 @@ from deepcrashtest.scenario import Camera
 MIN_MATCHES = 40
 #: Fewer road points than this and the pair's scale is not measured (the filtered speed is kept).
 MIN_ROAD_POINTS = 12
+#: Fewer speed readings than this (road-scale or "stopped" ones the filter took, not gated) over a clip whose camera
+#: moves: its speed is barely measured, and :meth:`EgoMotionEstimator.result` says so. ccd_000487 (a pickup at
+#: highway speed on a textureless rural road, 10 fps) took none and read 0 km/h with no warning.
+MIN_SPEED_READINGS = 3
 #: Frames closer than ~1 / this (s) to the last measured one are not measured but interpolated (a 25 or 30 fps
 #: video is measured at 12.5 or 15 fps; 10 and 20 fps videos, KITTI and the crash clips, at every frame):
 #: half the ego-motion CPU of a 25 fps clip. The estimator's motion per pair is then at most KITTI's
@@ -1087,7 +1091,14 @@ class EgoMotionEstimator:
                 f"ego-motion: {self._invalid} of {self._pairs} frame pairs were not measured: {'; '.join(why)}; "
                 "speed held over those frames"
             )
-        if self._pairs and self._unscaled > 0.5 * self._pairs:
+        taken = sum(1 for *_, outcome in self._filter.readings if outcome != "gated")
+        if self._pairs and not static and taken < MIN_SPEED_READINGS:
+            warnings.append(
+                f"ego-motion: the ego's speed rests on {taken} reading(s) in {self._pairs} frame pairs (the road gave "
+                "no metric scale: textureless, blurred or hidden): barely measured; it is held between readings "
+                "and 0 before the first, so check it against the video or give the camera (--camera, --chessboard)"
+            )
+        elif self._pairs and self._unscaled > 0.5 * self._pairs:
             warnings.append(
                 f"ego-motion: the road gave no metric scale in {self._unscaled} of {self._pairs} frame pairs "
                 "(road hidden, textureless or dashboard not masked); speeds there are held"
