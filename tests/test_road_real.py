@@ -98,7 +98,8 @@ def test_demo_oncoming_lanes_in_opendrive_and_commonroad(demo, tmp_path):
     oncoming = [lanelet.polygon.shapely_object for i, lanelet in lanelets.items() if i > road.lane_count]
     for v in demo.agents:
         if v.id in _moving_along(demo) and _moving_along(demo)[v.id][1]:
-            k = int(np.flatnonzero(np.asarray(v.trajectory.observed, bool))[len(v.trajectory.t) // 4])
+            seen = np.flatnonzero(np.asarray(v.trajectory.observed, bool))
+            k = int(seen[len(seen) // 4])  # a quarter of the way through what the video showed
             point = shapely.Point(v.trajectory.x[k], v.trajectory.y[k])
             assert any(p.buffer(1.0).contains(point) for p in oncoming), v.id
 
