@@ -12,7 +12,8 @@ import pandas as pd
 import pytest
 
 from deepcrashtest.errors import UserError
-from deepcrashtest.perception.crash_detect import GlobalMotion, detect_crash, jolt_score
+from deepcrashtest.perception.crash_detect import GlobalMotion, detect_crash
+from deepcrashtest.perception.crash_tracks import jolt_score
 from deepcrashtest.pipeline.crash import crash_for_raw, parse_crash
 from deepcrashtest.scenario import Scenario
 from trajectory_cases import raw_scenario, track, vehicle

@@ -12,7 +12,8 @@ import pandas as pd
 from conftest import DATA, ROOT, need
 from deepcrashtest.datasets.crash_labels import load_crash_labels
 from deepcrashtest.perception.boxes import iou_matrix
-from deepcrashtest.perception.crash_detect import detect_crash, pair_scores
+from deepcrashtest.perception.crash_detect import detect_crash
+from deepcrashtest.perception.crash_pair import pair_scores
 from deepcrashtest.perception.detect import DEFAULT_DETECTOR, make_detector
 from deepcrashtest.perception.track import frame_records, iter_tracks, records_table
 from deepcrashtest.video.source import open_video

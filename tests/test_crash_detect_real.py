@@ -13,7 +13,8 @@ import pandas as pd
 from conftest import DATA, ROOT, need
 from deepcrashtest.datasets.crash_labels import CrashLabel, load_crash_labels
 from deepcrashtest.perception.boxes import iou_matrix
-from deepcrashtest.perception.crash_detect import EGO, GlobalMotion, WorldTrack, close_3d, detect_crash
+from deepcrashtest.perception.crash_detect import EGO, GlobalMotion, WorldTrack, detect_crash
+from deepcrashtest.perception.crash_pair import close_3d
 from deepcrashtest.perception.detect import DEFAULT_DETECTOR, make_detector
 from deepcrashtest.perception.track import frame_records, iter_tracks, records_table
 from deepcrashtest.video.source import open_video

@@ -94,7 +94,7 @@ def test_footprint_gap_of_a_scooter_at_a_cars_rear():
     """The ground gap between a car's and a scooter's footprints (rectangles of their length, width and
     heading): 0.3 m behind the car's rear it is 0.3 m (the centres 2.2 + 0.9 + 0.3 m apart); overlapping it
     is 0; turned across beside the car it is the gap to the car's side."""
-    from deepcrashtest.perception.crash_detect import WorldTrack, close_3d
+    from deepcrashtest.perception.crash_pair import WorldTrack, close_3d
 
     f = np.arange(10.0)
     car = WorldTrack(f, np.full(10, 14.0), np.zeros(10), 0.9, 2.2, np.zeros(10))

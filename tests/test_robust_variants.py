@@ -107,7 +107,8 @@ def test_camera_jolt_of_a_clip_resampled_to_30_fps_is_that_of_the_clip(tmp_path)
     """ccd_000330 (rear-end, contact frame 38) re-encoded at 30 fps, each frame three times: the camera's
     jolts fall on the same frames of the clip as at 10 fps (a repeat has no motion of its own; the whole
     motion of the next new frame against the repeats' nil made every third frame a "jolt": 0.3 s early)."""
-    from deepcrashtest.perception.crash_detect import GlobalMotion, jolt_score
+    from deepcrashtest.perception.crash_detect import GlobalMotion
+    from deepcrashtest.perception.crash_tracks import jolt_score
 
     src = _frames(need(CCD / "ccd_000330.mp4"), 50)
     jolts = []
@@ -282,7 +283,7 @@ def test_a_third_party_crash_reencoded_at_crf_35_has_its_contact_where_the_motio
     detections at the contact, so the pair's crash score is flat from frame 82, where the boxes first overlap
     and the footprints touch, while the motion change rises only at the contact. The contact was the start
     of that plateau (0.31 s early); it is now the frame where the motion change rises anew
-    (``crash_detect.NEW_CHANGE_RISE``)."""
+    (``crash_pair.NEW_CHANGE_RISE``)."""
     from deepcrashtest.datasets.crash_labels import load_crash_labels
     from deepcrashtest.pipeline.extract import run_extract
     from deepcrashtest.scenario import Scenario
@@ -342,7 +343,7 @@ def test_a_rear_end_filmed_at_5_fps_is_found_where_the_box_stops_growing_at_the_
     camera jolt, and the crash is where its box stops growing at the bumper. A "knee" in the half second before
     each frame, two frames at 5 fps, came at frame 3 with the minivan still far (near 0.35 of its 1.0): the
     crash was put there, scored under the cut, and none was found. A knee now needs the box as near as a jolt
-    does (half its nearest, ``crash_detect.knee_frame``)."""
+    does (half its nearest, ``crash_ego.knee_frame``)."""
     from deepcrashtest.datasets.crash_labels import load_crash_labels
     from deepcrashtest.pipeline.extract import run_extract
     from deepcrashtest.scenario import Scenario
@@ -419,7 +420,7 @@ def test_a_rear_end_filmed_at_5_fps_has_its_contact_where_the_camera_jolt_peaks(
     contact and fills more of the view each frame, and the camera's jolt, measured on that view, rises over
     frames 16-18 (0.31, 0.59, 1.0). The contact was put at the jolt's first frame, 0.6 s early, and the replay's
     crash missed the label. A jolt that starts while the box still grows fast has its contact where it peaks
-    (``crash_detect._jolt_peak``): within one frame of the label."""
+    (``crash_ego._jolt_peak``): within one frame of the label."""
     from deepcrashtest.datasets.crash_labels import load_crash_labels
     from deepcrashtest.pipeline.extract import run_extract
     from deepcrashtest.scenario import Scenario
@@ -505,7 +506,7 @@ def test_a_jolt_while_the_road_user_still_closes_in_is_not_the_contact(tmp_path)
     the bus fills the view early, and as its box grows by 0.5 in log size over frames 25-29 it moves the image the
     camera's jolt is measured on (jolt 0.55 / 1.0 / 1.0 at 25-27). The crash was put at frame 26, 0.7 s early. A
     road user whose box still grows that fast after a jolt has not touched the ego
-    (``crash_detect.APPROACH_AFTER_GROWTH``): the contact is the later jolt, within a frame of the label. And the
+    (``crash_ego.APPROACH_AFTER_GROWTH``): the contact is the later jolt, within a frame of the label. And the
     replay makes it: the slow bus faces along its path at the crash (-354 deg) and faced its box (-274 deg) 0.1 s
     later, on the path's continuation past the contact; the replay, turning it between the two samples, missed the
     ego by 0.1 m. A crash participant now faces past the crash as at it (``agentheading.holding_yaws_after``)."""

@@ -1,0 +1,294 @@
+"""Evidence of an ego crash, per track and frame (:mod:`deepcrashtest.perception.crash_detect`): the road user's box
+is near (wide, or tall for a person or two-wheeler, its bottom low in the picture), closing fast (its growth) and the
+camera jolts; and the contact frame: the first jolt while near (where it peaks while the box still grows fast, or
+where the box stopped growing when it had been at the bumper that long), else the knee where the box stops growing,
+else its nearest frame; a pedestrian knocked off their feet first. A road user leaving the view at the side soon after
+without having been ahead drove past: no crash without a jolt."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from deepcrashtest.perception.crash_tracks import border_margin, box_growth, on_side, smooth_frames
+from deepcrashtest.perception.roadusers import track_category
+
+#: A knee (the box stops growing) is one when the box grows less than this (log size) in the next 0.5 s
+#: (chosen on dad_000487: a box jump 1.6 s before the contact).
+KNEE_MAX_LATER_GROWTH = 0.1
+
+
+#: ... and the box is at least this near (``ego_scores``' ``near``, 0..1) at the knee.
+KNEE_MIN_NEAR = 0.3
+
+
+#: A camera jolt that starts while the road user's box still grows at least this fast (``closing``, 0..1: 1 is a
+#: time to contact of 0.67 s) has its contact where the jolt peaks (:func:`_jolt_peak`); chosen on ccd_000330 at
+#: 5 fps (``bench/fidelity_perturbed.py`` halffps, its box's closing 0.36-0.73 through the jolt's rise) against
+#: ccd_000487 (closing 0.08 at its jolt).
+JOLT_RISE_CLOSING = 0.3
+
+
+#: A camera jolt after which the road user's box still grows by more than APPROACH_AFTER_GROWTH (log size) within
+#: APPROACH_AFTER_S (s) is no contact: a road user cannot go on approaching through the ego's front, and a box
+#: growing fast fills more of the view each frame and moves the image the jolt is measured on
+#: (:class:`~deepcrashtest.perception.global_motion.GlobalMotion`), most where a narrow lens makes it large early.
+#: ``bench/fidelity_perturbed.py --variants zoom`` (the middle 1/1.3 of the frame): ccd_001143's bus jolted the
+#: "camera" three frames while it still closed in by 0.5 in log size, the crash put 0.7 s early.
+APPROACH_AFTER_S = 0.3
+
+
+APPROACH_AFTER_GROWTH = 0.25
+
+
+#: An ego crash needs this much approach (closing) or jolt evidence at full score: a box at the bumper
+#: from the start without either is the ego's own bonnet or a queue (dad_000512: the bonnet as a "car").
+EGO_MIN_EVIDENCE = 0.3
+
+
+#: ... and a box growing more than this (log size) in the frame it reaches the border jumped onto it
+#: (chosen on the tune clips: ccd_000014 0.33, ccd_001143 0.26 jumped; ccd_000132 0.07 grew).
+BORDER_JUMP = 0.15
+
+
+#: A jolt that comes after the road user's box has stayed this long (s) at the bumper without growing
+#: (by less than ``KNEE_MAX_LATER_GROWTH`` in log size over the next 0.5 s) belongs to a crash that began
+#: when the box stopped growing (chosen between ccd_000053, a jolt 0.4 s after the box stops: the
+#: contact, and ccd_000755, a jolt 1.0 s after the car is at the bumper as it is pushed on).
+STILL_BEFORE_JOLT_S = 0.7
+
+
+#: A pedestrian's box is upright at a median height/width of at least UPRIGHT_ASPECT and knocked over below
+#: FALLEN_ASPECT (walkers 2-3.5; ccd_000882's struck woman 2.1 -> 1.25 at the contact frame).
+UPRIGHT_ASPECT = 1.8
+
+
+FALLEN_ASPECT = 1.5
+
+
+#: A road user leaving the view at the image's side within EXIT_WINDOW_S (s) after an ego "contact"
+#: (its visible width at the border falling below EXIT_WIDTH_SHARE of the width at that frame) without
+#: having been ahead (its box over the image's centre column while near, in the second before) drove past
+#: the ego; without a camera jolt it is no ego crash (chosen on dad_000487: an oncoming car passing close;
+#: dad_000493's scooter, hit while ahead, leaves the view at the side as the ego turns).
+EXIT_WINDOW_S = 1.0
+
+
+EXIT_WIDTH_SHARE = 0.5
+
+
+def ego_scores(
+    g: pd.DataFrame, width: int, height: int, fps: float, jolt: dict[int, float], clip_end: int | None = None
+) -> pd.DataFrame:
+    """Per frame of one track: near (wide box reaching the image bottom), closing (box growth), jolt,
+    and whether it is ahead (its box over the image's centre column) or leaves the view at the side
+    (:func:`_exits`; ``clip_end``: the clip's last frame)."""
+    x1, y1, x2, y2 = (g[c].to_numpy(float) for c in ("x1", "y1", "x2", "y2"))
+    size = np.log(np.sqrt(np.maximum((x2 - x1) * (y2 - y1), 1.0)))
+    wide = np.clip(((x2 - x1) / width - 0.12) / 0.3, 0, 1)
+    tall = np.clip(((y2 - y1) / height - 0.35) / 0.4, 0, 1)  # a person or two-wheeler close in front
+    raw_near = np.maximum(wide, tall) * np.clip((y2 / height - 0.55) / 0.3, 0, 1)
+    near = pd.Series(raw_near, index=g.index).rolling(smooth_frames(fps), center=True, min_periods=1).max()
+    closing = np.clip(box_growth(g, fps).to_numpy(), 0, 1.5) / 1.5  # d ln(size)/dt = 1.5/s (TTC 0.67 s) -> 1
+    j = pd.Series([jolt.get(int(f), 0.0) for f in g.index.to_numpy(int)], index=g.index)
+    edge = _reaches_border(g, width)
+    return pd.DataFrame(
+        {
+            "near": near,
+            "closing": closing,
+            "jolt": j,
+            "log_size": size,
+            "reaches_border": edge,
+            "exits": _exits(g, width, fps, clip_end),
+            "ahead": (g["x1"] <= width / 2) & (g["x2"] >= width / 2),
+            "knocked_over": _knocked_over(g, width, height),
+        }
+    )
+
+
+def _knocked_over(g: pd.DataFrame, width: int, height: int) -> pd.Series:
+    """True at the first frame where a pedestrian's box, upright until then (median height/width at least
+    ``UPRIGHT_ASPECT``), turns squat (under ``FALLEN_ASPECT``) while no image border cuts it: the person
+    is struck off their feet (ccd_000882: 2.1 -> 1.25 at the contact frame, then on the bonnet). Nothing for
+    other road users (a pedestrian hit at the bumper does not jolt the camera)."""
+    out = pd.Series(False, index=g.index)
+    if "category" not in g.columns or not len(g):
+        return out
+    if track_category({str(k): float(v) for k, v in g["category"].value_counts().items()}) != "pedestrian":
+        return out  # a two-wheeler's riders are detected as people (dad_000487), not knocked over
+    w = np.maximum((g["x2"] - g["x1"]).to_numpy(float), 1.0)
+    aspect = (g["y2"] - g["y1"]).to_numpy(float) / w
+    m = border_margin(width)
+    cut = ((g["x1"] <= m) | (g["x2"] >= width - m) | (g["y1"] <= m) | (g["y2"] >= height - m)).to_numpy()
+    for k in range(2, len(g)):
+        if aspect[k] < FALLEN_ASPECT and not cut[k] and np.median(aspect[:k]) >= UPRIGHT_ASPECT:
+            out.iloc[k] = True
+            break
+    return out
+
+
+def _exits(g: pd.DataFrame, width: int, fps: float, clip_end: int | None = None) -> pd.Series:
+    """True at the frames after which the road user leaves the view at the image's left or right side
+    within ``EXIT_WINDOW_S``: its box is on that border with a visible width under ``EXIT_WIDTH_SHARE`` of
+    its width at the frame, or its track ends there before the clip does (``clip_end``: the clip's last
+    frame): it drove past the ego, out of the view."""
+    f = g.index.to_numpy(int)
+    w = (g["x2"] - g["x1"]).to_numpy(float)
+    side = on_side(g, width)
+    n = EXIT_WINDOW_S * fps
+    gone = bool(side[-1]) and clip_end is not None and f[-1] < clip_end  # the track ends on a side border
+    out = np.zeros(len(f), bool)
+    for k in range(len(f)):
+        later = (f > f[k]) & (f <= f[k] + n) & side
+        out[k] = bool(np.any(w[later] < EXIT_WIDTH_SHARE * w[k])) or (gone and f[-1] <= f[k] + n)
+    return pd.Series(out, index=g.index)
+
+
+def _reaches_border(g: pd.DataFrame, width: int) -> pd.Series:
+    """True at the frames where the box jumps onto the left, right or top image border (it did not
+    reach it in the previous frame, and it grew by more than ``BORDER_JUMP`` in log size into this
+    one): the detector's box switched to the road user filling the view. Cut off, the box stops
+    growing there, and the road user fills the image on which the camera's motion is measured (a
+    "jolt" that is its own motion): a knee or jolt in that frame marks the road user arriving, the
+    contact comes a frame later at the earliest (ccd_000014, ccd_001143: 2-3 frames before the label)."""
+    m = border_margin(width)
+    at = np.column_stack([g["x1"] <= m, g["x2"] >= width - m, g["y1"] <= m]).astype(bool)
+    prev = np.vstack([np.zeros((1, 3), bool), at[:-1]])
+    w, h = (g["x2"] - g["x1"]).to_numpy(float), (g["y2"] - g["y1"]).to_numpy(float)
+    size = np.log(np.sqrt(np.maximum(w * h, 1.0)))
+    jump = np.r_[False, np.diff(size) > BORDER_JUMP]
+    return pd.Series((at & ~prev).any(axis=1) & jump, index=g.index)
+
+
+def knee_frame(s: pd.DataFrame, fps: float) -> int | None:
+    """The first frame at which an approaching box stops growing (two frames in a row growing at less
+    than a third of its rate over the previous half second, frames repeating the last one left out of
+    that rate, and not more than ``KNEE_MAX_LATER_GROWTH``
+    in log size over the next half second: a detector's box jumping to a larger one is not it) while it is
+    near (at least ``KNEE_MIN_NEAR``, and half its track's nearest, as for a jolt): the other road user is at
+    the bumper. Half its nearest: at 5 fps the half second is two frames, and a car still 0.35 near (its
+    nearest 1.0) paused its growth for them (ccd_000031 at half its frame rate: the crash put 2.6 s early
+    there, scored under the cut, none found)."""
+    ls_all = s["log_size"].to_numpy(float)
+    at_bumper = max(KNEE_MIN_NEAR, 0.5 * float(s["near"].max()))  # as near as a jolt must be (ego_best)
+    # A resampled clip repeats frames (10 -> 30 fps: each one three times) and its boxes with them: the box
+    # "stops growing" between any two repeats. Only frames whose box changed count, the half second in them.
+    kept = np.r_[True, np.diff(ls_all) != 0.0]
+    ls, frames, near = ls_all[kept], s.index.to_numpy()[kept], s["near"].to_numpy(float)[kept]
+    g = np.diff(ls)
+    n_prev = max(2, int(round(0.5 * fps * len(ls) / max(len(ls_all), 1))))
+    for k in range(n_prev, len(g) - 1):
+        prev = g[k - n_prev : k]
+        changed = prev[prev != 0.0]  # a resampled clip repeats frames: no growth there (ccd_000340 at 15 fps)
+        rate = float(np.median(changed)) if len(changed) else 0.0
+        stays = ls[k + 1 : k + 1 + n_prev].max() - ls[k] < KNEE_MAX_LATER_GROWTH  # not a box jump
+        if rate > 0.02 and near[k] >= at_bumper and g[k] < rate / 3 and g[k + 1] < rate / 3 and stays:
+            return int(frames[k])
+    return None
+
+
+def _approaching_after(s: pd.DataFrame, fps: float) -> pd.Series:
+    """True at the frames after which the box still grows by more than ``APPROACH_AFTER_GROWTH`` in log size
+    within ``APPROACH_AFTER_S`` (at least the next frame): the road user is still approaching, not in contact."""
+    idx = s.index.to_numpy()
+    ls = s["log_size"].to_numpy(float)
+    span = max(APPROACH_AFTER_S * fps, 1.0)
+    out = np.zeros(len(idx), bool)
+    for k in range(len(idx)):
+        later = ls[k + 1 : int(np.searchsorted(idx, idx[k] + span, side="right"))]
+        out[k] = len(later) > 0 and float(later.max()) - ls[k] > APPROACH_AFTER_GROWTH
+    return pd.Series(out, index=s.index)
+
+
+def _still_since(s: pd.DataFrame, jolt_frame: int, fps: float) -> int | None:
+    """The frame from which the road user's box has been at the bumper without growing (near, and growing
+    by less than ``KNEE_MAX_LATER_GROWTH`` in log size over the next 0.5 s) up to the jolt at
+    ``jolt_frame``, when that lasted at least ``STILL_BEFORE_JOLT_S``; else None. The jolt then is the
+    road user pushed on or spun after the contact (ccd_000755: the car struck at frame 21, at the bumper
+    from 23, the camera jolts at 33), and the contact is where the box stopped growing."""
+    idx = s.index.to_numpy()
+    ls = s["log_size"].to_numpy(float)
+    near = (s["near"] >= 0.5 * float(s["near"].max())).to_numpy()
+    n = max(2, int(round(0.5 * fps)))
+    k = int(np.searchsorted(idx, jolt_frame)) - 1
+    start = None
+    while k >= 0 and near[k] and ls[k + 1 : k + 1 + n].max(initial=ls[k]) - ls[k] < KNEE_MAX_LATER_GROWTH:
+        start = k
+        k -= 1
+    if start is None or (jolt_frame - idx[start]) / fps < STILL_BEFORE_JOLT_S:
+        return None
+    return int(idx[start])
+
+
+def ego_best(s: pd.DataFrame, fps: float) -> tuple[float, int, dict[str, float]]:
+    """The ego-crash score of one track and its contact frame: the first camera jolt while the track is
+    near, else the first frame at which the track is nearest (its box stops growing at contact)."""
+    peak = float(s["near"].max())
+    if peak <= 0:
+        return 0.0, int(s.index.to_numpy()[0]), {}
+    near_enough = s["near"] >= 0.5 * peak
+    jolted = s.index.to_numpy()[(near_enough & (s["jolt"] >= 0.3) & ~_approaching_after(s, fps)).to_numpy()]
+    knee = knee_frame(s, fps)
+    if len(jolted):
+        frame = int(jolted[0])
+    elif knee is not None:
+        frame = knee
+    else:
+        frame = int(s.index.to_numpy()[int(np.argmax(s["near"].to_numpy() >= 0.9 * peak))])
+    before = s[(s.index <= frame) & (s.index >= frame - fps)]
+    closing = float(before["closing"].max()) if len(before) else 0.0
+    jolt = float(s["jolt"].to_numpy()[s.index.to_numpy() == frame][0])
+    score = (
+        peak * (0.45 + 0.3 * closing + 0.25 * jolt) if not len(jolted) else peak * (0.5 + 0.35 * jolt + 0.15 * closing)
+    )
+    score *= min(1.0, (closing + jolt) / EGO_MIN_EVIDENCE)  # near all along (the bonnet, a queue): no crash
+    if "exits" in s and bool(s.loc[frame, "exits"]) and not (near_enough & s["ahead"])[before.index].any():
+        score *= jolt  # it drove on out of the view past the ego: only a jolt says it touched on the way
+    ev = {"near": round(peak, 3), "closing": round(closing, 3), "jolt": round(jolt, 3), "score": round(score, 3)}
+    still = _still_since(s, frame, fps) if len(jolted) else None
+    if still is not None:  # the jolt is the crash going on: scored as it is, the contact is earlier
+        ev["jolt_frame"], frame = frame, still
+    elif len(jolted):  # scored where the jolt starts, the contact where it peaks
+        frame = _jolt_peak(s, frame, near_enough)
+    jolt_at = frame if len(jolted) and still is None else None
+    fallen = s["knocked_over"] if "knocked_over" in s else pd.Series(False, index=s.index)
+    fell = s.index.to_numpy()[(fallen & near_enough).to_numpy()]
+    if len(fell) and int(fell[0]) < frame:  # a pedestrian struck off their feet: contact before knee or jolt
+        ev["later_frame"], frame = frame, int(fell[0])
+    if frame == jolt_at and "reaches_border" in s:
+        nxt = _next_new_frame(s, frame)
+        if nxt in s.index and bool(s.loc[nxt, "reaches_border"]):
+            frame = nxt  # the jolt's second difference holds the next frame's shift: the box jumping onto the border
+    if "reaches_border" in s and bool(s.loc[frame, "reaches_border"]):
+        frame = _next_new_frame(s, frame)  # the box jumped onto the border there: filling the view, not touching
+    return score, frame, ev
+
+
+def _jolt_peak(s: pd.DataFrame, first: int, near: pd.Series) -> int:
+    """The contact of a camera jolt that starts at ``first`` while the road user's box still grows fast (``closing``
+    at least ``JOLT_RISE_CLOSING``): the frame where the jolt peaks (on while the next frame jolts more, the road
+    user near). A box growing fast fills more of the view each frame and moves the image the jolt is measured
+    on: the jolt rises with it before the impact (ccd_000330 at 5 fps: 0.31 / 0.59 / 1.0 at frames 16-18, the box
+    growing until 19, the contact at 19). A box that has stopped growing is at the bumper: the jolt's first frame
+    is the contact (ccd_000487: 0.94 then 1.0, the contact at the first)."""
+    idx = s.index.to_numpy()
+    jolt, closing = s["jolt"].to_numpy(float), s["closing"].to_numpy(float)
+    k = int(np.searchsorted(idx, first))
+    while k + 1 < len(idx) and closing[k] >= JOLT_RISE_CLOSING and jolt[k + 1] > jolt[k] and bool(near.iloc[k + 1]):
+        k += 1
+    return int(idx[k])
+
+
+def _next_new_frame(s: pd.DataFrame, frame: int) -> int:
+    """The next frame after ``frame`` whose box differs from it (``log_size``): the next frame of the video,
+    or of a resampled clip the next one that is no repeat of it; ``frame + 1`` at the track's end."""
+    idx = s.index.to_numpy()
+    ls = s["log_size"].to_numpy(float)
+    later = np.flatnonzero((idx > frame) & (ls != ls[int(np.searchsorted(idx, frame))]))
+    return int(idx[later[0]]) if len(later) else frame + 1
+
+
+def at_bumper(ev: dict[str, float]) -> float:
+    """How surely a road user is at the ego's bumper (0..1): near, with approach or jolt evidence (a box
+    near all along without either is the ego's bonnet or a queue: ``EGO_MIN_EVIDENCE``)."""
+    return ev.get("near", 0.0) * min(1.0, (ev.get("closing", 0.0) + ev.get("jolt", 0.0)) / EGO_MIN_EVIDENCE)
