@@ -5,7 +5,7 @@ keyframe pair, from a 3-parameter road-plane homography fit on that pair's road 
 fuses them. On the 10 fps CCD clips most pairs keep too few road points for a reading, and the few readings
 swing with a 1 % change of the camera. This bench records every keyframe pair the estimator solves (its road
 points, rotation, translation direction, time span) and fits the speed of the whole clip, or of sliding windows,
-in ONE robust fit over all the pairs' road points (:func:`deepcrashtest.geometry.egomotion.fit_joint_speed`): a
+in ONE robust fit over all the pairs' road points (:func:`deepcrashtest.geometry.road_motion.fit_joint_speed`): a
 constant speed ``v`` (m/s) makes pair ``k``'s plane scale ``v dt_k / h``; the pairs' translation direction is the
 learned direction of travel (``travel``) or each pair's essential matrix (``pair``); ``+shift``: each pair's road
 points also get their own image shift (the road rows' rotation error: rolling shutter, a shaking mount).
@@ -115,7 +115,7 @@ def lead_closing(boxes: Any, fps: float, fx: float, width_m: float = 1.8, step_s
 
 def joint(pairs: list[dict[str, Any]], height_m: float, mode: str, min_cond: float) -> Any:
     """:func:`fit_joint_speed` for a mode written ``pair`` / ``travel``, ``+shift`` for its ``free_shift``."""
-    from deepcrashtest.geometry.egomotion import fit_joint_speed
+    from deepcrashtest.geometry.road_motion import fit_joint_speed
 
     base, _, shift = mode.partition("+")
     return fit_joint_speed(pairs, height_m, base, min_cond=min_cond, free_shift=shift == "shift")

@@ -3,7 +3,7 @@
 Runs :class:`~deepcrashtest.geometry.egomotion.EgoMotionEstimator` as ``bench/ego_speed_overlays.py`` does
 (camera estimated from the first 2 s, road users masked with ``--tracks DIR``/<clip>/tracks.csv, e.g. a
 fidelity extract) on the fidelity clips (``bench/fidelity_crashes.py``'s labels and the Udacity highway clip)
-and prints per clip the road-scale readings of ``_SpeedFilter`` (frame step, km/h, 1-sigma km/h, outcome:
+and prints per clip the road-scale readings of ``SpeedFilter`` (frame step, km/h, 1-sigma km/h, outcome:
 start / fused / gated / restart) and the smoothed output (median, every 10th frame). A first reading that
 the later ones disagree with is held until ``max_rejects`` come in a row (README, ego speed on real
 dashcam clips). ``--fx PX --height M``: another camera for the estimator (as the overlay bench).

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from conftest import DATA, need
-from deepcrashtest.geometry.egomotion import EgoMotionEstimator, fit_joint_speed, fit_plane_motion
+from deepcrashtest.geometry.egomotion import EgoMotionEstimator
+from deepcrashtest.geometry.road_motion import fit_joint_speed, fit_plane_motion
 
 
 @pytest.fixture(scope="module")

@@ -32,20 +32,20 @@ keep the predicted speed and are flagged ``valid=False``.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import cv2
 import numpy as np
 
+from deepcrashtest.geometry.road_motion import MIN_ROAD_POINTS, PlaneFit, fit_plane_motion
+from deepcrashtest.geometry.speed_filter import SpeedFilter
 from deepcrashtest.perception.flow import top_up_corners, track_points
 from deepcrashtest.scenario import Camera
 
 #: Fewer tracked static-scene corners than this and a frame pair is not trusted.
 MIN_MATCHES = 40
-#: Fewer road points than this and the pair's scale is not measured (the filtered speed is kept).
-MIN_ROAD_POINTS = 12
 #: Fewer speed readings than this (road-scale or "stopped" ones the filter took, not gated) over a clip whose camera
 #: moves: its speed is barely measured, and :meth:`EgoMotionEstimator.result` says so. ccd_000487 (a pickup at
 #: highway speed on a textureless rural road, 10 fps) took none and read 0 km/h with no warning.
@@ -59,7 +59,8 @@ MIN_SPEED_READINGS = 3
 #: the every-frame spread and lowered their fidelity IoU (processed 0.61 -> 0.60, replay 0.55 -> 0.51).
 MAX_RATE_HZ = 20.0
 #: Road points moving less than this share of the flow the pair's rotation alone gives them are fixed to the camera
-#: and stay out of :func:`fit_joint_speed` (the ``fixed_flow_share`` value chosen on KITTI odometry, README).
+#: and stay out of :func:`.road_motion.fit_joint_speed` (the ``fixed_flow_share`` value chosen on KITTI odometry,
+#: README).
 _JOINT_FIXED_SHARE = 0.1
 #: Grey-level standard deviation below which a frame is too dark or flat to track (0-255 scale).
 DARK_CONTRAST = 6.0
@@ -145,250 +146,6 @@ def _rotation_yaw(R_cam: np.ndarray, down: np.ndarray) -> float:
     return float(-(rvec.ravel() @ down))
 
 
-def _tilt_basis(n0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The two unit directions :func:`_tilted` tilts ``n0`` along (about camera x, then about the first)."""
-    e1 = np.cross(n0, [1.0, 0.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    return e1, np.cross(n0, e1)
-
-
-def _tilted(n0: np.ndarray, a: float, b: float, basis: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
-    """``n0`` tilted by small angles ``a`` (about camera x: pitch) and ``b`` (roll), unit length.
-    ``basis``: :func:`_tilt_basis` of ``n0`` when already known (the same numbers, computed once)."""
-    e1, e2 = basis if basis is not None else _tilt_basis(n0)
-    n = n0 + a * e1 + b * e2
-    return n / np.linalg.norm(n)
-
-
-@dataclass
-class PlaneFit:
-    """Road-plane homography fit: ``sigma`` = metres travelled / camera height (unit-free)."""
-
-    sigma: float
-    sigma_std: float
-    normal: np.ndarray
-    inliers: int
-
-
-def _huber_gauss_newton(
-    residuals: Callable[[np.ndarray], np.ndarray],
-    p: np.ndarray,
-    prior_w: np.ndarray,
-    n_numeric: int,
-    extra_j: np.ndarray,
-    iters: int,
-    use: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """Robust Gauss-Newton from ``p``: ``residuals(p)`` (N, 2) in noise units, Huber weights at 2 units, a Gaussian
-    prior of precision ``prior_w`` around 0 on each parameter; the Jacobian of the first ``n_numeric`` parameters
-    by forward differences (1e-4), ``extra_j`` (N, 2, rest) for the others (constant); ``use``: rows that count.
-    Stops when the first parameter settles. Returns (parameters, normal matrix, weights) or None if singular."""
-    A = np.eye(len(p))
-    w = np.ones(len(extra_j))
-    for _ in range(iters):
-        r = residuals(p)
-        J = np.stack([(residuals(p + np.eye(len(p))[k] * 1e-4) - r) / 1e-4 for k in range(n_numeric)], axis=-1)
-        J = np.concatenate([J, extra_j], axis=-1)
-        e = np.hypot(r[:, 0], r[:, 1])
-        w = np.where(e < 2.0, 1.0, 2.0 / np.maximum(e, 1e-9))  # Huber at 2 noise units
-        if use is not None:
-            w = w * use
-        Jw = J * w[:, None, None]
-        A = np.einsum("nij,nik->jk", Jw, J) + np.diag(prior_w)
-        g = np.einsum("nij,ni->j", Jw, r) + prior_w * p
-        try:
-            d = np.linalg.solve(A, -g)
-        except np.linalg.LinAlgError:
-            return None
-        p = p + d
-        if abs(d[0]) < 1e-6 * max(abs(p[0]), 1e-6):
-            break
-    return p, A, w
-
-
-def _median_scale(x1: np.ndarray, a: np.ndarray, b: np.ndarray) -> float | None:
-    """Start of a road-plane fit: the median over points of the scale ``s`` solving ``x1 x (a + s b) = 0`` (each
-    (N, 3): the later frame's normalised point, the rotated earlier point, the translation per unit scale); None
-    with fewer than ``MIN_ROAD_POINTS`` points that fix it or a non-finite median."""
-    c1 = np.cross(x1, a)
-    c2 = np.cross(x1, b)
-    den = np.sum(c2 * c2, axis=1)
-    ok = den > 1e-12
-    if ok.sum() < MIN_ROAD_POINTS:
-        return None
-    start = float(np.median(-np.sum(c1[ok] * c2[ok], axis=1) / den[ok]))
-    return start if np.isfinite(start) else None
-
-
-def fit_plane_motion(
-    x0: np.ndarray,
-    p1: np.ndarray,
-    K: np.ndarray,
-    R: np.ndarray,
-    t: np.ndarray,
-    n_prior: np.ndarray,
-    noise_px: float = 0.5,
-    tilt_prior_rad: float = 0.02,
-    iters: int = 8,
-    shift_prior_px: float = 0.0,
-) -> PlaneFit | None:
-    """Fit ``x1 ~ R x0 + sigma (n . x0) t`` to road points (robust Gauss-Newton, Huber weights).
-
-    ``x0``: (N, 3) normalised homogeneous image points of the earlier frame (``K^-1 [u, v, 1]``),
-    ``p1``: (N, 2) pixels in the later frame, ``R``/``t``: rotation and unit translation from the
-    essential matrix (``X1 = R X0 + |T| t``), ``n_prior``: road normal (camera frame, pointing down).
-    The road ``n . X0 = h`` makes ``sigma = |T| / h``. ``shift_prior_px`` > 0: the road points also get one
-    image shift (px, u and v; a Gaussian prior of this 1-sigma) fitted with the rest: the small pitch / yaw by
-    which the road's rows differ from the pair's rotation (a rolling shutter, a shaking mount); ``sigma_std``
-    then carries that uncertainty. Returns None when the fit is degenerate.
-    """
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    a = x0 @ R.T
-    basis = _tilt_basis(n_prior)
-    npar = 5 if shift_prior_px > 0.0 else 3
-
-    def residuals(p: np.ndarray) -> np.ndarray:
-        n = _tilted(n_prior, p[1], p[2], basis)
-        X = a + p[0] * (x0 @ n)[:, None] * t[None, :]
-        z = np.where(np.abs(X[:, 2]) < 1e-9, 1e-9, X[:, 2])
-        u, v = fx * X[:, 0] / z + cx - p1[:, 0], fy * X[:, 1] / z + cy - p1[:, 1]
-        if npar == 5:
-            u, v = u + p[3], v + p[4]
-        return np.column_stack([u, v]) / noise_px
-
-    x1 = np.column_stack([(p1[:, 0] - cx) / fx, (p1[:, 1] - cy) / fy, np.ones(len(p1))])
-    start = _median_scale(x1, a, (x0 @ n_prior)[:, None] * t[None, :])
-    if start is None:
-        return None
-    p = np.array([start, 0.0, 0.0, 0.0, 0.0][:npar])
-    prior_w = np.array([0.0, 1.0 / tilt_prior_rad**2, 1.0 / tilt_prior_rad**2, 0.0, 0.0][:npar])
-    if npar == 5:
-        prior_w[3:] = (noise_px / shift_prior_px) ** 2  # residuals are in noise units
-    solved = _huber_gauss_newton(residuals, p, prior_w, npar, np.zeros((len(x0), 2, 0)), iters)
-    if solved is None:
-        return None
-    p, A, w = solved
-    r = residuals(p)
-    e = np.hypot(r[:, 0], r[:, 1])
-    inl = e < 4.0
-    if inl.sum() < MIN_ROAD_POINTS or not np.all(np.isfinite(p)) or p[0] <= 0:
-        return None
-    s2 = float(np.sum(w[inl] * e[inl] ** 2) / max(1, 2 * int(inl.sum()) - npar))
-    var = float(np.linalg.inv(A)[0, 0]) * max(s2, 0.25)
-    return PlaneFit(float(p[0]), math.sqrt(max(var, 0.0)), _tilted(n_prior, p[1], p[2], basis), int(inl.sum()))
-
-
-@dataclass
-class JointFit:
-    """One speed fitted over many keyframe pairs at once (:func:`fit_joint_speed`)."""
-
-    speed: float  # m/s
-    speed_std: float  # m/s, 1-sigma
-    pairs: int  # pairs with road points in the fit
-    points: int
-    inliers: int
-
-
-def _pair_points(pair: dict[str, Any], height_m: float, mode: str) -> tuple[np.ndarray, ...] | None:
-    """One recorded keyframe pair's road points as the joint fit's rows: (a = R x0, x0, t * dt / h, n, p1, K)."""
-    road = pair["road"]
-    if road.sum() == 0:
-        return None
-    R, K = pair["R"], pair["K"]
-    if mode == "travel":
-        if pair["travel"] is None:
-            return None
-        t = -R @ (pair["travel"] / np.linalg.norm(pair["travel"]))  # the camera moves along the travel
-    else:
-        t = pair["t"]
-    p0 = pair["p0"][road].astype(np.float64)
-    x0 = np.column_stack([(p0[:, 0] - K[0, 2]) / K[0, 0], (p0[:, 1] - K[1, 2]) / K[1, 1], np.ones(len(p0))])
-    dt = max(pair["t1"] - pair["t0"], 1e-3)
-    m = len(x0)
-    return (
-        x0 @ R.T,
-        x0,
-        np.tile(t * dt / height_m, (m, 1)),
-        np.tile(pair["normal"], (m, 1)),
-        pair["p1"][road].astype(np.float64),
-        np.tile(K[[0, 1, 0, 1], [0, 1, 2, 2]], (m, 1)),
-    )
-
-
-def fit_joint_speed(
-    pairs: Sequence[dict[str, Any]],
-    height_m: float,
-    mode: str = "travel",
-    noise_px: float = 0.5,
-    min_cond: float = 0.0,
-    free_shift: bool = False,
-    tilt_prior_rad: float = 0.02,
-) -> JointFit | None:
-    """One constant speed (m/s) over many keyframe pairs' road points at once (robust Gauss-Newton, Huber).
-
-    Each pair ``k`` (a dict: ``t0``, ``t1`` s, ``p0``/``p1`` work px (N, 2), ``road`` bool (N,), ``R``, ``t``,
-    ``K``, ``normal`` (camera frame, down), ``travel`` (camera frame or None); as ``EgoMotionEstimator(...,
-    keep_pairs=True).pairs`` records them) contributes its road points to ``x1 ~ R x0 + (v dt_k / h) (n . x0) t_k``;
-    ``v`` and a tilt of the road normal shared by all pairs are fitted (``tilt_prior_rad``: the tilt's 1-sigma
-    prior). ``mode``: ``"travel"`` takes each pair's translation along the learned direction of travel, ``"pair"``
-    its essential matrix's. ``min_cond``: pairs whose own information on ``v`` (the squared sensitivity of their
-    points to ``v``, per noise px^2, at the first estimate) is under this share of the best pair's are left out
-    (ill-conditioned). ``free_shift``: each pair's road points also get their own image shift (px; the small
-    pitch / yaw by which the rows of the road differ from the pair's rotation, a rolling shutter or a shaking
-    mount), fitted with the rest. None when fewer than ``MIN_ROAD_POINTS`` points."""
-    rows = [r for r in (_pair_points(p, height_m, mode) for p in pairs) if r is not None]
-    if not rows:
-        return None
-    pair_id = np.concatenate([np.full(len(r[0]), k) for k, r in enumerate(rows)])
-    a, x0, tb, n0, p1, kk = (np.concatenate([r[j] for r in rows]) for j in range(6))
-    if len(a) < MIN_ROAD_POINTS:
-        return None
-    basis = _tilt_basis(np.mean(n0, axis=0) / np.linalg.norm(np.mean(n0, axis=0)))
-
-    npair = len(rows)
-
-    def residuals(p: np.ndarray) -> np.ndarray:
-        n = n0 + p[1] * basis[0] + p[2] * basis[1]
-        n = n / np.linalg.norm(n, axis=1, keepdims=True)
-        X = a + p[0] * np.sum(x0 * n, axis=1)[:, None] * tb
-        z = np.where(np.abs(X[:, 2]) < 1e-9, 1e-9, X[:, 2])
-        u = kk[:, 0] * X[:, 0] / z + kk[:, 2] - p1[:, 0]
-        v = kk[:, 1] * X[:, 1] / z + kk[:, 3] - p1[:, 1]
-        if free_shift:
-            u = u + p[3 : 3 + npair][pair_id]
-            v = v + p[3 + npair :][pair_id]
-        return np.column_stack([u, v]) / noise_px
-
-    x1 = np.column_stack([(p1[:, 0] - kk[:, 2]) / kk[:, 0], (p1[:, 1] - kk[:, 3]) / kk[:, 1], np.ones(len(p1))])
-    start = _median_scale(x1, a, np.sum(x0 * n0, axis=1)[:, None] * tb)
-    if start is None:
-        return None
-    nshift = 2 * npair if free_shift else 0
-    p = np.r_[start, 0.0, 0.0, np.zeros(nshift)]
-    use = np.ones(len(a), bool)
-    if min_cond > 0.0:
-        r0 = residuals(p)
-        jv = (residuals(p + np.eye(len(p))[0] * 1e-3) - r0) / 1e-3
-        info = np.bincount(pair_id, weights=np.sum(jv * jv, axis=1), minlength=len(rows))
-        use = info[pair_id] >= min_cond * info.max()
-    prior_w = np.r_[0.0, 1.0 / tilt_prior_rad**2, 1.0 / tilt_prior_rad**2, np.full(nshift, 1e-6)]
-    shift_j = np.zeros((len(a), 2, nshift))
-    if free_shift:
-        shift_j[np.arange(len(a)), 0, pair_id] = 1.0 / noise_px
-        shift_j[np.arange(len(a)), 1, npair + pair_id] = 1.0 / noise_px
-    solved = _huber_gauss_newton(residuals, p, prior_w, 3, shift_j, 10, use)
-    if solved is None:
-        return None
-    p, A, w = solved
-    e = np.hypot(*residuals(p).T)
-    inl = (e < 4.0) & use
-    if inl.sum() < MIN_ROAD_POINTS or not np.all(np.isfinite(p)) or p[0] <= 0:
-        return None
-    s2 = float(np.sum(w[inl] * e[inl] ** 2) / max(1, 2 * int(inl.sum()) - len(p)))
-    std = math.sqrt(max(float(np.linalg.inv(A)[0, 0]) * max(s2, 0.25), 0.0))
-    return JointFit(float(p[0]), std, len(set(pair_id[use].tolist())), int(use.sum()), int(inl.sum()))
-
-
 def _epipolar_px(E: np.ndarray, p0: np.ndarray, p1: np.ndarray, K: np.ndarray) -> np.ndarray:
     """Distance (pixels) of each ``p1`` from the epipolar line of its ``p0`` under ``E``."""
     Ki = np.linalg.inv(K)
@@ -396,112 +153,6 @@ def _epipolar_px(E: np.ndarray, p0: np.ndarray, p1: np.ndarray, K: np.ndarray) -
     h1 = np.column_stack([p1, np.ones(len(p1))]) @ Ki.T
     lines = h0 @ E.T
     return np.abs(np.sum(h1 * lines, axis=1)) / np.maximum(np.hypot(lines[:, 0], lines[:, 1]), 1e-12) * K[0, 0]
-
-
-class _SpeedFilter:
-    """Kalman filter on speed (m/s) and acceleration with gating, and an RTS smoother.
-
-    ``jerk`` (m/s^3): white-noise jerk density of the process. ``accel_tau_s``: the acceleration decays
-    towards 0 with this time constant (a Singer model; 0 = constant acceleration). A car brakes or
-    speeds up for a second or two, not for a whole clip: without the decay, a few scattered road-scale
-    measurements on a dashcam clip were extrapolated into ramps over the whole clip (CCD clips: 10 ->
-    27 m/s in a city street over 5 s; 1.5 s, a vehicle-dynamics prior not tuned on any clip, ends
-    those ramps at 15 m/s and leaves the KITTI odometry errors as they were). Measurements whose innovation is
-    beyond ``gate`` standard deviations are ignored, unless ``max_rejects`` come in a row (then the
-    filter re-starts from the measurement: a real change, not an outlier). After ``hold_s`` seconds
-    without a measurement the acceleration is dropped and the speed held: on ccd_000882 (no road scale
-    after frame 11) the last, noisy deceleration was extrapolated to 0 m/s, and 27 of 49 frames read
-    "stopped" while the ego drove. ``hold_accel`` (m/s^2; 0 = off): while held, the speed's
-    variance grows by ``hold_accel^2 dt`` a step (a car's speed unmeasured for t seconds is uncertain by about
-    ``hold_accel sqrt(t)``); without it the held speed's variance hardly grows and the next sparse reading is
-    gated however right it is (KITTI odometry seq00 with every 10th reading kept: 5 of 16 gated while the
-    readings err 2.8 % median; ``bench/road_scale_scatter.py --keep 10``).
-    """
-
-    def __init__(
-        self,
-        jerk: float = 3.0,
-        gate: float = 3.0,
-        max_rejects: int = 3,
-        accel_tau_s: float = 0.0,
-        hold_s: float = 0.5,
-        hold_accel: float = 0.0,
-    ) -> None:
-        self.hold_s = hold_s
-        self.hold_accel = hold_accel
-        self.q = jerk**2
-        self.tau = accel_tau_s
-        self.gate = gate
-        self.max_rejects = max_rejects
-        self.x = np.zeros(2)
-        self.P = np.diag([100.0, 25.0])
-        self.rejects = 0
-        self.started = False
-        self.since = 0.0  # seconds since the last measurement
-        self.first = 0  # the step of the first measurement: earlier steps take its smoothed speed
-        self.log: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
-        self.readings: list[tuple[int, float, float, str]] = []  # (step, m/s, variance, start/restart/gated/fused)
-
-    def step(self, dt: float, z: float | None, var: float) -> float:
-        """Advance by ``dt`` seconds, fuse the speed measurement ``z`` (variance ``var``); returns speed."""
-        self.since += dt
-        decay = math.exp(-dt / self.tau) if self.tau > 0 else 1.0
-        if self.since > self.hold_s:
-            decay = 0.0  # no speed measured for a while: keep the speed, forget the acceleration
-        F = np.array([[1.0, dt], [0.0, decay]])
-        Q = self.q * np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]])
-        if self.since > self.hold_s:  # held: the speed drifts as a random walk of hold_accel (m/s^2) density
-            Q[0, 0] += self.hold_accel**2 * dt
-        xp, Pp = F @ self.x, F @ self.P @ F.T + Q
-        x, P = xp, Pp
-        if z is not None:
-            self.since = 0.0
-            S = Pp[0, 0] + var
-            innov = z - xp[0]
-            if not self.started or self.rejects >= self.max_rejects:
-                x, P = np.array([z, 0.0]), np.diag([var, 4.0])
-                outcome = "restart" if self.started else "start"
-                if not self.started:
-                    self.first = len(self.log)
-                self.started, self.rejects = True, 0
-            elif innov * innov > self.gate**2 * S:
-                self.rejects += 1
-                outcome = "gated"
-            else:
-                Kg = Pp[:, 0] / S
-                x = xp + Kg * innov
-                P = Pp - np.outer(Kg, Pp[0])
-                self.rejects, outcome = 0, "fused"
-            self.readings.append((len(self.log), float(z), float(var), outcome))
-        self.x, self.P = x, P
-        self.log.append((F, xp, Pp, x, P))
-        return max(0.0, float(x[0]))
-
-    def confirmed(self, step: int) -> bool:
-        """Whether two readings or more (not gated) were taken up to filter step ``step``."""
-        return sum(1 for k, _, _, outcome in self.readings if k <= step and outcome != "gated") >= 2
-
-    def smoothed(self, cut: int | None = None) -> np.ndarray:
-        """RTS-smoothed speeds of every step so far (m/s, >= 0). ``cut``: a step after which the
-        smoother starts afresh, so that no later reading moves the speeds up to that step (a crash's
-        readings after it do not spread the crash's slowing to before it)."""
-        if not self.log:
-            return np.zeros(0)
-        xs = [self.log[-1][3]]
-        Ps = [self.log[-1][4]]
-        for k in range(len(self.log) - 2, -1, -1):
-            if k == cut:
-                xs.append(self.log[k][3])
-                Ps.append(self.log[k][4])
-                continue
-            F1, xp1, Pp1 = self.log[k + 1][:3]
-            xk, Pk = self.log[k][3], self.log[k][4]
-            C = Pk @ F1.T @ np.linalg.pinv(Pp1)
-            xs.append(xk + C @ (xs[-1] - xp1))
-            Ps.append(Pk + C @ (Ps[-1] - Pp1) @ C.T)
-        out = np.maximum(0.0, np.array([x[0] for x in reversed(xs)]))
-        out[: self.first] = out[self.first]  # before any measurement: no evidence of another speed
-        return out
 
 
 class EgoMotionEstimator:
@@ -539,7 +190,7 @@ class EgoMotionEstimator:
     rose 0.73 -> 0.79 (its 3-10 km/h readings at frames 36-40 were sideways pairs) but ccd_000132's fell 0.69
     -> 0.61 (its one late reading, 1 km/h, was one; the speed stays at its first, 9 km/h) and the processed
     IoU mean 0.6476 -> 0.6470.
-    ``speed_hold_accel``: the speed filter's ``hold_accel`` (m/s^2, see ``_SpeedFilter``; 0, the default: off).
+    ``speed_hold_accel``: the speed filter's ``hold_accel`` (m/s^2, see ``SpeedFilter``; 0, the default: off).
     1 was chosen on KITTI odometry seq00 with every 5th / 10th reading kept (``bench/road_scale_scatter.py
     --keep 5 --keep 10``): output median speed error 4.7 / 9.4 % -> 4.1 / 4.4 % (0.5: 4.8 / 5.3 %), gated
     readings 6 / 5 -> 0; seq06 (10 / 5 readings) 0.76 / 0.31 -> 0.77 / 0.61 %; with a reading every frame the
@@ -570,7 +221,7 @@ class EgoMotionEstimator:
     next frame's road tracking); inf (default): off. Neither is the default
     (README / docs/notes/egospeed11.md: KITTI unchanged, ccd_000014 no nearer its overlay).
     ``keep_pairs``: every solved keyframe pair is kept in ``pairs`` (its road points, rotation, translation, time
-    span) for :func:`fit_joint_speed` (one speed over many pairs; a diagnosis, not used by ``extract``)."""
+    span) for :func:`.road_motion.fit_joint_speed` (one speed over many pairs; a diagnosis, not used by ``extract``)."""
 
     def __init__(
         self,
@@ -637,7 +288,7 @@ class EgoMotionEstimator:
         self._travel: np.ndarray | None = None  # direction of travel, camera frame (running mean)
         self._travels = 0
         self._pitch_from_motion = horizon_v is None and camera.pitch_source not in ("user", "kitti_calib")
-        self._filter = _SpeedFilter(jerk=jerk, accel_tau_s=accel_tau_s, hold_accel=speed_hold_accel)
+        self._filter = SpeedFilter(jerk=jerk, accel_tau_s=accel_tau_s, hold_accel=speed_hold_accel)
         self._states: list[EgoState] = []
         self._dt: list[float] = []
         self._dyaw: list[float] = []
@@ -899,8 +550,8 @@ class EgoMotionEstimator:
     def _keep_pair(
         self, p0: np.ndarray, p1: np.ndarray, h: int, R: np.ndarray, t: np.ndarray, moving: bool, parallax: float
     ) -> None:
-        """Record a solved keyframe pair for :func:`fit_joint_speed` (``keep_pairs``): its work-px points, the
-        road candidates among them (road region, moving, off the overlay, not fixed to the camera at
+        """Record a solved keyframe pair for :func:`.road_motion.fit_joint_speed` (``keep_pairs``): its work-px points,
+        the road candidates among them (road region, moving, off the overlay, not fixed to the camera at
         ``_JOINT_FIXED_SHARE``; no epipolar gate), rotation, translation direction, road normal, travel, span."""
         assert self._K is not None
         ok = self._road_region(p0[:, 0], p0[:, 1], h) & self._off_overlay(p0)
