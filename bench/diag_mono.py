@@ -53,7 +53,9 @@ from deepcrashtest.eval.kitti_mono import (
     score_sequence,
 )
 from deepcrashtest.eval.kitti_rules import apply_kitti_rules
-from deepcrashtest.geometry.mono3d import class_size, hull_factor, localize_tracks
+from deepcrashtest.geometry.mono3d import localize_tracks
+from deepcrashtest.geometry.mono_config import class_size
+from deepcrashtest.geometry.mono_size import hull_factor
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kitti_tracking"
 TUNING = [s for s in range(21) if s not in (3, 8, 10)]

@@ -35,7 +35,7 @@ import math
 import numpy as np
 import pandas as pd
 
-from deepcrashtest.geometry.mono3d import class_size
+from deepcrashtest.geometry.mono_config import class_size
 from deepcrashtest.geometry.project import camera_rotation
 from deepcrashtest.scenario import Camera
 

@@ -28,7 +28,8 @@ from deepcrashtest.eval.kitti_mono import (
 )
 from deepcrashtest.eval.kitti_rules import MATCH_RULES, apply_kitti_rules
 from deepcrashtest.geometry.egomotion import EgoMotion
-from deepcrashtest.geometry.mono3d import MonoConfig, _Cues, _oblique_width, _width_m, hull_factor
+from deepcrashtest.geometry.mono_config import Cues, MonoConfig
+from deepcrashtest.geometry.mono_size import hull_factor, oblique_width, width_m
 from deepcrashtest.geometry.selfcalib import focal_from_motion, self_calibrate
 from deepcrashtest.scenario import Camera
 
@@ -176,12 +177,12 @@ def _clean_cars(kitti_root, seq_no: int) -> tuple[Camera, pd.DataFrame]:
     return camera, lab[(lab["type"] == "Car") & (lab["occluded"] == 0) & (lab["truncated"] == 0)]
 
 
-def _label_cues(c: pd.DataFrame, camera: Camera, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, _Cues]:
+def _label_cues(c: pd.DataFrame, camera: Camera, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, Cues]:
     """Label boxes' widths (px), bearings (tan) and width-cue inputs (``z``: the bottom-edge depth slot, m)."""
     box_w = (c["x2"] - c["x1"]).to_numpy()
     bearing = (0.5 * (c["x1"] + c["x2"]).to_numpy() - camera.cx) / camera.fx
     none = np.zeros(len(c), bool)
-    return box_w, bearing, _Cues(z, z, box_w, box_w, bearing, none, none)
+    return box_w, bearing, Cues(z, z, box_w, box_w, bearing, none, none)
 
 
 def test_width_cue_reads_the_box_edges_of_cars_beside_the_axis(kitti_root):
@@ -201,7 +202,7 @@ def test_width_cue_reads_the_box_edges_of_cars_beside_the_axis(kitti_root):
     box_w, bearing, cues = _label_cues(c, camera, z_near)
 
     def log_error(cfg: MonoConfig) -> np.ndarray:
-        z = [fx * _width_m(ln, w, cues, np.array([i]), camera, cfg)[0] / box_w[i] for i, (ln, w) in enumerate(
+        z = [fx * width_m(ln, w, cues, np.array([i]), camera, cfg)[0] / box_w[i] for i, (ln, w) in enumerate(
             zip(c["l"], c["w"], strict=True))]  # fmt: skip
         return np.log(np.array(z) / z_near)
 
@@ -588,7 +589,7 @@ def test_box_edge_width_where_vehicles_head_along_the_axis_brings_near_cars_clos
 def _width_cue_centre_error(kitti_root, seq_no: int, turned: bool) -> np.ndarray:
     """Log error of the centre depth the width cue gives for a KITTI sequence's unoccluded, untruncated cars turned
     more than 20 degrees against the camera's axis (centre 5-40 m), from the label box and size, with the label's
-    heading (``turned``: :func:`_oblique_width`) or the centre-bearing geometry."""
+    heading (``turned``: :func:`~deepcrashtest.geometry.mono_size.oblique_width`) or the centre-bearing geometry."""
     camera, c = _clean_cars(kitti_root, seq_no)
     fx = camera.fx
     rel = -c["ry"].to_numpy() - np.pi / 2  # heading left of the optical axis (KITTI ry: about camera y)
@@ -598,7 +599,7 @@ def _width_cue_centre_error(kitti_root, seq_no: int, turned: bool) -> np.ndarray
     a = np.arctan(bearing)
     off = 0.5 * (c["l"].to_numpy() * np.abs(np.cos(a)) + c["w"].to_numpy() * np.abs(np.sin(a))) * np.cos(a)
     z = np.array([
-        fx * _width_m(ln, w, cues, np.array([i]), camera, MonoConfig(), None, rel[i : i + 1] if turned else None)[0]
+        fx * width_m(ln, w, cues, np.array([i]), camera, MonoConfig(), None, rel[i : i + 1] if turned else None)[0]
         / box_w[i] for i, (ln, w) in enumerate(zip(c["l"], c["w"], strict=True))
     ])  # fmt: skip
     return np.log((z + off) / c["z"].to_numpy())
@@ -608,13 +609,14 @@ def test_oblique_width_reads_the_depth_of_cars_turned_against_the_axis(kitti_roo
     """A car turned against the camera's axis spans its footprint's corners in the image, not its extent across
     the line of sight as if parallel to the axis. KITTI 0001 and 0011 labels (unoccluded, untruncated cars turned
     more than 20 degrees, centre 5-40 m): the centre depth the width cue gives from the label box, size and heading
-    with :func:`_oblique_width` (``MonoConfig.width_oblique``) is within 1 % on median (measured 0.3 / 0.4 %), where
-    the centre-bearing geometry misses it by more than 20 % (measured 26 / 25 %)."""
+    with :func:`~deepcrashtest.geometry.mono_size.oblique_width` (``MonoConfig.width_oblique``) is within 1 % on
+    median (measured 0.3 / 0.4 %), where the centre-bearing geometry misses it by more than 20 % (measured 26 /
+    25 %)."""
     for s in (1, 11):
         new, old = (_width_cue_centre_error(kitti_root, s, turned) for turned in (True, False))
         assert len(new) > 150
         assert np.median(np.abs(new)) < 0.01 < 0.2 < np.median(np.abs(old))
-    one = _oblique_width(4.0, 1.8, np.array([0.25]), np.array([0.3]), np.array([1.0]))
+    one = oblique_width(4.0, 1.8, np.array([0.25]), np.array([0.3]), np.array([1.0]))
     assert one.shape == (1,) and 0.5 < float(one[0]) < 10.0
 
 

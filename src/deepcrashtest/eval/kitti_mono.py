@@ -52,7 +52,7 @@ from deepcrashtest.eval.kitti import PAPER_TABLE, ground_truth_frames, hypothese
 from deepcrashtest.eval.kitti_rules import GroundTruthFrame, MatchRule, apply_kitti_rules
 from deepcrashtest.geometry.camera import default_camera
 from deepcrashtest.geometry.egomotion import EgoMotion
-from deepcrashtest.geometry.mono3d import MonoConfig
+from deepcrashtest.geometry.mono_config import MonoConfig
 from deepcrashtest.geometry.selfcalib import SelfCalibration, self_calibrate
 from deepcrashtest.geometry.world_tracks import raw_scenario_from_tracks
 from deepcrashtest.perception.detections import Detections

@@ -28,7 +28,7 @@ Per track:
    :data:`CANDIDATES`); the class whose prior explains the pooled height best is kept, and its
    posterior height is then fused, where the camera's height is measured, with the height its near
    ground contacts imply (boxes whose bottom edge lies far below the horizon, where the bottom edge
-   gives the depth to a few per cent: :func:`_contact_height`) and scales its length and width. The
+   gives the depth to a few per cent: :func:`contact_height`) and scales its length and width. The
    same pooling gives the width cue's scale.
 
 3. The cues are fused per frame by inverse variance (in log depth); the visible face is moved to
@@ -65,371 +65,23 @@ import numpy as np
 import pandas as pd
 from filterpy.kalman import KalmanFilter
 
-from deepcrashtest.geometry.camera import cut_sides
 from deepcrashtest.geometry.egomotion import EgoMotion
-from deepcrashtest.geometry.localize import CLASS_DIMENSIONS, SIZE_PRIOR_SIGMA
+from deepcrashtest.geometry.mono_config import (
+    CANDIDATES,
+    Cues,
+    MonoConfig,
+    RoadProfile,
+    class_size,
+)
+from deepcrashtest.geometry.mono_size import box_cues, hull_factor, size_scale, track_size, width_m
 from deepcrashtest.geometry.standing import StandingFit, StandingNoise, Views, fit_standing
 from deepcrashtest.perception.roadusers import track_category
 from deepcrashtest.scenario import Camera
 
-#: Classes a detector's category may really be (the size decides among them).
-CANDIDATES: dict[str, tuple[str, ...]] = {
-    "car": ("car", "van"),
-    "van": ("van", "car"),
-    "truck": ("truck", "van", "bus"),
-    "bus": ("bus", "truck"),
-    "motorcycle": ("motorcycle", "bicycle"),
-    "bicycle": ("bicycle", "motorcycle"),
-    "pedestrian": ("pedestrian",),
-}
-#: ``Camera.height_source`` values of a measured camera height (the near ground contacts need one).
-MEASURED_HEIGHT_SOURCES = ("user", "kitti_calib")
 OUTPUT_COLUMNS = (
     "frame", "time", "track_id", "category", "x", "y", "vx", "vy", "yaw", "speed",
     "length", "width", "height", "range", "detected", "x1", "y1", "x2", "y2", "score", "horizon_v",
 )  # fmt: skip
-
-
-@dataclass(frozen=True)
-class MonoConfig:
-    """Noise models and motion model of :func:`localize_tracks` (pixels, metres, seconds).
-
-    Chosen on the KITTI tracking training sequences other than 3, 8 and 10 (``bench/tune_mono.py``)."""
-
-    bottom_sigma_px: float = 2.0
-    road_height_rel: float = 0.5
-    height_sigma_px: float = 0.4
-    width_sigma_rel: float = 0.2
-    bearing_sigma_px: float = 3.0
-    accel_std: float = 3.0
-    init_speed_std: float = 15.0
-    size_sample_inflation: float = 100.0
-    class_sample_inflation: float = 1.5
-    class_switch_cost: float = 1.0
-    # a track whose bottom-edge heights fit no candidate class (the road under it or the horizon off: a car 30-70 m
-    # away whose box is wide like a car's reads 2.2-3.8 m tall) carries no class evidence in its heights: each class's
-    # height log-likelihood is floored at the fit about the samples' own mean less this per sample (None: off), and
-    # the box shape and the detector's class decide (round mono13, 18 training sequences, KITTI camera: 65.37 ->
-    # 65.92; 0.1 / 0.15 / 0.3: 65.41 / 65.92 / 65.53; a cost per track, not per sample, 2 / 4 / 8: 57.34 / 59.05 /
-    # 60.83, flipping long car tracks to van). Only where the camera's height is measured (MEASURED_HEIGHT_SOURCES):
-    # with a self-calibrated one (unknown camera 60.98 -> 61.49 on the training sequences) it typed two vans of
-    # dad_000512 car (mean reprojection IoU 0.655 -> 0.621) and dad_000487's crash motorcycle bicycle -> motorcycle
-    class_free_height_cost: float | None = 0.2
-    gate_chi2: float = 25.0
-    # a track whose measurements have all been gated out for this long (s; two at least) restarts at the next one: its
-    # prediction has left the road user (mirrored dad_000550: a pickup turning across the junction coasted on at its
-    # old velocity, 12 m from its boxes, for 2.5 s); None: never. Training sequences: never 70.20 / 64.31 (KITTI /
-    # unknown camera), 0.3 s 70.38 / 64.56, 0.5 s 70.34 / 64.45, 1 s 70.52 / 64.63, 2 s 70.49 / 64.59
-    gate_reset_s: float | None = 1.0
-    frame_horizon: bool = True
-    horizon_shrink: float = 1.0
-    hull_height: bool = True  # the height cue with hull_factor (tuning MOTA 55.83 against 54.75 without)
-    hull_in_class: bool = False  # the class choice on the plain heights (with: 54.75)
-    prior_scale: float = 1.0  # multiplies the class size priors (0.98: 52.70, 1.02: 51.43)
-    size_scale_min_below_px: float = 0.0  # off: 60 px gave tuning MOTA 24.6 against 54.75
-    length_scale: float = 1.0  # multiplies the class length priors (the centre offset, hull factor, width cue)
-    width_scale: float = 1.0  # multiplies the class width priors (the width cue, hull factor)
-    aspect_sigma: float = 0.15  # box height/width against the class's in the class choice (0: unused)
-    aspect_inflation: float = 30.0  # tuning MOTA 60.23 (off: 58.65; sigma^2 x inflation 0.4: 59.82, 0.9: 59.71)
-    extend_s: float = 4.0  # a receding track is carried this long past its end (tuning MOTA 58.65 vs 56.22 off)
-    extend_min_range_m: float = 45.0  # (40 m: 58.42, 50 m: 57.96, 30 m with 1 s: 55.05)
-    # tuning MOTA 60.68 -> 62.52 (100 px: 62.22, 125: 62.35, 175: 61.92, 200: 60.67; row 0.1: 61.82, 0.3: 62.10;
-    # floor 0.04: 62.53, 0.09: 62.38; at least 3 / 6 contacts: 61.99 / 61.22; not for the horizon: 62.33)
-    # near ground contacts (bottom edge this far below the horizon; None: unused) ... Used only where the camera's
-    # height is measured (``Camera.height_source`` in :data:`MEASURED_HEIGHT_SOURCES`): they measure a vehicle's
-    # height in units of the camera's, so with a self-calibrated or default height (which the boxes' sizes against
-    # the class priors set) they only echo it. With the KITTI camera (round mono8) 150 px lifts KITTI training
-    # MOTA 62.04 -> 63.84; on the dashcam fidelity clips (heights self-calibrated or default) it is off: there it
-    # had lost two reproduced crashes (dad_000478's pair no longer close in 3D; ccd_000014's replay missed)
-    contact_min_below_px: float | None = 150.0
-    contact_row_rel: float = 0.2  # ... each measure the track's height to this (1 sigma, relative) ...
-    contact_floor_rel: float = 0.06  # ... and all of them together no better than this (road shape)
-    # ... and a track without such contacts uses its nearest ones, bottom edge this far below the horizon (None:
-    # unused), with the same errors, in its final size only, not in the sizes the per-frame horizon rests on (round
-    # mono10, 18 tuning sequences: 64.55 -> 65.37; 60 / 75 / 80 / 100 / 110 px: 62.51 / 64.94 / 65.14 / 65.18 / 64.96;
-    # in the horizon's sizes too, 100 px: 65.38 from 0004 +19 against 0014 -11.5, one track's class flipping with
-    # the horizon; 90 / 75 px: 65.33 / 64.81; their own floor 0.04 / 0.08 / 0.1 at 100 px: 65.57 / 65.16 / 64.89)
-    contact_far_below_px: float | None = 90.0
-    # detected boxes cut at the bottom and a side (no depth cue: a car the ego passes) at a track's ends are
-    # carried by the motion model for at most this long (s)
-    carry_cut_s: float = 0.5
-    # the road's drop below the camera as a function of range (not one plane through the ego), estimated from the
-    # tracks themselves (:func:`road_profile`): off; round mono12, 18 training sequences: KITTI camera 65.37 -> 65.13,
-    # unknown camera 60.98 -> 61.02 (with the bottom-edge cue weighted up, road_height_rel 0.2: 58.09 / 58.37)
-    road_profile: bool = False
-    road_ref_m: float = 12.0  # the profile is 0 (the camera's height) up to this range (m) ...
-    road_knots_m: tuple[float, ...] = (20.0, 30.0, 45.0, 60.0, 80.0)  # ... piecewise linear through these (flat past)
-    road_knot_sigma: float = 0.1  # prior 1-sigma of each knot's log drop (pulls it to the camera's height)
-    road_min_rows: int = 200  # fewer usable rows: no profile
-    # the per-frame horizon's depths with the roof's far edge removed (hull_factor); off (round mono12: 65.22 / 60.99)
-    horizon_hull: bool = False
-    # the width cue's geometry (:func:`_width_m`): the box's edges as a vehicle parallel to the optical axis projects
-    # them (its side's far end at the near face's depth plus its length), not its extent across the line of sight at
-    # the box centre's bearing, which reads a car 10 m ahead and 3 m aside 18 % too far, one at 30 m 7 %. Off: round
-    # mono14, 18 training sequences, median position error at 0-20 m lower on 12 of 14 sequences with the KITTI
-    # camera, 10 of 14 with the unknown one, MOTA 65.92 -> 65.75 (unknown 60.98 -> 60.97), held-out 85.93 / 66.96 /
-    # 88.97 -> 89.22 / 67.66 / 88.28 (unknown 86.83 / 53.37 / 92.07 -> 83.83 / 55.36 / 92.24), but on the 20 dashcam
-    # clips the mean reprojection IoU fell 0.652 / 0.627 -> 0.645 / 0.616 (ccd_000080 0.715 -> 0.607: crash cars
-    # turn towards the ego, not parallel to the axis; 19 of 19 outcomes kept)
-    width_box_edges: bool = False
-    # ... or only where a vehicle heads along the camera's axis (or against it) within this angle (degrees; 0: off),
-    # its heading from a first pass of the track with the centre-bearing geometry; a vehicle slower than
-    # ``along_min_speed`` (m/s) counts as along (parked and queued vehicles line the road). Crossing and turning
-    # vehicles keep the centre-bearing geometry, which the box edges of a car seen obliquely fit better. Round
-    # mono13i, 18 training sequences (10 / 20 / 30 deg alike; 20 chosen): n-weighted median position error 0-20 m
-    # 4.57 -> 4.39 % (unknown camera 5.10 -> 4.87 %), MOTA 65.92 -> 65.75 (unknown 61.00 -> 60.87); 20 dashcam
-    # clips: 18/18 kept, mean IoU 0.652 / 0.628 -> 0.653 / 0.628 (ccd_000080 0.715 -> 0.714)
-    width_edges_along_deg: float = 20.0
-    along_min_speed: float = 1.5
-    # the other moving vehicles' width cue from their footprint turned by their heading from the first pass
-    # (:func:`_oblique_width`: the box spans the rotated rectangle's corners) instead of the centre-bearing geometry.
-    # Exact with the true heading (KITTI labels of cars turned > 20 deg, 18 training sequences: centre depth median
-    # |error| 0.4 % against 30 %), but the first pass's heading is too noisy. Off: round mono13, 18 training
-    # sequences, from 1.5 / 5 / 10 m/s MOTA 65.75 -> 64.68 / 64.98 / 65.78 (unknown 60.87 -> 61.04 / 60.81 / 60.75);
-    # fresh extracts at 1.5 m/s: ccd_000080 IoU 0.714 -> 0.545, dad_000528 replay 0.622 -> 0.565; at 10 m/s no row
-    # of either clip changes
-    width_oblique: bool = False
-    oblique_min_speed: float = 10.0  # ... the vehicles at least this fast (m/s): a slower one's heading is noise
-    # a standing vehicle's position from the parallax the ego's own motion gives (:func:`_static_fit`): one ground
-    # point whose bearings and box heights (one height for the track, pulled to its class size by ``static_size_rel``)
-    # fit every detected, uncut box; kept where the track's first pass is slower than ``static_max_speed`` (m/s),
-    # the fit's mean squared normalised residual is under ``static_max_chi2``, its height within
-    # ``static_max_size_dev`` (log) of the track's size and the line of sight to it turned by at least
-    # ``static_min_parallax_rad`` over the track (less parallax: the class size knows the range better). A queue
-    # creeping at 1-2 m/s past a moving ego fits a standing point as well as a parked car does (round mono14s, 18
-    # training sequences: 0020's queue lost 75.0 -> 47.3 without the parallax and speed gates), so the gates were
-    # chosen on the 18 training sequences for both cameras: MOTA 65.75 -> 69.86 (KITTI camera), 60.87 -> 61.15
-    # (unknown); see docs/kitti-mono.md
-    static_fit: bool = True
-    static_max_speed: float = 1.5
-    static_min_rows: int = 5
-    static_height_rel: float = 0.05
-    static_size_rel: float = 0.15
-    static_max_chi2: float = 1.0
-    static_max_size_dev: float = 0.3
-    static_min_parallax_rad: float = 0.3
-    # ... and a standing vehicle's class (car or van) from the height its standing fit measures with a loose size
-    # prior (relative sigma ``static_class_rel``; a class other than the detector's costs ``static_class_switch`` in
-    # log height): round mono14s, 18 training sequences, MOTA 69.86 -> 70.20 (0001 66.6 -> 69.9), unknown camera
-    # 64.10 -> 64.33 (0009 69.2 -> 70.9); no sequence lower; 0.3 / 0.5 alike, switch cost 0: 69.86 / 64.33
-    static_class: bool = True
-    static_class_rel: float = 0.5
-    static_class_switch: float = 0.1
-
-
-def class_size(category: str) -> tuple[float, float, float]:
-    """(length, width, height) metres of a class (cars for unknown ones)."""
-    return CLASS_DIMENSIONS.get(category, CLASS_DIMENSIONS["car"])
-
-
-def _size_sigma(category: str) -> float:
-    return SIZE_PRIOR_SIGMA.get(category, 0.1)
-
-
-@dataclass
-class _Cues:
-    """Per-row depth cues: depth (m) and relative 1-sigma error (NaN: cue unavailable)."""
-
-    z_bottom: np.ndarray
-    r_bottom: np.ndarray
-    box_h: np.ndarray
-    box_w: np.ndarray
-    bearing: np.ndarray  # tan of the line of sight's angle right of the optical axis
-    cut_v: np.ndarray
-    cut_u: np.ndarray
-
-
-@dataclass(frozen=True)
-class RoadProfile:
-    """The road's drop below the camera against range: ``log(drop / camera height)`` at ``knots_m`` (m), linear
-    between them, 0 at and before the first knot, flat past the last."""
-
-    knots_m: tuple[float, ...]
-    log_drop: tuple[float, ...]
-
-    def ratio(self, z: np.ndarray) -> np.ndarray:
-        """Road drop over the camera's height at depths ``z`` (m)."""
-        return np.exp(np.interp(np.nan_to_num(z, nan=0.0), self.knots_m, self.log_drop))
-
-
-def _bottom_depth(below: np.ndarray, camera: Camera, road: RoadProfile | None) -> np.ndarray:
-    """Depth (m) of a ground contact ``below`` px under the horizon: ``fy h / below`` on a flat road, else the
-    fixed point of ``Z = fy h ratio(Z) / below`` (a few iterations: the ratio changes slowly with range)."""
-    z = camera.fy * camera.height_m / np.maximum(below, 1e-3)
-    if road is not None:
-        for _ in range(4):
-            z = camera.fy * camera.height_m * road.ratio(z) / np.maximum(below, 1e-3)
-    return z
-
-
-def _cues(
-    b: np.ndarray, camera: Camera, image_size: tuple[int, int], vh: np.ndarray, cfg: MonoConfig,
-    road: RoadProfile | None = None,
-) -> _Cues:  # fmt: skip
-    below = b[:, 3] - vh
-    cut = cut_sides(b, image_size)
-    cut_bottom, cut_top, cut_u = cut[:, 3], cut[:, 1], cut[:, 0] | cut[:, 2]
-    z_b = np.where((below > 2.0) & ~cut_bottom, _bottom_depth(below, camera, road), np.nan)
-    r_b = np.hypot(cfg.bottom_sigma_px / np.maximum(below, 1e-3), cfg.road_height_rel)
-    return _Cues(
-        z_bottom=z_b,
-        r_bottom=r_b,
-        box_h=np.maximum(b[:, 3] - b[:, 1], 1.0),
-        box_w=np.maximum(b[:, 2] - b[:, 0], 1.0),
-        bearing=(0.5 * (b[:, 0] + b[:, 2]) - camera.cx) / camera.fx,
-        cut_v=cut_bottom | cut_top,
-        cut_u=cut_u,
-    )
-
-
-def _pool_log(samples: np.ndarray, rel_sigma: np.ndarray, prior: float, prior_rel: float, inflation: float):
-    """Inverse-variance pooling (log domain) of samples with a prior -> (value, relative sigma, log-lik).
-
-    ``inflation`` multiplies each sample's variance (frames of one track share their errors)."""
-    ok = np.isfinite(samples) & np.isfinite(rel_sigma) & (samples > 0)
-    s, r = np.log(samples[ok]), rel_sigma[ok]
-    w = 1.0 / (inflation * r**2)
-    w0 = 1.0 / prior_rel**2
-    mean = (np.sum(w * s) + w0 * math.log(prior)) / (np.sum(w) + w0)
-    var_each = inflation * r**2 + prior_rel**2
-    loglik = float(np.sum(-0.5 * (s - math.log(prior)) ** 2 / var_each - 0.5 * np.log(var_each)))
-    return math.exp(mean), 1.0 / math.sqrt(np.sum(w) + w0), loglik
-
-
-def _free_loglik(samples: np.ndarray, rel_sigma: np.ndarray, prior_rel: float, inflation: float, cost: float) -> float:
-    """Log-likelihood of the samples of :func:`_pool_log` about their own weighted mean (log domain), less ``cost``
-    per sample: the fit of a track whose road or horizon is off by an unknown factor, whatever its class's height."""
-    ok = np.isfinite(samples) & np.isfinite(rel_sigma) & (samples > 0)
-    s, r = np.log(samples[ok]), rel_sigma[ok]
-    if len(s) == 0:
-        return -math.inf
-    var_each = inflation * r**2 + prior_rel**2
-    mu = float(np.sum(s / var_each) / np.sum(1.0 / var_each))
-    return float(np.sum(-0.5 * (s - mu) ** 2 / var_each - 0.5 * np.log(var_each) - cost))
-
-
-def _track_size(
-    category: str,
-    cues: _Cues,
-    rows: np.ndarray,
-    det: np.ndarray,
-    camera: Camera,
-    cfg: MonoConfig,
-    scale: float,
-    choose_class: bool = True,
-):
-    """(class, length, width, height, height rel sigma, width scale, width-scale rel sigma) of one track.
-
-    ``scale``: the box source's size convention (see :func:`size_scale`), multiplies the priors."""
-    use = rows[det[rows] & ~cues.cut_v[rows] & np.isfinite(cues.z_bottom[rows])]
-    h_samples = cues.box_h[use] * cues.z_bottom[use] / camera.fy
-    h_rel = np.hypot(cues.r_bottom[use], cfg.height_sigma_px / cues.box_h[use])
-    best: tuple[float, str] | None = None
-    candidates = CANDIDATES.get(category, (category,)) if choose_class else (category,)
-
-    def near_face(cls: str) -> np.ndarray:  # the samples as near-face heights of class ``cls``
-        if not (cfg.hull_height and cfg.hull_in_class):
-            return h_samples
-        ln, wd, ht = (v * scale for v in class_size(cls))
-        return h_samples / hull_factor(ht, ln, wd, camera.height_m, cues.z_bottom[use], cues.bearing[use])
-
-    inflation = cfg.class_sample_inflation
-    measured = camera.height_source in MEASURED_HEIGHT_SOURCES  # (see MonoConfig.class_free_height_cost)
-    free_cost = cfg.class_free_height_cost if measured else None
-    for cls in candidates:  # the class: the likeliest prior given the samples
-        prior_h, prior_rel = class_size(cls)[2] * scale, _size_sigma(cls)
-        samples = near_face(cls)
-        _, _, loglik = _pool_log(samples, h_rel, prior_h, prior_rel, inflation)
-        if free_cost is not None:  # heights far from every class's prior: no class evidence
-            loglik = float(np.logaddexp(loglik, _free_loglik(samples, h_rel, prior_rel, inflation, free_cost)))
-        loglik -= 0.0 if cls == category else cfg.class_switch_cost  # the detector's own class is likelier
-        if cfg.aspect_sigma > 0:
-            loglik += _aspect_loglik(cls, cues, rows[det[rows]], camera, scale, cfg)
-        if best is None or loglik > best[0]:
-            best = (loglik, cls)
-    assert best is not None
-    cls = best[1]
-    height, h_rel_post, _ = _pool_log(
-        near_face(cls), h_rel, class_size(cls)[2] * scale, _size_sigma(cls), cfg.size_sample_inflation
-    )
-    height, h_rel_post = _contact_height(cls, height, h_rel_post, cues, use, camera, cfg, scale)
-    length, width, prior_h = class_size(cls)
-    length, width = length * cfg.length_scale, width * cfg.width_scale
-    scale = height / prior_h  # the posterior height scales the class's length and width
-    # width cue scale: apparent width against the class's, for a vehicle parallel to the ego
-    use_w = rows[det[rows] & ~cues.cut_u[rows] & np.isfinite(cues.z_bottom[rows])]
-    app = _width_m(length * scale, width * scale, cues, use_w, camera, cfg)
-    w_samples = cues.box_w[use_w] * cues.z_bottom[use_w] / camera.fx / app
-    w_rel = np.hypot(cues.r_bottom[use_w], cfg.width_sigma_rel)
-    w_scale, w_scale_rel, _ = _pool_log(w_samples, w_rel, 1.0, cfg.width_sigma_rel, cfg.size_sample_inflation)
-    return cls, length * scale, width * scale, height, h_rel_post, w_scale, w_scale_rel
-
-
-def _contact_height(
-    cls: str, height: float, rel: float, cues: _Cues, use: np.ndarray, camera: Camera, cfg: MonoConfig,
-    scale: float,
-) -> tuple[float, float]:  # fmt: skip
-    """The track's height (m) and relative sigma, fused with what its near ground contacts imply.
-
-    Only where the camera's height is measured (:data:`MEASURED_HEIGHT_SOURCES`), boxes whose bottom edge lies
-    at least ``contact_min_below_px`` below the horizon (None: unused) give the depth
-    of the vehicle's near face to a few per cent, hence its height ``box_h Z_bottom / fy /
-    hull_factor`` (the roof's far edge removed); each such frame errs by ``contact_row_rel`` (road
-    height under the car) and the bottom edge's and top edge's pixel errors, their inverse-variance
-    mean no better than ``contact_floor_rel`` (the road's shape is shared by the frames). That mean
-    and ``height`` (the class prior's posterior) are fused by inverse variance in log."""
-    if cfg.contact_min_below_px is None or camera.height_source not in MEASURED_HEIGHT_SOURCES:
-        return height, rel
-    below = camera.fy * camera.height_m / cues.z_bottom[use]
-    near = use[below >= cfg.contact_min_below_px]
-    if len(near) == 0 and cfg.contact_far_below_px is not None:  # a track that never comes that near: its nearest
-        near = use[below >= cfg.contact_far_below_px]
-    if len(near) == 0:
-        return height, rel
-    ln, wd, ht = (v * scale for v in class_size(cls))
-    z = cues.z_bottom[near]
-    h = cues.box_h[near] * z / camera.fy / hull_factor(ht, ln, wd, camera.height_m, z, cues.bearing[near])
-    b = camera.fy * camera.height_m / z
-    w = 1.0 / ((cfg.bottom_sigma_px / b) ** 2 + cfg.contact_row_rel**2 + (cfg.height_sigma_px / cues.box_h[near]) ** 2)
-    mean = float(np.sum(w * np.log(h)) / np.sum(w))
-    var = cfg.contact_floor_rel**2 + 1.0 / float(np.sum(w))
-    w_prior = 1.0 / rel**2
-    log_h = (w_prior * math.log(height) + mean / var) / (w_prior + 1.0 / var)
-    return math.exp(log_h), 1.0 / math.sqrt(w_prior + 1.0 / var)
-
-
-def _aspect_loglik(cls: str, cues: _Cues, rows: np.ndarray, camera: Camera, scale: float, cfg: MonoConfig) -> float:
-    """Log-likelihood of a track's box shapes (height over width, free of the range) under class ``cls``.
-
-    A van's box is taller for its width than a car's: the expected ratio is the class's height
-    (times :func:`hull_factor`, the roof's far edge) over its apparent width at the box's view angle
-    (a vehicle parallel to the ego); each uncut box's log ratio misses it by ``aspect_sigma``
-    (1 sigma), the frames' sum divided by ``aspect_inflation`` (frames of one track share errors)."""
-    use = rows[~cues.cut_v[rows] & ~cues.cut_u[rows]]
-    if len(use) == 0:
-        return 0.0
-    ln, wd, ht = (v * scale for v in class_size(cls))
-    z = camera.fy * ht / cues.box_h[use]
-    expected = ht * hull_factor(ht, ln, wd, camera.height_m, z, cues.bearing[use])
-    expected /= _apparent_width(ln * cfg.length_scale, wd * cfg.width_scale, cues.bearing[use])
-    resid = np.log(cues.box_h[use] / cues.box_w[use]) - np.log(expected)
-    return float(-0.5 * np.sum(resid**2) / cfg.aspect_sigma**2 / cfg.aspect_inflation)
-
-
-def size_scale(tracks: pd.DataFrame, cues: _Cues, det: np.ndarray, camera: Camera, min_below_px: float) -> float:
-    """How much taller the boxes are than the class priors say, over the whole video (one number).
-
-    Box conventions differ (a detector's tight visible box, a projected 3D box's hull): the heights
-    the bottom-edge cue implies for near boxes (bottom edge at least ``min_below_px`` below the
-    horizon, uncut) are divided by their class prior; the median ratio (clipped to 0.85-1.2; 1 with
-    fewer than 20 boxes or ``min_below_px`` <= 0) scales every prior of this video."""
-    below = camera.fy * camera.height_m / np.where(np.isfinite(cues.z_bottom), cues.z_bottom, np.inf)
-    ok = det & ~cues.cut_v & (below >= min_below_px)
-    if min_below_px <= 0 or ok.sum() < 20:
-        return 1.0
-    prior = np.array([class_size(str(c))[2] for c in tracks["category"].to_numpy()[ok]])
-    ratio = cues.box_h[ok] * cues.z_bottom[ok] / camera.fy / prior
-    return float(np.clip(np.median(ratio), 0.85, 1.2))
 
 
 def frame_horizon(
@@ -465,89 +117,17 @@ def frame_horizon(
     return vh + off[inv]
 
 
-def hull_factor(
-    height: float, length: float, width: float, camera_height: float, z_near: np.ndarray, bearing: np.ndarray
-) -> np.ndarray:
-    """Box height over ``fy height / z_near``: how much taller a vehicle's box is than its near face.
-
-    A vehicle lower than the camera shows its roof: the box's top edge is the roof's far edge, at
-    depth ``z_near + D`` (``D = L |cos a| + W |sin a|`` its extent along the line of sight), so
-    ``box_h = fy (hc / z_near - (hc - H) / (z_near + D))`` = ``fy H / z_near`` times
-    ``1 + (hc - H) / H * D / (z_near + D)``. Taller vehicles show their near top edge (factor 1).
-    On the KITTI 0001 labels (cars 5 m and more away) it narrows the gap between the box heights and
-    ``fy H / z_near`` (median |log| 0.018 against 0.023; ``tests/test_mono.py``)."""
-    a = np.arctan(bearing)
-    extent = length * np.abs(np.cos(a)) + width * np.abs(np.sin(a))
-    z = np.maximum(np.nan_to_num(z_near, nan=1e6), 0.5)
-    return 1.0 + max(camera_height - height, 0.0) / height * extent / (z + extent)
-
-
-def _width_m(
-    length: float, width: float, cues: _Cues, rows: np.ndarray, camera: Camera, cfg: MonoConfig,
-    edges: np.ndarray | None = None, rel_yaw: np.ndarray | None = None,
-) -> np.ndarray:  # fmt: skip
-    """What the width cue divides by: ``Z_near = fx width_m / box_w`` (m) for a vehicle of ``length`` x ``width``
-    parallel to the optical axis, per row.
-
-    With ``cfg.width_box_edges`` the box's edges as they project: a vehicle wholly right of the optical axis shows
-    its rear (or front) face and its left side, the box runs from the side's far end, at ``Z_near + L``, to the
-    face's outer corner, at ``Z_near``, so ``box_w / fx = W / Z_near + t_in L / (Z_near + L)``, ``t_in`` the tangent
-    of the box's inner edge, and ``Z_near = (W + t_in L) / (box_w / fx)`` exactly (``t_in`` 0 for a box across the
-    axis: the face alone). Else :func:`_apparent_width` at the box centre's bearing. ``edges`` (per row): where
-    to use the box edges instead of ``cfg.width_box_edges`` everywhere; ``rel_yaw`` (per row, rad; NaN: unknown):
-    the other rows' heading against the camera's axis, read with :func:`_oblique_width`."""
-    centre = _apparent_width(length, width, cues.bearing[rows])
-    if rel_yaw is not None:
-        ok = np.isfinite(rel_yaw)
-        centre[ok] = _oblique_width(length, width, cues.bearing[rows][ok], cues.box_w[rows][ok] / camera.fx,
-                                    rel_yaw[ok])  # fmt: skip
-    use = np.full(len(rows), cfg.width_box_edges) if edges is None else np.asarray(edges, bool)
-    if not use.any():
-        return centre
-    half = 0.5 * cues.box_w[rows] / camera.fx
-    t_in = np.maximum(0.0, np.maximum(cues.bearing[rows] - half, -(cues.bearing[rows] + half)))
-    return np.where(use, width + length * t_in, centre)
-
-
-def _oblique_width(
-    length: float, width: float, bearing: np.ndarray, box_tan: np.ndarray, rel_yaw: np.ndarray
-) -> np.ndarray:
-    """``Z_near box_tan`` (m) for a vehicle of ``length`` x ``width`` turned by ``rel_yaw`` (rad, left of the
-    camera's axis) whose centre lies on the ray at ``bearing`` (tan) and whose footprint's corners span
-    ``box_tan`` (the box width over fx): the centre's depth solved by fixed-point iteration (the span falls
-    as 1 / depth), ``Z_near`` the depth of the near face as :func:`_measurements` offsets it to the centre."""
-    fwd = np.column_stack([-np.sin(rel_yaw), np.cos(rel_yaw)])  # heading in camera x (right), z (forward)
-    side = np.column_stack([fwd[:, 1], -fwd[:, 0]])
-    corners = [0.5 * (i * length * fwd + j * width * side) for i in (-1, 1) for j in (-1, 1)]
-    dx = np.column_stack([c[:, 0] for c in corners])
-    dz = np.column_stack([c[:, 1] for c in corners])
-    a = np.arctan(bearing)
-    off_z = 0.5 * (length * np.abs(np.cos(a)) + width * np.abs(np.sin(a))) * np.cos(a)
-    zc = np.maximum((length + width) / np.maximum(box_tan, 1e-4), 1.0)
-    for _ in range(8):
-        z = np.maximum(zc[:, None] + dz, 0.3)
-        t = (bearing[:, None] * zc[:, None] + dx) / z
-        zc = np.maximum(zc * (t.max(axis=1) - t.min(axis=1)) / np.maximum(box_tan, 1e-4), 1.0)
-    return np.maximum(zc - off_z, 0.5) * box_tan
-
-
-def _apparent_width(length: float, width: float, bearing: np.ndarray) -> np.ndarray:
-    """Width (m) across the line of sight of a vehicle parallel to the optical axis, seen at ``bearing``."""
-    a = np.arctan(bearing)
-    return length * np.abs(np.sin(a)) + width * np.abs(np.cos(a))
-
-
 def _fuse_depth(
-    cues: _Cues, rows: np.ndarray, size: tuple[float, float, float], h_rel: float, w_scale: float, w_rel: float,
+    cues: Cues, rows: np.ndarray, size: tuple[float, float, float], h_rel: float, w_scale: float, w_rel: float,
     camera: Camera, cfg: MonoConfig, edges: np.ndarray | None = None, rel_yaw: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """Fused depth of the visible face (m) and its relative sigma, per row (``edges``, ``rel_yaw``:
-    :func:`_width_m`)."""
+    :func:`width_m`)."""
     length, width, height = size
     z_h = _height_depth(cues, rows, ("", length, width, height), camera, cfg)
     r_h = np.hypot(h_rel, cfg.height_sigma_px / cues.box_h[rows])
     z_h[cues.cut_v[rows]] = np.nan
-    app = w_scale * _width_m(length, width, cues, rows, camera, cfg, edges, rel_yaw)
+    app = w_scale * width_m(length, width, cues, rows, camera, cfg, edges, rel_yaw)
     z_w = camera.fx * app / cues.box_w[rows]
     r_w = np.hypot(w_rel, np.hypot(cfg.width_sigma_rel, cfg.height_sigma_px / cues.box_w[rows]))
     z_w[cues.cut_u[rows]] = np.nan
@@ -647,19 +227,19 @@ def _rows(tracks: pd.DataFrame, ego: EgoMotion) -> _Rows:
 
 def _sizes_and_cues(
     r: _Rows, camera: Camera, image_size: tuple[int, int], vh: np.ndarray, cfg: MonoConfig
-) -> tuple[list, _Cues, np.ndarray, RoadProfile | None]:
-    """Each track's size (:func:`_track_size`), the rows' cues, horizon rows (px): ``vh`` (per row)
+) -> tuple[list, Cues, np.ndarray, RoadProfile | None]:
+    """Each track's size (:func:`track_size`), the rows' cues, horizon rows (px): ``vh`` (per row)
     moved by the per-frame horizon of the boxes (:func:`frame_horizon`), and the road profile the cues
     read the bottom edges on (:func:`road_profile`, where ``cfg.road_profile``; else None)."""
     cats = r.df["category"].to_numpy(dtype=str)
     track_cat = [track_category(Counter(cats[a:b].tolist())) for a, b in r.spans]
-    cues = _cues(r.boxes, camera, image_size, vh, cfg)
+    cues = box_cues(r.boxes, camera, image_size, vh, cfg)
     scale = size_scale(r.df, cues, r.detected, camera, cfg.size_scale_min_below_px) * cfg.prior_scale
 
     def sizes(choose: bool) -> list:
         c_cfg = cfg if choose else replace(cfg, contact_far_below_px=None)  # the horizon's sizes: near contacts only
         return [
-            _track_size(c, cues, np.arange(a, b), r.detected, camera, c_cfg, scale, choose)
+            track_size(c, cues, np.arange(a, b), r.detected, camera, c_cfg, scale, choose)
             for c, (a, b) in zip(track_cat, r.spans, strict=True)
         ]
 
@@ -674,11 +254,11 @@ def _sizes_and_cues(
         )
     z_size[~r.detected | cues.cut_v] = np.nan
     vh_rows = frame_horizon(r.frames, r.boxes[:, 3], z_size, camera, vh, cfg.horizon_shrink)
-    cues = _cues(r.boxes, camera, image_size, vh_rows, cfg)
+    cues = box_cues(r.boxes, camera, image_size, vh_rows, cfg)
     road = road_profile(r, cues, first, camera, cfg) if cfg.road_profile else None
     if road is not None:
         vh_rows = frame_horizon(r.frames, r.boxes[:, 3], z_size, camera, vh, cfg.horizon_shrink, road)
-        cues = _cues(r.boxes, camera, image_size, vh_rows, cfg, road)
+        cues = box_cues(r.boxes, camera, image_size, vh_rows, cfg, road)
     return sizes(True), cues, vh_rows, road
 
 
@@ -691,7 +271,7 @@ def road_profile_of(
     return _sizes_and_cues(r, camera, image_size, np.full(len(r.df), camera.horizon_v()), config)[3]
 
 
-def _height_depth(cues: _Cues, rows: np.ndarray, size: tuple, camera: Camera, cfg: MonoConfig) -> np.ndarray:
+def _height_depth(cues: Cues, rows: np.ndarray, size: tuple, camera: Camera, cfg: MonoConfig) -> np.ndarray:
     """Depth (m) of the near face of ``rows`` from their box heights with the track's ``size`` (class, length,
     width, height, ...), the roof's far edge removed (:func:`hull_factor`, fixed point) where ``hull_height``."""
     _, length, width, height = size[:4]
@@ -703,7 +283,7 @@ def _height_depth(cues: _Cues, rows: np.ndarray, size: tuple, camera: Camera, cf
     return z_h
 
 
-def road_profile(r: _Rows, cues: _Cues, sizes: list, camera: Camera, cfg: MonoConfig) -> RoadProfile | None:
+def road_profile(r: _Rows, cues: Cues, sizes: list, camera: Camera, cfg: MonoConfig) -> RoadProfile | None:
     """The road's drop below the camera against range, from the tracks themselves (None: too few rows).
 
     Each detected uncut box with a bottom-edge cue reads the road's drop under it as ``below Z_h / fy`` (``below``
@@ -754,11 +334,11 @@ def _ridge(basis: np.ndarray, y: np.ndarray, w: np.ndarray, prior_sigma: float, 
 
 
 def _measurements(
-    rows: np.ndarray, size: tuple, cues: _Cues, r: _Rows, ego: EgoMotion, camera: Camera, cfg: MonoConfig,
+    rows: np.ndarray, size: tuple, cues: Cues, r: _Rows, ego: EgoMotion, camera: Camera, cfg: MonoConfig,
     edges: np.ndarray | None = None, rel_yaw: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """World-frame centres (n, 2; NaN: no measurement), their covariances (n, 2, 2) and the
-    camera-to-centre ranges (n,) of one track's rows (``edges``, ``rel_yaw``: :func:`_width_m`)."""
+    camera-to-centre ranges (n,) of one track's rows (``edges``, ``rel_yaw``: :func:`width_m`)."""
     _, length, width, height, h_rel, w_scale, w_rel = size
     z_near, rel = _fuse_depth(cues, rows, (length, width, height), h_rel, w_scale, w_rel, camera, cfg, edges, rel_yaw)
     bearing = cues.bearing[rows]
@@ -787,7 +367,7 @@ def _measurements(
 
 
 def _static_fit(
-    rows: np.ndarray, xs: np.ndarray, size: tuple, cues: _Cues, r: _Rows, ego: EgoMotion, camera: Camera,
+    rows: np.ndarray, xs: np.ndarray, size: tuple, cues: Cues, r: _Rows, ego: EgoMotion, camera: Camera,
     cfg: MonoConfig,
 ) -> np.ndarray | None:  # fmt: skip
     """World ground position (x, y m) of a standing vehicle from its whole track (:func:`_standing_fit` with the
@@ -797,7 +377,7 @@ def _static_fit(
 
 
 def _standing_fit(
-    rows: np.ndarray, xs: np.ndarray, size: tuple, cues: _Cues, r: _Rows, ego: EgoMotion, camera: Camera,
+    rows: np.ndarray, xs: np.ndarray, size: tuple, cues: Cues, r: _Rows, ego: EgoMotion, camera: Camera,
     cfg: MonoConfig, size_rel: float,
 ) -> StandingFit | None:  # fmt: skip
     """:func:`~deepcrashtest.geometry.standing.fit_standing` on a track's detected, uncut boxes (its height scale's
@@ -819,10 +399,10 @@ def _standing_fit(
 
 
 def _standing_class(
-    rows: np.ndarray, xs: np.ndarray, size: tuple, cues: _Cues, r: _Rows, ego: EgoMotion, camera: Camera,
+    rows: np.ndarray, xs: np.ndarray, size: tuple, cues: Cues, r: _Rows, ego: EgoMotion, camera: Camera,
     cfg: MonoConfig, detector_class: str,
 ) -> tuple:  # fmt: skip
-    """The track's size (:func:`_track_size`'s tuple) with, for a standing vehicle whose detector class has other
+    """The track's size (:func:`track_size`'s tuple) with, for a standing vehicle whose detector class has other
     candidates (:data:`CANDIDATES`: car or van), the class whose height (scaled like the track's) is nearest in
     log to the height its standing fit measures with a loose size prior (``static_class_rel``); a class other
     than the detector's costs ``static_class_switch`` (log)."""
@@ -846,7 +426,7 @@ def _standing_class(
     return (cls, length, width, height, *size[4:])
 
 
-def track_views(rows: np.ndarray, cues: _Cues, r: _Rows, ego: EgoMotion) -> Views:
+def track_views(rows: np.ndarray, cues: Cues, r: _Rows, ego: EgoMotion) -> Views:
     """The :class:`~deepcrashtest.geometry.standing.Views` of rows ``rows``."""
     ei = r.ego_i[rows]
     return Views(ego.x[ei], ego.y[ei], ego.yaw[ei], cues.bearing[rows], cues.box_h[rows])

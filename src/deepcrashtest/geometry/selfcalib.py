@@ -34,7 +34,7 @@ import pandas as pd
 from deepcrashtest.geometry.camera import cut_sides, undistorted_tracks
 from deepcrashtest.geometry.egomotion import EgoMotion
 from deepcrashtest.geometry.lens import refocused
-from deepcrashtest.geometry.mono3d import class_size
+from deepcrashtest.geometry.mono_config import class_size
 from deepcrashtest.geometry.selfcalib_axis import axis_column_from_path, axis_column_from_standing
 from deepcrashtest.geometry.selfcalib_image import focal_from_level_horizon
 from deepcrashtest.geometry.selfcalib_moving import (

@@ -27,7 +27,7 @@ import numpy as np
 import pandas as pd
 
 from deepcrashtest.geometry.egomotion import EgoMotion
-from deepcrashtest.geometry.mono3d import class_size
+from deepcrashtest.geometry.mono_config import class_size
 from deepcrashtest.geometry.standing import StandingNoise, Views, fit_standing
 
 #: Rows further than this (m, depth from the box height) are not used (pixel noise and the road's
@@ -149,7 +149,7 @@ def axis_column_from_path(
 
 #: Standing vehicles (:func:`axis_column_from_standing`): a track's fit counts where its mean squared
 #: normalised residual, its height scale against the class's (log) and the turn of its line of sight (rad) pass
-#: these (the gates of :class:`~deepcrashtest.geometry.mono3d.MonoConfig`'s standing-vehicle fit); the fewest
+#: these (the gates of :class:`~deepcrashtest.geometry.mono_config.MonoConfig`'s standing-vehicle fit); the fewest
 #: such tracks; the fit's row errors (bearing px, box height px and relative, the height scale's prior).
 STANDING_MAX_CHI2 = 1.0
 STANDING_MAX_SIZE_DEV = 0.3

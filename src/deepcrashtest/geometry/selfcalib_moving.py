@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 
 from deepcrashtest.geometry.egomotion import EgoMotion
-from deepcrashtest.geometry.mono3d import class_size
+from deepcrashtest.geometry.mono_config import class_size
 
 MIN_TRACK_FRAMES = 10
 #: Least ego travel (m) over a track.

@@ -33,7 +33,8 @@ from deepcrashtest.geometry.box_heading import fit_box_headings
 from deepcrashtest.geometry.camera import undistorted_tracks
 from deepcrashtest.geometry.egomotion import EgoMotion
 from deepcrashtest.geometry.localize import Localizer
-from deepcrashtest.geometry.mono3d import MonoConfig, localize_tracks
+from deepcrashtest.geometry.mono3d import localize_tracks
+from deepcrashtest.geometry.mono_config import MonoConfig
 from deepcrashtest.perception.lanes import LaneTimelineResult
 from deepcrashtest.perception.roadusers import track_category
 from deepcrashtest.scenario import (
