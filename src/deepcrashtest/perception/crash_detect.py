@@ -35,7 +35,7 @@ its ego "contact" without having been ahead (``EXIT_WINDOW_S``) drove past: no e
 height as a share of the image, with its bottom in the lower part of the image.
 
 The contact frame of an ego crash is the first camera jolt while the road user is near (where that jolt
-peaks when it starts while the box still grows fast, :func:`_jolt_peak`; or, when its
+peaks when it starts while the box still grows fast, :func:`.crash_ego._jolt_peak`; or, when its
 box had already stopped growing at the bumper ``STILL_BEFORE_JOLT_S`` before that jolt, the frame it
 stopped: the jolt is the same crash going on), else the
 "knee" where its approaching box stops growing, else the first frame at which it is nearest; one

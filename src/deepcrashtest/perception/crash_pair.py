@@ -190,7 +190,7 @@ def pair_scores(
     """Per common frame of two tracks: contact in the image, close in 3D (or a similar ground row),
     motion change, onset (apart before; ``entered``: one of them came into the view during the clip at
     its border, :func:`entered_view`), both seen by the detector (a track's ``seen`` column, 0..1, from
-    :func:`observed`; 1 without it), not hidden behind a nearer road user (``scene``: every box per frame,
+    :func:`.crash_tracks.observed`; 1 without it), not hidden behind a nearer road user (``scene``: every box per frame,
     :func:`hidden_behind`)."""
     common = a.index.intersection(b.index)
     if not len(common):
