@@ -626,7 +626,7 @@ def plausibility_section(sc: Scenario) -> Section:
         f"{summary['vehicles']} vehicles, their observed samples: {summary['half_turns']} half turns between two "
         f"samples, {summary['over_turning']} of {summary['steps']} steps turning beyond the steering limit, "
         f"{summary['sliding']} of {summary['moving']} moving samples sliding > "
-        f"{math.degrees(pl.SLIDE_MAX_RAD):.0f} deg off their direction of motion."
+        f"{pl.SLIDE_MAX_DEG:g} deg off their direction of motion."
     )
     head = "<tr><th>vehicle</th><th>half turns</th><th>steps beyond the steering limit</th><th>sliding</th></tr>"
     body = f"<p>{esc(line)}</p>" + (
