@@ -12,7 +12,7 @@ from deepcrashtest.datasets.kitti.files import KittiSequence, read_labels
 from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
 from deepcrashtest.geometry.box_heading import fit_box_headings, hull_boxes, span_iou
 from deepcrashtest.scenario import Scenario, Trajectory, Vehicle
-from deepcrashtest.trajectory.agentheading import with_observed_yaw
+from deepcrashtest.trajectory.agentheading import _path_heading_within, with_observed_yaw
 from deepcrashtest.trajectory.pipeline import process_scenario
 
 
@@ -156,3 +156,37 @@ def test_processed_heading_never_flips_half_round():
     assert np.degrees(np.abs(np.diff(yaw))).max() < 10.0
     assert np.allclose(yaw[seen], 0.1)  # the box's heading where the video saw it
     assert yaw[-1] == pytest.approx(motion[-1])  # the path's direction, not its reverse
+
+
+# ccd_000031 re-encoded letterboxed, stage 2 on main 120c595: agent 1 (a car crossing at 4.4 m/s, slowing to 1 m/s)
+# from 2.345 s every 0.1 s: its boxes' heading (rad), its path's direction (rad) and speed (m/s), and the instants
+# (s) near which it must face along its path (contacts its boxes' heading would change).
+T1 = [round(2.345 + 0.1 * k, 3) for k in range(24)]
+BOX1 = [3.883, 3.927, 3.971, 4.014, 4.014, 4.014, 3.883, 3.752, 3.665, 3.578, 3.665, 3.752]
+BOX1 += [3.752, 3.752, 3.565, 3.4, 3.242, 3.097, 2.999, 3.101, 3.207, 3.284, 3.335, 3.362]
+PATH1 = [2.367, 2.364, 2.36, 2.357, 2.358, 2.361, 2.368, 2.377, 2.391, 2.411, 2.441, 2.489]
+PATH1 += [2.575, 2.704, 2.813, 2.873, 2.902, 2.933, 2.999, 3.101, 3.207, 3.284, 3.335, 3.362]
+SPEED1 = [4.41, 4.43, 4.45, 4.44, 4.36, 4.2, 3.98, 3.71, 3.39, 3.02, 2.6, 2.14]
+SPEED1 += [1.63, 1.23, 1.06, 1.02, 1.03, 1.06, 1.08, 1.09, 1.1, 1.12, 1.14, 1.15]
+FACE_PATH_AT = [3.058, 3.118, 3.215, 3.338, 3.677, 4.048]
+
+
+def test_a_box_across_its_path_turns_to_the_path_not_through_its_reverse():
+    """A car whose boxes sit nearly a right angle (84-95 deg) off its path where it must face along the path turns
+    the short way to the path and back: its heading stays between its boxes' and its path's. The half turn was
+    chosen at the stretch's first sample, where the path's reverse was 3 deg nearer: the box turned to 318 deg
+    against a path of 135 deg, then 140 deg back to its boxes where the stretch ended (the replay's box spun into
+    its neighbour 2.4 s before the crash)."""
+    xy = np.cumsum(np.column_stack([np.cos(PATH1), np.sin(PATH1)]) * np.asarray(SPEED1)[:, None] * 0.1, axis=0)
+    observed, path = (
+        Vehicle(id=1, trajectory=Trajectory.from_arrays(T1, xy[:, 0], xy[:, 1], yaw, SPEED1)) for yaw in (BOX1, PATH1)
+    )
+    spans = [(t, t) for t in FACE_PATH_AT]
+    yaw = np.asarray(_path_heading_within(observed, path, spans).trajectory.yaw)
+    off_path = np.abs(_wrapped(yaw - np.asarray(PATH1)))
+    assert np.all(off_path <= np.abs(_wrapped(np.asarray(BOX1) - np.asarray(PATH1))) + 1e-6)
+    assert np.degrees(np.abs(np.diff(yaw))).max() < 30.0
+
+
+def _wrapped(a: np.ndarray) -> np.ndarray:
+    return (a + math.pi) % (2.0 * math.pi) - math.pi

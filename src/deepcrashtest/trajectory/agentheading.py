@@ -45,7 +45,7 @@ def with_observed_yaw(final: Vehicle, raw: dict[str, np.ndarray], t_shift: float
     agree = float(np.sum((speed**2 * np.cos(box - motion))[inside])) if inside.any() else 1.0
     if agree < 0.0:
         box = box + math.pi
-    yaw = box + (1.0 - w) * _towards(motion - box, inside)
+    yaw = box + (1.0 - w) * _towards(motion - box, 1.0 - w)
     traj = final.trajectory.model_copy(update={"yaw": [float(v) for v in yaw]})
     return final.model_copy(update={"trajectory": traj})
 
@@ -158,25 +158,37 @@ def _path_heading_within(observed: Vehicle, path: Vehicle, spans: list[tuple[flo
     for lo, hi in spans:
         out = np.maximum(np.maximum(lo - t, t - hi), 0.0)
         w = np.maximum(w, np.clip(1.0 - out / BLEND_S, 0.0, 1.0))
-    yaw = np.unwrap(o["yaw"]) + w * _towards(np.unwrap(p["yaw"]) - np.unwrap(o["yaw"]), w <= 0.0)
+    yaw = np.unwrap(o["yaw"]) + w * _towards(np.unwrap(p["yaw"]) - np.unwrap(o["yaw"]), w)
     traj = observed.trajectory.model_copy(update={"yaw": [float(v) for v in yaw]})
     return observed.model_copy(update={"trajectory": traj})
 
 
-def _towards(diff: np.ndarray, anchor: np.ndarray) -> np.ndarray:
-    """The turn (rad, per sample) from a heading to a target ``diff`` away from it, the target taken half round where
-    that is nearer (a box fits both ways) at each stretch's sample next to an ``anchor`` sample (bool) and kept so
-    along the stretch: a target that crosses a right angle to the heading flips a per-sample choice half round
-    between two samples (a road user turned by its extrapolated path away from its held box heading)."""
+def _towards(diff: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """The turn (rad, per sample) from a heading to a target ``diff`` away from it that is handed over with
+    ``weight`` (0 = the heading, 1 = the target), the target taken half round where that turns less (a box fits
+    both ways), chosen once per stretch of ``weight > 0`` and kept so along it: a target that crosses a right
+    angle to the heading must not flip a per-sample choice half round between two samples (a road user turned by
+    its extrapolated path away from its held box heading). The choice is the one that turns the body less over
+    the stretch's hand-over (``0 < weight < 1``, weighted), not at its first sample alone: a box near a right
+    angle to its path there took the path's reverse, then turned 140 deg back to its box where the hand-over
+    ended (ccd_000031 letterboxed: 222 -> 318 -> 180 deg beside a path of 135-180 deg)."""
     near = (diff + 0.5 * math.pi) % math.pi - 0.5 * math.pi
     cont = np.unwrap(near, period=math.pi)
     out = np.empty_like(near)
+    anchor = weight <= 0.0
     bounds = np.flatnonzero(np.diff(anchor.astype(np.int8))) + 1
     for run in np.split(np.arange(len(diff)), bounds):
         if not len(run):
             continue
         edge = run[-1] if run[0] == 0 and len(run) < len(diff) else run[0]  # the sample next to an anchor
-        out[run] = cont[run] - math.pi * round(float(cont[edge] - near[edge]) / math.pi)
+        k = round(float(cont[edge] - near[edge]) / math.pi)
+        w = weight[run]
+        handover = (w > 0.0) & (w < 1.0)
+        if not handover.any():
+            out[run] = cont[run] - math.pi * k
+            continue
+        options = [cont[run] - math.pi * m for m in (k, k - 1, k + 1)]
+        out[run] = min(options, key=lambda turn: float(np.sum((w * np.abs(turn))[handover])))
     return out
 
 
