@@ -31,7 +31,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
 from deepcrashtest.datasets.crash_labels import CrashLabel, load_crash_labels  # noqa: E402
-from deepcrashtest.eval.plausibility import SLIDE_MAX_DEG  # noqa: E402
+from deepcrashtest.eval.plausibility import OVERLAP_MIN_S, SLIDE_MAX_DEG  # noqa: E402
 from deepcrashtest.pipeline.extract import run_extract  # noqa: E402
 from deepcrashtest.pipeline.fidelity import run_fidelity  # noqa: E402
 
@@ -195,11 +195,18 @@ def plausibility_line(rows: list[dict[str, Any]]) -> str:
     steps, over = sum(x["steps"] for x in p), sum(x["over_turning"] for x in p)
     moving, sliding = sum(x["moving"] for x in p), sum(x["sliding"] for x in p)
     flipped = sum(len(x["vehicles_with_half_turns"]) for x in p)
+    through = [len(x["overlapping_pairs"]) for x in p if "overlapping_pairs" in x]
     return (
         f"vehicles turned half round between two samples: {flipped} of {sum(x['vehicles'] for x in p)}; "
         f"steps turning beyond the steering limit {over}/{steps} ({100 * over / max(steps, 1):.1f} %); "
         f"moving samples sliding > {SLIDE_MAX_DEG:g} deg off their motion {sliding}/{moving} "
         f"({100 * sliding / max(moving, 1):.1f} %)"
+        + (
+            f"; pairs of road users passing through each other (>= {OVERLAP_MIN_S:g} s) {sum(through)} in "
+            f"{sum(1 for n in through if n)} of {len(through)} clips"
+            if through
+            else ""
+        )
     )
 
 

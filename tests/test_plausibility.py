@@ -52,3 +52,24 @@ def test_report_lists_the_vehicles_that_do_not_move_as_vehicles(kitti_root):
     turned = [a for a in truth.agents if a.category != "pedestrian" and len(a.trajectory.t) >= 3]
     assert body.count("<tr><td>") == len(turned)
     assert "Every vehicle" not in body
+
+
+def test_road_users_passing_through_each_other_are_counted(kitti_root):
+    """KITTI 0011's labelled road users (LiDAR boxes, a town street with parked, crossing and turning cars and
+    pedestrians) never overlap; one car put where another parked car stands, for the time both exist, is one pair
+    passing through the other."""
+    from deepcrashtest.eval.plausibility import OVERLAP_MIN_S, overlapping_pairs
+
+    truth = scenario_from_kitti(kitti_root, 11)
+    assert overlapping_pairs(truth) == []
+    cars = [a for a in truth.agents if a.category == "car" and len(a.trajectory.t) >= 20]
+    host, guest = cars[0], next(a for a in cars[1:] if len(set(a.trajectory.t) & set(cars[0].trajectory.t)) >= 10)
+    h = host.trajectory.arrays()
+    g = guest.trajectory.arrays()
+    x, y = np.interp(g["t"], h["t"], h["x"]), np.interp(g["t"], h["t"], h["y"])
+    moved = guest.model_copy(
+        update={"trajectory": guest.trajectory.model_copy(update={"x": x.tolist(), "y": y.tolist()})}
+    )
+    pairs = overlapping_pairs(truth.evolve(agents=[moved if a is guest else a for a in truth.agents]))
+    assert [sorted(p[:2]) for p in pairs] == [sorted([host.id, guest.id])]
+    assert pairs[0][2] >= OVERLAP_MIN_S

@@ -135,6 +135,11 @@ def test_batch_extracts_real_videos_and_records_a_broken_one(kitti_root, tmp_pat
         if crash is None
         else {"participants": list(crash.participants), "time_s": crash.time_s, "source": crash.source}
     )
-    assert set(entry["plausibility"]) == {"vehicles_with_half_turns", "over_turning_share", "sliding_share"}
+    assert set(entry["plausibility"]) == {
+        "vehicles_with_half_turns",
+        "over_turning_share",
+        "sliding_share",
+        "overlapping_pairs",
+    }
     with pytest.raises(UserError):
         process_video(folder / "broken.mp4", tmp_path / "one", cfg)

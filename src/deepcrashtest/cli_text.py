@@ -194,6 +194,9 @@ def fidelity_summary(r: dict[str, Any]) -> None:
             f"steering limit {p['over_turning']} of {p['steps']} steps, sliding > {SLIDE_MAX_DEG:g} deg "
             f"{p['sliding']} of {p['moving']} moving samples"
         )
+    if p.get("overlapping_pairs"):
+        pairs = ", ".join(f"{a} and {b} ({s:g} s)" for a, b, s in p["overlapping_pairs"])
+        typer.echo(f"  road users passing through each other before the crash: {pairs}")
     typer.echo(f"  time mapping: {r['time_mapping']['rule']}, offset {r['time_mapping']['time_offset_s']:.3f} s")
     for note in r["notes"]:
         typer.echo(f"  note: {note}")

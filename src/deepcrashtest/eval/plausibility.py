@@ -5,8 +5,10 @@ round between two samples (a box fits both ways round), turn faster than their s
 or slide sideways (a heading far off the direction of motion). A replay or an exported OpenSCENARIO shows all
 three. Counted over every vehicle's samples the video saw (``Trajectory.observed``; pedestrians, who step
 sideways and turn on the spot, are left out), with the simulator's kinematic bicycle
-(:data:`deepcrashtest.scenario.VEHICLE_KINEMATICS`). Times in seconds, angles in radians (world frame),
-speeds in m/s.
+(:data:`deepcrashtest.scenario.VEHICLE_KINEMATICS`). And two road users can pass through each other
+(:func:`overlapping_pairs`: a monocular depth error, or one road user tracked twice), which the simulator ignores
+while they overlap from their first common moment and counts as a crash once they part and touch again. Times in
+seconds, angles in radians (world frame), speeds in m/s.
 """
 
 from __future__ import annotations
@@ -17,6 +19,8 @@ from typing import Any
 import numpy as np
 
 from deepcrashtest.scenario import Scenario, Vehicle, kinematics
+from deepcrashtest.trajectory.collision import vehicle_box
+from deepcrashtest.trajectory.contact import separation
 
 #: A heading change between two samples larger than this (rad) is a half turn, not a turn.
 HALF_TURN_RAD = 0.5 * math.pi
@@ -27,6 +31,10 @@ SLIDE_MIN_SPEED_MPS = 3.0
 #: ... when it is more than this off it (deg, rad), or off its reverse (reversing is allowed).
 SLIDE_MAX_DEG = 20.0
 SLIDE_MAX_RAD = math.radians(SLIDE_MAX_DEG)
+#: Two road users whose boxes overlap at least this long (s) before the crash pass through each other ...
+OVERLAP_MIN_S = 0.3
+#: ... checked every this many seconds.
+OVERLAP_STEP_S = 0.05
 
 
 def vehicle_plausibility(vehicle: Vehicle) -> dict[str, int]:
@@ -62,12 +70,37 @@ def per_vehicle(scenario: Scenario) -> list[tuple[Vehicle, dict[str, int]]]:
     return [(v, vehicle_plausibility(v)) for v in scenario.vehicles() if not kinematics(v.category).holonomic]
 
 
+def overlapping_pairs(scenario: Scenario) -> list[tuple[int, int, float]]:
+    """(id, id, seconds) for each pair of road users, the crash pair left out, whose boxes overlap for at least
+    ``OVERLAP_MIN_S`` (sampled every ``OVERLAP_STEP_S``) while both are in the scenario, before its collision (or its
+    end): one passes through the other. Ids in the scenario's order."""
+    users = [scenario.ego, *scenario.agents]
+    crash = set(scenario.collision.participants) if scenario.collision is not None else set()
+    t_stop = scenario.collision.time_s if scenario.collision is not None else math.inf
+    boxes = [vehicle_box(u) for u in users]
+    out = []
+    for i in range(len(users)):
+        for j in range(i + 1, len(users)):
+            if {users[i].id, users[j].id} == crash and len(crash) == 2:
+                continue
+            a, b = boxes[i], boxes[j]
+            t = np.arange(max(a.t[0], b.t[0]), min(a.t[-1], b.t[-1], t_stop), OVERLAP_STEP_S)
+            if not len(t):
+                continue
+            seconds = float(np.sum(separation(a, b, t) < 0.0)) * OVERLAP_STEP_S
+            if seconds >= OVERLAP_MIN_S - 1e-9:
+                out.append((users[i].id, users[j].id, round(seconds, 2)))
+    return out
+
+
 def plausibility(scenario: Scenario, rows: list[tuple[Vehicle, dict[str, int]]] | None = None) -> dict[str, Any]:
     """The scenario's vehicles' counts (``rows``: :func:`per_vehicle`'s, computed when not given) summed, with the
-    shares ``over_turning_share`` (of steps), ``sliding_share`` (of moving samples) and ``vehicles_with_half_turns``."""
+    shares ``over_turning_share`` (of steps), ``sliding_share`` (of moving samples) and ``vehicles_with_half_turns``,
+    and the road users passing through each other (``overlapping_pairs``: :func:`overlapping_pairs`)."""
     rows = per_vehicle(scenario) if rows is None else rows
     total = {k: sum(r[k] for _, r in rows) for k in ("steps", "half_turns", "over_turning", "moving", "sliding")}
     return total | {
+        "overlapping_pairs": [list(p) for p in overlapping_pairs(scenario)],
         "vehicles": len(rows),
         "vehicles_with_half_turns": sorted(v.id for v, r in rows if r["half_turns"]),
         "over_turning_share": round(total["over_turning"] / total["steps"], 4) if total["steps"] else None,
@@ -75,6 +108,7 @@ def plausibility(scenario: Scenario, rows: list[tuple[Vehicle, dict[str, int]]] 
         "rule": (
             f"vehicles' observed samples; over turning: heading change > dt (v + {TURN_SPEED_MARGIN_MPS:g} m/s) "
             f"tan(max steer) / wheelbase; sliding: speed >= {SLIDE_MIN_SPEED_MPS:g} m/s and heading > "
-            f"{SLIDE_MAX_DEG:g} deg off the direction of motion (or its reverse)"
+            f"{SLIDE_MAX_DEG:g} deg off the direction of motion (or its reverse); overlapping pairs: road users' "
+            f"boxes overlapping >= {OVERLAP_MIN_S:g} s before the crash (the crash pair left out)"
         ),
     }

@@ -72,7 +72,10 @@ def process_video(
         "crash": None
         if col is None
         else {"participants": list(col.participants), "time_s": col.time_s, "source": col.source},
-        "plausibility": {k: plaus[k] for k in ("vehicles_with_half_turns", "over_turning_share", "sliding_share")},
+        "plausibility": {
+            k: plaus[k]
+            for k in ("vehicles_with_half_turns", "over_turning_share", "sliding_share", "overlapping_pairs")
+        },
         "original_collided": summary["original"]["collided"],
         "simulations": summary["simulations"],
         "safe_random": methods.get("random", {}).get("safe"),

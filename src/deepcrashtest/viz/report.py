@@ -628,6 +628,11 @@ def plausibility_section(sc: Scenario) -> Section:
         f"{summary['sliding']} of {summary['moving']} moving samples sliding > "
         f"{pl.SLIDE_MAX_DEG:g} deg off their direction of motion."
     )
+    if summary["overlapping_pairs"]:
+        line += " Passing through each other before the crash: " + ", ".join(
+            f"{who(sc, a)} and {who(sc, b)} ({s:g} s)" for a, b, s in summary["overlapping_pairs"]
+        )
+        line += "."
     head = "<tr><th>vehicle</th><th>half turns</th><th>steps beyond the steering limit</th><th>sliding</th></tr>"
     body = f"<p>{esc(line)}</p>" + (
         f'<table class="kv">{head}{"".join(rows)}</table>' if rows else "<p>Every vehicle moves as a vehicle can.</p>"
