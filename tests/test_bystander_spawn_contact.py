@@ -66,3 +66,23 @@ def test_the_check_still_keeps_the_box_heading_where_nothing_touches():
     final = replayable_yaws([observed[0], far[0]], [path[0], far[1]], CRASH, warnings)
     assert not warnings
     assert np.allclose(final[1].trajectory.yaw, YAW4)
+
+
+def test_a_road_user_inside_the_ego_is_dropped_first(kitti_root):
+    """KITTI 0001's labelled road users with one more "car" riding 3 m ahead of the camera, inside the ego's own box
+    (what the detector makes of a dashcam's bonnet: dad_000512): stage 2 drops it, says why, and keeps every road user
+    it kept without it."""
+    from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
+    from deepcrashtest.trajectory.pipeline import process_scenario
+
+    raw = scenario_from_kitti(kitti_root, 1)
+    e = raw.ego.trajectory.arrays()
+    ahead = 3.0  # m: the phantom's centre 3 m ahead of the ego's (boxes 4.5 and 4.4 m long overlap 1.45 m)
+    x, y = e["x"] + ahead * np.cos(e["yaw"]), e["y"] + ahead * np.sin(e["yaw"])
+    phantom = _car(999, e["t"].tolist(), x.tolist(), y.tolist(), e["yaw"].tolist(), e["speed"].tolist())
+    phantom = phantom.model_copy(update={"start_delay_s": 0.0, "confidence": 0.4})
+    with_phantom = process_scenario(raw.evolve(agents=[*raw.agents, phantom]))
+    without = process_scenario(raw)
+    assert 999 not in {a.id for a in with_phantom.agents}
+    assert any("agent 999: inside the ego's own box" in w for w in with_phantom.warnings)
+    assert {a.id for a in with_phantom.agents} == {a.id for a in without.agents}
