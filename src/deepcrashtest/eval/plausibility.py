@@ -20,7 +20,7 @@ import numpy as np
 
 from deepcrashtest.scenario import Scenario, Vehicle, kinematics
 from deepcrashtest.trajectory.collision import vehicle_box
-from deepcrashtest.trajectory.contact import separation
+from deepcrashtest.trajectory.contact import overlap_samples
 
 #: A heading change between two samples larger than this (rad) is a half turn, not a turn.
 HALF_TURN_RAD = 0.5 * math.pi
@@ -83,11 +83,7 @@ def overlapping_pairs(scenario: Scenario) -> list[tuple[int, int, float]]:
         for j in range(i + 1, len(users)):
             if {users[i].id, users[j].id} == crash and len(crash) == 2:
                 continue
-            a, b = boxes[i], boxes[j]
-            t = np.arange(max(a.t[0], b.t[0]), min(a.t[-1], b.t[-1], t_stop), OVERLAP_STEP_S)
-            if not len(t):
-                continue
-            seconds = float(np.sum(separation(a, b, t) < 0.0)) * OVERLAP_STEP_S
+            seconds = float(np.sum(overlap_samples(boxes[i], boxes[j], t_stop, OVERLAP_STEP_S))) * OVERLAP_STEP_S
             if seconds >= OVERLAP_MIN_S - 1e-9:
                 out.append((users[i].id, users[j].id, round(seconds, 2)))
     return out

@@ -560,6 +560,12 @@ class EgoMotionEstimator:
             return float("nan"), dyaw, int(road.sum()), R, t, None
         return fit.sigma * self.camera.height_m, dyaw, fit.inliers, R, t, fit
 
+    def _speed_reading(self, fit: PlaneFit, span: float) -> tuple[float, float]:
+        """A keyframe pair's speed (m/s) and its variance from its scale ``fit`` (road plane or ground envelope) over
+        ``span`` (s): the fit's own sigma and ``speed_noise_rel`` of the speed."""
+        raw = fit.sigma * self.camera.height_m / max(span, 1e-3)
+        return raw, (fit.sigma_std * self.camera.height_m / max(span, 1e-3)) ** 2 + (self.speed_noise_rel * raw) ** 2
+
     def _envelope(
         self, p0: np.ndarray, p1: np.ndarray, ok: np.ndarray, R: np.ndarray, t: np.ndarray
     ) -> PlaneFit | None:
@@ -683,10 +689,7 @@ class EgoMotionEstimator:
                     if parallax >= 5.0 * self.static_flow_px:
                         self._vote_overlay(q0, q1, cur.shape)
                     if fit is not None and np.isfinite(metres):
-                        raw = metres / max(span, 1e-3)
-                        var = (fit.sigma_std * self.camera.height_m / max(span, 1e-3)) ** 2 + (
-                            self.speed_noise_rel * raw
-                        ) ** 2
+                        raw, var = self._speed_reading(fit, span)
                         if fit.sigma_std > self.max_scale_rel_std * fit.sigma:
                             raw = None  # ill-conditioned: no reading (the fit still carries the road tracking)
                         self._normal = _tilted_towards(self._normal, fit.normal, 0.1)
@@ -696,8 +699,7 @@ class EgoMotionEstimator:
                     else:
                         self._unscaled += 1
                         if self._ground is not None:
-                            ground_raw = self._ground.sigma * self.camera.height_m / max(span, 1e-3)
-                            ground_var = (ENVELOPE_REL_STD**2 + self.speed_noise_rel**2) * ground_raw**2
+                            ground_raw, ground_var = self._speed_reading(self._ground, span)
         self._readings.append((dt, raw, var, ground_raw, ground_var))
         speed = self._filter.step(dt, raw, var)
         self._dt.append(dt)
@@ -790,14 +792,13 @@ class EgoMotionEstimator:
                 "speed held over those frames"
             )
         filt = self._filter
-        taken = sum(1 for *_, outcome in filt.readings if outcome != "gated")
-        road_taken = taken
+        taken = road_taken = filt.taken()
         if self._pairs and not static and taken < MIN_SPEED_READINGS and any(r[3] is not None for r in self._readings):
             filt = self._new_filter()  # too few road readings: the ground envelope's fill the pairs the road left
             for dt_k, raw_k, var_k, ground_k, ground_var_k in self._readings:
                 use_ground = raw_k is None and ground_k is not None
                 filt.step(dt_k, ground_k if use_ground else raw_k, ground_var_k if use_ground else var_k)
-            taken = sum(1 for *_, outcome in filt.readings if outcome != "gated")
+            taken = filt.taken()
             warnings.append(
                 f"ego-motion: the road gave {road_taken} speed reading(s) in {self._pairs} frame pairs; the speed "
                 f"rests on {taken - road_taken} more from the ground under the scene's standing points (kerbs, walls, "

@@ -87,9 +87,13 @@ class SpeedFilter:
         self.log.append((F, xp, Pp, x, P))
         return max(0.0, float(x[0]))
 
+    def taken(self, step: float = math.inf) -> int:
+        """How many readings (not gated) were taken up to filter step ``step``."""
+        return sum(1 for k, _, _, outcome in self.readings if k <= step and outcome != "gated")
+
     def confirmed(self, step: int) -> bool:
         """Whether two readings or more (not gated) were taken up to filter step ``step``."""
-        return sum(1 for k, _, _, outcome in self.readings if k <= step and outcome != "gated") >= 2
+        return self.taken(step) >= 2
 
     def smoothed(self, cut: int | None = None) -> np.ndarray:
         """RTS-smoothed speeds of every step so far (m/s, >= 0). ``cut``: a step after which the

@@ -25,6 +25,7 @@ acceleration), so an iteration costs one evaluation of the corrected paths, not 
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
@@ -45,6 +46,13 @@ def separation(a: BoxTrack, b: BoxTrack, t: np.ndarray) -> np.ndarray:
     < 0: overlapping (minus the penetration depth). Each track is linearly interpolated.
     """
     return _separation(a, b, t)[0]
+
+
+def overlap_samples(a: BoxTrack, b: BoxTrack, t_end: float = math.inf, step_s: float = 0.05) -> np.ndarray:
+    """Whether the two boxes overlap (:func:`separation` < 0), every ``step_s`` (s) of the time both exist, up to
+    ``t_end`` (s); empty where they never coexist before it."""
+    t = np.arange(max(a.t[0], b.t[0]), min(a.t[-1], b.t[-1], t_end), step_s)
+    return separation(a, b, t) < 0.0 if len(t) else np.zeros(0, bool)
 
 
 def _separation(a: BoxTrack, b: BoxTrack, t: np.ndarray, partials: bool = False) -> tuple[np.ndarray, np.ndarray]:

@@ -28,6 +28,7 @@ from deepcrashtest.trajectory.contact import (
     Movable,
     make_contact,
     nudge_apart,
+    overlap_samples,
     separation,
     sight_metric,
 )
@@ -288,9 +289,8 @@ def _inside_ego(d: Dense, ego: Dense, t_end: float) -> bool:
     (s), checked every 0.05 s: no road user drives inside the ego; a wide box at the bottom of the picture is the
     ego's own bonnet taken for a car (dad_000512: a "car" 4 m ahead of the standing camera, 0.6 m into the ego,
     through which the stopped SUV ahead of it could not be moved clear of a passing scooter and was dropped)."""
-    a, b = d.box_track(), ego.box_track()
-    t = np.arange(max(a.t[0], b.t[0]), min(a.t[-1], b.t[-1], t_end), 0.05)
-    return bool(len(t) >= 2 and np.mean(separation(a, b, t) < 0.0) > INSIDE_EGO_SHARE)
+    over = overlap_samples(d.box_track(), ego.box_track(), t_end)
+    return bool(len(over) >= 2 and np.mean(over) > INSIDE_EGO_SHARE)
 
 
 def _pair_contact(a: BoxTrack, b: BoxTrack, a_grown: BoxTrack, b_grown: BoxTrack, near_miss_m: float) -> Contact | None:
