@@ -241,6 +241,12 @@ def _rigid(m: Movable) -> _Basis:
 KIN_STEP_S = 0.05  # grid on which the kinematic limits are checked (s)
 KIN_TOL = 0.02  # share of a limit a solution may exceed it by (SLSQP stops just short)
 MAX_ITER = 80  # SLSQP iterations per round: a correction that needs more is not found (stage 2 stays seconds)
+LONG_MAX_ITER = 500
+"""make_contact's last try, where every window stopped unsatisfied: each window again, without the steering limits,
+with this many iterations per round. ccd_000330 at 30 fps (its frames repeated x3) stopped at the 80-iteration limit
+with 5.5 cm of planned overlap and its replay missed; with 500 the 3.1 s window is satisfied (round iter23). Not the
+first try's limit: more iterations there find larger optima in earlier windows (KITTI 0002's pair 4-6 moved 6.1 m
+where it moves < 3.5)."""
 # Box-track evaluations (~1 ms each) one make_contact / nudge_apart call may spend over all its windows and
 # rounds: bounds stage 2's time on pathological tracks (a wrong pair once ran > 10 min). Measured on the 19
 # labelled crash clips (2026-12-01): at most 64,186 box tracks built for a correction that was found, so none is cut;
@@ -521,6 +527,7 @@ def _solve(
     rounds: int = 2,
     strict_kin: bool = False,
     budget: _Budget | None = None,
+    max_iter: int = MAX_ITER,
 ) -> tuple[list[np.ndarray], bool, str]:
     """Least-squares coefficients for ``movers`` (index i < len(movers)) under the pair constraints.
 
@@ -529,11 +536,11 @@ def _solve(
     within the limits (``strict_kin``) or, else, no further outside them than its uncorrected path.
     Every function SLSQP sees comes with its analytic derivative (no finite differences).
     Returns the displacements, success and the optimiser's message; stops, unsuccessful, when
-    ``budget`` is spent.
+    ``budget`` is spent. ``max_iter``: SLSQP iterations per round.
     """
     pb = _problem(movers, fixed, bases, eq, ineq, cp, strict_kin, budget)
     with _one_blas_thread():
-        return _rounds(pb, np.zeros(int(pb.paths.offs[-1])), eq, ineq, rounds)
+        return _rounds(pb, np.zeros(int(pb.paths.offs[-1])), eq, ineq, rounds, max_iter)
 
 
 def _rounds(
@@ -542,12 +549,13 @@ def _rounds(
     eq: list[tuple[int, int, float, float]],
     ineq: list[tuple[int, int, np.ndarray, float]],
     rounds: int,
+    max_iter: int = MAX_ITER,
 ) -> tuple[list[np.ndarray], bool, str]:
     """:func:`_solve`'s SLSQP runs from ``z``, each from the last one's end, until one succeeds."""
     paths, res, ok = pb.paths, None, False
     for _ in range(rounds):
         try:
-            options = {"maxiter": MAX_ITER, "ftol": 1e-8}
+            options = {"maxiter": max_iter, "ftol": 1e-8}
             res = minimize(pb.cost, z, jac=pb.cost_jac, method="SLSQP", constraints=pb.cons, options=options)
         except _OutOfBudget:
             return paths.deltas(z), False, f"evaluation budget ({MAX_EVALS}) spent"
@@ -679,7 +687,8 @@ def make_contact(
 
     Tries each window of ``cp.windows_s`` in turn, within the movers' kinematics, then (where SLSQP
     finds no such correction) each again with the per-axis acceleration bound only (``kinematic``
-    False); ``ok`` is False when none satisfies the constraints (the last try is returned).
+    False), and last each again so with ``LONG_MAX_ITER`` iterations; ``ok`` is False when none satisfies
+    the constraints (the last try is returned).
     ``movable`` may pin one of the two (e.g. parked).
     """
     cp = cp or ContactParams()
@@ -697,15 +706,17 @@ def make_contact(
         eq = [(0, 1, t_crash, -_penetration(a, b, t_crash, cp))]
     last: Correction | None = None
     budget = _Budget()
-    for kinematic, w in [(True, w) for w in cp.windows_s] + [(False, w) for w in cp.windows_s]:
+    tries = [(True, w, MAX_ITER) for w in cp.windows_s] + [(False, w, MAX_ITER) for w in cp.windows_s]
+    for kinematic, w, max_iter in tries + [(False, w, LONG_MAX_ITER) for w in cp.windows_s]:
         lo = max(t_crash - w, lo_common)
         bases = [_rigid(m) if m.rigid else _basis(lo, t_end, cp.knot_step_s, lo > m.t[0] + 1e-6) for m in movers]
         t_free = a.t[(a.t >= lo_common) & (a.t <= t_apart)]
         t_free = np.append(t_free, t_apart) if t_apart >= lo_common else t_free
         solve_movers = movers if kinematic else [replace(m, kin=None) for m in movers]
         ds, ok, msg = _solve(
-            solve_movers, fixed, bases, eq, [(0, 1, t_free, 0.0)], cp, rounds=2 if kinematic else 3, budget=budget
-        )
+            solve_movers, fixed, bases, eq, [(0, 1, t_free, 0.0)], cp, rounds=2 if kinematic else 3, budget=budget,
+            max_iter=max_iter,
+        )  # fmt: skip
         full = _full(ds, movable)
         size = max((float(np.hypot(*d.T).max()) if len(d) else 0.0) for d in ds)
         rms = float(np.sqrt(np.mean(np.concatenate([np.sum(d**2, 1) for d in ds]))))
