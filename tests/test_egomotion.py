@@ -528,3 +528,43 @@ def test_the_ground_envelope_reads_the_metres_travelled_from_points_standing_on_
     assert found is not None
     assert found[0] == pytest.approx(1.2, rel=0.01)
     assert len(ground) <= found[1] <= int((pts[:, 1] > 0).sum())  # only points under the camera's height count
+
+
+def _seq06_speed_error(tmp_path: Path, repeat: int) -> float:
+    """Median speed error (%) of the ego-motion of KITTI odometry seq06 (10 Hz) written as an H.264 video at 10 x
+    ``repeat`` fps, each frame shown ``repeat`` times (a clip re-encoded at a higher frame rate), read back as
+    extract reads it."""
+    from deepcrashtest.datasets.kitti.files import KITTI_CAMERA_HEIGHT_M, read_poses
+    from deepcrashtest.eval.egomotion import egomotion_errors, read_odometry_calib
+    from deepcrashtest.scenario import Camera
+    from deepcrashtest.video.writer import VideoWriter
+
+    folder = need(DATA / "kitti_odometry" / "seq06_frames0000-0050")
+    images = [cv2.imread(str(p)) for p in sorted(folder.glob("image_0/*.png"))]
+    h, w = images[0].shape[:2]
+    path = tmp_path / f"seq06_x{repeat}.mp4"
+    with VideoWriter(path, 10.0 * repeat, w, h, crf=18) as writer:
+        for img in images:
+            for _ in range(repeat):
+                writer.write(img)
+    decoded, times = _decoded(path, len(images) * repeat)
+    K = read_odometry_calib(folder)
+    est = EgoMotionEstimator(Camera(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2], height_m=KITTI_CAMERA_HEIGHT_M))
+    for img, t in zip(decoded, times, strict=True):
+        est.update(img[:h, :w], t)
+    res = est.result()
+    first = np.arange(0, len(decoded), repeat)  # each picture's first frame: the time it was taken
+    res.frame, res.t = res.frame[first] // repeat, res.t[first]
+    for name in ("x", "y", "yaw", "speed", "yaw_rate", "valid"):
+        setattr(res, name, getattr(res, name)[first])
+    poses = read_poses(folder / "poses.txt")[: len(images)]
+    return float(egomotion_errors(res, poses, np.asarray(res.t))["speed_error_median_pct"])
+
+
+def test_frames_repeated_by_a_higher_frame_rate_give_the_speed_of_the_original(tmp_path: Path):
+    """A clip re-encoded at a higher frame rate shows each picture several times: measured across a repeat the
+    camera stands still, and the next new picture's motion lands on one frame interval (KITTI seq06 through H.264:
+    median speed error 0.6 % at 10 fps; at 30 fps, each frame three times, 23 % with the repeats measured). Repeats
+    are not measured (``video.repeats.RepeatWatch``): 1.5 %."""
+    assert _seq06_speed_error(tmp_path, 1) < 3.0
+    assert _seq06_speed_error(tmp_path, 3) < 3.0

@@ -43,6 +43,7 @@ from deepcrashtest.geometry.road_motion import MIN_ROAD_POINTS, PlaneFit, fit_pl
 from deepcrashtest.geometry.speed_filter import SpeedFilter
 from deepcrashtest.perception.flow import top_up_corners, track_points
 from deepcrashtest.scenario import Camera
+from deepcrashtest.video.repeats import RepeatWatch
 
 #: Fewer tracked static-scene corners than this and a frame pair is not trusted.
 MIN_MATCHES = 40
@@ -322,6 +323,7 @@ class EgoMotionEstimator:
         self._dist = np.asarray(camera.distortion, dtype=float)
         self.max_rate_hz = max_rate_hz
         self._all: list[tuple[int, float]] = []  # (frame, time) of every update, measured or not
+        self._repeats = RepeatWatch()
         self.still_mask = still_mask
         self._still: np.ndarray | None = None  # still_mask at the work resolution
         self.keep_pairs = keep_pairs
@@ -615,7 +617,7 @@ class EgoMotionEstimator:
         self, frame_bgr: np.ndarray, time: float, vehicle_boxes: Sequence[Sequence[float]] | np.ndarray | None = None
     ) -> EgoState:
         """Add one frame (BGR or grey, full resolution) at ``time`` seconds; returns the ego state."""
-        if self._skip(float(time)):
+        if self._repeat(frame_bgr, float(time)) or self._skip(float(time)):
             return self._skipped(float(time))
         self._all.append((self._frame, float(time)))
         self._now = float(time)
@@ -743,6 +745,14 @@ class EgoMotionEstimator:
         self._p = np.concatenate([self._p, added]).astype(np.float32)
         self._p_kf = np.concatenate([self._p_kf, added if keyframe else nan]).astype(np.float32)
         self._v = np.concatenate([self._v, nan]).astype(np.float32)
+
+    def _repeat(self, frame: np.ndarray, time: float) -> bool:
+        """Whether the frame shows the last new picture again (:class:`~deepcrashtest.video.repeats.RepeatWatch`) and
+        the last measured frame is less than ``max_keyframe_s`` ago: a repeat is not measured, so the next new picture
+        is measured over the time it took (a clip re-encoded at a higher frame rate); a still picture held longer is
+        measured again (a stopped ego's dark, noiseless scene reads stopped)."""
+        repeat = self._repeats.repeats(frame)
+        return repeat and self._last_time is not None and time - self._last_time < self.max_keyframe_s
 
     def _skip(self, time: float) -> bool:
         """Whether the frame at ``time`` comes too soon after the last measured one (``max_rate_hz``)."""
