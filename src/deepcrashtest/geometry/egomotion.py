@@ -748,11 +748,12 @@ class EgoMotionEstimator:
 
     def _repeat(self, frame: np.ndarray, time: float) -> bool:
         """Whether the frame shows the last new picture again (:class:`~deepcrashtest.video.repeats.RepeatWatch`) and
-        the last measured frame is less than ``max_keyframe_s`` ago: a repeat is not measured, so the next new picture
-        is measured over the time it took (a clip re-encoded at a higher frame rate); a still picture held longer is
-        measured again (a stopped ego's dark, noiseless scene reads stopped)."""
+        the last measured frame is less than ``static_window_s`` ago: a repeat is not measured, so the next new picture
+        is measured over the time it took (a clip re-encoded at a higher frame rate: 10 -> 30 fps repeats a picture for
+        0.07 s, 5 -> 30 fps for 0.17 s); a picture held longer is measured (a parked camera's identical frames read
+        stopped, as a frozen stretch did before)."""
         repeat = self._repeats.repeats(frame)
-        return repeat and self._last_time is not None and time - self._last_time < self.max_keyframe_s
+        return repeat and self._last_time is not None and time - self._last_time < self.static_window_s
 
     def _skip(self, time: float) -> bool:
         """Whether the frame at ``time`` comes too soon after the last measured one (``max_rate_hz``)."""
