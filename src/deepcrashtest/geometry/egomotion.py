@@ -333,8 +333,8 @@ class EgoMotionEstimator:
         self._now = 0.0
 
     # ------------------------------------------------------------------ helpers
-    def _prepare(self, frame: np.ndarray) -> np.ndarray:
-        grey = frame if frame.ndim == 2 else cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+    def _prepare(self, grey: np.ndarray) -> np.ndarray:
+        """The grey frame at the work resolution (``max_width``; the intrinsics follow on the first call)."""
         h, w = grey.shape[:2]
         if self._K is None:
             self._scale_f = min(1.0, self.max_width / float(w))
@@ -617,11 +617,12 @@ class EgoMotionEstimator:
         self, frame_bgr: np.ndarray, time: float, vehicle_boxes: Sequence[Sequence[float]] | np.ndarray | None = None
     ) -> EgoState:
         """Add one frame (BGR or grey, full resolution) at ``time`` seconds; returns the ego state."""
-        if self._repeat(frame_bgr, float(time)) or self._skip(float(time)):
+        grey = frame_bgr if frame_bgr.ndim == 2 else cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2GRAY)  # once for both
+        if self._repeat(grey, float(time)) or self._skip(float(time)):
             return self._skipped(float(time))
         self._all.append((self._frame, float(time)))
         self._now = float(time)
-        cur = self._prepare(frame_bgr)
+        cur = self._prepare(grey)
         h = cur.shape[0]
         boxes = np.zeros((0, 4)) if vehicle_boxes is None else np.asarray(vehicle_boxes, dtype=float).reshape(-1, 4)
         idx = self._frame
@@ -746,13 +747,13 @@ class EgoMotionEstimator:
         self._p_kf = np.concatenate([self._p_kf, added if keyframe else nan]).astype(np.float32)
         self._v = np.concatenate([self._v, nan]).astype(np.float32)
 
-    def _repeat(self, frame: np.ndarray, time: float) -> bool:
+    def _repeat(self, grey: np.ndarray, time: float) -> bool:
         """Whether the frame shows the last new picture again (:class:`~deepcrashtest.video.repeats.RepeatWatch`) and
         the last measured frame is less than ``static_window_s`` ago: a repeat is not measured, so the next new picture
         is measured over the time it took (a clip re-encoded at a higher frame rate: 10 -> 30 fps repeats a picture for
         0.07 s, 5 -> 30 fps for 0.17 s); a picture held longer is measured (a parked camera's identical frames read
         stopped, as a frozen stretch did before)."""
-        repeat = self._repeats.repeats(frame)
+        repeat = self._repeats.repeats(grey)
         return repeat and self._last_time is not None and time - self._last_time < self.static_window_s
 
     def _skip(self, time: float) -> bool:

@@ -706,7 +706,7 @@ def make_contact(
         eq = [(0, 1, t_crash, -_penetration(a, b, t_crash, cp))]
     last: Correction | None = None
     budget = _Budget()
-    tries = [(True, w, MAX_ITER) for w in cp.windows_s] + [(False, w, MAX_ITER) for w in cp.windows_s]
+    tries = [(kinematic, w, MAX_ITER) for kinematic in (True, False) for w in cp.windows_s]
     for kinematic, w, max_iter in tries + [(False, w, LONG_MAX_ITER) for w in cp.windows_s]:
         lo = max(t_crash - w, lo_common)
         bases = [_rigid(m) if m.rigid else _basis(lo, t_end, cp.knot_step_s, lo > m.t[0] + 1e-6) for m in movers]

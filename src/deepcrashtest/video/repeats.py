@@ -13,8 +13,8 @@ grey levels (ccd_000053 at 640 px re-encoded at 30 fps, crf 23; the four 30 fps 
 stopped egos' still scenes change by as little from frame to frame (dad_000512 and its variants, dad_000528: from
 3.6), so no one level parts them. A repeat is told against the video's own new pictures: under ``REPEAT_SHARE`` of
 the upper quartile of the changes of the last ``HISTORY`` new ones (the quartile: a repeat taken for new before
-the first new picture, where nothing is known yet, does not lower it), never above ``REPEAT_MAX_CHANGE`` (a moving
-scene's new pictures change by 100 and more), never below ``REPEAT_MIN_CHANGE`` (a still scene's repeats are then
+the first new picture, where nothing is known yet, does not lower it), never above ``REPEAT_CHANGE_CAP`` (a moving
+scene's new pictures change by 100 and more), never below ``REPEAT_CHANGE_FLOOR`` (a still scene's repeats are then
 told only where they are as good as identical; measuring them changes nothing there). Measured in round repeat23:
 the four 30 fps robust variants and the 13 CCD clips, every frame told right; dad_000512 (every variant) and
 dad_000528, no frame taken for a repeat.
@@ -30,8 +30,10 @@ import numpy as np
 WIDTH = 80  # px of the shrunk frame the change is measured on
 CHANGE_PERCENTILE = 99.9  # of the absolute grey change (0-255)
 REPEAT_SHARE = 0.1  # a repeat changes less than this share of the recent new pictures' changes (docstring)
-REPEAT_MAX_CHANGE = 6.0  # grey levels: above this no frame is a repeat
-REPEAT_MIN_CHANGE = 1.5  # grey levels: below this every frame is one
+# Not video.shots.REPEAT_MAX_CHANGE: the shot watch and the camera jolt (perception.global_motion) keep that older rule
+# (mean absolute change < 1 grey level at their own widths); their crash-detection inputs were tuned with it.
+REPEAT_CHANGE_CAP = 6.0  # grey levels: above this no frame is a repeat
+REPEAT_CHANGE_FLOOR = 1.5  # grey levels: below this every frame is one
 HISTORY = 15  # new pictures whose changes are the reference
 
 
@@ -55,7 +57,7 @@ class RepeatWatch:
             return False
         change = float(np.percentile(np.abs(small - last), CHANGE_PERCENTILE))
         typical = float(np.percentile(self._changes, 75)) if self._changes else 0.0
-        if change < min(REPEAT_MAX_CHANGE, max(REPEAT_MIN_CHANGE, REPEAT_SHARE * typical)):
+        if change < min(REPEAT_CHANGE_CAP, max(REPEAT_CHANGE_FLOOR, REPEAT_SHARE * typical)):
             self._last = last
             return True
         self._changes.append(change)
