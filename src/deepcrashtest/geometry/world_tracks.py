@@ -31,6 +31,7 @@ from deepcrashtest.errors import UserError
 from deepcrashtest.geometry.attitude import camera_wobble
 from deepcrashtest.geometry.box_heading import fit_box_headings
 from deepcrashtest.geometry.camera import undistorted_tracks
+from deepcrashtest.geometry.ego_parts import ego_part_tracks
 from deepcrashtest.geometry.egomotion import EgoMotion
 from deepcrashtest.geometry.localize import Localizer
 from deepcrashtest.geometry.mono3d import localize_tracks
@@ -170,6 +171,14 @@ def raw_scenario_from_tracks(
         tracks = undistorted_tracks(tracks, camera, (source.width, source.height))
         params["boxes_undistorted"] = True
     warnings = list(ego.warnings) + (list(lanes.warnings) if lanes is not None else [])
+    parts = ego_part_tracks(tracks, camera, (source.width, source.height))
+    if parts:
+        tracks = tracks[~tracks["track_id"].isin(parts)]
+        warnings += [
+            f"track {k}: a box along the picture's bottom too wide and too low for a road user (the ego's own "
+            "bonnet, or a reflection on it, taken for a vehicle); left out"
+            for k in parts
+        ]
 
     # ego: camera path -> ego centre (camera forward_offset ahead of the centre)
     cam_xy = corrected_ego_path(ego, lanes, warnings)
