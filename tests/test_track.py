@@ -210,8 +210,9 @@ def test_the_ego_bonnet_taken_for_a_car_is_told_from_road_users(dad512_tracks, t
     """dad_000512 (the ego stopped: the bonnet is as still as the road, ``bonnet_contour`` cannot find it): the
     detector reports the bonnet, whose top the by-eye label puts at row 575 (``bench/labels/bonnet_rows.json``), as
     a "car" 1,000-1,120 px wide along the picture's bottom; placed in 3D it lands inside the ego's nose or across it,
-    as its box's heading turns out (with another track set, round occlude24: across, and it stayed in the scenario). ``geometry.ego_parts.ego_part_tracks`` (default camera: no calibration needed) names that track and
-    no other; ccd_000340's car, which fills the picture's bottom as the ego hits it, is a road user."""
+    as its box's heading turns out (with another track set, round occlude24: across, and it stayed in the scenario).
+    ``geometry.ego_parts.ego_part_tracks`` (default camera: no calibration needed) names that track and no other;
+    ccd_000340's car, which fills the picture's bottom as the ego hits it, is a road user."""
     import json
 
     import pandas as pd

@@ -43,4 +43,4 @@ def ego_part_tracks(tracks: pd.DataFrame, camera: Camera, size: tuple[int, int])
     wide = (seen["x2"] - seen["x1"]).to_numpy(float) >= EGO_PART_WIDTH_F * camera.fx
     low = seen["y1"].to_numpy(float) - camera.horizon_v() >= EGO_PART_TOP_F * camera.fy
     share = pd.Series(bottom & wide & low).groupby(seen["track_id"].to_numpy()).mean()
-    return sorted(int(k) for k, v in share.items() if v >= EGO_PART_SHARE)
+    return sorted(int(k) for k in share.index[share.to_numpy() >= EGO_PART_SHARE])
