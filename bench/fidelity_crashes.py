@@ -194,11 +194,13 @@ def plausibility_line(rows: list[dict[str, Any]]) -> str:
         return "plausibility: not in these rows (written before it was measured)"
     steps, over = sum(x["steps"] for x in p), sum(x["over_turning"] for x in p)
     moving, sliding = sum(x["moving"] for x in p), sum(x["sliding"] for x in p)
+    traction = sum(x.get("over_traction", 0) for x in p)
     flipped = sum(len(x["vehicles_with_half_turns"]) for x in p)
     through = [len(x["overlapping_pairs"]) for x in p if "overlapping_pairs" in x]
     return (
         f"vehicles turned half round between two samples: {flipped} of {sum(x['vehicles'] for x in p)}; "
         f"steps turning beyond the steering limit {over}/{steps} ({100 * over / max(steps, 1):.1f} %); "
+        f"steps beyond the vehicle's traction {traction}/{steps} ({100 * traction / max(steps, 1):.1f} %); "
         f"moving samples sliding > {SLIDE_MAX_DEG:g} deg off their motion {sliding}/{moving} "
         f"({100 * sliding / max(moving, 1):.1f} %)"
         + (

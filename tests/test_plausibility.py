@@ -42,11 +42,13 @@ def test_labelled_kitti_vehicles_move_as_vehicles(kitti_root):
 
 
 def test_report_lists_the_vehicles_that_do_not_move_as_vehicles(kitti_root):
-    """The report's plausibility section: KITTI 0011's labelled cars all pass; turned half round at every other
-    sample, every car gets its row."""
+    """The report's plausibility section: KITTI 0011's labelled cars through stage 2 all pass (the labels' own
+    speeds, their LiDAR boxes differenced at 10 Hz, change faster than a car's traction on 3 % of their steps:
+    noise, listed too); turned half round at every other sample, every car gets its row."""
+    from deepcrashtest.trajectory.pipeline import process_scenario
     from deepcrashtest.viz.report import plausibility_section
 
-    truth = scenario_from_kitti(kitti_root, 11)
+    truth = process_scenario(scenario_from_kitti(kitti_root, 11))
     assert "Every vehicle moves as a vehicle can" in plausibility_section(truth).body
     body = plausibility_section(_turned(truth, math.pi, 0.0)).body
     turned = [a for a in truth.agents if a.category != "pedestrian" and len(a.trajectory.t) >= 3]
@@ -73,3 +75,23 @@ def test_road_users_passing_through_each_other_are_counted(kitti_root):
     pairs = overlapping_pairs(truth.evolve(agents=[moved if a is guest else a for a in truth.agents]))
     assert [sorted(p[:2]) for p in pairs] == [sorted([host.id, guest.id])]
     assert pairs[0][2] >= OVERLAP_MIN_S
+
+
+def test_speed_changes_beyond_a_vehicles_traction_are_counted(kitti8_raw):
+    """KITTI 0008's labelled tracks (LiDAR boxes and ORB-SLAM3 poses, their speeds differenced at 10 Hz) change speed
+    faster than their vehicles can accelerate or brake at 7.8 % of their observed steps (the boxes' noise, twice
+    differenced); stage 2's processed scenario of them (smoothing, traction fit) at none. One car of it given a
+    1 m/s jump between two samples 0.1 s apart (10 m/s^2, over a car's 4 m/s^2) counts exactly that step."""
+    from deepcrashtest.trajectory.pipeline import process_scenario
+
+    assert plausibility(kitti8_raw)["over_traction_share"] > 0.03  # measured 0.078
+    sc = process_scenario(kitti8_raw)
+    p = plausibility(sc)
+    assert p["steps"] >= 1000 and p["over_traction"] == 0
+    car = next(a for a in sc.agents if a.category == "car" and all(a.trajectory.observed or [False]))
+    arr = car.trajectory.arrays()
+    k = len(arr["t"]) // 2
+    speed = arr["speed"] + 1.0 * (np.arange(len(arr["t"])) >= k)
+    jumped = car.model_copy(update={"trajectory": car.trajectory.model_copy(update={"speed": speed.tolist()})})
+    q = plausibility(sc.evolve(agents=[jumped if a is car else a for a in sc.agents]))
+    assert q["over_traction"] == 1 and q["over_traction_share"] > 0

@@ -138,6 +138,7 @@ def test_batch_extracts_real_videos_and_records_a_broken_one(kitti_root, tmp_pat
     assert set(entry["plausibility"]) == {
         "vehicles_with_half_turns",
         "over_turning_share",
+        "over_traction_share",
         "sliding_share",
         "overlapping_pairs",
     }

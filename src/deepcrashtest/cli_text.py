@@ -191,7 +191,8 @@ def fidelity_summary(r: dict[str, Any]) -> None:
     if p.get("vehicles"):
         typer.echo(
             f"  vehicles as vehicles move ({p['vehicles']}): turned half round {p['half_turns']} times, beyond the "
-            f"steering limit {p['over_turning']} of {p['steps']} steps, sliding > {SLIDE_MAX_DEG:g} deg "
+            f"steering limit {p['over_turning']} of {p['steps']} steps, beyond its traction {p['over_traction']}, "
+            f"sliding > {SLIDE_MAX_DEG:g} deg "
             f"{p['sliding']} of {p['moving']} moving samples"
         )
     if p.get("overlapping_pairs"):

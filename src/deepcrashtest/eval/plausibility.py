@@ -37,15 +37,20 @@ OVERLAP_MIN_S = 0.3
 OVERLAP_STEP_S = 0.05
 
 
+#: The per-vehicle counts (:func:`vehicle_plausibility`) a scenario's are summed over.
+COUNTS = ("steps", "half_turns", "over_turning", "over_traction", "moving", "sliding")
+
+
 def vehicle_plausibility(vehicle: Vehicle) -> dict[str, int]:
     """Counts for one vehicle over its observed samples: ``steps`` (consecutive observed pairs), ``half_turns``
     and ``over_turning`` among them (heading change above ``dt (v + TURN_SPEED_MARGIN_MPS) tan(max_steer) /
-    wheelbase`` at the pair's mean speed, half turns included), ``moving`` samples (speed of the path >=
+    wheelbase`` at the pair's mean speed, half turns included), ``over_traction`` among them (the speed changes
+    faster than ``max_accel_mps2`` up or ``max_brake_mps2`` down), ``moving`` samples (speed of the path >=
     ``SLIDE_MIN_SPEED_MPS``) and ``sliding`` among them."""
     a = vehicle.trajectory.arrays()
     t, yaw = a["t"], np.unwrap(a["yaw"])
     seen = np.ones(len(t), bool) if vehicle.trajectory.observed is None else np.asarray(vehicle.trajectory.observed)
-    out = {"steps": 0, "half_turns": 0, "over_turning": 0, "moving": 0, "sliding": 0}
+    out = {"steps": 0, "half_turns": 0, "over_turning": 0, "over_traction": 0, "moving": 0, "sliding": 0}
     if len(t) < 3:
         return out
     kin = kinematics(vehicle.category)
@@ -59,6 +64,9 @@ def vehicle_plausibility(vehicle: Vehicle) -> dict[str, int]:
     out["steps"] = int(pair.sum())
     out["half_turns"] = int((pair & (turn > HALF_TURN_RAD)).sum())
     out["over_turning"] = int((pair & (turn > limit)).sum())
+    with np.errstate(divide="ignore", invalid="ignore"):
+        accel = np.diff(a["speed"]) / np.diff(t)
+    out["over_traction"] = int((pair & ((accel > kin.max_accel_mps2) | (accel < -kin.max_brake_mps2))).sum())
     out["moving"] = int(moving.sum())
     out["sliding"] = int((moving & (off > SLIDE_MAX_RAD)).sum())
     return out
@@ -94,16 +102,18 @@ def plausibility(scenario: Scenario, rows: list[tuple[Vehicle, dict[str, int]]] 
     shares ``over_turning_share`` (of steps), ``sliding_share`` (of moving samples) and ``vehicles_with_half_turns``,
     and the road users passing through each other (``overlapping_pairs``: :func:`overlapping_pairs`)."""
     rows = per_vehicle(scenario) if rows is None else rows
-    total = {k: sum(r[k] for _, r in rows) for k in ("steps", "half_turns", "over_turning", "moving", "sliding")}
+    total = {k: sum(r[k] for _, r in rows) for k in COUNTS}
     return total | {
         "overlapping_pairs": [list(p) for p in overlapping_pairs(scenario)],
         "vehicles": len(rows),
         "vehicles_with_half_turns": sorted(v.id for v, r in rows if r["half_turns"]),
         "over_turning_share": round(total["over_turning"] / total["steps"], 4) if total["steps"] else None,
+        "over_traction_share": round(total["over_traction"] / total["steps"], 4) if total["steps"] else None,
         "sliding_share": round(total["sliding"] / total["moving"], 4) if total["moving"] else None,
         "rule": (
             f"vehicles' observed samples; over turning: heading change > dt (v + {TURN_SPEED_MARGIN_MPS:g} m/s) "
-            f"tan(max steer) / wheelbase; sliding: speed >= {SLIDE_MIN_SPEED_MPS:g} m/s and heading > "
+            f"tan(max steer) / wheelbase; over traction: speed change between two samples faster than the "
+            f"vehicle's acceleration or braking; sliding: speed >= {SLIDE_MIN_SPEED_MPS:g} m/s and heading > "
             f"{SLIDE_MAX_DEG:g} deg off the direction of motion (or its reverse); overlapping pairs: road users' "
             f"boxes overlapping >= {OVERLAP_MIN_S:g} s before the crash (the crash pair left out)"
         ),

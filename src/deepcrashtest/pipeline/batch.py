@@ -74,7 +74,13 @@ def process_video(
         else {"participants": list(col.participants), "time_s": col.time_s, "source": col.source},
         "plausibility": {
             k: plaus[k]
-            for k in ("vehicles_with_half_turns", "over_turning_share", "sliding_share", "overlapping_pairs")
+            for k in (
+                "vehicles_with_half_turns",
+                "over_turning_share",
+                "over_traction_share",
+                "sliding_share",
+                "overlapping_pairs",
+            )  # fmt: skip
         },
         "original_collided": summary["original"]["collided"],
         "simulations": summary["simulations"],

@@ -608,8 +608,8 @@ def search_section(results: Any, title: str = "Search: start positions") -> Sect
 def plausibility_section(sc: Scenario) -> Section:
     """Whether each vehicle moves as a vehicle can (:mod:`deepcrashtest.eval.plausibility`) where the video saw it:
     one line for the scenario and a row for each vehicle that turns half round, turns beyond its steering limit on
-    more than 5 % of its steps or slides on more than a fifth of its moving samples (a replay and an export show
-    all three)."""
+    more than 5 % of its steps, changes speed faster than its traction allows or slides on more than a fifth of its
+    moving samples (a replay and an export show all four)."""
     from deepcrashtest.eval import plausibility as pl
 
     counts = pl.per_vehicle(sc)
@@ -617,14 +617,15 @@ def plausibility_section(sc: Scenario) -> Section:
     rows = []
     for v, p in counts:
         sliding = p["sliding"] / p["moving"] if p["moving"] else 0.0
-        if p["half_turns"] or p["over_turning"] > 0.05 * p["steps"] or sliding > 0.2:
+        if p["half_turns"] or p["over_turning"] > 0.05 * p["steps"] or p["over_traction"] or sliding > 0.2:
             rows.append(
                 f"<tr><td>{esc(who(sc, v.id))}</td><td>{p['half_turns']}</td><td>{p['over_turning']} of {p['steps']}"
-                f"</td><td>{p['sliding']} of {p['moving']}</td></tr>"
+                f"</td><td>{p['over_traction']} of {p['steps']}</td><td>{p['sliding']} of {p['moving']}</td></tr>"
             )
     line = (
         f"{summary['vehicles']} vehicles, their observed samples: {summary['half_turns']} half turns between two "
         f"samples, {summary['over_turning']} of {summary['steps']} steps turning beyond the steering limit, "
+        f"{summary['over_traction']} changing speed faster than the vehicle's acceleration or braking, "
         f"{summary['sliding']} of {summary['moving']} moving samples sliding > "
         f"{pl.SLIDE_MAX_DEG:g} deg off their direction of motion."
     )
@@ -633,7 +634,10 @@ def plausibility_section(sc: Scenario) -> Section:
             f"{who(sc, a)} and {who(sc, b)} ({s:g} s)" for a, b, s in summary["overlapping_pairs"]
         )
         line += "."
-    head = "<tr><th>vehicle</th><th>half turns</th><th>steps beyond the steering limit</th><th>sliding</th></tr>"
+    head = (
+        "<tr><th>vehicle</th><th>half turns</th><th>steps beyond the steering limit</th>"
+        "<th>steps beyond its traction</th><th>sliding</th></tr>"
+    )
     body = f"<p>{esc(line)}</p>" + (
         f'<table class="kv">{head}{"".join(rows)}</table>' if rows else "<p>Every vehicle moves as a vehicle can.</p>"
     )
