@@ -21,6 +21,7 @@ import numpy as np
 from deepcrashtest.scenario import Scenario, Vehicle, kinematics
 from deepcrashtest.trajectory.collision import vehicle_box
 from deepcrashtest.trajectory.contact import overlap_samples
+from deepcrashtest.trajectory.traction import beyond_traction
 
 #: A heading change between two samples larger than this (rad) is a half turn, not a turn.
 HALF_TURN_RAD = 0.5 * math.pi
@@ -64,9 +65,7 @@ def vehicle_plausibility(vehicle: Vehicle) -> dict[str, int]:
     out["steps"] = int(pair.sum())
     out["half_turns"] = int((pair & (turn > HALF_TURN_RAD)).sum())
     out["over_turning"] = int((pair & (turn > limit)).sum())
-    with np.errstate(divide="ignore", invalid="ignore"):
-        accel = np.diff(a["speed"]) / np.diff(t)
-    out["over_traction"] = int((pair & ((accel > kin.max_accel_mps2) | (accel < -kin.max_brake_mps2))).sum())
+    out["over_traction"] = int((pair & beyond_traction(t, a["speed"], kin)).sum())
     out["moving"] = int(moving.sum())
     out["sliding"] = int((moving & (off > SLIDE_MAX_RAD)).sum())
     return out

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import pandas as pd
 
+from deepcrashtest.perception.roadusers import MOTOR_VEHICLES
 from deepcrashtest.scenario import Camera
 
 #: Box width over the focal length from which a vehicle's box is within 2.5 m of the camera.
@@ -26,8 +27,6 @@ EGO_PART_TOP_F = 0.15
 EGO_PART_SHARE = 0.5
 #: The box reaches the picture's bottom edge within this share of the picture's height.
 BOTTOM_SHARE = 0.01
-#: Categories of vehicles (a walker's box is narrow; a two-wheeler's rider is tall).
-VEHICLES = ("car", "van", "truck", "bus")
 
 
 def ego_part_tracks(tracks: pd.DataFrame, camera: Camera, size: tuple[int, int]) -> list[int]:
@@ -37,7 +36,7 @@ def ego_part_tracks(tracks: pd.DataFrame, camera: Camera, size: tuple[int, int])
     if not len(tracks):
         return []
     seen = tracks[tracks["state"] == "detected"] if "state" in tracks.columns else tracks
-    seen = seen[seen["category"].isin(VEHICLES)]
+    seen = seen[seen["category"].isin(MOTOR_VEHICLES)]  # a walker's box is narrow, a rider's tall
     height = float(size[1])
     bottom = seen["y2"].to_numpy(float) >= height * (1.0 - BOTTOM_SHARE)
     wide = (seen["x2"] - seen["x1"]).to_numpy(float) >= EGO_PART_WIDTH_F * camera.fx

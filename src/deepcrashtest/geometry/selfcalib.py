@@ -45,6 +45,7 @@ from deepcrashtest.geometry.selfcalib_moving import (
     sightings,
     weighted_log_mode,
 )
+from deepcrashtest.perception.roadusers import MOTOR_VEHICLES
 from deepcrashtest.scenario import Camera
 
 MIN_BOXES = 30
@@ -113,7 +114,7 @@ def _usable(tracks: pd.DataFrame, size: tuple[int, int]) -> pd.DataFrame:
     bh = d["y2"] - d["y1"]
     uncut = ~cut_sides(d[["x1", "y1", "x2", "y2"]].to_numpy(dtype=float), size).any(axis=1)
     ok = (bh >= 10).to_numpy() & uncut
-    ok &= d["category"].isin(["car", "van", "truck", "bus"])
+    ok &= d["category"].isin(MOTOR_VEHICLES)
     return d[ok]
 
 

@@ -27,14 +27,20 @@ WINDOW_S = 1.5
 is spread over them; the whole path's least squares cost 20-80 s CPU on the highway clip's long tracks)."""
 
 
+def beyond_traction(t: np.ndarray, speed: np.ndarray, kin: Kinematics) -> np.ndarray:
+    """(len(t) - 1,) True for each pair of consecutive samples (times ``t`` s, strictly increasing) between which
+    the speed ``speed`` (m/s) rises faster than ``kin.max_accel_mps2`` or falls faster than ``kin.max_brake_mps2``."""
+    acc = np.diff(speed) / np.diff(t)
+    return (acc > kin.max_accel_mps2) | (acc < -kin.max_brake_mps2)
+
+
 def exceeding_s(t: np.ndarray, speed: np.ndarray, kin: Kinematics, lead_s: float = -np.inf) -> np.ndarray:
-    """Times (s) of the consecutive samples between which the speeds ``speed`` (m/s) at times ``t`` (s) rise
-    faster than ``kin.max_accel_mps2`` or fall faster than ``kin.max_brake_mps2`` (``np.gradient``'s values
-    are weighted means of these, so they keep within the limits too); only intervals from ``lead_s`` on."""
+    """Times (s) of the consecutive samples between which the speeds ``speed`` (m/s) at times ``t`` (s) change
+    beyond ``kin``'s traction (:func:`beyond_traction`; ``np.gradient``'s values are weighted means of these, so
+    they keep within the limits too); only intervals from ``lead_s`` on."""
     if len(t) < 2:
         return np.zeros(0)
-    acc = np.diff(speed) / np.diff(t)
-    bad = np.nonzero(((acc > kin.max_accel_mps2) | (acc < -kin.max_brake_mps2)) & (t[:-1] >= lead_s - 1e-6))[0]
+    bad = np.nonzero(beyond_traction(t, speed, kin) & (t[:-1] >= lead_s - 1e-6))[0]
     return np.concatenate([t[bad], t[bad + 1]])
 
 
