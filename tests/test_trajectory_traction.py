@@ -117,3 +117,26 @@ def test_a_long_stretch_is_retimed_in_pieces_as_one_least_squares_would():
     assert np.abs(pieces - whole).max() < 0.01
     acc = along_accel(t, pieces)
     assert acc.max() <= 3.0 + 0.02 and acc.min() >= -6.0 - 0.02
+
+
+def test_an_impacts_stop_is_not_retimed_into_the_approach():
+    """An ego at 13 m/s stopped to 1.5 m/s within 0.2 s of its crash at 5 s (the phone-filmed ccd_000053's
+    ego-motion reads this): braking bounded everywhere spread the stop over the approach (the speed 0.5 s before
+    the crash fell by more than 1 m/s); from the impact on the braking is unbounded (a crash stops a car harder than
+    its brakes) and the approach keeps its speed, while a speed *rise* after the impact is still bounded."""
+    from deepcrashtest.trajectory.alongpath import bounded_distances
+
+    t = np.arange(0.0, 8.0, 0.1)
+    speed = np.where(t < 5.0, 13.0, 1.5)
+    s = np.concatenate([[0.0], np.cumsum(speed[:-1] * 0.1)])
+
+    def speed_before(d: np.ndarray) -> float:
+        return float(np.gradient(d, t)[np.searchsorted(t, 4.5)])
+
+    bounded = bounded_distances(t, s, 3.4, 7.6)
+    assert speed_before(bounded) < 12.0  # the stop carried back into the approach
+    impact = bounded_distances(t, s, 3.4, 7.6, impact_s=5.0)
+    assert abs(speed_before(impact) - 13.0) < 0.05
+    assert along_accel(t, impact)[t[1:-1] < 4.95].min() >= -7.6 - 0.02
+    rise = np.concatenate([[0.0], np.cumsum(np.where(t < 5.0, 10.0, 13.0)[:-1] * 0.1)])  # 10 -> 13 m/s at 5 s
+    assert along_accel(t, bounded_distances(t, rise, 3.4, 7.6, impact_s=5.0)).max() <= 3.4 + 0.02

@@ -3,6 +3,8 @@
 Corners inside each box (inner 80 %) are tracked forwards and backwards on a grey image at most
 ``work_width`` px wide; points whose forward-backward error exceeds ``fb_max_px`` are dropped. A box
 moves by the median point displacement and scales by the median ratio of point-pair distances.
+Corners that lie inside the box of a road user in front of it (:func:`occluded_points`) are left out: they
+are the passer-by's, and a parked car's box would otherwise be dragged along by a scooter passing in front.
 Boxes with too few good points are reported as failed; the caller falls back to constant velocity.
 """
 
@@ -14,6 +16,9 @@ import numpy as np
 
 _WIN = (15, 15)
 _LEVELS = 3
+#: A box is in front of another (nearer on the road) when its bottom edge lies lower in the picture by more than
+#: this share of the other's height.
+IN_FRONT_BOTTOM_SHARE = 0.1
 
 
 @dataclass
@@ -74,6 +79,7 @@ class BoxFlow:
             return out, ok
         s = prev.scale
         pts_list = [self._points_in(prev.grey, b * s) for b in boxes]
+        pts_list = [p[~occluded_points(p / s, i, boxes)] for i, p in enumerate(pts_list)]
         owner = np.concatenate([np.full(len(p), i) for i, p in enumerate(pts_list)])
         p0 = np.concatenate(pts_list).reshape(-1, 1, 2).astype(np.float32)
         if not len(p0):
@@ -96,6 +102,20 @@ class BoxFlow:
             out[i] = (cx - hw, cy - hh, cx + hw, cy + hh)
             ok[i] = True
         return out, ok
+
+
+def occluded_points(points: np.ndarray, i: int, boxes: np.ndarray) -> np.ndarray:
+    """(n,) True for each of ``points`` (n, 2; x, y px) inside a box of ``boxes`` (N, 4; x1, y1, x2, y2 px) that
+    stands in front of box ``i``: its bottom edge lower in the picture than box ``i``'s by more than
+    :data:`IN_FRONT_BOTTOM_SHARE` of box ``i``'s height (on a road seen from above, the nearer road user)."""
+    b = boxes[i]
+    margin = IN_FRONT_BOTTOM_SHARE * max(b[3] - b[1], 1.0)
+    front = boxes[(boxes[:, 3] > b[3] + margin) & (boxes[:, 0] < b[2]) & (boxes[:, 2] > b[0]) & (boxes[:, 1] < b[3])]
+    if not len(front) or not len(points):
+        return np.zeros(len(points), bool)
+    x, y = points[:, 0:1], points[:, 1:2]
+    inside = (x >= front[:, 0]) & (x <= front[:, 2]) & (y >= front[:, 1]) & (y <= front[:, 3])
+    return inside.any(axis=1)
 
 
 def _median_scale(pa: np.ndarray, pb: np.ndarray, max_pairs: int = 64) -> float:

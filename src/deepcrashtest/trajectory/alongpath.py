@@ -61,17 +61,18 @@ def bounded_distances(
     weight: np.ndarray | None = None,
     free_s: float = np.inf,
     lead_s: float = -np.inf,
+    impact_s: float = np.inf,
 ) -> np.ndarray:
     """The distances (m, N) at the increasing times ``t`` (s, N) closest to ``s`` (weighted least squares,
     ``weight`` (N,) or all 1) whose first speed is >= 0 and whose :func:`along_accel` lies in
-    [-``b_max``, ``a_max``] (m/s^2) after ``lead_s`` and up to ``free_s`` (s; elsewhere unbounded); never
-    decreasing. More than ``MAX_SAMPLES`` samples are solved in consecutive pieces of at most that many, each
+    [-``b_max``, ``a_max``] (m/s^2) after ``lead_s`` and up to ``free_s`` (s; elsewhere unbounded), its braking
+    unbounded from ``impact_s`` (s) on (a crash stops a vehicle harder than its brakes); never decreasing. More than ``MAX_SAMPLES`` samples are solved in consecutive pieces of at most that many, each
     kept but for its last ``LOOK_AHEAD`` samples and the next starting on the last two kept (held there,
     ``JOIN_WEIGHT``)."""
     n = len(t)
     w = np.ones(n) if weight is None else np.asarray(weight, float)
     if n <= MAX_SAMPLES:
-        return _bounded(t, s, a_max, b_max, w, free_s, lead_s)
+        return _bounded(t, s, a_max, b_max, w, free_s, lead_s, impact_s)
     out = np.empty(n)
     lo = 0
     while True:
@@ -79,7 +80,7 @@ def bounded_distances(
         ss, ww = s[lo:hi].copy(), w[lo:hi].copy()
         if lo:
             ss[:2], ww[:2] = out[lo : lo + 2], np.maximum(ww[:2], JOIN_WEIGHT)
-        piece = _bounded(t[lo:hi], ss, a_max, b_max, ww, free_s, lead_s)
+        piece = _bounded(t[lo:hi], ss, a_max, b_max, ww, free_s, lead_s, impact_s)
         if hi == n:
             out[lo:hi] = piece
             return np.maximum.accumulate(out)
@@ -89,7 +90,14 @@ def bounded_distances(
 
 
 def _bounded(
-    t: np.ndarray, s: np.ndarray, a_max: float, b_max: float, w: np.ndarray, free_s: float, lead_s: float
+    t: np.ndarray,
+    s: np.ndarray,
+    a_max: float,
+    b_max: float,
+    w: np.ndarray,
+    free_s: float,
+    lead_s: float,
+    impact_s: float = np.inf,
 ) -> np.ndarray:
     """:func:`bounded_distances` in one least squares (SciPy's ``lsq_linear``, bvls)."""
     n = len(t)
@@ -97,7 +105,7 @@ def _bounded(
     inner = t[1:-1]
     unbounded = (inner > free_s + 1e-6) | (inner < lead_s + 1e-6)
     half = np.where(unbounded, np.inf, 0.5 * (t[2:] - t[:-2]))
-    lb = np.concatenate([[-np.inf, 0.0], -b_max * half])
+    lb = np.concatenate([[-np.inf, 0.0], np.where(inner >= impact_s - 1e-6, -np.inf, -b_max * half)])
     ub = np.concatenate([[np.inf, np.inf], a_max * half])
     x = lsq_linear(A * w[:, None], s * w, bounds=(lb, ub), method="bvls").x
     return np.maximum.accumulate(A @ x)

@@ -12,7 +12,11 @@ Here the ego's distance along its (raw) path, smoothed as stage 2 smooths it, is
 whose acceleration stays within ``margin`` x those limits (the rest is the replay's path follower's headroom),
 and every agent is moved with the ego at its time: the agents were placed relative to the camera and stay where
 the camera saw them (the raw scenario's reprojection is unchanged; the error of a held speed is the ego's,
-common to everything it placed). An ego that already keeps within the limits is unchanged. Times in seconds,
+common to everything it placed). An ego that already keeps within the limits is unchanged. A crash of the ego is an impact, not braking:
+from the crash on its braking is unbounded and its distances are smoothed apart from the approach's, so that an
+ego-motion's reading of the impact's stop (ccd_000053 filmed off a screen: 13.3 -> 1.5 m/s within 0.2 s of the
+crash) is not re-timed back into the approach (it was: 11.1 -> 8.7 m/s over its last 0.5 s, and the processed
+ego then asked 12 m/s^2 at the crash). Times in seconds,
 positions in metres (world frame), accelerations in m/s^2.
 """
 
@@ -31,10 +35,16 @@ MIN_TRAVEL_M = 1.0
 
 
 def ego_within_traction(
-    raw: Scenario, window_s: float, margin: float, warnings: list[str], kin: Kinematics | None = None
+    raw: Scenario,
+    window_s: float,
+    margin: float,
+    warnings: list[str],
+    kin: Kinematics | None = None,
+    impact_s: float | None = None,
 ) -> tuple[Scenario, float]:
     """``raw`` with the ego re-timed along its path within ``margin`` x its kinematics' acceleration and
-    braking (its speed smoothed over ``window_s`` s, as stage 2 smooths it) and every agent moved with it
+    braking (its speed smoothed over ``window_s`` s, as stage 2 smooths it; braking unbounded from the ego's crash
+    at ``impact_s``, s, world time, on) and every agent moved with it
     (see the module docstring); returns it and the largest shift of the ego (metres, 0: unchanged)."""
     kin = kin or kinematics(raw.ego.category)
     e = raw.ego.trajectory.arrays()
@@ -45,12 +55,14 @@ def ego_within_traction(
     m = int(np.ceil((t[-1] - t[0]) / GRID_S - 1e-9)) + 1
     tg = np.linspace(t[0], t[-1], m)
     dt = float(tg[1] - tg[0])
-    sg = np.interp(tg, t, smooth_series(t, s, window_s))
+    impact = np.inf if impact_s is None else impact_s
+    sg = np.interp(tg, t, _smoothed_apart(t, s, window_s, impact))
     a_max, b_max = margin * kin.max_accel_mps2, margin * kin.max_brake_mps2
     acc = np.diff(sg, 2) / dt**2
-    if m < 4 or (acc.max() <= a_max and acc.min() >= -b_max):
+    before = tg[1:-1] < impact - 1e-6
+    if m < 4 or (acc.max() <= a_max and acc[before].min(initial=0.0) >= -b_max):
         return raw, 0.0
-    ds = np.interp(t, tg, bounded_distances(tg, sg, a_max, b_max) - sg)
+    ds = np.interp(t, tg, bounded_distances(tg, sg, a_max, b_max, impact_s=impact) - sg)
     shift = along_path(xy, s, s + ds) - xy
     largest = float(np.hypot(*shift.T).max())
     warnings.append(
@@ -59,3 +71,12 @@ def ego_within_traction(
         f"along its path within them (moved up to {largest:.1f} m), the agents moved with it"
     )
     return carry_with_ego(raw, t, shift), largest
+
+
+def _smoothed_apart(t: np.ndarray, s: np.ndarray, window_s: float, impact_s: float) -> np.ndarray:
+    """The distances ``s`` (m) at ``t`` (s) smoothed over ``window_s`` on either side of ``impact_s`` (s) apart: the
+    impact's stop is not smeared into the approach."""
+    after = t > impact_s + 1e-6
+    if after.sum() < 5 or (~after).sum() < 5:
+        return smooth_series(t, s, window_s)
+    return np.concatenate([smooth_series(t[~after], s[~after], window_s), smooth_series(t[after], s[after], window_s)])

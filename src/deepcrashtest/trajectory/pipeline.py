@@ -132,8 +132,9 @@ def _process_scenario(raw: Scenario, seed: int, params: Stage2Params | None) -> 
     _check_raw(raw)
     run = _Run(raw, params or Stage2Params(), float(raw.source.fps), float(raw.ego.trajectory.t[0]), list(raw.warnings))
     run.raw, run.ego_shift_m = ego_along_measured_yaw(raw, run.p.ego_yaw_window_s, run.warnings)
+    impact_s = raw.collision.time_s if raw.collision is not None and raw.collision.involves_ego else None
     run.raw, run.ego_retime_m = ego_within_traction(
-        run.raw, run.p.savgol_window_s, ContactParams().kin_margin, run.warnings
+        run.raw, run.p.savgol_window_s, ContactParams().kin_margin, run.warnings, impact_s=impact_s
     )
     run.raw = _collision_with_seen_participants(run)
     run.raw = _collision_that_can_happen(run)
