@@ -577,3 +577,37 @@ def test_two_boxes_cut_by_the_picture_side_are_no_crash(tmp_path):
     assert label.contact_frame is not None
     assert found["found"] and found["pair"][0] == "ego"  # main: [1, 7] at frame 10
     assert abs(found["frame"] - label.contact_frame) <= 2
+
+
+def test_a_road_user_passing_in_front_of_another_is_not_taken_for_their_crash(tmp_path):
+    """dad_000512 at 640 x 360 (two scooters collide at frame 89 of 20 fps; earlier, one of them passes in front of
+    the stopped SUV and swerves): both pairs reach the full crash score, and the near-tie went to the pair whose
+    score held longer after its contact (``hold``): the scooter passing the SUV, 0.65 s early, with the labelled
+    other scooter no agent of the scenario. Its boxes had touched the SUV's for 0.5 s before its motion changed;
+    the two scooters' for 0.15 s: of near-tied pairs only those touching within ``TOUCHING_MARGIN_S`` of the
+    freshest contact are ranked by ``hold`` (``crash_detect.ranked``)."""
+    import cv2
+
+    from deepcrashtest.datasets.crash_labels import load_crash_labels
+    from deepcrashtest.perception.crash_detect import TOUCHING_MARGIN_S
+    from deepcrashtest.pipeline.extract import run_extract
+    from deepcrashtest.scenario import Scenario
+
+    root = Path(__file__).resolve().parents[1]
+    label = load_crash_labels(root / "bench" / "labels" / "dad_crashes.json")["dad_000512"]
+    with av.open(str(need(DATA / label.video))) as c:
+        frames = [
+            cv2.resize(f.to_ndarray(format="bgr24"), (640, 360), interpolation=cv2.INTER_AREA)
+            for f in c.decode(video=0)
+        ]
+    run_extract(
+        _write(tmp_path / "dad_000512_640.mp4", frames, 20, crf=20), tmp_path / "out", report=False, annotate=False
+    )
+    raw = Scenario.load(tmp_path / "out" / "scenario_raw.json")
+    found = raw.provenance.parameters["crash_detection"]
+    assert label.contact_frame is not None
+    assert found["found"] and "ego" not in found["pair"]
+    assert abs(found["frame"] - label.contact_frame) <= 5  # by `hold` alone: frame 76, the scooter passing the SUV
+    assert found["evidence"]["touching_s"] <= TOUCHING_MARGIN_S
+    categories = {a.id: a.category for a in raw.agents}
+    assert [categories[i] for i in found["pair"]] == ["motorcycle", "motorcycle"]  # by `hold` alone: car + motorcycle

@@ -31,6 +31,14 @@ PAIR_PEAK_SHARE = 0.97
 CONTACT_HOLD_S = 0.3
 
 
+#: A pair's ``touching_s``: how long (s) its boxes had touched and its footprints been close (image contact x
+#: closeness >= TOUCHING_HELD, consecutive frames) up to its contact frame. Two road users that collide change
+#: their motion as they meet; a road user that passes in front of another overlaps it for a while first (its motion
+#: changing later, for another reason): :func:`~deepcrashtest.perception.crash_detect.ranked` keeps, of near-tied
+#: pairs, those touching within ``crash_detect.TOUCHING_MARGIN_S`` of the freshest contact.
+TOUCHING_HELD = 0.5
+
+
 #: A pair whose score reaches its peak on a plateau (the boxes overlap and the footprints touch before the
 #: road users meet) has its contact where the motion change rises anew: the first frame within
 #: NEW_CHANGE_WINDOW_S (s) of the plateau's start whose motion change exceeds the least since that start by
@@ -300,7 +308,7 @@ def pair_contact(
     """The pair's peak score and its contact frame: the first frame reaching ``PAIR_PEAK_SHARE`` of the
     peak, or a new rise of the motion change soon after it (:func:`_contact_index`); its evidence there,
     with ``hold``: the mean score over ``CONTACT_HOLD_S`` from the first frame reaching the peak share on (a
-    frame without both tracks counts 0)."""
+    frame without both tracks counts 0), and ``touching_s`` (:func:`_touching_frames`, in seconds)."""
     peak = float(s["score"].max())
     idx = s.index.to_numpy()
     k = int(np.argmax(s["score"].to_numpy() >= PAIR_PEAK_SHARE * peak)) if peak > 0 else 0
@@ -310,7 +318,19 @@ def pair_contact(
     ev = {str(c): round(float(s[c].to_numpy()[k]), 3) for c in s.columns}
     after = np.arange(first, first + max(1, int(round(CONTACT_HOLD_S * fps))))
     ev["hold"] = round(float(s["score"].reindex(after).fillna(0.0).mean()), 3)
+    ev["touching_s"] = round(_touching_frames(s, k) / fps, 3)
     return peak, frame, pair, ev
+
+
+def _touching_frames(s: pd.DataFrame, k: int) -> int:
+    """How many frames before row ``k`` the pair had touched and been close without a break (image contact x
+    closeness >= ``TOUCHING_HELD`` on consecutive frames)."""
+    held = (s["touch"] * s["depth"]).to_numpy(float) >= TOUCHING_HELD
+    frames = s.index.to_numpy(int)
+    j = k
+    while j > 0 and held[j - 1] and frames[j - 1] == frames[j] - 1:
+        j -= 1
+    return int(frames[k] - frames[j])
 
 
 def _contact_index(s: pd.DataFrame, k: int, peak: float, fps: float) -> int:
