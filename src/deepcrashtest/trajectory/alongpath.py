@@ -66,9 +66,9 @@ def bounded_distances(
     """The distances (m, N) at the increasing times ``t`` (s, N) closest to ``s`` (weighted least squares,
     ``weight`` (N,) or all 1) whose first speed is >= 0 and whose :func:`along_accel` lies in
     [-``b_max``, ``a_max``] (m/s^2) after ``lead_s`` and up to ``free_s`` (s; elsewhere unbounded), its braking
-    unbounded from ``impact_s`` (s) on (a crash stops a vehicle harder than its brakes); never decreasing. More than ``MAX_SAMPLES`` samples are solved in consecutive pieces of at most that many, each
-    kept but for its last ``LOOK_AHEAD`` samples and the next starting on the last two kept (held there,
-    ``JOIN_WEIGHT``)."""
+    unbounded from ``impact_s`` (s) on (a crash stops a vehicle harder than its brakes); never decreasing. More
+    than ``MAX_SAMPLES`` samples are solved in consecutive pieces of at most that many, each kept but for its last
+    ``LOOK_AHEAD`` samples and the next starting on the last two kept (held there, ``JOIN_WEIGHT``)."""
     n = len(t)
     w = np.ones(n) if weight is None else np.asarray(weight, float)
     if n <= MAX_SAMPLES:

@@ -12,12 +12,13 @@ Here the ego's distance along its (raw) path, smoothed as stage 2 smooths it, is
 whose acceleration stays within ``margin`` x those limits (the rest is the replay's path follower's headroom),
 and every agent is moved with the ego at its time: the agents were placed relative to the camera and stay where
 the camera saw them (the raw scenario's reprojection is unchanged; the error of a held speed is the ego's,
-common to everything it placed). An ego that already keeps within the limits is unchanged. A crash of the ego is an impact, not braking:
-from the crash on its braking is unbounded and its distances are smoothed apart from the approach's, so that an
-ego-motion's reading of the impact's stop (ccd_000053 filmed off a screen: 13.3 -> 1.5 m/s within 0.2 s of the
-crash) is not re-timed back into the approach (it was: 11.1 -> 8.7 m/s over its last 0.5 s, and the processed
-ego then asked 12 m/s^2 at the crash). Times in seconds,
-positions in metres (world frame), accelerations in m/s^2.
+common to everything it placed). An ego that already keeps within the limits is unchanged.
+
+A crash of the ego is an impact, not braking: from the crash on its braking is unbounded and its distances are
+smoothed apart from the approach's, so that an ego-motion's reading of the impact's stop (ccd_000053 filmed off a
+screen: 13.3 -> 1.5 m/s within 0.2 s of the crash) is not re-timed back into the approach (it was: 11.1 -> 8.7 m/s
+over its last 0.5 s, and the processed ego then asked 12 m/s^2 at the crash). Times in seconds, positions in metres
+(world frame), accelerations in m/s^2.
 """
 
 from __future__ import annotations
