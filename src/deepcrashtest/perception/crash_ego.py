@@ -187,6 +187,21 @@ def knee_frame(s: pd.DataFrame, fps: float) -> int | None:
     return None
 
 
+NEAREST_WITHIN_S = 0.5
+"""Without a jolt or a knee a crash is scored at the track's first frame at least 0.9 of its nearest, and its contact
+is where its box is largest within this (s) after that frame (the ``near`` cue, a rolling maximum over the box's
+bottom row and width, reaches 0.9 of its peak while the box still grows: dad_000487 re-encoded, the scooter at the
+ego's bumper, scored at frame 92, its box largest at 94, the label 97; chosen on the six variant sets: the
+re-encoded dad_000487 reproduced, no crash lost on the 20 clips or the 42 robust variants)."""
+
+
+def _largest_soon_after(s: pd.DataFrame, first: int, fps: float) -> int:
+    """The frame of the largest box (``log_size``) from ``first`` to ``NEAREST_WITHIN_S`` after it."""
+    idx = s.index.to_numpy()
+    win = (idx >= first) & (idx <= first + NEAREST_WITHIN_S * fps)
+    return int(idx[win][int(np.argmax(s["log_size"].to_numpy(float)[win]))])
+
+
 def _approaching_after(s: pd.DataFrame, fps: float) -> pd.Series:
     """True at the frames after which the box still grows by more than ``APPROACH_AFTER_GROWTH`` in log size
     within ``APPROACH_AFTER_S`` (at least the next frame): the road user is still approaching, not in contact."""
@@ -222,7 +237,8 @@ def _still_since(s: pd.DataFrame, jolt_frame: int, fps: float) -> int | None:
 
 def ego_best(s: pd.DataFrame, fps: float) -> tuple[float, int, dict[str, float]]:
     """The ego-crash score of one track and its contact frame: the first camera jolt while the track is
-    near, else the first frame at which the track is nearest (its box stops growing at contact)."""
+    near, else the knee where its box stops growing (:func:`knee_frame`), else the frame where its box is largest
+    soon after it is first nearly its nearest (:func:`_largest_soon_after`; the contact)."""
     peak = float(s["near"].max())
     if peak <= 0:
         return 0.0, int(s.index.to_numpy()[0]), {}
@@ -250,6 +266,8 @@ def ego_best(s: pd.DataFrame, fps: float) -> tuple[float, int, dict[str, float]]
         ev["jolt_frame"], frame = frame, still
     elif len(jolted):  # scored where the jolt starts, the contact where it peaks
         frame = _jolt_peak(s, frame, near_enough)
+    elif knee is None:  # scored where it is first that near, the contact where its box is largest soon after
+        frame = _largest_soon_after(s, frame, fps)
     jolt_at = frame if len(jolted) and still is None else None
     fallen = s["knocked_over"] if "knocked_over" in s else pd.Series(False, index=s.index)
     fell = s.index.to_numpy()[(fallen & near_enough).to_numpy()]
