@@ -443,6 +443,14 @@ def detect_dashboard_rows(
     return dashboard_rows_from_contour(contour, min_coverage, max_step_px)
 
 
+#: A bonnet's or dashboard's top is highest at the image's centre by at most this share of the frame's height above
+#: its top at the sides (its bulge: 0-45 px of 720 on the labelled clips, ``bench/labels/bonnet_rows.json``). A central
+#: persistent edge further above the contour found at the sides is something in front (a car followed at a steady gap,
+#: a windscreen reflection): dad_000487 re-encoded claimed 230 rows of road there (its bonnet 50), and its ego-motion
+#: found no road point under the mask (0 km/h for a 46 km/h ride).
+MAX_BONNET_BULGE = 0.12
+
+
 def dashboard_rows_from_contour(
     contour: BonnetContour | None, min_coverage: float = 0.6, max_step_px: float = 12.0
 ) -> int:
@@ -452,7 +460,9 @@ def dashboard_rows_from_contour(
     and be smooth there (median step between neighbouring found bins at most ``max_step_px``
     full-frame px); otherwise 0 (no bonnet claimed). Bins more than ``3 * max_step_px`` from the
     contour's median are left out before the highest point is taken, so that a short persistent edge
-    above the bonnet (the tail lights of a car followed at a constant gap) does not pull it up.
+    above the bonnet (the tail lights of a car followed at a constant gap) does not pull it up; a central top more
+    than ``MAX_BONNET_BULGE`` of the frame's height above the median of the bins found outside the central half
+    (at least two) is no bonnet either (0).
     """
     if contour is None:
         return 0
@@ -467,6 +477,9 @@ def dashboard_rows_from_contour(
         return 0
     central = contour.top_px[ok & centre]
     kept = central[np.abs(central - np.median(central)) <= 3.0 * max_step_px]
+    sides = contour.top_px[ok & ~centre]
+    if len(sides) >= 2 and float(np.median(sides)) - float(kept.min()) > MAX_BONNET_BULGE * contour.frame_height:
+        return 0  # the central edge stands far above the bonnet beside it: something in front, not the bonnet
     return max(0, int(math.ceil(contour.frame_height - float(kept.min()))))
 
 
