@@ -158,6 +158,36 @@ def test_a_car_followed_above_the_bonnet_is_not_taken_for_the_bonnet(tmp_path):
     assert detect_dashboard_rows(spread) <= labelled + 25  # before: 230
 
 
+def test_a_car_followed_at_a_steady_gap_is_not_the_bonnet_even_without_the_bonnet_beside_it(tmp_path):
+    """dad_000487 through a 1.3x longer lens (the frame's centre magnified, as ``bench/fidelity_perturbed.py
+    --variants zoom`` writes it): the bonnet's sides are cropped away, so no contour is found beside the red car
+    followed at a steady gap, whose bumper's edges stay put at rows 500-560 over the first 2 s. Its dashboard mask
+    was 218 rows of road (the ego-motion then read 0 km/h). The geometry stage now gives the bonnet detector each
+    frame's tracked road users, and an edge inside a box that does not reach the frame's bottom is that road user's:
+    nothing more than the bonnet is masked."""
+    import av
+    import cv2
+
+    from deepcrashtest.pipeline.extract import run_extract
+    from deepcrashtest.video.writer import VideoWriter
+
+    with av.open(str(need(DATA / "crash_dad" / "dad_000487.mp4"))) as c:
+        frames = [f.to_ndarray(format="bgr24") for f in c.decode(video=0)]
+    h, w = frames[0].shape[:2]
+    v, u = np.mgrid[0:h, 0:w].astype(np.float32)
+    cu, cv = (w - 1) / 2, (h - 1) / 2
+    map_x, map_y = cu + (u - cu) / 1.3, cv + (v - cv) / 1.3
+    video = tmp_path / "zoom.mp4"
+    out = VideoWriter(video, 20.0, w, h, force=True)
+    for f in frames:
+        out.write(cv2.remap(f, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
+    out.close()
+    run_extract(video, tmp_path / "out", report=False, annotate=False)
+    raw = Scenario.load(tmp_path / "out" / "scenario_raw.json")
+    labelled = 720 - int(BONNET_LABELS["dad_000487"]["centre"])
+    assert raw.provenance.parameters["dashboard_rows"] <= 1.3 * labelled + 25  # before: 218
+
+
 def test_dashboard_rows_for_a_stopped_camera_are_none():
     """Nothing moves, so the bonnet cannot be told from the scene: no dashboard claimed."""
     dad = read_video(DAD / "dad_000478.mp4", 10, 9, 2)

@@ -16,7 +16,7 @@ default scales all distances and speeds by the same factor; relative motion is u
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -390,6 +390,7 @@ def bonnet_contour(
     max_static: float = 0.5,
     min_top: float = 0.68,
     below_pct: float = 50.0,
+    boxes: Sequence[np.ndarray] | None = None,
 ) -> BonnetContour | None:
     """Top edge of the bonnet/dashboard per column bin, full-frame pixel rows (NaN: no bonnet there).
 
@@ -402,7 +403,9 @@ def bonnet_contour(
     times the road's just above is taken; bins without one are NaN. A plain blurred road has no
     persistent edge, so it is not mistaken for a bonnet. Returns None when the scene does not
     change (median temporal std of the lower half under ``min_moving`` grey levels: a stopped
-    camera, nothing to tell the bonnet from the road) or fewer than 4 frames are given.
+    camera, nothing to tell the bonnet from the road) or fewer than 4 frames are given. ``boxes``: each frame's
+    road users (N, 4) x1, y1, x2, y2 full-frame px; a bin whose edge lies inside a box that does not reach the
+    frame's bottom, in at least half the frames, is that road user's (:func:`_in_road_users`), not the bonnet.
     """
     stack, scale = _bonnet_stack(frames, max_frames)
     if len(stack) < 4:
@@ -427,19 +430,55 @@ def bonnet_contour(
             below = float(np.percentile(s[r + 2 :], below_pct))
             if below <= still_ratio * above:
                 top[k], best = (r + 0.5) / scale, float(p[r])
+    if boxes is not None:
+        top[_in_road_users(top, edges / scale, list(boxes)[:t], h / scale)] = np.nan
     return BonnetContour(top, edges / scale, int(round(h / scale)))
 
 
+def _in_road_users(top: np.ndarray, edges: np.ndarray, boxes: list[np.ndarray], height: float) -> np.ndarray:
+    """(bins,) True where the bin's edge row ``top`` (full-frame px; NaN: none) lies inside a road user's box at the
+    bin's centre column in at least half of the frames' ``boxes`` (each (N, 4) x1, y1, x2, y2 px), a box that does not
+    reach the frame's bottom (``height`` px; a box along the bottom can be the bonnet itself taken for a car): a car
+    followed at a steady gap keeps its edges in place as a bonnet does (dad_000487 through a longer lens: the red
+    car's bumper masked 218 rows of road)."""
+    out = np.zeros(len(top), bool)
+    if not boxes:
+        return out
+    cols = 0.5 * (edges[:-1] + edges[1:])
+    hits = np.zeros(len(top), int)
+    for b in boxes:
+        b = np.asarray(b, float).reshape(-1, 4)
+        b = b[b[:, 3] < BOX_BOTTOM_SHARE * height]
+        inside = (
+            (b[None, :, 0] <= cols[:, None])
+            & (cols[:, None] <= b[None, :, 2])
+            & (b[None, :, 1] <= top[:, None])
+            & (top[:, None] <= b[None, :, 3])
+        )
+        hits += inside.any(axis=1)
+    return np.isfinite(top) & (hits >= 0.5 * len(boxes))
+
+
+#: A road user's box whose bottom lies below this share of the frame's height may be the bonnet itself taken for a
+#: car (:func:`_in_road_users` keeps the bonnet's edges inside it).
+BOX_BOTTOM_SHARE = 0.97
+
+
 def detect_dashboard_rows(
-    frames: Iterable[np.ndarray], max_frames: int = 12, min_coverage: float = 0.6, max_step_px: float = 12.0
+    frames: Iterable[np.ndarray],
+    max_frames: int = 12,
+    min_coverage: float = 0.6,
+    max_step_px: float = 12.0,
+    boxes: Sequence[np.ndarray] | None = None,
 ) -> int:
     """Rows at the bottom of the frame covered by the car's own bonnet/dashboard, full-frame pixels.
 
     From :func:`bonnet_contour` (frames spanning a second or more of driving) and
     :func:`dashboard_rows_from_contour`; 0 when unsure (masking too little costs less than masking road)
-    and for a stopped camera, where nothing tells the bonnet from the road.
+    and for a stopped camera, where nothing tells the bonnet from the road. ``boxes``: each frame's road users
+    (:func:`bonnet_contour`).
     """
-    contour = bonnet_contour(frames, max_frames=max_frames)
+    contour = bonnet_contour(frames, max_frames=max_frames, boxes=boxes)
     return dashboard_rows_from_contour(contour, min_coverage, max_step_px)
 
 

@@ -138,12 +138,18 @@ class SpeedCut:
 
 
 def estimate_camera(
-    images: list[np.ndarray], camera: Camera, dashboard_rows: int | None = None
+    images: list[np.ndarray],
+    camera: Camera,
+    dashboard_rows: int | None = None,
+    boxes: list[np.ndarray] | None = None,
 ) -> tuple[Camera, int, str]:
-    """Dashboard rows and horizon from a few frames. Returns (camera with pitch, rows, pitch source)."""
+    """Dashboard rows and horizon from a few frames (``boxes``: each frame's road users, (N, 4) px, whose edges are
+    not the bonnet's). Returns (camera with pitch, rows, pitch source)."""
     h, w = images[0].shape[:2]
-    spread = images[:: max(1, len(images) // 9)]  # pairs ~0.2 s apart: enough road motion to see
-    rows = detect_dashboard_rows(spread) if dashboard_rows is None else int(dashboard_rows)
+    step = max(1, len(images) // 9)
+    spread = images[::step]  # pairs ~0.2 s apart: enough road motion to see
+    spread_boxes = boxes[::step] if boxes is not None else None
+    rows = detect_dashboard_rows(spread, boxes=spread_boxes) if dashboard_rows is None else int(dashboard_rows)
     rows = min(rows, h // 3)
     if camera.pitch_source in ("user", "kitti_calib"):
         return camera, rows, camera.pitch_source
@@ -187,7 +193,9 @@ def extract_geometry(
     read the lens's radial distortion from the first frames' straight edges (:mod:`deepcrashtest.geometry.lens`).
     """
     buffer, rest = _calibration_frames(frames, calib_seconds)
-    cam, rows, horizon_source = estimate_camera([f.image for f, _ in buffer], camera, dashboard_rows)
+    cam, rows, horizon_source = estimate_camera(
+        [f.image for f, _ in buffer], camera, dashboard_rows, [_boxes(t) for _, t in buffer]
+    )
     size = (int(buffer[0][0].image.shape[1]), int(buffer[0][0].image.shape[0]))  # width, height (px)
     lens_est = None
     if lens and cam.intrinsics_source == "default" and not cam.distortion:  # the lens from straight edges
