@@ -448,7 +448,7 @@ def _in_road_users(top: np.ndarray, edges: np.ndarray, boxes: list[np.ndarray], 
     hits = np.zeros(len(top), int)
     for b in boxes:
         b = np.asarray(b, float).reshape(-1, 4)
-        b = b[b[:, 3] < BOX_BOTTOM_SHARE * height]
+        b = b[b[:, 3] < (1.0 - BOTTOM_SHARE) * height]
         inside = (
             (b[None, :, 0] <= cols[:, None])
             & (cols[:, None] <= b[None, :, 2])
@@ -459,9 +459,10 @@ def _in_road_users(top: np.ndarray, edges: np.ndarray, boxes: list[np.ndarray], 
     return np.isfinite(top) & (hits >= 0.5 * len(boxes))
 
 
-#: A road user's box whose bottom lies below this share of the frame's height may be the bonnet itself taken for a
-#: car (:func:`_in_road_users` keeps the bonnet's edges inside it).
-BOX_BOTTOM_SHARE = 0.97
+#: A box reaches the picture's bottom edge when its bottom lies within this share of the picture's height of it: it
+#: may be the ego's own bonnet taken for a vehicle (:func:`_in_road_users` keeps the bonnet's edges inside it;
+#: ``geometry.ego_parts`` tells such tracks).
+BOTTOM_SHARE = 0.01
 
 
 def detect_dashboard_rows(

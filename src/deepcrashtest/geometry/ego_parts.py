@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import pandas as pd
 
+from deepcrashtest.geometry.camera import BOTTOM_SHARE
 from deepcrashtest.perception.roadusers import MOTOR_VEHICLES
 from deepcrashtest.scenario import Camera
 
@@ -25,8 +26,6 @@ EGO_PART_WIDTH_F = 1.0
 EGO_PART_TOP_F = 0.15
 #: Share of a track's detected frames with such boxes.
 EGO_PART_SHARE = 0.5
-#: The box reaches the picture's bottom edge within this share of the picture's height.
-BOTTOM_SHARE = 0.01
 
 
 def ego_part_tracks(tracks: pd.DataFrame, camera: Camera, size: tuple[int, int]) -> list[int]:
