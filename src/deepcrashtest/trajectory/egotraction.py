@@ -41,11 +41,11 @@ def ego_within_traction(
     margin: float,
     warnings: list[str],
     kin: Kinematics | None = None,
-    impact_s: float | None = None,
+    impact_s: float = np.inf,
 ) -> tuple[Scenario, float]:
     """``raw`` with the ego re-timed along its path within ``margin`` x its kinematics' acceleration and
     braking (its speed smoothed over ``window_s`` s, as stage 2 smooths it; braking unbounded from the ego's crash
-    at ``impact_s``, s, world time, on) and every agent moved with it
+    at ``impact_s``, s, world time, on; inf: no crash of the ego) and every agent moved with it
     (see the module docstring); returns it and the largest shift of the ego (metres, 0: unchanged)."""
     kin = kin or kinematics(raw.ego.category)
     e = raw.ego.trajectory.arrays()
@@ -56,14 +56,13 @@ def ego_within_traction(
     m = int(np.ceil((t[-1] - t[0]) / GRID_S - 1e-9)) + 1
     tg = np.linspace(t[0], t[-1], m)
     dt = float(tg[1] - tg[0])
-    impact = np.inf if impact_s is None else impact_s
-    sg = np.interp(tg, t, _smoothed_apart(t, s, window_s, impact))
+    sg = np.interp(tg, t, _smoothed_apart(t, s, window_s, impact_s))
     a_max, b_max = margin * kin.max_accel_mps2, margin * kin.max_brake_mps2
     acc = np.diff(sg, 2) / dt**2
-    before = tg[1:-1] < impact - 1e-6
+    before = tg[1:-1] < impact_s - 1e-6
     if m < 4 or (acc.max() <= a_max and acc[before].min(initial=0.0) >= -b_max):
         return raw, 0.0
-    ds = np.interp(t, tg, bounded_distances(tg, sg, a_max, b_max, impact_s=impact) - sg)
+    ds = np.interp(t, tg, bounded_distances(tg, sg, a_max, b_max, impact_s=impact_s) - sg)
     shift = along_path(xy, s, s + ds) - xy
     largest = float(np.hypot(*shift.T).max())
     warnings.append(

@@ -132,7 +132,7 @@ def _process_scenario(raw: Scenario, seed: int, params: Stage2Params | None) -> 
     _check_raw(raw)
     run = _Run(raw, params or Stage2Params(), float(raw.source.fps), float(raw.ego.trajectory.t[0]), list(raw.warnings))
     run.raw, run.ego_shift_m = ego_along_measured_yaw(raw, run.p.ego_yaw_window_s, run.warnings)
-    impact_s = raw.collision.time_s if raw.collision is not None and raw.collision.involves_ego else None
+    impact_s = raw.collision.time_s if raw.collision is not None and raw.collision.involves_ego else math.inf
     run.raw, run.ego_retime_m = ego_within_traction(
         run.raw, run.p.savgol_window_s, ContactParams().kin_margin, run.warnings, impact_s=impact_s
     )
