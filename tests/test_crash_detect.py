@@ -13,7 +13,7 @@ import pytest
 
 from deepcrashtest.errors import UserError
 from deepcrashtest.perception.crash_detect import GlobalMotion, detect_crash
-from deepcrashtest.perception.crash_tracks import jolt_score
+from deepcrashtest.perception.crash_tracks import box_growth, jolt_score
 from deepcrashtest.pipeline.crash import crash_for_raw, parse_crash
 from deepcrashtest.scenario import Scenario
 from trajectory_cases import raw_scenario, track, vehicle
@@ -68,6 +68,31 @@ def test_third_party_contact_with_a_sudden_change_of_motion():
     tracks = pd.DataFrame(_rows(2, range(0, 30), scooter) + _rows(3, range(0, 30), car))
     found = detect_crash(tracks, W, H, FPS)
     assert found is not None and found.pair == (2, 3) and 17 <= found.frame <= 22
+
+
+def test_a_box_that_only_widens_is_not_closing_in():
+    """dad_000512 through a longer lens (``bench/fidelity_perturbed.py --variants zoom``): a scooter crosses in front of
+    the stopped ego, its box 184 px wide then 449 px (the detector boxed it from its side) at a steady 330 px height;
+    its growth in area read as closing in at full rate and made an ego crash 0.75 s before the scooters' own. A box
+    that widens with its height steady turns or is seen from a new side: it is not closing in. A car coming nearer
+    (both sides growing) and one at the bumper, its box cut by the picture's bottom, still are."""
+
+    def crossing(f: int) -> tuple[float, float, float, float]:
+        x = 100 + 30 * f
+        w = 184 if f < 12 else 449
+        return x, 310, x + w, 640
+
+    def cut_at_the_bottom(f: int) -> tuple[float, float, float, float]:
+        s = 200 * 1.08**f
+        return 640 - s, 400 - 0.2 * s, 640 + s, H
+
+    boxes = pd.DataFrame(_rows(4, range(24), crossing)).set_index("frame")
+    assert box_growth(boxes, FPS, W, H).abs().max() < 1e-9
+    assert box_growth(boxes, FPS).max() > 1.0  # its area alone: 1.49/s
+    nearer = box_growth(pd.DataFrame(_rows(4, range(0, 40), _approach)).set_index("frame"), FPS, W, H)
+    assert nearer.loc[5:25].min() == pytest.approx(10 * np.log(1.12), rel=1e-6)
+    bumper = box_growth(pd.DataFrame(_rows(4, range(12), cut_at_the_bottom)).set_index("frame"), FPS, W, H)
+    assert bumper.loc[3:9].min() > 0.3
 
 
 def test_nothing_found_when_nobody_is_near():

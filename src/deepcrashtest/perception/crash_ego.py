@@ -89,7 +89,8 @@ def ego_scores(
     tall = np.clip(((y2 - y1) / height - 0.35) / 0.4, 0, 1)  # a person or two-wheeler close in front
     raw_near = np.maximum(wide, tall) * np.clip((y2 / height - 0.55) / 0.3, 0, 1)
     near = pd.Series(raw_near, index=g.index).rolling(smooth_frames(fps), center=True, min_periods=1).max()
-    closing = np.clip(box_growth(g, fps).to_numpy(), 0, 1.5) / 1.5  # d ln(size)/dt = 1.5/s (TTC 0.67 s) -> 1
+    growth = box_growth(g, fps, width, height).to_numpy()
+    closing = np.clip(growth, 0, 1.5) / 1.5  # d ln(size)/dt = 1.5/s (TTC 0.67 s) -> 1
     j = pd.Series([jolt.get(int(f), 0.0) for f in g.index.to_numpy(int)], index=g.index)
     edge = _reaches_border(g, width)
     return pd.DataFrame(
