@@ -234,3 +234,25 @@ def test_a_detected_crash_moves_to_an_earlier_touch_only_with_a_pedestrian(categ
         assert 3.7 < early < 4.5 and any("as seen, touch" in w for w in sc.warnings)
     else:
         assert early == pytest.approx(5.0) and not any("as seen, touch" in w for w in sc.warnings)
+
+
+def test_a_crash_correction_keeps_the_pair_apart_between_its_samples():
+    """A car turning across the ego's path at 5 fps (samples 0.2 s apart): the crash correction kept the two apart at
+    the samples, but between them the turning box's corner touched the ego 0.6 s before the crash, and the replay,
+    checking every 0.02 s, crashed there (854x480 ccd_000132 at half frame rate: 0.44 s early). With
+    ``apart_margin_m`` (what stage 2 asks again when a correction grazes) they stay apart on a 0.05 s grid, by the
+    margin until 0.3 s before, and first touch at the crash."""
+    t = np.round(np.arange(0, 4.01, 0.2), 6)
+    ego = Movable(t, np.column_stack([6 * t, 0 * t]), 4.5, 1.8, 0.0, weight=3.0)
+    r, turn = 8.8228, 0.4101 + 0.75685 * t  # m, rad: an elliptic arc (a random case that grazed)
+    xy = np.column_stack([29.1717 + r * np.cos(turn), 0.6 * r * np.sin(turn) + 0.66998])
+    car = Movable(t, xy, 4.5, 1.8, 0.4101 + np.pi / 2)
+    first = []
+    for margin in (0.0, 0.05):
+        c = make_contact(ego, car, 4.0, apart_margin_m=margin)
+        assert c.ok
+        hit = first_contact(box_track(ego, ego.xy + c.deltas[0]), box_track(car, car.xy + c.deltas[1]))
+        assert hit is not None
+        first.append(hit.time_s)
+    assert first[0] < 3.6  # without: the corner grazes between two samples
+    assert 3.9 <= first[1] <= 4.0

@@ -252,6 +252,8 @@ where it moves < 3.5)."""
 # labelled crash clips (2026-12-01): at most 64,186 box tracks built for a correction that was found, so none is cut;
 # with analytic derivatives (one build per iterate) at most 1,177 (bench/contact_speed.py): MAX_ITER bounds the time.
 MAX_EVALS = 100_000
+APART_STEP_S = 0.05  # make_contact(apart_margin_m > 0): the grid (s) on which the pair is kept apart,
+APART_MARGIN_S = 0.3  # ... by the margin until this long before the crash (s)
 TOUCH_SLACK_S = 0.02  # make_contact(overlap_s > 0): apart until this long before the first touch (s)
 
 
@@ -677,6 +679,7 @@ def make_contact(
     cp: ContactParams | None = None,
     movable: tuple[bool, bool] = (True, True),
     overlap_s: float = 0.0,
+    apart_margin_m: float = 0.0,
 ) -> Correction:
     """Smallest smooth displacement of the pair's last seconds so that their boxes first touch at
     ``t_crash`` (s): overlapping by ``penetration_m`` then, apart until ``touch_tol_s`` before.
@@ -690,6 +693,9 @@ def make_contact(
     False), and last each again so with ``LONG_MAX_ITER`` iterations; ``ok`` is False when none satisfies
     the constraints (the last try is returned).
     ``movable`` may pin one of the two (e.g. parked).
+    ``apart_margin_m`` > 0: apart on an ``APART_STEP_S`` grid within the correction's window as well, and by this much
+    (m) until ``APART_MARGIN_S`` before the crash where the paths were that far apart before (a replay checks every
+    0.02 s; a pair apart at 5 fps samples only grazed between them, 0.44 s before the crash).
     """
     cp = cp or ContactParams()
     movers = [m for m, free in zip((a, b), movable, strict=True) if free]
@@ -712,9 +718,15 @@ def make_contact(
         bases = [_rigid(m) if m.rigid else _basis(lo, t_end, cp.knot_step_s, lo > m.t[0] + 1e-6) for m in movers]
         t_free = a.t[(a.t >= lo_common) & (a.t <= t_apart)]
         t_free = np.append(t_free, t_apart) if t_apart >= lo_common else t_free
+        apart = [(0, 1, t_free, 0.0)]
+        if apart_margin_m > 0.0 and t_apart > lo:  # apart between the samples too, and by a margin until shortly before
+            grid = np.arange(lo, t_apart, APART_STEP_S)
+            early = grid[grid <= t_crash - APART_MARGIN_S]
+            early = early[separation(box_track(a), box_track(b), early) >= apart_margin_m] if len(early) else early
+            apart = [(0, 1, np.union1d(t_free, grid), 0.0), (0, 1, early, apart_margin_m)]
         solve_movers = movers if kinematic else [replace(m, kin=None) for m in movers]
         ds, ok, msg = _solve(
-            solve_movers, fixed, bases, eq, [(0, 1, t_free, 0.0)], cp, rounds=2 if kinematic else 3, budget=budget,
+            solve_movers, fixed, bases, eq, apart, cp, rounds=2 if kinematic else 3, budget=budget,
             max_iter=max_iter,
         )  # fmt: skip
         full = _full(ds, movable)

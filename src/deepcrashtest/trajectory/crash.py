@@ -25,7 +25,9 @@ from deepcrashtest.scenario import Collision, kinematics
 from deepcrashtest.trajectory.collision import BoxTrack, Contact, first_contact
 from deepcrashtest.trajectory.contact import (
     ContactParams,
+    Correction,
     Movable,
+    box_track,
     make_contact,
     nudge_apart,
     overlap_samples,
@@ -193,6 +195,18 @@ def find_first(ego: Dense, agents: list[Dense], t_from: float) -> Collision | No
     )
 
 
+GRAZE_M = 0.05
+"""A crash correction whose pair touches before the crash (between the samples it was checked on) is made again with
+the pair this far apart (m) until shortly before it (``make_contact(apart_margin_m=)``)."""
+
+
+def _grazes_before(ma: Movable, mb: Movable, corr: Correction, t_before: float) -> bool:
+    """Whether the pair, corrected by ``corr``, first touches before ``t_before`` (s) (checked as the replay does)."""
+    da, db = (corr.deltas[k] if k < len(corr.deltas) and len(corr.deltas[k]) else 0.0 for k in (0, 1))
+    hit = first_contact(box_track(ma, ma.xy + da), box_track(mb, mb.xy + db))
+    return hit is not None and hit.time_s < t_before
+
+
 def _enforce_pair(
     collision: Collision, ego: Dense, agents: list[Dense], cp: ContactParams, warnings: list[str]
 ) -> dict[str, Any]:
@@ -208,6 +222,12 @@ def _enforce_pair(
     corr = make_contact(ma, mb, collision.time_s, cp, movable=pinned, overlap_s=overlap)
     if not corr.ok and not all(pinned):  # the other alone cannot make it: both move (the ego weighted EGO_WEIGHT)
         corr = make_contact(ma, mb, collision.time_s, cp, overlap_s=overlap)
+    t_before = collision.time_s - cp.touch_tol_s
+    for movable in (pinned, (True, True)) if corr.ok and _grazes_before(ma, mb, corr, t_before) else ():
+        again = make_contact(ma, mb, collision.time_s, cp, movable=movable, overlap_s=overlap, apart_margin_m=GRAZE_M)
+        if again.ok and not _grazes_before(ma, mb, again, t_before):
+            corr = again
+            break
     applied = corr.ok or corr.max_m <= MAX_FAILED_CORRECTION_M
     for d, delta in zip((a, b), corr.deltas if applied else [], strict=False):
         if len(delta):
