@@ -134,8 +134,9 @@ def box_growth(g: pd.DataFrame, fps: float, width: int | None = None, height: in
     With the picture's ``width`` and ``height`` (px) a box's two sides are read apart: a road user that comes nearer
     grows in both, one that turns or is seen from its side as it crosses only widens (dad_000512 through a longer
     lens: a scooter crossing in front of the stopped ego, 184 -> 449 px wide at a steady 330 px height, read as
-    closing in). The growth is then the smaller of the two sides' (a side cut by the picture's border does not count:
-    a car at the bumper keeps widening while its box is cut at the bottom)."""
+    closing in). Where the two sides' rates are more than ``ASPECT_JUMP_PER_S`` apart the growth is then the smaller
+    one, else their mean (the area's); a box cut by the picture's border keeps the area's growth (a car at the bumper
+    keeps widening while its box is cut at the bottom)."""
     w = np.maximum(g["x2"].to_numpy(float) - g["x1"].to_numpy(float), 1.0)
     h = np.maximum(g["y2"].to_numpy(float) - g["y1"].to_numpy(float), 1.0)
     dt = np.maximum(np.diff(g.index.to_numpy(float)) / fps, 1e-6)
@@ -147,8 +148,8 @@ def box_growth(g: pd.DataFrame, fps: float, width: int | None = None, height: in
         cut_h = ((g["x1"] <= m) | (g["x2"] >= width - m)).to_numpy(bool)
         cut_v = ((g["y1"] <= m) | (g["y2"] >= height - m)).to_numpy(bool)
         cut_h, cut_v = cut_h[1:] | cut_h[:-1], cut_v[1:] | cut_v[:-1]
-        both = np.where(np.abs(gw - gh) > ASPECT_JUMP_PER_S, np.minimum(gw, gh), 0.5 * (gw + gh))
-        r = np.r_[0.0, np.where(cut_h | cut_v, 0.5 * (gw + gh), both)]
+        uncut = np.where(np.abs(gw - gh) > ASPECT_JUMP_PER_S, np.minimum(gw, gh), 0.5 * (gw + gh))
+        r = np.r_[0.0, np.where(cut_h | cut_v, 0.5 * (gw + gh), uncut)]
     return pd.Series(r, index=g.index).rolling(smooth_frames(fps), center=True, min_periods=1).mean()
 
 
