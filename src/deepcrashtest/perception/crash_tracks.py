@@ -145,7 +145,7 @@ def box_growth(g: pd.DataFrame, fps: float, width: int | None = None, height: in
         r = np.r_[0.0, 0.5 * (gw + gh)]
     else:
         m = border_margin(width)
-        cut_h = ((g["x1"] <= m) | (g["x2"] >= width - m)).to_numpy(bool)
+        cut_h = on_side(g, width)
         cut_v = ((g["y1"] <= m) | (g["y2"] >= height - m)).to_numpy(bool)
         cut_h, cut_v = cut_h[1:] | cut_h[:-1], cut_v[1:] | cut_v[:-1]
         uncut = np.where(np.abs(gw - gh) > ASPECT_JUMP_PER_S, np.minimum(gw, gh), 0.5 * (gw + gh))

@@ -201,9 +201,10 @@ the pair this far apart (m) until shortly before it (``make_contact(apart_margin
 
 
 def _grazes_before(ma: Movable, mb: Movable, corr: Correction, t_before: float) -> bool:
-    """Whether the pair, corrected by ``corr``, first touches before ``t_before`` (s) (checked as the replay does)."""
+    """Whether the pair, corrected by ``corr``, first touches before ``t_before`` (s), counted as the replay counts it
+    (:func:`contact_after_apart`: boxes overlapping from their first common moment only once they were apart)."""
     da, db = (corr.deltas[k] if k < len(corr.deltas) and len(corr.deltas[k]) else 0.0 for k in (0, 1))
-    hit = first_contact(box_track(ma, ma.xy + da), box_track(mb, mb.xy + db))
+    hit = contact_after_apart(box_track(ma, ma.xy + da), box_track(mb, mb.xy + db))
     return hit is not None and hit.time_s < t_before
 
 
@@ -223,7 +224,8 @@ def _enforce_pair(
     if not corr.ok and not all(pinned):  # the other alone cannot make it: both move (the ego weighted EGO_WEIGHT)
         corr = make_contact(ma, mb, collision.time_s, cp, overlap_s=overlap)
     t_before = collision.time_s - cp.touch_tol_s
-    for movable in (pinned, (True, True)) if corr.ok and _grazes_before(ma, mb, corr, t_before) else ():
+    retries = dict.fromkeys((pinned, (True, True)))  # pinned is (True, True) for a pair without the ego: once
+    for movable in retries if corr.ok and _grazes_before(ma, mb, corr, t_before) else ():
         again = make_contact(ma, mb, collision.time_s, cp, movable=movable, overlap_s=overlap, apart_margin_m=GRAZE_M)
         if again.ok and not _grazes_before(ma, mb, again, t_before):
             corr = again
