@@ -85,7 +85,7 @@ def main() -> None:
         cells = " ".join(f"{x:8.1f}" if x is not None else f"{'-':>8s}" for x in speeds)
         print(f"{clip:24s} {v0:7.1f} {cells}   {s:.2f}")
     if not spreads:
-        raise SystemExit("no clip has extracts in both folders")
+        ap.error(f"no clip has a scenario_raw.json in both {args.original} and {args.variants_work}/<set>/out")
     print(
         f"\n{len(spreads)} clips, {compared} variants: "
         f"spread mean {np.mean(spreads):.3f} median {np.median(spreads):.3f}; "
