@@ -13,6 +13,7 @@ import pytest
 
 from deepcrashtest.errors import UserError
 from deepcrashtest.perception.crash_detect import GlobalMotion, detect_crash
+from deepcrashtest.perception.crash_ego import ego_scores
 from deepcrashtest.perception.crash_tracks import box_growth, jolt_score
 from deepcrashtest.pipeline.crash import crash_for_raw, parse_crash
 from deepcrashtest.scenario import Scenario
@@ -68,6 +69,39 @@ def test_third_party_contact_with_a_sudden_change_of_motion():
     tracks = pd.DataFrame(_rows(2, range(0, 30), scooter) + _rows(3, range(0, 30), car))
     found = detect_crash(tracks, W, H, FPS)
     assert found is not None and found.pair == (2, 3) and 17 <= found.frame <= 22
+
+
+# Person boxes (frame, x1, y1, x2, y2 px, 1280x720) measured by `extract`: dad_000487 mirrored (20 fps, detector rounds
+# every 5 frames), the two riders of the scooter that hits the ego at frame 97, one detected as one box over both at
+# frames 85-90; ccd_000882 (10 fps), the woman struck by the ego at frame 30.
+RIDER_BOTH = [(60, 32, 367, 91, 581), (65, 24, 334, 173, 678), (70, 65, 329, 205, 683), (75, 79, 329, 232, 691)]
+RIDER_BOTH += [(80, 101, 324, 265, 693), (85, 38, 284, 332, 700), (90, 105, 279, 400, 716), (95, 65, 313, 241, 682)]
+RIDER_BACK = [(60, 263, 408, 314, 561), (65, 166, 403, 235, 588), (70, 89, 396, 171, 613), (75, 2, 303, 119, 648)]
+RIDER_BACK += [(80, 0, 291, 133, 672), (85, 54, 280, 198, 694), (90, 136, 270, 293, 718), (95, 96, 278, 235, 678)]
+STRUCK = [(22, 420, 292, 482, 451), (23, 424, 290, 487, 452), (24, 405, 291, 505, 503), (25, 409, 289, 518, 522)]
+STRUCK += [(26, 419, 280, 535, 570), (27, 429, 269, 557, 588), (28, 376, 241, 559, 627), (29, 364, 230, 566, 655)]
+STRUCK += [(30, 217, 188, 572, 632), (31, 171, 169, 581, 648)]
+
+
+def _person_rows(tid: int, rows: list[tuple[int, int, int, int, int]]) -> pd.DataFrame:
+    cols = ["frame", "x1", "y1", "x2", "y2"]
+    return pd.DataFrame(rows, columns=cols).assign(track_id=tid, category="pedestrian", state="detected")
+
+
+def test_a_squat_box_over_two_riders_is_not_a_pedestrian_knocked_over():
+    """A person box turning squat (height/width 2.2 -> 1.4) because the detector drew one box over the two riders of a
+    scooter (the other rider's own track inside it, at its distance) is not a pedestrian struck off their feet:
+    dad_000487 mirrored had its crash put there, 0.6 s before the contact. The struck woman of ccd_000882, whose box
+    turns squat over no one, still is, at the contact frame."""
+    both, back = _person_rows(15, RIDER_BOTH), _person_rows(18, RIDER_BACK)
+    people = pd.concat([both, back], ignore_index=True)
+    g = both.set_index("frame")
+    assert not ego_scores(g, 1280, 720, 20.0, {}, people=people)["knocked_over"].any()
+    alone = ego_scores(g, 1280, 720, 20.0, {})["knocked_over"]  # without the other rider's track: read as a fall
+    assert list(alone[alone].index) == [85]
+    woman = _person_rows(6, STRUCK)
+    fell = ego_scores(woman.set_index("frame"), 1280, 720, 10.0, {}, people=woman)["knocked_over"]
+    assert list(fell[fell].index) == [30]
 
 
 def test_a_box_that_only_widens_is_not_closing_in():

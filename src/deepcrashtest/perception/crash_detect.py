@@ -156,9 +156,10 @@ def crash_candidates(
     scene = scene_boxes(tracks)
     jolt = jolt_score(*motion, fps) if motion is not None else {}
     lo, hi = frames if frames is not None else (-(10**9), 10**9)
+    people = tracks[tracks["category"] == "pedestrian"] if "category" in tracks.columns else None
     cands: list[Candidate] = []
     for tid, g in per.items():
-        s = ego_scores(g, width, height, fps, jolt, clip_end)
+        s = ego_scores(g, width, height, fps, jolt, clip_end, people)
         s = s[(s.index >= lo) & (s.index <= hi)]
         if len(s):
             score, frame, ev = ego_best(s, fps)
