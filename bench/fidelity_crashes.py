@@ -195,6 +195,7 @@ def plausibility_line(rows: list[dict[str, Any]]) -> str:
     steps, over = sum(x["steps"] for x in p), sum(x["over_turning"] for x in p)
     moving, sliding = sum(x["moving"] for x in p), sum(x["sliding"] for x in p)
     traction = sum(x.get("over_traction", 0) for x in p)
+    unseen, unseen_over = sum(x.get("unseen_steps", 0) for x in p), sum(x.get("unseen_over_turning", 0) for x in p)
     flipped = sum(len(x["vehicles_with_half_turns"]) for x in p)
     through = [len(x["overlapping_pairs"]) for x in p if "overlapping_pairs" in x]
     return (
@@ -202,7 +203,8 @@ def plausibility_line(rows: list[dict[str, Any]]) -> str:
         f"steps turning beyond the steering limit {over}/{steps} ({100 * over / max(steps, 1):.1f} %); "
         f"steps beyond the vehicle's traction {traction}/{steps} ({100 * traction / max(steps, 1):.1f} %); "
         f"moving samples sliding > {SLIDE_MAX_DEG:g} deg off their motion {sliding}/{moving} "
-        f"({100 * sliding / max(moving, 1):.1f} %)"
+        f"({100 * sliding / max(moving, 1):.1f} %); unseen steps (lead-in, extrapolation) turning beyond the "
+        f"steering limit {unseen_over}/{unseen} ({100 * unseen_over / max(unseen, 1):.1f} %)"
         + (
             f"; pairs of road users passing through each other (>= {OVERLAP_MIN_S:g} s) {sum(through)} in "
             f"{sum(1 for n in through if n)} of {len(through)} clips"

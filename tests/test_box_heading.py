@@ -11,7 +11,7 @@ import pytest
 from deepcrashtest.datasets.kitti.files import KittiSequence, read_labels
 from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
 from deepcrashtest.geometry.box_heading import fit_box_headings, hull_boxes, span_iou
-from deepcrashtest.scenario import Scenario, Trajectory, Vehicle
+from deepcrashtest.scenario import Scenario, Trajectory, Vehicle, kinematics
 from deepcrashtest.trajectory.agentheading import _path_heading_within, with_observed_yaw
 from deepcrashtest.trajectory.pipeline import process_scenario
 
@@ -156,6 +156,31 @@ def test_processed_heading_never_flips_half_round():
     assert np.degrees(np.abs(np.diff(yaw))).max() < 10.0
     assert np.allclose(yaw[seen], 0.1)  # the box's heading where the video saw it
     assert yaw[-1] == pytest.approx(motion[-1])  # the path's direction, not its reverse
+
+
+def test_a_car_turns_from_its_box_to_its_lead_in_no_faster_than_it_can_steer():
+    """A car seen from 1 s on whose boxes face 73 deg off the direction of its lead-in (the step-back path before the
+    video, along a noisy monocular start: ccd_001143's car 2 at 3.3 m/s): before the video its heading turns towards
+    the lead-in's direction no faster than the car can at full lock for the distance it drives (``tan(max_steer) /
+    wheelbase`` rad per metre), where a hand-over over a fixed 0.5 s spun it at 2.5 rad/s; where the video sees it,
+    its box's heading."""
+    t = np.arange(0.0, 3.0, 0.05)
+    seen = t >= 1.0
+    speed = np.full(len(t), 3.3)
+    motion = np.where(seen, math.radians(170.0), math.radians(243.0))  # the path's direction (rad)
+    x = np.cumsum(speed * np.cos(motion)) * 0.05
+    y = np.cumsum(speed * np.sin(motion)) * 0.05
+    final = Vehicle(id=1, trajectory=Trajectory.from_arrays(t, x, y, motion, speed))
+    box = np.full(int(seen.sum()), math.radians(170.0))
+    raw = Vehicle(id=1, trajectory=Trajectory.from_arrays(t[seen], x[seen], y[seen], box, speed[seen]))
+    yaw = np.asarray(with_observed_yaw(final, raw.trajectory.arrays(), 0.0).trajectory.yaw)
+    per_m = math.tan(kinematics("car").max_steer_rad) / (kinematics("car").wheelbase_fraction * final.length)
+    assert np.abs(np.diff(yaw)).max() <= per_m * 3.3 * 0.05 + 1e-9  # ~2.4 deg per sample, 0.83 m
+    assert np.allclose(yaw[seen], math.radians(170.0))
+    assert 0.0 < yaw[0] - math.radians(170.0) <= math.radians(73.0)  # on its way to the lead-in's direction
+    walker = final.model_copy(update={"category": "pedestrian"})
+    spun = np.asarray(with_observed_yaw(walker, raw.trajectory.arrays(), 0.0).trajectory.yaw)
+    assert spun[0] == pytest.approx(math.radians(243.0))  # a pedestrian turns on the spot: the plain hand-over
 
 
 # ccd_000031 re-encoded letterboxed, stage 2 on main 120c595: agent 1 (a car crossing at 4.4 m/s, slowing to 1 m/s)

@@ -50,6 +50,9 @@ def test_report_lists_the_vehicles_that_do_not_move_as_vehicles(kitti_root):
 
     truth = process_scenario(scenario_from_kitti(kitti_root, 11))
     assert "Every vehicle moves as a vehicle can" in plausibility_section(truth).body
+    p = plausibility(truth)  # stage 2's lead-ins and extrapolations (the samples the labels did not see) turn as cars
+    assert p["unseen_steps"] > p["steps"] and p["unseen_over_turning"] == 0  # measured 15,181 and 0
+    assert plausibility(_turned(truth, math.pi, 0.0))["unseen_over_turning"] > 0.5 * p["unseen_steps"]
     body = plausibility_section(_turned(truth, math.pi, 0.0)).body
     turned = [a for a in truth.agents if a.category != "pedestrian" and len(a.trajectory.t) >= 3]
     assert body.count("<tr><td>") == len(turned)

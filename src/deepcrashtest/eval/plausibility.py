@@ -39,7 +39,16 @@ OVERLAP_STEP_S = 0.05
 
 
 #: The per-vehicle counts (:func:`vehicle_plausibility`) a scenario's are summed over.
-COUNTS = ("steps", "half_turns", "over_turning", "over_traction", "moving", "sliding")
+COUNTS = (
+    "steps",
+    "half_turns",
+    "over_turning",
+    "over_traction",
+    "moving",
+    "sliding",
+    "unseen_steps",
+    "unseen_over_turning",
+)
 
 
 def vehicle_plausibility(vehicle: Vehicle) -> dict[str, int]:
@@ -47,11 +56,13 @@ def vehicle_plausibility(vehicle: Vehicle) -> dict[str, int]:
     and ``over_turning`` among them (heading change above ``dt (v + TURN_SPEED_MARGIN_MPS) tan(max_steer) /
     wheelbase`` at the pair's mean speed, half turns included), ``over_traction`` among them (the speed changes
     faster than ``max_accel_mps2`` up or ``max_brake_mps2`` down), ``moving`` samples (speed of the path >=
-    ``SLIDE_MIN_SPEED_MPS``) and ``sliding`` among them."""
+    ``SLIDE_MIN_SPEED_MPS``) and ``sliding`` among them; and ``unseen_steps`` (pairs with a sample the video did not
+    see: the lead-in before the video, the extrapolation after it) with ``unseen_over_turning`` among them, the
+    same turning limit (a replay and an export show those samples too)."""
     a = vehicle.trajectory.arrays()
     t, yaw = a["t"], np.unwrap(a["yaw"])
     seen = np.ones(len(t), bool) if vehicle.trajectory.observed is None else np.asarray(vehicle.trajectory.observed)
-    out = {"steps": 0, "half_turns": 0, "over_turning": 0, "over_traction": 0, "moving": 0, "sliding": 0}
+    out = dict.fromkeys(COUNTS, 0)
     if len(t) < 3:
         return out
     kin = kinematics(vehicle.category)
@@ -68,6 +79,9 @@ def vehicle_plausibility(vehicle: Vehicle) -> dict[str, int]:
     out["over_traction"] = int((pair & beyond_traction(t, a["speed"], kin)).sum())
     out["moving"] = int(moving.sum())
     out["sliding"] = int((moving & (off > SLIDE_MAX_RAD)).sum())
+    unseen = ~(seen[1:] & seen[:-1]) & (np.diff(t) > 0)
+    out["unseen_steps"] = int(unseen.sum())
+    out["unseen_over_turning"] = int((unseen & (turn > limit)).sum())
     return out
 
 
@@ -109,11 +123,15 @@ def plausibility(scenario: Scenario, rows: list[tuple[Vehicle, dict[str, int]]] 
         "over_turning_share": round(total["over_turning"] / total["steps"], 4) if total["steps"] else None,
         "over_traction_share": round(total["over_traction"] / total["steps"], 4) if total["steps"] else None,
         "sliding_share": round(total["sliding"] / total["moving"], 4) if total["moving"] else None,
+        "unseen_over_turning_share": (
+            round(total["unseen_over_turning"] / total["unseen_steps"], 4) if total["unseen_steps"] else None
+        ),
         "rule": (
-            f"vehicles' observed samples; over turning: heading change > dt (v + {TURN_SPEED_MARGIN_MPS:g} m/s) "
-            f"tan(max steer) / wheelbase; over traction: speed change between two samples faster than the "
-            f"vehicle's acceleration or braking; sliding: speed >= {SLIDE_MIN_SPEED_MPS:g} m/s and heading > "
-            f"{SLIDE_MAX_DEG:g} deg off the direction of motion (or its reverse); overlapping pairs: road users' "
-            f"boxes overlapping >= {OVERLAP_MIN_S:g} s before the crash (the crash pair left out)"
+            f"vehicles' observed samples (unseen over turning: their other samples); over turning: heading "
+            f"change > dt (v + {TURN_SPEED_MARGIN_MPS:g} m/s) tan(max steer) / wheelbase; over traction: speed "
+            "change between two samples faster than the vehicle's acceleration or braking; sliding: speed >= "
+            f"{SLIDE_MIN_SPEED_MPS:g} m/s and heading > {SLIDE_MAX_DEG:g} deg off the direction of motion (or its "
+            f"reverse); overlapping pairs: road users' boxes overlapping >= {OVERLAP_MIN_S:g} s before the crash "
+            "(the crash pair left out)"
         ),
     }

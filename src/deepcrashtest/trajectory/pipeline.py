@@ -59,7 +59,12 @@ from deepcrashtest.scenario import (
     format_validation_error,
     kinematics,
 )
-from deepcrashtest.trajectory.agentheading import holding_yaws_after, replayable_yaws, with_observed_yaw
+from deepcrashtest.trajectory.agentheading import (
+    holding_yaws_after,
+    replayable_yaws,
+    turned_no_closer,
+    with_observed_yaw,
+)
 from deepcrashtest.trajectory.collision import MOVING_MPS, first_contact, headings, vehicle_box
 from deepcrashtest.trajectory.contact import ContactParams
 from deepcrashtest.trajectory.crash import CrashOutcome, earlier_touch, resolve_crash
@@ -144,7 +149,7 @@ def _process_scenario(raw: Scenario, seed: int, params: Stage2Params | None) -> 
     crash = _crash_phase(run, ego, agents, t_max)
     vehicles = _final_phase(run, ego, crash, t_max)
     vehicles[0] = _with_measured_yaw(vehicles[0], run, t_max)
-    observed = [vehicles[0], *_with_observed_yaws(vehicles[1:], crash.agents, t_max - run.t0, run.p.observed_pad_s)]
+    observed = [vehicles[0], *_with_observed_yaws(vehicles, crash.agents, t_max - run.t0, run.p.observed_pad_s)]
     vehicles = replayable_yaws(observed, vehicles, crash.collision, run.warnings)
     vehicles = holding_yaws_after(vehicles, crash.collision)
     collision = _collision_record(crash, vehicles)
@@ -500,12 +505,23 @@ def _with_measured_yaw(ego: Vehicle, run: _Run, t_max: float) -> Vehicle:
 
 
 def _with_observed_yaws(vehicles: list[Vehicle], dense: list[Dense], t_shift: float, pad_s: float) -> list[Vehicle]:
-    """Moving agents keep the raw heading (fitted to their boxes) where the video saw them (their seen part,
-    ``pad_s``: :func:`~deepcrashtest.trajectory.dense.seen_part`;
-    :func:`~deepcrashtest.trajectory.agentheading.with_observed_yaw`); parked ones already face it."""
+    """The agents of ``vehicles`` (the ego first, left out of the result): moving ones keep the raw heading (fitted
+    to their boxes) where the video saw them (their seen part, ``pad_s``: :func:`~deepcrashtest.trajectory.dense.
+    seen_part`; :func:`~deepcrashtest.trajectory.agentheading.with_observed_yaw`), turning from it no faster than
+    they can steer where it did not, unless that brings them nearer another road user
+    (:func:`~deepcrashtest.trajectory.agentheading.turned_no_closer`); parked ones already face it."""
     static = {d.id for d in dense if d.static}
     raw = {d.id: seen_part(d.vehicle, pad_s) for d in dense}
-    return [v if v.id in static or v.id not in raw else with_observed_yaw(v, raw[v.id], t_shift) for v in vehicles]
+    clearance = ContactParams().clearance_m
+    out = []
+    for v in vehicles[1:]:
+        if v.id in static or v.id not in raw:
+            out.append(v)
+            continue
+        turned = with_observed_yaw(v, raw[v.id], t_shift)
+        plain = with_observed_yaw(v, raw[v.id], t_shift, turn_limit=False)
+        out.append(turned_no_closer(turned, plain, vehicles, clearance))
+    return out
 
 
 def _collision_record(crash: CrashOutcome, vehicles: list[Vehicle]) -> Collision | None:

@@ -627,7 +627,9 @@ def plausibility_section(sc: Scenario) -> Section:
         f"samples, {summary['over_turning']} of {summary['steps']} steps turning beyond the steering limit, "
         f"{summary['over_traction']} changing speed faster than the vehicle's acceleration or braking, "
         f"{summary['sliding']} of {summary['moving']} moving samples sliding > "
-        f"{pl.SLIDE_MAX_DEG:g} deg off their direction of motion."
+        f"{pl.SLIDE_MAX_DEG:g} deg off their direction of motion; where the video did not see them (lead-in, "
+        f"extrapolation), {summary['unseen_over_turning']} of {summary['unseen_steps']} steps turning beyond the "
+        "steering limit."
     )
     if summary["overlapping_pairs"]:
         line += " Passing through each other before the crash: " + ", ".join(
