@@ -31,7 +31,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
 from deepcrashtest.datasets.crash_labels import CrashLabel, load_crash_labels  # noqa: E402
-from deepcrashtest.eval.plausibility import OVERLAP_MIN_S, SLIDE_MAX_DEG  # noqa: E402
+from deepcrashtest.eval.plausibility import OVERLAP_MIN_S, SLIDE_MAX_DEG, SPIN_DEG  # noqa: E402
 from deepcrashtest.pipeline.extract import run_extract  # noqa: E402
 from deepcrashtest.pipeline.fidelity import run_fidelity  # noqa: E402
 
@@ -197,6 +197,7 @@ def plausibility_line(rows: list[dict[str, Any]]) -> str:
     traction = sum(x.get("over_traction", 0) for x in p)
     unseen, unseen_over = sum(x.get("unseen_steps", 0) for x in p), sum(x.get("unseen_over_turning", 0) for x in p)
     flipped = sum(len(x["vehicles_with_half_turns"]) for x in p)
+    spinning = sum(len(x.get("vehicles_spinning", [])) for x in p)
     through = [len(x["overlapping_pairs"]) for x in p if "overlapping_pairs" in x]
     return (
         f"vehicles turned half round between two samples: {flipped} of {sum(x['vehicles'] for x in p)}; "
@@ -204,7 +205,8 @@ def plausibility_line(rows: list[dict[str, Any]]) -> str:
         f"steps beyond the vehicle's traction {traction}/{steps} ({100 * traction / max(steps, 1):.1f} %); "
         f"moving samples sliding > {SLIDE_MAX_DEG:g} deg off their motion {sliding}/{moving} "
         f"({100 * sliding / max(moving, 1):.1f} %); unseen steps (lead-in, extrapolation) turning beyond the "
-        f"steering limit {unseen_over}/{unseen} ({100 * unseen_over / max(unseen, 1):.1f} %)"
+        f"steering limit {unseen_over}/{unseen} ({100 * unseen_over / max(unseen, 1):.1f} %); vehicles spinning (a "
+        f"heading > {SPIN_DEG:g} deg beyond the steering limit over the distance driven) {spinning}"
         + (
             f"; pairs of road users passing through each other (>= {OVERLAP_MIN_S:g} s) {sum(through)} in "
             f"{sum(1 for n in through if n)} of {len(through)} clips"

@@ -213,5 +213,28 @@ def test_a_box_across_its_path_turns_to_the_path_not_through_its_reverse():
     assert np.degrees(np.abs(np.diff(yaw))).max() < 30.0
 
 
+def test_a_car_facing_its_path_at_a_contact_turns_to_it_over_the_unseen_gap():
+    """A crash car seen until 1.0 s facing its boxes, 75 deg off its path, that must face along its path from the
+    contact at 2.0 s (``replayable_yaws``): over the unseen second before the contact it turns as evenly as the
+    distance it drives allows, not within the last ``BLEND_S`` (ccd_000053's crash car: 75 deg in the 0.4 s before
+    the contact); where the video saw it, its boxes' heading; from the contact, the path's."""
+    t = np.round(np.arange(0.0, 2.5, 0.05), 3)
+    seen = t <= 1.0
+    speed = np.full(len(t), 3.6)
+    box, along = math.radians(290.0), math.radians(215.0)  # the box's heading, the path's (its reverse: 35 deg)
+    xy = np.cumsum(np.column_stack([np.cos(along), np.sin(along)]) * speed[:, None] * 0.05, axis=0) * np.ones((1, 2))
+    observed = Vehicle(id=1, trajectory=Trajectory.from_arrays(t, xy[:, 0], xy[:, 1], np.full(len(t), box), speed))
+    observed = observed.model_copy(
+        update={"trajectory": observed.trajectory.model_copy(update={"observed": [bool(s) for s in seen]})}
+    )
+    path = Vehicle(id=1, trajectory=Trajectory.from_arrays(t, xy[:, 0], xy[:, 1], np.full(len(t), along), speed))
+    yaw = np.asarray(_path_heading_within(observed, path, [(2.0, math.inf)]).trajectory.yaw)
+    assert np.allclose(yaw[seen], box)
+    assert np.allclose(_wrapped(yaw[t >= 2.0] - along), 0.0, atol=1e-9)
+    per_step = np.degrees(np.abs(np.diff(yaw)))
+    assert per_step.max() < 1.5 * 75.0 / 20  # 20 unseen steps: evenly ~3.8 deg each; within BLEND_S it took 7.5
+    assert per_step[(t[1:] > 1.0) & (t[1:] <= 1.5)].sum() > 20.0  # it starts turning where the video lost it
+
+
 def _wrapped(a: np.ndarray) -> np.ndarray:
     return (a + math.pi) % (2.0 * math.pi) - math.pi

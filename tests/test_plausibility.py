@@ -36,6 +36,7 @@ def test_labelled_kitti_vehicles_move_as_vehicles(kitti_root):
     assert flipped["half_turns"] >= 0.9 * flipped["steps"]
     turned = {a.id for a in truth.agents if a.category != "pedestrian" and len(a.trajectory.t) >= 3}
     assert set(flipped["vehicles_with_half_turns"]) == turned  # every agent turned, the ego as it drove
+    assert p["vehicles_spinning"] == [] and len(set(flipped["vehicles_spinning"]) & turned) >= 0.9 * len(turned)
     sliding = plausibility(_turned(truth, 0.0, math.radians(40.0)))
     agents_moving = sliding["moving"] - vehicle_plausibility(truth.ego)["moving"]
     assert sliding["sliding"] > 0.9 * agents_moving

@@ -85,6 +85,26 @@ def vehicle_plausibility(vehicle: Vehicle) -> dict[str, int]:
     return out
 
 
+#: A vehicle whose heading turns more than this (deg) beyond what its steering allows for the distance it drives,
+#: over any stretch of its samples (seen or not), spins (:func:`excess_turn_deg`).
+SPIN_DEG = 20.0
+
+
+def excess_turn_deg(vehicle: Vehicle) -> float:
+    """The most a vehicle's heading turns (deg) beyond ``tan(max_steer) / wheelbase`` x the distance it drives, over
+    any stretch between two of its samples: 0 for a car that turns as it can, ~70 for a box heading handed over to a
+    path's direction 70 deg away within a few decimetres. 0 for a road user without a vehicle's kinematics."""
+    kin = kinematics(vehicle.category)
+    a = vehicle.trajectory.arrays()
+    if kin.holonomic or len(a["t"]) < 2:
+        return 0.0
+    per_m = math.tan(kin.max_steer_rad) / (kin.wheelbase_fraction * vehicle.length)
+    yaw = np.unwrap(a["yaw"])
+    dist = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(a["x"]), np.diff(a["y"])))])
+    excess = np.abs(yaw[None, :] - yaw[:, None]) - per_m * np.abs(dist[None, :] - dist[:, None])
+    return math.degrees(max(0.0, float(excess.max())))
+
+
 def per_vehicle(scenario: Scenario) -> list[tuple[Vehicle, dict[str, int]]]:
     """:func:`vehicle_plausibility` of each of the scenario's vehicles (the ego and the agents that are not
     pedestrians), in the scenario's order."""
@@ -120,6 +140,7 @@ def plausibility(scenario: Scenario, rows: list[tuple[Vehicle, dict[str, int]]] 
         "overlapping_pairs": [list(p) for p in overlapping_pairs(scenario)],
         "vehicles": len(rows),
         "vehicles_with_half_turns": sorted(v.id for v, r in rows if r["half_turns"]),
+        "vehicles_spinning": sorted(v.id for v, _ in rows if excess_turn_deg(v) > SPIN_DEG),
         "over_turning_share": round(total["over_turning"] / total["steps"], 4) if total["steps"] else None,
         "over_traction_share": round(total["over_traction"] / total["steps"], 4) if total["steps"] else None,
         "sliding_share": round(total["sliding"] / total["moving"], 4) if total["moving"] else None,
@@ -131,7 +152,8 @@ def plausibility(scenario: Scenario, rows: list[tuple[Vehicle, dict[str, int]]] 
             f"change > dt (v + {TURN_SPEED_MARGIN_MPS:g} m/s) tan(max steer) / wheelbase; over traction: speed "
             "change between two samples faster than the vehicle's acceleration or braking; sliding: speed >= "
             f"{SLIDE_MIN_SPEED_MPS:g} m/s and heading > {SLIDE_MAX_DEG:g} deg off the direction of motion (or its "
-            f"reverse); overlapping pairs: road users' boxes overlapping >= {OVERLAP_MIN_S:g} s before the crash "
-            "(the crash pair left out)"
+            f"reverse); spinning: a heading turning > {SPIN_DEG:g} deg beyond the steering limit over the distance "
+            f"driven, anywhere on the track; overlapping pairs: road users' boxes overlapping >= {OVERLAP_MIN_S:g} s "
+            "before the crash (the crash pair left out)"
         ),
     }
