@@ -100,11 +100,12 @@ def within_turn_rate(yaw: np.ndarray, t: np.ndarray, speed: np.ndarray, kept: np
 
 
 def turned_no_closer(turned: Vehicle, plain: Vehicle, others: list[Vehicle], clearance_m: float) -> Vehicle:
-    """``turned`` (:func:`with_observed_yaw` with the turn limit), or ``plain`` (the same without it) where the limited
-    heading brings its box nearer than ``clearance_m`` (m) to a road user of ``others`` at a moment the two differ,
-    and nearer than ``plain``'s: stage 2 keeps bystanders that far apart, and trims a lead-in to start that far from
-    everyone, with the path's direction (ccd_000882: a parked car's lead-in held at its boxes' heading started 1 cm
-    into its neighbour, which the replay ignores only until they part)."""
+    """``turned`` (a vehicle whose heading turns within its steering limit where the video did not see it:
+    :func:`with_observed_yaw`, :func:`_path_heading_within`), or ``plain`` (the same hand-over over a fixed time)
+    where the limited heading brings its box nearer than ``clearance_m`` (m) to a road user of ``others`` at a
+    moment the two differ, and nearer than ``plain``'s: stage 2 keeps bystanders that far apart, and trims a lead-in
+    to start that far from everyone, with the path's direction (ccd_000882: a parked car's lead-in held at its
+    boxes' heading started 1 cm into its neighbour, which the replay ignores only until they part)."""
     ta, pa = turned.trajectory.arrays(), plain.trajectory.arrays()
     differ = np.abs(ta["yaw"] - pa["yaw"]) > 1e-9
     if not differ.any():
