@@ -93,8 +93,9 @@ def test_mono_path_real_numbers_kitti_camera(kitti_root):
         assert row["position_error"][b]["n"] > 50
         assert row["position_error"][b]["median_pct"] <= goal
     assert {"MOTA", "MOTP", "IDSW", "FP", "FN", "HOTA"} <= set(row)
-    # the matched cars' headings (box-fitted, stage 1) against the labels' (modulo a half turn): measured 6.9 deg
-    # median, 17 % over 20 deg; facing the ego's way where nothing tells (parked): 10 % the other way round
+    # the matched cars' headings (box-fitted, stage 1) against the labels' (modulo a half turn): measured 5.5 deg
+    # median, 2 % over 20 deg (6.9 deg, 17 % before round boxfit28); facing the ego's way where nothing tells
+    # (parked): 10 % the other way round
     heading = row["heading_error"]
     assert heading["n"] > 200 and heading["median_deg"] < 9.0 and heading["share_over_20_deg"] < 0.25
 
@@ -746,3 +747,15 @@ def test_a_wide_angle_lens_given_with_the_camera_is_taken_out_of_the_boxes_befor
                            DEFAULT_MONO)[0]  # fmt: skip
     assert ignored < pinhole - 20
     assert with_lens > pinhole - 4
+
+
+def test_box_headings_of_a_street_of_parked_cars_follow_the_labels(kitti_root):
+    """KITTI 0001 (training; a street lined with parked cars seen obliquely, cars driving through): the monocular
+    path's box-fitted headings of the matched cars come within a few degrees of the labels'. A box's span IoU
+    counts only as far as the box fits at all (a Gaussian in its shortfall, its own best fit the noise): before
+    round boxfit28 a reward linear in the IoU let a box a few per cent narrower turn a car 30 deg off the road
+    and off its direction of motion (median 20.1 deg, 50 % over 20 deg)."""
+    heading = evaluate_mono(kitti_root, [1])["sequences"]["0001"]["heading_error"]
+    assert heading["n"] > 1000
+    assert heading["median_deg"] < 10.0  # measured 6.6
+    assert heading["share_over_20_deg"] < 0.3  # measured 0.18
