@@ -372,12 +372,12 @@ def _final_phase(run: _Run, ego: Dense, crash: CrashOutcome, t_max: float) -> li
     c = crash.collision
     pins = {i: c.time_s for i in c.participants} if c is not None else {}
     try:
-        vehicles = [_traction_fit(ego, run, None, _Holds(pins.get(ego.id), t_max))]
+        vehicles = [_traction_fit(ego, run, None, _Holds(pins.get(ego.id), t_max - LEAD_JUNCTION_S))]
     except UserError:  # a slow, noisy ego-motion track whose every fit runs briefly backwards
-        vehicles = [_forward_only_ego(ego, run, _Holds(pins.get(ego.id), t_max))]
+        vehicles = [_forward_only_ego(ego, run, _Holds(pins.get(ego.id), t_max - LEAD_JUNCTION_S))]
     for d in crash.agents:
         try:
-            vehicles.append(_traction_fit(d, run, d.cls, _Holds(pins.get(d.id), t_max)))
+            vehicles.append(_traction_fit(d, run, d.cls, _Holds(pins.get(d.id), t_max - LEAD_JUNCTION_S)))
         except (UserError, ValidationError) as exc:  # a guard: an invalid agent is dropped, never an internal error
             bad = f"agent {d.id}: {format_validation_error(exc)}" if isinstance(exc, ValidationError) else exc
             run.warnings.append(f"{bad}; dropped")
@@ -395,6 +395,13 @@ its final spline keeps within the limits (the spline's speed rounds a profile's 
 more there: KITTI 0002's car 16, 3.55 -> 4.35 m/s^2). The first is the crash correction's ``kin_margin``; the
 steps of 0.05 move a path less than steps of 0.15 did (dad_000487's ego: 0.09 m at 0.8, 0.39 m at 0.7; chosen
 on the fidelity clips)."""
+
+
+LEAD_JUNCTION_S = 0.5
+"""The last seconds of a step-back lead-in the traction fit may re-time with the video's first ones: the lead-in
+ramps from rest to the first observed speed (a median over 0.5 s), and the final spline's start can run faster
+or slower than that, a jump where the two meet (ccd_000053 filmed off a screen: 4.6 -> 5.4 -> 5.8 m/s over 0.2 s,
+5.9 m/s^2 beyond the car's 4)."""
 
 
 MAX_RETIME_M = 0.5
