@@ -372,12 +372,12 @@ def _final_phase(run: _Run, ego: Dense, crash: CrashOutcome, t_max: float) -> li
     c = crash.collision
     pins = {i: c.time_s for i in c.participants} if c is not None else {}
     try:
-        vehicles = [_traction_fit(ego, run, None, _Holds(pins.get(ego.id), t_max - LEAD_JUNCTION_S))]
+        vehicles = [_traction_fit(ego, run, None, _Holds(pins.get(ego.id), t_max, run.fps))]
     except UserError:  # a slow, noisy ego-motion track whose every fit runs briefly backwards
-        vehicles = [_forward_only_ego(ego, run, _Holds(pins.get(ego.id), t_max - LEAD_JUNCTION_S))]
+        vehicles = [_forward_only_ego(ego, run, _Holds(pins.get(ego.id), t_max, run.fps))]
     for d in crash.agents:
         try:
-            vehicles.append(_traction_fit(d, run, d.cls, _Holds(pins.get(d.id), t_max - LEAD_JUNCTION_S)))
+            vehicles.append(_traction_fit(d, run, d.cls, _Holds(pins.get(d.id), t_max, run.fps)))
         except (UserError, ValidationError) as exc:  # a guard: an invalid agent is dropped, never an internal error
             bad = f"agent {d.id}: {format_validation_error(exc)}" if isinstance(exc, ValidationError) else exc
             run.warnings.append(f"{bad}; dropped")
@@ -412,11 +412,24 @@ MAX_RETIME_M = 0.5
 @dataclass(frozen=True)
 class _Holds:
     """What the traction fit leaves as it is: samples from ``pin_s`` (s) on (a crash pair's contact; None: no
-    pin) and up to ``lead_s`` (s; the step-back lead-in from rest, built within the limits at
-    ``stepback_accel_mps2``: its final spline's rounding where the lead-in meets the video is not re-timed)."""
+    pin) and up to ``t_max`` (s; the step-back lead-in from rest, built within the limits at
+    ``stepback_accel_mps2``): the lead-in's own ramp is not re-timed, but where the video's first sample asks
+    more than the limits of the one before it (``fps``: the frame rate, 1/s), the lead-in's last
+    ``LEAD_JUNCTION_S`` are re-timed with the video's start."""
 
     pin_s: float | None
-    lead_s: float
+    t_max: float
+    fps: float
+
+    @property
+    def lead_s(self) -> float:
+        """Samples up to this time (s) are held."""
+        return self.t_max - LEAD_JUNCTION_S
+
+    @property
+    def check_s(self) -> float:
+        """Speed changes after this time (s) are checked against the limits: from the lead-in's last frame on."""
+        return self.t_max - 1.0 / self.fps - 1e-6
 
 
 def _exceeding_s(v: Vehicle, kin: Kinematics, lead_s: float) -> np.ndarray:
@@ -433,7 +446,7 @@ def _traction_fit(d: Dense, run: _Run, cls: str | None, holds: _Holds, allow_rev
     ``MAX_RETIME_M`` the first fit is kept. Warns either way."""
     v = _final_vehicle(d, run.p, cls, allow_reverse)
     kin = kinematics(d.vehicle.category)
-    around = np.zeros(0) if d.static else _exceeding_s(v, kin, holds.lead_s)
+    around = np.zeros(0) if d.static else _exceeding_s(v, kin, holds.check_s)
     if not len(around):
         return v
     xy0, label = d.xy, "ego" if cls is None else f"agent {d.id}"
@@ -446,7 +459,7 @@ def _traction_fit(d: Dense, run: _Run, cls: str | None, holds: _Holds, allow_rev
         moved = float(np.hypot(*(d.xy - xy0).T).max())
         if moved > MAX_RETIME_M:  # smaller margins move it further
             break
-        if not len(_exceeding_s(fit, kin, holds.lead_s)):
+        if not len(_exceeding_s(fit, kin, holds.check_s)):
             run.warnings.append(
                 f"{label}: its processed path asked for more acceleration or braking than a {d.vehicle.category} "
                 f"has; re-timed along itself within {margin:.2f} x its limits (moved up to {moved:.2f} m)"
