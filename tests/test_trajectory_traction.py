@@ -140,3 +140,24 @@ def test_an_impacts_stop_is_not_retimed_into_the_approach():
     assert along_accel(t, impact)[t[1:-1] < 4.95].min() >= -7.6 - 0.02
     rise = np.concatenate([[0.0], np.cumsum(np.where(t < 5.0, 10.0, 13.0)[:-1] * 0.1)])  # 10 -> 13 m/s at 5 s
     assert along_accel(t, bounded_distances(t, rise, 3.4, 7.6, impact_s=5.0)).max() <= 3.4 + 0.02
+
+
+def test_where_the_lead_in_meets_the_video_the_ego_keeps_within_its_traction():
+    """An ego-motion whose first readings run fast (a held scale jumping, then settling: 4.5 m/s with a 3 m/s bump
+    over the first 0.5 s, as ccd_000053 filmed off a screen read 5.4 -> 5.8 -> 4.3 m/s): the step-back lead-in ramps
+    from rest to the median of the first 0.5 s' speeds and the final spline's start runs faster; where they met the
+    ego asked 5.5 m/s^2 (the car's limit 4), which the traction fit left, holding the lead-in. Now the lead-in's last
+    ``LEAD_JUNCTION_S`` are re-timed with the video's start; the lead-in's own ramp stays (its speed at t_max)."""
+    from deepcrashtest.trajectory.pipeline import process_scenario
+    from trajectory_cases import raw_scenario, track
+
+    fine = np.linspace(0.0, 10.0, 10001)
+    speed = 4.5 + 3.0 * np.exp(-(((fine - 0.3) / 0.2) ** 2))
+    along = np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(fine))])
+    ego = track(lambda t: (np.interp(t, fine, along), np.zeros_like(t)), 0, 60)
+    sc = process_scenario(raw_scenario([], ego=ego))
+    e = sc.ego.trajectory.arrays()
+    accel = np.gradient(e["speed"], e["t"])
+    assert accel.max() <= VEHICLE_KINEMATICS.max_accel_mps2  # before: 5.5 m/s^2 at the video's first sample
+    lead = e["t"] < sc.scenario_time(0.0) - 0.5
+    assert np.all(np.abs(np.diff(accel[lead])) < 0.5)  # the ramp from rest, untouched before its last 0.5 s
