@@ -131,9 +131,7 @@ def road_users(det: Detections) -> Detections:
     det = rider_groups(merge_riders(split_two_wheelers(det)))
     if len(det) == n_before:
         return det
-    wheels = np.flatnonzero(np.isin(det.categories, TWO_WHEELERS))
-    kept = wheels[nms(det.boxes[wheels], det.scores[wheels], 0.5, contain_threshold=0.8)]
-    return det.subset(np.sort(np.concatenate([np.setdiff1d(np.arange(len(det)), wheels), kept])))
+    return _suppressed_within(det, np.flatnonzero(np.isin(det.categories, TWO_WHEELERS)), 0.5, contain_threshold=0.8)
 
 
 def one_vehicle_per_box(det: Detections) -> Detections:
@@ -143,10 +141,16 @@ def one_vehicle_per_box(det: Detections) -> Detections:
     cars = np.flatnonzero(np.isin(cats, MOTOR_VEHICLES))
     if len(cars) < 2 or len(np.unique(cats[cars])) < 2:
         return det
-    kept = cars[nms(det.boxes[cars], det.scores[cars], SAME_VEHICLE_IOU)]
-    if len(kept) == len(cars):
+    return _suppressed_within(det, cars, SAME_VEHICLE_IOU)
+
+
+def _suppressed_within(det: Detections, which: np.ndarray, iou: float, contain_threshold: float = 1.01) -> Detections:
+    """``det`` with NMS (:func:`~deepcrashtest.perception.boxes.nms`) run among the boxes ``which`` (indices) only,
+    every other box kept; ``det`` itself when nothing is suppressed."""
+    kept = which[nms(det.boxes[which], det.scores[which], iou, contain_threshold=contain_threshold)]
+    if len(kept) == len(which):
         return det
-    return det.subset(np.sort(np.concatenate([np.setdiff1d(np.arange(len(det)), cars), kept])))
+    return det.subset(np.sort(np.concatenate([np.setdiff1d(np.arange(len(det)), which), kept])))
 
 
 def merge_riders(det: Detections) -> Detections:

@@ -432,10 +432,10 @@ class _Holds:
         return self.t_max - 1.0 / self.fps - 1e-6
 
 
-def _exceeding_s(v: Vehicle, kin: Kinematics, lead_s: float) -> np.ndarray:
-    """Times (s) of the samples after ``lead_s`` between which the vehicle's speed changes faster than ``kin``
+def _exceeding_s(v: Vehicle, kin: Kinematics, after_s: float) -> np.ndarray:
+    """Times (s) of the samples after ``after_s`` between which the vehicle's speed changes faster than ``kin``
     allows (:func:`traction.exceeding_s`)."""
-    return exceeding_s(np.asarray(v.trajectory.t), np.asarray(v.trajectory.speed), kin, lead_s)
+    return exceeding_s(np.asarray(v.trajectory.t), np.asarray(v.trajectory.speed), kin, after_s)
 
 
 def _traction_fit(d: Dense, run: _Run, cls: str | None, holds: _Holds, allow_reverse: bool = False) -> Vehicle:
