@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from conftest import need
 from deepcrashtest.errors import UserError
 from deepcrashtest.perception.crash_detect import GlobalMotion, detect_crash
 from deepcrashtest.perception.crash_ego import ego_scores
@@ -184,3 +185,20 @@ def test_cli_bad_crash_value_one_line_exit_2(tmp_path):
     )  # fmt: skip
     assert proc.returncode == 2 and "--crash" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
+
+
+def test_a_box_jumping_onto_a_truck_beside_it_is_no_ego_crash(tmp_path):
+    """KITTI's stop-and-go highway queue (78 real frames, no crash): from frame 8 the detector gives one box over
+    the green truck ahead-right and the tanker beside it, and the truck's track takes it (240 -> 480 px wide in
+    one frame, onto the picture's top and right borders). That step is the detector's box switching, not a road
+    user closing in: no crash is found (the growth counted as approach once made it an ego crash at 0.75)."""
+    from deepcrashtest.pipeline.extract import run_extract
+    from deepcrashtest.scenario import Scenario
+
+    folder = need(DATA / "kitti_raw_highway_queue" / "image_02" / "data")
+    run_extract(folder, tmp_path / "queue", fps=10.0, report=False, annotate=False, lanes=False)
+    raw = Scenario.load(tmp_path / "queue" / "scenario_raw.json")
+    tracks = pd.read_csv(tmp_path / "queue" / "tracks.csv")
+    w = (tracks["x2"] - tracks["x1"]).groupby(tracks["track_id"])
+    assert (w.apply(lambda s: float(np.log(s).diff().max())) > 0.5).any()  # a box doubled its width in one frame
+    assert raw.collision is None, raw.provenance.parameters.get("crash_detection")

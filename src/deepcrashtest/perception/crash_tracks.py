@@ -128,7 +128,9 @@ def per_track(tracks: pd.DataFrame, fps: float) -> dict[int, pd.DataFrame]:
     return out
 
 
-def box_growth(g: pd.DataFrame, fps: float, width: int | None = None, height: int | None = None) -> pd.Series:
+def box_growth(
+    g: pd.DataFrame, fps: float, width: int | None = None, height: int | None = None, jumped: np.ndarray | None = None
+) -> pd.Series:
     """d ln(box size)/dt (1/s), smoothed over :func:`smooth_frames`: 1/TTC when the track approaches.
 
     With the picture's ``width`` and ``height`` (px) a box's two sides are read apart: a road user that comes nearer
@@ -150,6 +152,8 @@ def box_growth(g: pd.DataFrame, fps: float, width: int | None = None, height: in
         cut_h, cut_v = cut_h[1:] | cut_h[:-1], cut_v[1:] | cut_v[:-1]
         uncut = np.where(np.abs(gw - gh) > ASPECT_JUMP_PER_S, np.minimum(gw, gh), 0.5 * (gw + gh))
         r = np.r_[0.0, np.where(cut_h | cut_v, 0.5 * (gw + gh), uncut)]
+    if jumped is not None:  # the box jumped into these frames (onto the border): no approach in that step
+        r = np.where(jumped, 0.0, r)
     return pd.Series(r, index=g.index).rolling(smooth_frames(fps), center=True, min_periods=1).mean()
 
 
