@@ -263,32 +263,3 @@ def test_a_pickup_reported_as_car_and_truck_is_one_road_user(yolo):
     users = road_users(yolo(_frame("dad_000550", 88)))
     vehicles = users.boxes[np.isin(users.categories, MOTOR_VEHICLES)]
     assert max(iou_matrix(b, vehicles).max() for b in label) >= 0.5  # the labelled pickup is one of them
-
-
-def test_a_detector_without_nms_gives_one_road_user_per_car(yolo):
-    """A plug-in detector that runs no NMS reports each car several times, boxes a few pixels apart, all of one
-    class: one road user per car (two cars both in view cannot have boxes that alike), the other road users kept.
-    Real YOLO boxes of dad_000550 frame 65, its cars only, each repeated 2 px off (as a detector without NMS
-    would); the rule once ran only where two vehicle classes were present, and kept every repeat here."""
-    from deepcrashtest.perception.boxes import iou_matrix
-    from deepcrashtest.perception.detections import Detections
-    from deepcrashtest.perception.roadusers import road_users
-
-    raw = yolo(_frame("dad_000550", 65))
-    cars = raw.subset(np.flatnonzero(raw.categories == "car"))
-    others = raw.subset(np.flatnonzero(~np.isin(raw.categories, ("car", "truck", "bus", "van"))))
-    assert len(cars) >= 2 and len(others) >= 1
-    shifted = cars.boxes + np.float32(2.0)
-    plugin = Detections(
-        np.concatenate([cars.boxes, shifted, others.boxes]),
-        np.concatenate([cars.scores, cars.scores - np.float32(0.01), others.scores]),
-        np.concatenate([cars.categories, cars.categories, others.categories]),
-    )
-    users = road_users(plugin)
-    kept = users.boxes[users.categories == "car"]
-    assert len(kept) == len(cars), kept
-    assert np.allclose(np.sort(kept, axis=0), np.sort(cars.boxes, axis=0))  # the better-scored copies
-    k = iou_matrix(kept, kept)
-    np.fill_diagonal(k, 0.0)
-    assert k.max(initial=0.0) < 0.8
-    assert int((users.categories != "car").sum()) >= 1  # the scooter and the rest stay
