@@ -36,6 +36,7 @@ from deepcrashtest.trajectory.contact import (
 )
 from deepcrashtest.trajectory.dense import EPS_T, Dense
 from deepcrashtest.trajectory.params import Stage2Params
+from deepcrashtest.trajectory.parked import parked_apart
 
 EGO_WEIGHT = 3.0  # the ego's path (visual odometry) is trusted more than a monocular agent track
 EGO_LATERAL_WEIGHT = 10.0
@@ -138,6 +139,9 @@ def resolve_crash(
     agents, nudges = _separate_others(ego, agents, pair, t_apart, cp, warnings)
     if nudges:
         record["bystanders"] = nudges
+    shrunk = parked_apart(agents, pair, warnings)
+    if shrunk:
+        record["parked_shortened"] = shrunk
     return CrashOutcome(collision, agents, record)
 
 
