@@ -262,10 +262,11 @@ def test_cars_parked_into_each_other_are_shortened_where_they_stand():
     """Two cars parked bumper to bumper whose centres the video puts 4.37 m apart, each 4.5 m long (the class's
     length, its least measured dimension): 0.13 m into each other all clip long (dad_000478). They stay where they
     were placed and are shortened just enough to stand 5 cm apart; a pair 1.5 m into each other (one car tracked twice,
-    a depth error) is more than a size can explain and is left as it is."""
+    a depth error) is more than a size can explain and is left as it is; no car shrinks below 90 % of its size over
+    all the pairs it is in."""
     from deepcrashtest.trajectory.parked import PARKED_GAP_M, PARKED_MAX_SHRINK
 
-    rows = [(1, 40.0, 6.0), (2, 44.37, 6.0), (3, 60.0, -6.0), (4, 63.0, -6.0)]
+    rows = [(1, 40.0, 6.0), (2, 44.37, 6.0), (3, 60.0, -6.0), (4, 63.0, -6.0), (5, 48.44, 6.0)]
     parked = [vehicle(i, track(lambda t, x=x, y=y: (x + 0 * t, y + 0 * t), 0, 60, yaw=0.0)) for i, x, y in rows]
     sc = process_scenario(raw_scenario(parked))
     v = {a.id: a for a in sc.agents}
@@ -276,4 +277,6 @@ def test_cars_parked_into_each_other_are_shortened_where_they_stand():
         a = v[i].trajectory.arrays()
         assert np.abs(a["x"] - x).max() < 0.02 and np.abs(a["y"] - y).max() < 0.02  # not moved
     assert v[3].length == v[4].length == pytest.approx(4.5, abs=0.01)  # 1.5 m into each other: left
+    # a third car 0.43 m into the second: the second cannot shrink below 90 % of its size over both pairs
+    assert min(a.length for a in sc.agents) >= 4.5 * (1 - PARKED_MAX_SHRINK) - 1e-6
     assert any("parked 0.13 m into each other" in w for w in sc.warnings)

@@ -31,6 +31,7 @@ def parked_apart(agents: list[Dense], pair: tuple[int, ...], warnings: list[str]
     ``PARKED_MAX_SHRINK``), until they are ``PARKED_GAP_M`` apart; a pair that needs more is left as it is (parked
     diagonally into each other: a depth error, not a size). Returns one record per shrunk pair."""
     parked = [d for d in agents if d.static and d.id not in pair]
+    first = {d.id: {"length": d.vehicle.length, "width": d.vehicle.width} for d in parked}  # a car in two pairs
     records: list[dict[str, Any]] = []
     for i, a in enumerate(parked):
         for b in parked[i + 1 :]:
@@ -41,7 +42,8 @@ def parked_apart(agents: list[Dense], pair: tuple[int, ...], warnings: list[str]
             if overlap <= 0.0:
                 continue
             for dim in ("length", "width"):
-                scale = _least_shrink(a, b, dim, t)
+                least = max((1.0 - PARKED_MAX_SHRINK) * first[d.id][dim] / getattr(d.vehicle, dim) for d in (a, b))
+                scale = _least_shrink(a, b, dim, t, least)
                 if scale is None:
                     continue
                 for d in (a, b):
@@ -66,10 +68,12 @@ def _separation(a: Dense, b: Dense, dim: str, scale: float, t: float) -> float:
     return float(separation(boxes[0], boxes[1], np.array([t]))[0])
 
 
-def _least_shrink(a: Dense, b: Dense, dim: str, t: float) -> float | None:
-    """The largest scale (>= 1 - ``PARKED_MAX_SHRINK``) of ``dim`` that puts the pair ``PARKED_GAP_M`` apart, or
-    None when even the smallest does not (bisection)."""
-    lo, hi = 1.0 - PARKED_MAX_SHRINK, 1.0
+def _least_shrink(a: Dense, b: Dense, dim: str, t: float, least: float) -> float | None:
+    """The largest scale (>= ``least``: no vehicle below ``1 - PARKED_MAX_SHRINK`` of its size, whatever pairs it is
+    in) of ``dim`` that puts the pair ``PARKED_GAP_M`` apart, or None when even the smallest does not (bisection)."""
+    lo, hi = least, 1.0
+    if lo >= hi:
+        return None
     if _separation(a, b, dim, lo, t) < PARKED_GAP_M:
         return None
     for _ in range(30):
