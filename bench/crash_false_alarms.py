@@ -48,7 +48,7 @@ def before_crash(name: str, label: CrashLabel, work: Path, cache: Path, lead_s: 
         return None
     raw = Scenario.load(d / "scenario_raw.json")
     tracks = pd.read_csv(d / "tracks.csv")
-    video = Path(label.video) if Path(label.video).is_absolute() else cdb.DATA / label.video
+    video = cdb.DATA / label.video  # an absolute path (a variant's) stays itself
     frames, shifts = cdb.global_motion(video, cache, None)
     keep = frames <= cut
     found = detect_crash(

@@ -192,8 +192,7 @@ def _reaches_border(g: pd.DataFrame, width: int) -> pd.Series:
     growing there, and the road user fills the image on which the camera's motion is measured (a
     "jolt" that is its own motion): a knee or jolt in that frame marks the road user arriving, the
     contact comes a frame later at the earliest (ccd_000014, ccd_001143: 2-3 frames before the label)."""
-    m = border_margin(width)
-    at = np.column_stack([g["x1"] <= m, g["x2"] >= width - m, g["y1"] <= m]).astype(bool)
+    at = _on_border(g, width)
     prev = np.vstack([np.zeros((1, 3), bool), at[:-1]])
     w, h = (g["x2"] - g["x1"]).to_numpy(float), (g["y2"] - g["y1"]).to_numpy(float)
     size = np.log(np.sqrt(np.maximum(w * h, 1.0)))
@@ -207,10 +206,14 @@ def _first_jump_onto_border(g: pd.DataFrame, width: int, edge: pd.Series) -> np.
     it in one box, KITTI's stop-and-go highway queue: 240 -> 480 px wide in one frame, a false ego crash at 0.75);
     that step's growth is no approach. A box that has been on the border before and comes back to it with a
     detection grows there by what the carried boxes between missed (ccd_000340 through a longer lens)."""
-    m = border_margin(width)
-    at = ((g["x1"] <= m) | (g["x2"] >= width - m) | (g["y1"] <= m)).to_numpy(bool)
-    before = np.r_[False, np.cumsum(at)[:-1] > 0]
+    before = np.r_[False, np.cumsum(_on_border(g, width).any(axis=1))[:-1] > 0]
     return edge.to_numpy(bool) & ~before
+
+
+def _on_border(g: pd.DataFrame, width: int) -> np.ndarray:
+    """(frames, 3) bool: the box's left side on the left border, its right side on the right, its top on the top."""
+    m = border_margin(width)
+    return np.column_stack([g["x1"] <= m, g["x2"] >= width - m, g["y1"] <= m]).astype(bool)
 
 
 def knee_frame(s: pd.DataFrame, fps: float) -> int | None:

@@ -11,6 +11,7 @@ the video placed them. Metres, radians, world frame.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -38,12 +39,13 @@ def parked_apart(agents: list[Dense], pair: tuple[int, ...], warnings: list[str]
             t = max(a.t[0], b.t[0])
             if t > min(a.t[-1], b.t[-1]):
                 continue
-            overlap = -_separation(a, b, "length", 1.0, t)
+            boxes = (a.box_track(), b.box_track())
+            overlap = -_separation(boxes, "length", 1.0, t)
             if overlap <= 0.0:
                 continue
             for dim in ("length", "width"):
                 least = max((1.0 - PARKED_MAX_SHRINK) * first[d.id][dim] / getattr(d.vehicle, dim) for d in (a, b))
-                scale = _least_shrink(a, b, dim, t, least)
+                scale = _least_shrink(boxes, dim, t, least)
                 if scale is None:
                     continue
                 for d in (a, b):
@@ -57,26 +59,21 @@ def parked_apart(agents: list[Dense], pair: tuple[int, ...], warnings: list[str]
     return records
 
 
-def _separation(a: Dense, b: Dense, dim: str, scale: float, t: float) -> float:
+def _separation(boxes: tuple[BoxTrack, BoxTrack], dim: str, scale: float, t: float) -> float:
     """Separation (m) of the two parked boxes at ``t`` (s) with ``dim`` of both scaled by ``scale``."""
-    boxes = []
-    for d in (a, b):
-        box = d.box_track()
-        size = {"length": box.length, "width": box.width}
-        size[dim] *= scale
-        boxes.append(BoxTrack(box.t, box.x, box.y, box.yaw, size["length"], size["width"]))
-    return float(separation(boxes[0], boxes[1], np.array([t]))[0])
+    a, b = (replace(box, **{dim: getattr(box, dim) * scale}) for box in boxes)
+    return float(separation(a, b, np.array([t]))[0])
 
 
-def _least_shrink(a: Dense, b: Dense, dim: str, t: float, least: float) -> float | None:
+def _least_shrink(boxes: tuple[BoxTrack, BoxTrack], dim: str, t: float, least: float) -> float | None:
     """The largest scale (>= ``least``: no vehicle below ``1 - PARKED_MAX_SHRINK`` of its size, whatever pairs it is
     in) of ``dim`` that puts the pair ``PARKED_GAP_M`` apart, or None when even the smallest does not (bisection)."""
     lo, hi = least, 1.0
     if lo >= hi:
         return None
-    if _separation(a, b, dim, lo, t) < PARKED_GAP_M:
+    if _separation(boxes, dim, lo, t) < PARKED_GAP_M:
         return None
     for _ in range(30):
         mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if _separation(a, b, dim, mid, t) >= PARKED_GAP_M else (lo, mid)
+        lo, hi = (mid, hi) if _separation(boxes, dim, mid, t) >= PARKED_GAP_M else (lo, mid)
     return lo
