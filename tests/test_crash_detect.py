@@ -202,3 +202,24 @@ def test_a_box_jumping_onto_a_truck_beside_it_is_no_ego_crash(tmp_path):
     w = (tracks["x2"] - tracks["x1"]).groupby(tracks["track_id"])
     assert (w.apply(lambda s: float(np.log(s).diff().max())) > 0.5).any()  # a box doubled its width in one frame
     assert raw.collision is None, raw.provenance.parameters.get("crash_detection")
+
+
+def test_a_car_parked_at_the_side_that_the_ego_turns_past_is_no_ego_crash(tmp_path):
+    """KITTI odometry seq00, frames 80-159 (real frames, no crash): the ego turns right at a corner past a car parked
+    at the right. Its box is cut by the right border in every frame (it enters the view as the ego turns), so it grows
+    fast while it is near, with no camera jolt; 1.5 s later it has left the view at the side. A motor vehicle the ego
+    strikes stays in view or jolts the camera: no crash (an ego crash at 0.48 while only a road user leaving the
+    view within 1 s counted as driving past)."""
+    from deepcrashtest.pipeline.extract import run_extract
+    from deepcrashtest.scenario import Scenario
+
+    folder = need(DATA / "kitti_odometry" / "seq00_frames0000-0159" / "image_0")
+    run_extract(folder, tmp_path / "turn", fps=10.0, report=False, annotate=False, lanes=False, frame_range=(80, 159))
+    raw = Scenario.load(tmp_path / "turn" / "scenario_raw.json")
+    tracks = pd.read_csv(tmp_path / "turn" / "tracks.csv")
+    width = raw.source.width
+    detected = tracks[tracks["state"] == "detected"]
+    cut_right = (detected["x2"] >= width - 4).groupby(detected["track_id"]).all()
+    sizes = tracks.groupby("track_id").size().reindex(cut_right.index)
+    assert (cut_right & (sizes >= 15)).any()  # a car detected only cut by the right border, tracked 1.5 s and more
+    assert raw.collision is None, raw.provenance.parameters.get("crash_detection")
