@@ -1,8 +1,8 @@
 """Evidence of a crash between two road users, per frame (:mod:`deepcrashtest.perception.crash_detect`): their boxes
 touch in the image, they are close on the ground (3D footprints, ``WorldTrack``; else bottoms at a similar row), one
-changes motion suddenly, they were apart before (the onset), both were seen by the detector and neither is hidden
-inside a nearer road user's box; and the pair's contact frame (its score's peak, or a new rise of the motion change
-on a plateau)."""
+changes motion suddenly and the offset between them with it (a change both share is the view's), they were apart
+before (the onset), both were seen by the detector and neither is hidden inside a nearer road user's box; and the
+pair's contact frame (its score's peak, or a new rise of the motion change on a plateau)."""
 
 from __future__ import annotations
 
@@ -196,10 +196,11 @@ def pair_scores(
     scene: dict[int, tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> pd.DataFrame:
     """Per common frame of two tracks: contact in the image, close in 3D (or a similar ground row),
-    motion change, onset (apart before; ``entered``: one of them came into the view during the clip at
-    its border, :func:`entered_view`), both seen by the detector (a track's ``seen`` column, 0..1, from
-    :func:`.crash_tracks.observed`; 1 without it), not hidden behind a nearer road user (``scene``: every box per frame,
-    :func:`hidden_behind`)."""
+    motion change (the larger of the two boxes' own, no more than that of the offset between them: two parked cars
+    passed in a row speed up across the view together), onset (apart before; ``entered``: one of them came into the
+    view during the clip at its border, :func:`entered_view`), both seen by the detector (a track's ``seen`` column,
+    0..1, from :func:`.crash_tracks.observed`; 1 without it), not hidden behind a nearer road user (``scene``: every
+    box per frame, :func:`hidden_behind`)."""
     common = a.index.intersection(b.index)
     if not len(common):
         return pd.DataFrame(columns=["touch", "depth", "change", "onset", "seen", "score"])
@@ -215,7 +216,7 @@ def pair_scores(
     near3 = close_3d(*world, common.to_numpy(), fps) if world is not None else np.full(len(common), np.nan)
     depth = pd.Series(np.where(np.isfinite(near3), near3, rows), index=common)
     changes = [motion_change(t, width, fps).to_numpy() for t in (a, b)]
-    change = pd.Series(np.maximum(*changes), common)
+    change = pd.Series(np.minimum(np.maximum(*changes), motion_change(a, width, fps, b).to_numpy()), common)
     onset = _onset(pd.Series(np.asarray(touch, float), index=common), fps, entered)
     score = touch * depth * (0.2 + 0.8 * change) * onset * seen
     hidden = hidden_behind(a, b, scene, np.asarray(score, float) > 0) if scene is not None else np.zeros(len(common))

@@ -176,25 +176,32 @@ def on_side(g: pd.DataFrame, width: int) -> np.ndarray:
     return ((g["x1"] <= m) | (g["x2"] >= width - m)).to_numpy(bool)
 
 
-def motion_change(g: pd.DataFrame, width: int, fps: float) -> pd.Series:
+def motion_change(g: pd.DataFrame, width: int, fps: float, other: pd.DataFrame | None = None) -> pd.Series:
     """0..1 per frame: a sudden change of the box centre's velocity (:data:`CHANGE_SPAN_S` before against
     after, in box widths per second, at least :data:`CHANGE_MIN_WIDTH` of the image), full at
     :data:`CHANGE_FULL` and held :data:`CHANGE_HOLD_S` either side; none within a span of either end of the
     track, where a track coasting on its prediction is detected again (``reacquired``), or where the picture's
-    left or right side cuts the box (:func:`on_side`)."""
+    left or right side cuts the box (:func:`on_side`). With ``other`` (a track on the same frames): the change of
+    the offset between the two boxes' centres, in the smaller box's widths, quiet where either box is."""
     t = g.index.to_numpy(float) / fps
     cx = ((g["x1"] + g["x2"]) / 2).to_numpy(float)
     cy = ((g["y1"] + g["y2"]) / 2).to_numpy(float)
     w = np.maximum((g["x2"] - g["x1"]).to_numpy(float), CHANGE_MIN_WIDTH * width)
+    quiet = on_side(g, width)  # a box cut by the picture's side: its centre moves as it is cut, not with it
+    for h in (g,) if other is None else (g, other):
+        if "reacquired" in h.columns:  # the tracker correcting its prediction, not the road user's motion
+            quiet |= h["reacquired"].to_numpy(bool)
+    if other is not None:
+        cx = cx - ((other["x1"] + other["x2"]) / 2).to_numpy(float)
+        cy = cy - ((other["y1"] + other["y2"]) / 2).to_numpy(float)
+        w = np.minimum(w, np.maximum((other["x2"] - other["x1"]).to_numpy(float), CHANGE_MIN_WIDTH * width))
+        quiet |= on_side(other, width)
     tau = CHANGE_SPAN_S
     a = np.zeros(len(g))
     inside = (t - tau >= t[0] - 1e-9) & (t + tau <= t[-1] + 1e-9) & (t > t[0]) & (t < t[-1])
     if inside.any():
         d2 = [np.interp(t + tau, t, c) - 2 * c + np.interp(t - tau, t, c) for c in (cx, cy)]
         a = np.where(inside, np.hypot(*d2) / tau / w, 0.0)  # velocity change, widths/s
-    quiet = on_side(g, width)  # a box cut by the picture's side: its centre moves as it is cut, not with it
-    if "reacquired" in g.columns:  # the tracker correcting its prediction, not the road user's motion
-        quiet |= g["reacquired"].to_numpy(bool)
     if quiet.any():
         a[np.abs(t[:, None] - t[quiet][None, :]).min(axis=1) <= max(tau, 1 / fps) + 1e-9] = 0.0
     hold = 2 * int(round(CHANGE_HOLD_S * fps)) + 1
