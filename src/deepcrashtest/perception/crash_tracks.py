@@ -118,13 +118,48 @@ def reacquired(g: pd.DataFrame, det_frames: np.ndarray | None, fps: float) -> pd
 
 
 def per_track(tracks: pd.DataFrame, fps: float) -> dict[int, pd.DataFrame]:
-    """Each track (>= 3 frames) indexed by frame, with ``seen`` (:func:`observed`) and ``reacquired``."""
+    """Each track (>= 3 frames) indexed by frame, with ``seen`` (:func:`observed`), ``reacquired`` and
+    ``switched`` (:func:`switched_box`)."""
     det_frames = _detector_frames(tracks)
     out = {}
     for tid, g in tracks.sort_values("frame").groupby("track_id"):
         g = g.drop_duplicates("frame").set_index("frame")
         if len(g) >= 3:
-            out[int(str(tid))] = g.assign(seen=observed(g, det_frames, fps), reacquired=reacquired(g, det_frames, fps))
+            out[int(str(tid))] = g.assign(
+                seen=observed(g, det_frames, fps), reacquired=reacquired(g, det_frames, fps), switched=switched_box(g)
+            )
+    return out
+
+
+#: A detected box whose width differs from the track's detected boxes before and after it by more than SWITCH_JUMP
+#: (log size) each, both the same way, at a height within SWITCH_SAME_HEIGHT (log) of theirs, took in a road user
+#: beside it (or lost part of itself) for a detection round.
+SWITCH_JUMP = 0.3
+
+
+SWITCH_SAME_HEIGHT = 0.1
+
+
+def switched_box(g: pd.DataFrame) -> pd.Series:
+    """True from a track's detected box that is wider (or narrower) than both its previous and next detected boxes
+    by more than ``SWITCH_JUMP`` in log size, at their height, to the next detected box: the detector's box took
+    in a road user beside it for one round (KITTI odometry seq06: one box over two cars parked side by side,
+    42 -> 91 -> 59 px wide at 34-36 px tall); its centre's jump, and the jump back, are no motion of the road user.
+    A box that changes its height with its width (a rider thrown off a motorcycle, dad_000478) is left."""
+    out = pd.Series(False, index=g.index)
+    if "state" not in g.columns:
+        return out
+    det = g[g["state"] == "detected"]
+    if len(det) < 3:
+        return out
+    dw = np.diff(np.log(np.maximum((det["x2"] - det["x1"]).to_numpy(float), 1.0)))
+    dh = np.diff(np.log(np.maximum((det["y2"] - det["y1"]).to_numpy(float), 1.0)))
+    up, down = dw[:-1], dw[1:]
+    jump = ((up > SWITCH_JUMP) & (down < -SWITCH_JUMP)) | ((up < -SWITCH_JUMP) & (down > SWITCH_JUMP))
+    jump &= (np.abs(dh[:-1]) < SWITCH_SAME_HEIGHT) & (np.abs(dh[1:]) < SWITCH_SAME_HEIGHT)
+    frames = det.index.to_numpy(int)
+    for k in np.flatnonzero(jump) + 1:  # the switched detection, the boxes carried from it, the next detection
+        out.loc[int(frames[k]) : int(frames[k + 1])] = True
     return out
 
 
@@ -191,6 +226,8 @@ def motion_change(g: pd.DataFrame, width: int, fps: float, other: pd.DataFrame |
     for h in (g,) if other is None else (g, other):
         if "reacquired" in h.columns:  # the tracker correcting its prediction, not the road user's motion
             quiet |= h["reacquired"].to_numpy(bool)
+        if "switched" in h.columns:  # the detector's box took in a road user beside it for a round
+            quiet |= h["switched"].to_numpy(bool)
     if other is not None:
         cx = cx - ((other["x1"] + other["x2"]) / 2).to_numpy(float)
         cy = cy - ((other["y1"] + other["y2"]) / 2).to_numpy(float)
