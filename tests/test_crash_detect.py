@@ -272,3 +272,27 @@ def test_a_detector_box_over_two_parked_cars_for_one_round_is_no_motion(tmp_path
                 assert float(motion_change(g, 1241, 10.0).loc[frames[0] : frames[1]].max()) == 0.0
     assert switched >= 1
     assert result["crash_detection"].get("confidence", 0.0) < 0.6
+
+
+def test_a_truck_beside_the_ego_from_the_start_whose_one_edge_jitters_is_no_ego_crash(tmp_path):
+    """KITTI's stop-and-go highway queue mirrored (real frames flipped left to right, no crash): the tanker fills the
+    left of the view from the first frame, its box cut by the picture's left side and top, and only its inner edge
+    moves, jittering with the detector's extent (383 -> 498 -> 425 -> 505 px wide) while the queue stands. Its growth
+    rate read as closing in (0.29, an ego crash at 0.52); the box never grew by the 0.2 in log size of an approach
+    within a second (``crash_ego.EGO_MIN_RISE``): no crash."""
+    import cv2
+
+    from deepcrashtest.pipeline.extract import run_extract
+    from deepcrashtest.scenario import Scenario
+
+    folder = need(DATA / "kitti_raw_highway_queue" / "image_02" / "data")
+    mirrored = tmp_path / "mirrored"
+    mirrored.mkdir()
+    for f in sorted(folder.glob("*.png")):
+        cv2.imwrite(str(mirrored / f.name), cv2.flip(cv2.imread(str(f)), 1))
+    run_extract(mirrored, tmp_path / "queue", fps=10.0, report=False, annotate=False, lanes=False)
+    raw = Scenario.load(tmp_path / "queue" / "scenario_raw.json")
+    tracks = pd.read_csv(tmp_path / "queue" / "tracks.csv")
+    first = tracks[tracks["frame"] == tracks["frame"].min()]
+    assert ((first["x1"] <= 4) & (first["y1"] <= 4) & (first["x2"] - first["x1"] > 300)).any()  # the tanker at once
+    assert raw.collision is None, raw.provenance.parameters.get("crash_detection")
