@@ -14,6 +14,7 @@ name the labelled road users (their tracks at the labelled contact frame) within
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -152,3 +153,36 @@ def test_a_tie_at_the_peak_goes_to_the_pair_whose_contact_holds(yolo_ok, tmp_pat
     tracks[["y1", "y2"]] -= 120  # the labelled boxes are the clip's own
     assert found["found"] and sorted(found["pair"]) == _labelled_pair(label, tracks), found  # main: a car, 0.65 s early
     assert label.contact_frame is not None and abs(found["frame"] - label.contact_frame) / label.fps <= DT_S
+
+
+def test_a_frozen_stretch_leaves_the_crash_motorcycle_its_own_track(yolo_ok, tmp_path) -> None:
+    """dad_000550 with its frame 58 shown 15 times more (a frozen stretch 1.5 s before the crash, as a re-upload or a
+    dropped-signal recording has): the detections of the frozen frames typed the far motorcycle "car", and that
+    track, carried on over it after the freeze, made every later motorcycle detection a "duplicate" of its box, so
+    the motorcycle had no track of its own until it touched the truck (never seen apart: no crash found). A carried
+    box of the other group no longer blocks a new track: the crash of the motorcycle and the truck is found."""
+    import av
+
+    from deepcrashtest.pipeline.extract import run_extract
+
+    label = load_crash_labels(DAD_LABELS)["dad_000550"]
+    assert label.contact_frame is not None
+    with av.open(str(need(DATA / label.video))) as src:
+        frames = [f.to_ndarray(format="bgr24") for f in src.decode(video=0)]
+    k0, extra = 58, 15
+    frames = frames[:k0] + [frames[k0]] * extra + frames[k0:]
+    video = tmp_path / "frozen.mp4"
+    with av.open(str(video), "w") as out:
+        stream = out.add_stream("libx264", rate=20)
+        stream.width, stream.height, stream.pix_fmt = 1280, 720, "yuv420p"
+        stream.options = {"crf": "20", "preset": "veryfast"}
+        for img in frames:
+            out.mux(stream.encode(av.VideoFrame.from_ndarray(img, format="bgr24")))
+        out.mux(stream.encode())
+    run_extract(video, tmp_path / "out", annotate=False, report=False, lanes=False, shots=False)
+    found = json.loads((tmp_path / "out" / "scenario_raw.json").read_text())["provenance"]["parameters"]
+    found = found["crash_detection"]
+    frozen = replace(label, contact_frame=label.contact_frame + extra)
+    pair = _labelled_pair(frozen, pd.read_csv(tmp_path / "out" / "tracks.csv"))
+    assert found["found"] and sorted(found["pair"]) == pair, found
+    assert abs(found["frame"] - frozen.contact_frame) / label.fps <= DT_S

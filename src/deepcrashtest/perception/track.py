@@ -307,12 +307,16 @@ class BoxTracker:
                 ends = (t.detected_box, t.detected_frame, dets.boxes[j], self._frame)
                 t.corrected_rows = _bridged(t.carried_rows, *ends, (self._width, self._height))
             self._absorb(t, dets, j)
-        existing = [t.box for t in self.core.tracks if t.state is not TrackState.DELETED]
+        live = [t for t in self.core.tracks if t.state is not TrackState.DELETED]
         for j in result.unmatched_detections:
             if dets.scores[j] < self.new_track_score:
                 continue
-            if existing and iou_matrix(dets.boxes[j], np.stack(existing)).max() > 0.5:
-                continue  # a duplicate of a live track's box
+            group = _GROUP.get(str(dets.categories[j]), 0)
+            # a duplicate of a live track's box; not of a carried box of the other group (a track typed "car" by the
+            # detections of a frozen stretch, carried on over the motorcycle it was: robust dad_000550 frozen)
+            same = [t.box for t in live if t.detected_now or _GROUP.get(t.category, 0) == group]
+            if same and iou_matrix(dets.boxes[j], np.stack(same)).max() > 0.5:
+                continue
             t = self.core.spawn(ImageTrack(), float(dets.scores[j]))
             t.box = dets.boxes[j].astype(np.float64)
             t.detected_box = t.box.copy()
@@ -320,7 +324,7 @@ class BoxTracker:
             t.score = float(dets.scores[j])
             t.vote(str(dets.categories[j]), float(dets.scores[j]))
             t.detected_now = True
-            existing.append(t.box)
+            live.append(t)
 
     def _absorb(self, t: ImageTrack, dets: Detections, j: int) -> None:
         box = dets.boxes[j].astype(np.float64)
