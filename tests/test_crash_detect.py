@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import need
+from conftest import ROOT, need
 from deepcrashtest.errors import UserError
 from deepcrashtest.perception.crash_detect import GlobalMotion, detect_crash
 from deepcrashtest.perception.crash_ego import ego_scores
@@ -296,3 +296,35 @@ def test_a_truck_beside_the_ego_from_the_start_whose_one_edge_jitters_is_no_ego_
     first = tracks[tracks["frame"] == tracks["frame"].min()]
     assert ((first["x1"] <= 4) & (first["y1"] <= 4) & (first["x2"] - first["x1"] > 300)).any()  # the tanker at once
     assert raw.collision is None, raw.provenance.parameters.get("crash_detection")
+
+
+def test_a_car_across_the_whole_portrait_view_is_not_seen_standing_before_the_jolt(tmp_path):
+    """ccd_000330 cropped to its central 9:16 portrait (real frames, 404 x 720 px; a phone filming upright): the
+    RAV4 ahead fills the narrow view's whole width 0.8 s before the rear-end, so its box cannot widen. That was read as
+    the car standing at the bumper since frame 30 and the contact moved there from the jolt at 38 (the label). A box
+    across the whole width is not seen standing: the contact stays at the jolt."""
+    import av
+
+    from deepcrashtest.datasets.crash_labels import load_crash_labels
+    from deepcrashtest.pipeline.extract import run_extract
+
+    label = load_crash_labels(ROOT / "bench" / "labels" / "ccd_crashes.json")["ccd_000330"]
+    assert label.contact_frame is not None
+    with av.open(str(need(DATA / label.video))) as src:
+        frames = [f.to_ndarray(format="bgr24") for f in src.decode(video=0)]
+    h, w = frames[0].shape[:2]
+    cw = int(h * 9 / 16) // 2 * 2
+    x0 = (w - cw) // 2
+    video = tmp_path / "portrait.mp4"
+    with av.open(str(video), "w") as out:
+        stream = out.add_stream("libx264", rate=int(round(label.fps)))
+        stream.width, stream.height, stream.pix_fmt = cw, h, "yuv420p"
+        stream.options = {"crf": "20", "preset": "veryfast"}
+        for img in frames:
+            crop = np.ascontiguousarray(img[:, x0 : x0 + cw])
+            out.mux(stream.encode(av.VideoFrame.from_ndarray(crop, format="bgr24")))
+        out.mux(stream.encode())
+    result = run_extract(video, tmp_path / "out", annotate=False, report=False, lanes=False, shots=False)
+    found = result["crash_detection"]
+    assert found["found"] and found["pair"][0] == "ego", found
+    assert abs(found["frame"] - label.contact_frame) / label.fps <= 0.25, found

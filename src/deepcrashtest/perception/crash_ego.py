@@ -133,6 +133,7 @@ def ego_scores(
             "jolt": j,
             "log_size": size,
             "reaches_border": edge,
+            "spans": pd.Series(_on_border(g, width)[:, :2].all(axis=1), index=g.index),
             "exits": _exits(g, width, fps, clip_end),
             "ahead": (g["x1"] <= width / 2) & (g["x2"] >= width / 2),
             "knocked_over": _knocked_over(g, width, height, people),
@@ -300,6 +301,8 @@ def _still_since(s: pd.DataFrame, jolt_frame: int, fps: float) -> int | None:
     idx = s.index.to_numpy()
     ls = s["log_size"].to_numpy(float)
     near = (s["near"] >= 0.5 * float(s["near"].max())).to_numpy()
+    if "spans" in s:  # a box across the whole width cannot widen: its standing still is not seen
+        near &= ~s["spans"].to_numpy(bool)
     n = max(2, int(round(0.5 * fps)))
     k = int(np.searchsorted(idx, jolt_frame)) - 1
     start = None
