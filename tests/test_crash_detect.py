@@ -232,16 +232,11 @@ def test_parked_cars_passed_in_a_row_are_no_crash_between_them(tmp_path):
     view as the ego passes. What they share is the view's motion, not theirs: the change of the offset between
     the two boxes (``motion_change(a, ..., other=b)``) bounds the pair's motion change, and no crash is found (a
     crash between them at 0.37 when each box's own change counted)."""
-    import cv2
-
     from deepcrashtest.pipeline.extract import run_extract
     from deepcrashtest.scenario import Scenario
 
     folder = need(DATA / "kitti_odometry" / "seq00_frames0000-0159" / "image_0")
-    mirrored = tmp_path / "mirrored"
-    mirrored.mkdir()
-    for f in sorted(folder.glob("*.png")):
-        cv2.imwrite(str(mirrored / f.name), cv2.flip(cv2.imread(str(f)), 1))
+    mirrored = _mirrored(folder, tmp_path / "mirrored")
     run_extract(mirrored, tmp_path / "row", fps=10.0, report=False, annotate=False, lanes=False, frame_range=(40, 110))
     raw = Scenario.load(tmp_path / "row" / "scenario_raw.json")
     assert len(raw.agents) >= 8  # the parked cars along the street are tracked
@@ -280,16 +275,11 @@ def test_a_truck_beside_the_ego_from_the_start_whose_one_edge_jitters_is_no_ego_
     moves, jittering with the detector's extent (383 -> 498 -> 425 -> 505 px wide) while the queue stands. Its growth
     rate read as closing in (0.29, an ego crash at 0.52); the box never grew by the 0.2 in log size of an approach
     within a second (``crash_ego.EGO_MIN_RISE``): no crash."""
-    import cv2
-
     from deepcrashtest.pipeline.extract import run_extract
     from deepcrashtest.scenario import Scenario
 
     folder = need(DATA / "kitti_raw_highway_queue" / "image_02" / "data")
-    mirrored = tmp_path / "mirrored"
-    mirrored.mkdir()
-    for f in sorted(folder.glob("*.png")):
-        cv2.imwrite(str(mirrored / f.name), cv2.flip(cv2.imread(str(f)), 1))
+    mirrored = _mirrored(folder, tmp_path / "mirrored")
     run_extract(mirrored, tmp_path / "queue", fps=10.0, report=False, annotate=False, lanes=False)
     raw = Scenario.load(tmp_path / "queue" / "scenario_raw.json")
     tracks = pd.read_csv(tmp_path / "queue" / "tracks.csv")
@@ -307,6 +297,7 @@ def test_a_car_across_the_whole_portrait_view_is_not_seen_standing_before_the_jo
 
     from deepcrashtest.datasets.crash_labels import load_crash_labels
     from deepcrashtest.pipeline.extract import run_extract
+    from deepcrashtest.video.writer import VideoWriter
 
     label = load_crash_labels(ROOT / "bench" / "labels" / "ccd_crashes.json")["ccd_000330"]
     assert label.contact_frame is not None
@@ -316,15 +307,20 @@ def test_a_car_across_the_whole_portrait_view_is_not_seen_standing_before_the_jo
     cw = int(h * 9 / 16) // 2 * 2
     x0 = (w - cw) // 2
     video = tmp_path / "portrait.mp4"
-    with av.open(str(video), "w") as out:
-        stream = out.add_stream("libx264", rate=int(round(label.fps)))
-        stream.width, stream.height, stream.pix_fmt = cw, h, "yuv420p"
-        stream.options = {"crf": "20", "preset": "veryfast"}
+    with VideoWriter(video, label.fps, cw, h, crf=20, preset="veryfast") as writer:
         for img in frames:
-            crop = np.ascontiguousarray(img[:, x0 : x0 + cw])
-            out.mux(stream.encode(av.VideoFrame.from_ndarray(crop, format="bgr24")))
-        out.mux(stream.encode())
+            writer.write(np.ascontiguousarray(img[:, x0 : x0 + cw]))
     result = run_extract(video, tmp_path / "out", annotate=False, report=False, lanes=False, shots=False)
     found = result["crash_detection"]
     assert found["found"] and found["pair"][0] == "ego", found
     assert abs(found["frame"] - label.contact_frame) / label.fps <= 0.25, found
+
+
+def _mirrored(folder: Path, dest: Path) -> Path:
+    """``dest`` holding every PNG frame of ``folder`` flipped left to right (real frames, the road seen mirrored)."""
+    import cv2
+
+    dest.mkdir()
+    for f in sorted(folder.glob("*.png")):
+        cv2.imwrite(str(dest / f.name), cv2.flip(cv2.imread(str(f)), 1))
+    return dest
