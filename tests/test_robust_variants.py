@@ -651,3 +651,32 @@ def test_a_crash_without_a_jolt_has_its_contact_where_the_box_is_largest(tmp_pat
     first = simulate(sc).first_contact
     assert first is not None and sorted(first["vehicles"]) == sorted(ids)
     assert abs(sc.video_time(first["time"]) - label.contact_frame / label.fps) <= 0.25  # before: 0.33 s early
+
+
+def test_a_portrait_crop_keeps_the_focal_length_of_the_landscape_dashcam(tmp_path):
+    """ccd_000330 (the ego rear-ends a RAV4, contact at frame 38) cut to its central 9:16 portrait, 404 x 720 px, as
+    phones and short-video sites show dashcam clips. The unknown-camera default spread 90 deg over the narrow width
+    (202 px focal length, a third of the 1280 x 720 clip's 640): every road user was placed 3x too near and the ego
+    3x too slow, and the replay's first contact came at 0.46 s, 3.3 s before the crash. A picture taller than wide is
+    taken as cut from a 16:9 landscape of its height: the clip's own 640 px, and the replay collides at the contact."""
+    from deepcrashtest.geometry.camera import default_camera
+    from deepcrashtest.pipeline.extract import run_extract
+    from deepcrashtest.scenario import Scenario
+    from deepcrashtest.sim import simulate
+
+    with av.open(str(need(CCD / "ccd_000330.mp4"))) as c:
+        frames = [f.to_ndarray(format="bgr24") for f in c.decode(video=0)]
+    h, w = frames[0].shape[:2]
+    cw = int(h * 9 / 16) // 2 * 2
+    x0 = (w - cw) // 2
+    video = _write(tmp_path / "portrait.mp4", [np.ascontiguousarray(f[:, x0 : x0 + cw]) for f in frames], 10, crf=20)
+    run_extract(video, tmp_path / "out", annotate=False, report=False, shots=False)
+    sc = Scenario.load(tmp_path / "out" / "scenario.json")
+    assert sc.camera.fx == pytest.approx(default_camera(w, h).fx) == pytest.approx(640.0)
+    assert sc.collision is not None and sc.collision.involves_ego
+    first = simulate(sc).first_contact
+    assert first is not None and set(first["vehicles"]) == set(sc.collision.participants)
+    assert abs(sc.video_time(first["time"]) - 3.8) <= 0.25  # main: 0.46 s
+    # landscape frames keep the 90 deg over their width; a portrait inside pillarbox bars is cut the same way
+    assert default_camera(640, 480).fx == pytest.approx(320.0)
+    assert default_camera(1280, 720, area=(438, 0, 842, 720)).fx == pytest.approx(640.0)

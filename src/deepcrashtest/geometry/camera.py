@@ -32,6 +32,7 @@ from deepcrashtest.scenario import MAX_CAMERA_HEIGHT_M, Camera, format_validatio
 
 DEFAULT_HFOV_DEG = 90.0
 DASHCAM_HEIGHT_M = 1.3  # a windscreen-mounted dashcam in a passenger car
+LANDSCAPE_ASPECT = 16 / 9  # the frame a portrait picture is taken as cut from (default camera)
 KITTI_HEIGHT_M = 1.65
 _CAMERA_KEYS = {"fx", "fy", "cx", "cy", "distortion", "height_m", "pitch_rad", "roll_rad", "forward_offset_m"}
 
@@ -49,8 +50,23 @@ def default_camera(
     width: int, height: int, height_m: float = DASHCAM_HEIGHT_M, area: tuple[int, int, int, int] | None = None
 ) -> Camera:
     """The unknown-dashcam default (90 deg horizontal field of view, 1.3 m above the road). ``area``: the
-    picture ``(x0, y0, x1, y1)`` (px) inside black bars: the field of view spans it, centred on it."""
-    return _on_picture(width, height, DEFAULT_HFOV_DEG, area, height_m=height_m, intrinsics_source="default")
+    picture ``(x0, y0, x1, y1)`` (px) inside black bars: the field of view spans it, centred on it.
+
+    A picture taller than wide is a portrait cut from a landscape dashcam's frame (phones and short-video sites
+    show dashcam clips so): its focal length is that of the 16:9 landscape of its height, 90 deg over
+    ``height * 16 / 9`` (0.89 x the height, px), not 90 deg over its narrow width (3.2x shorter for 9:16)."""
+    x0, y0, x1, y1 = area if area is not None else (0, 0, width, height)
+    hfov = _default_hfov_deg(x1 - x0, y1 - y0)
+    return _on_picture(width, height, hfov, area, height_m=height_m, intrinsics_source="default")
+
+
+def _default_hfov_deg(width: float, height: float) -> float:
+    """The default's horizontal field of view (deg) over a picture ``width`` x ``height`` (px): 90 deg on a
+    landscape picture; on a portrait one, what 90 deg over a 16:9 landscape of the same height leaves of it."""
+    if width >= height:
+        return DEFAULT_HFOV_DEG
+    half = math.tan(math.radians(DEFAULT_HFOV_DEG) / 2) * width / (height * LANDSCAPE_ASPECT)
+    return math.degrees(2 * math.atan(half))
 
 
 def _on_picture(width: int, height: int, hfov_deg: float, area: tuple[int, int, int, int] | None, **kw: Any) -> Camera:
