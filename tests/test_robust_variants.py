@@ -670,9 +670,10 @@ def test_a_portrait_crop_keeps_the_focal_length_of_the_landscape_dashcam(tmp_pat
     cw = int(h * 9 / 16) // 2 * 2
     x0 = (w - cw) // 2
     video = _write(tmp_path / "portrait.mp4", [np.ascontiguousarray(f[:, x0 : x0 + cw]) for f in frames], 10, crf=20)
-    run_extract(video, tmp_path / "out", annotate=False, report=False, shots=False)
+    res = run_extract(video, tmp_path / "out", annotate=False, report=False, shots=False)
     sc = Scenario.load(tmp_path / "out" / "scenario.json")
     assert sc.camera.fx == pytest.approx(default_camera(w, h).fx) == pytest.approx(640.0)
+    assert any(f"portrait picture ({cw}x{h})" in note and "--hfov" in note for note in res["warnings"])
     assert sc.collision is not None and sc.collision.involves_ego
     first = simulate(sc).first_contact
     assert first is not None and set(first["vehicles"]) == set(sc.collision.participants)

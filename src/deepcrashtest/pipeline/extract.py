@@ -557,6 +557,15 @@ def _camera_for_frames(
 ) -> Camera:
     """The camera of the frames as processed: the user's (or the callable's, given the file's size and the
     picture area in the file's pixels) scaled to the frames when they are scaled (``meta.scaled_from``)."""
+    cam = _given_camera(camera, meta, area)
+    meta.warnings += _portrait_note(cam, meta, area)
+    return cam
+
+
+def _given_camera(
+    camera: Camera | CameraForVideo | None, meta: VideoMeta, area: tuple[int, int, int, int] | None
+) -> Camera:
+    """The camera asked for (the user's, the callable's or the unknown-dashcam default) in the frames' pixels."""
     if camera is None:
         return default_camera(meta.width, meta.height, area=area)
     if meta.scaled_from is None:
@@ -570,6 +579,19 @@ def _camera_for_frames(
             file_area = (round(x0 / s), round(y0 / sy), round(x1 / s), round(y1 / sy))
         camera = camera(width, height, area=file_area)
     return scale_camera(camera, s, sy)
+
+
+def _portrait_note(cam: Camera, meta: VideoMeta, area: tuple[int, int, int, int] | None) -> list[str]:
+    """The note that the default camera took a portrait picture as cut from a landscape dashcam (none for a
+    landscape picture, or a camera not the default): a phone filming upright has a shorter focal length, which
+    only the user can give."""
+    x0, y0, x1, y1 = area if area is not None else (0, 0, meta.width, meta.height)
+    if cam.intrinsics_source != "default" or x1 - x0 >= y1 - y0:
+        return []
+    return [
+        f"portrait picture ({x1 - x0}x{y1 - y0}): the default camera takes it as cut from a 16:9 landscape dashcam "
+        f"(focal length {cam.fx:.0f} px); give --hfov or --camera if it was filmed upright"
+    ]
 
 
 def _dashboard_note(asked: int | None, used: int, meta: VideoMeta) -> list[str]:
