@@ -530,6 +530,22 @@ def test_no_vehicles_is_said(capsys, tmp_path):
     assert "no vehicles found in the video" in json.loads(out)["warnings"]
 
 
+def test_a_sliver_of_a_video_extracts_with_its_report(capsys, tmp_path):
+    """A valid if odd video, 4 x 400 px: its report's contact sheet made 320 x 32,000-px thumbnails, a 64,000-row
+    sheet no JPEG holds ("could not encode the contact sheet", exit 2); the thumbnails are now at most twice as tall
+    as wide. And the default camera of so narrow a picture was a 0.6 deg view, refused as a bad --hfov."""
+    import cv2
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(12):
+        cv2.imwrite(str(frames / f"{i:04d}.png"), rng.integers(0, 255, (400, 4, 3), dtype=np.uint8))
+    rc, out, err = cli(capsys, "extract", frames, "-o", tmp_path / "x", "--fps", FPS, "--json")
+    assert rc == 0, err
+    assert (tmp_path / "x" / "report.html").is_file()
+
+
 def test_along_road_without_samples_is_no_lane_evidence():
     """A real clip (DAD 000487, 20 frames) ended in an internal error: a road user whose observed samples were
     all cut away made the lane inference project zero points."""

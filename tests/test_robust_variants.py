@@ -681,3 +681,4 @@ def test_a_portrait_crop_keeps_the_focal_length_of_the_landscape_dashcam(tmp_pat
     # landscape frames keep the 90 deg over their width; a portrait inside pillarbox bars is cut the same way
     assert default_camera(640, 480).fx == pytest.approx(320.0)
     assert default_camera(1280, 720, area=(438, 0, 842, 720)).fx == pytest.approx(640.0)
+    assert default_camera(2, 400).fx == pytest.approx(400 * 16 / 9 / 2)  # a sliver, once refused as a 0.3 deg view

@@ -56,17 +56,10 @@ def default_camera(
     show dashcam clips so): its focal length is that of the 16:9 landscape of its height, 90 deg over
     ``height * 16 / 9`` (0.89 x the height, px), not 90 deg over its narrow width (3.2x shorter for 9:16)."""
     x0, y0, x1, y1 = area if area is not None else (0, 0, width, height)
-    hfov = _default_hfov_deg(x1 - x0, y1 - y0)
-    return _on_picture(width, height, hfov, area, height_m=height_m, intrinsics_source="default")
-
-
-def _default_hfov_deg(width: float, height: float) -> float:
-    """The default's horizontal field of view (deg) over a picture ``width`` x ``height`` (px): 90 deg on a
-    landscape picture; on a portrait one, what 90 deg over a 16:9 landscape of the same height leaves of it."""
-    if width >= height:
-        return DEFAULT_HFOV_DEG
-    half = math.tan(math.radians(DEFAULT_HFOV_DEG) / 2) * width / (height * LANDSCAPE_ASPECT)
-    return math.degrees(2 * math.atan(half))
+    w, h = x1 - x0, y1 - y0
+    span = w if w >= h else h * LANDSCAPE_ASPECT  # the width the 90 deg spread over (px)
+    f = 0.5 * span / math.tan(math.radians(DEFAULT_HFOV_DEG) / 2)
+    return Camera(fx=f, fy=f, cx=(x0 + x1) / 2.0, cy=(y0 + y1) / 2.0, height_m=height_m, intrinsics_source="default")
 
 
 def _on_picture(width: int, height: int, hfov_deg: float, area: tuple[int, int, int, int] | None, **kw: Any) -> Camera:

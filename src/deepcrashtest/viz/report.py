@@ -28,7 +28,7 @@ from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import atomic_write_text
 from deepcrashtest.scenario import Collision, Scenario, Vehicle
 from deepcrashtest.viz.plots import birdseye_figure, observed_mask, plot_observed, time_axes
-from deepcrashtest.viz.sheet_thumbs import SHEET_FRAMES, SHEET_THUMB_WIDTH, SheetThumbs, sheet_frames
+from deepcrashtest.viz.sheet_thumbs import SHEET_FRAMES, SHEET_THUMB_WIDTH, SheetThumbs, sheet_frames, thumb_size
 from deepcrashtest.viz.style import CLASS_DESCRIPTIONS, EGO_COLOUR, OBSERVED_NOTE, vehicle_colour
 
 #: The distance plot's axis stops here (metres): farther road users do not matter for a crash.
@@ -359,7 +359,7 @@ def _thumbs_of(vf: Any, indices: list[int], thumb_width: int) -> list[np.ndarray
     for i in indices:
         rgb = vf.frame(i)
         h, w = rgb.shape[:2]
-        thumbs.append(cv2.resize(rgb, (thumb_width, round(h * thumb_width / w)), interpolation=cv2.INTER_AREA))
+        thumbs.append(cv2.resize(rgb, thumb_size(w, h, thumb_width), interpolation=cv2.INTER_AREA))
     return thumbs
 
 

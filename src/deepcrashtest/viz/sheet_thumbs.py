@@ -21,6 +21,14 @@ import numpy as np
 #: The contact sheet's thumbnail width (px) and number of evenly spaced frames.
 SHEET_THUMB_WIDTH = 320
 SHEET_FRAMES = 12
+THUMB_MAX_ASPECT = 2.0  # height / width at most (a 9:16 portrait, 1.78, keeps the full width)
+
+
+def thumb_size(width: int, height: int, thumb_width: int = SHEET_THUMB_WIDTH) -> tuple[int, int]:
+    """A thumbnail's (width, height) px of a ``width`` x ``height`` frame: ``thumb_width`` wide, and no taller than
+    ``THUMB_MAX_ASPECT`` x that (a sliver of a video, 2 x 400 px, made a 64,000-row sheet no JPEG can hold)."""
+    scale = min(thumb_width / width, THUMB_MAX_ASPECT * thumb_width / height)
+    return max(1, round(width * scale)), max(1, round(height * scale))
 
 
 def sheet_frames(frame_count: int, frames: int, include: int | None = None) -> list[int]:
@@ -52,7 +60,7 @@ class SheetThumbs:
     ) -> None:
         self.fps, self.width, self.height = float(fps), int(width), int(height)
         self.thumb_width = int(thumb_width)
-        self.size = (self.thumb_width, round(self.height * self.thumb_width / self.width))
+        self.size = thumb_size(self.width, self.height, self.thumb_width)
         self.count = 0
         self._sheet = set(sheet_frames(expected or 0, SHEET_FRAMES))
         self._raw: dict[int, np.ndarray] = {}
