@@ -253,6 +253,7 @@ def odd_other_commands(fz: Fuzz, d: Path, tmp: Path) -> None:
                 i = base.index(opt)
                 del base[i : i + 2]
             fz.run("extract", frames, "-o", tmp / f"x_{k}_{j}", *base, opt, v, "--json")
+    odd_frame_sizes(fz, tmp)
     kitti = ROOT.parent / "shared" / "data" / "kitti_tracking"
     data = kitti if kitti.is_dir() else tmp / "no_kitti"
     for v in ("", "-1", "abc", "99999999999999999999", "nan", ",", "3,-8", "9999"):
@@ -269,6 +270,25 @@ def odd_other_commands(fz: Fuzz, d: Path, tmp: Path) -> None:
         for v in values:
             if (opt, v) not in (("--duration", "1e308"), ("--duration", "1e-12")):  # valid: would run the batch
                 fz.run("batch", d, "-o", tmp / "batch", opt, v, "--json")
+
+
+#: Frame sizes (width, height, px) of the whole extract (geometry, report): tiny, slivers, portraits; 4000 x 8 is
+#: processed at 1280 x 2 (--max-width).
+ODD_FRAME_SIZES = [(2, 2), (3, 3), (4, 400), (400, 4), (1280, 2), (4000, 8), (2, 600), (9, 16), (2000, 3)]
+
+
+def odd_frame_sizes(fz: Fuzz, tmp: Path) -> None:
+    """``extract`` with every stage on 12 frames of noise at each of ``ODD_FRAME_SIZES``."""
+    import cv2
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    for w, h in ODD_FRAME_SIZES:
+        frames = tmp / f"frames_{w}x{h}"
+        frames.mkdir()
+        for k in range(12):
+            cv2.imwrite(str(frames / f"{k:06d}.png"), rng.integers(0, 255, (h, w, 3), dtype=np.uint8))
+        fz.run("extract", frames, "-o", tmp / f"x_{w}x{h}", "--fps", "10", "--json")
 
 
 def odd_paths(fz: Fuzz, d: Path, sc: Path, raw: Path, tmp: Path) -> None:

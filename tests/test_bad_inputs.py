@@ -530,17 +530,20 @@ def test_no_vehicles_is_said(capsys, tmp_path):
     assert "no vehicles found in the video" in json.loads(out)["warnings"]
 
 
-def test_a_sliver_of_a_video_extracts_with_its_report(capsys, tmp_path):
-    """A valid if odd video, 4 x 400 px: its report's contact sheet made 320 x 32,000-px thumbnails, a 64,000-row
-    sheet no JPEG holds ("could not encode the contact sheet", exit 2); the thumbnails are now at most twice as tall
-    as wide. And the default camera of so narrow a picture was a 0.6 deg view, refused as a bad --hfov."""
+@pytest.mark.parametrize("width, height", [(4, 400), (4000, 8)])
+def test_a_sliver_of_a_video_extracts_with_its_report(capsys, tmp_path, width, height):
+    """Valid if odd videos. 4 x 400 px: the report's contact sheet made 320 x 32,000-px thumbnails, a 64,000-row
+    sheet no JPEG holds ("could not encode the contact sheet", exit 2); thumbnails are now at most twice as tall as
+    wide; and the default camera of so narrow a picture was a 0.6 deg view, refused as a bad --hfov. 4000 x 8 px,
+    processed at 1280 x 2 (--max-width): the detector's and the bonnet finder's downscales came to 0 rows (an
+    internal error)."""
     import cv2
 
     frames = tmp_path / "frames"
     frames.mkdir()
     rng = np.random.default_rng(0)
     for i in range(12):
-        cv2.imwrite(str(frames / f"{i:04d}.png"), rng.integers(0, 255, (400, 4, 3), dtype=np.uint8))
+        cv2.imwrite(str(frames / f"{i:04d}.png"), rng.integers(0, 255, (height, width, 3), dtype=np.uint8))
     rc, out, err = cli(capsys, "extract", frames, "-o", tmp_path / "x", "--fps", FPS, "--json")
     assert rc == 0, err
     assert (tmp_path / "x" / "report.html").is_file()

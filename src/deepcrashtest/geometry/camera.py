@@ -314,7 +314,8 @@ def _bonnet_stack(
     for f in frames:
         g = f if f.ndim == 2 else cv2.cvtColor(f, cv2.COLOR_BGR2GRAY)
         scale = min(1.0, width / g.shape[1])
-        g = cv2.resize(g, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+        fy = max(scale, 1.0 / g.shape[0])  # a 1280 x 2 sliver keeps a row
+        g = cv2.resize(g, None, fx=scale, fy=fy, interpolation=cv2.INTER_AREA)
         out.append(cv2.GaussianBlur(g.astype(np.float32), (3, 3), 0))
         if len(out) >= max_frames:
             break

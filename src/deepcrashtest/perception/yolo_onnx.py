@@ -152,7 +152,7 @@ class OnnxYoloDetector:
         h, w = image.shape[:2]
         ih, iw = hw
         r = min(ih / h, iw / w)
-        nw, nh = int(round(w * r)), int(round(h * r))
+        nw, nh = max(1, int(round(w * r))), max(1, int(round(h * r)))  # a sliver (1280 x 2 px) keeps a row
         px, py = (iw - nw) / 2, (ih - nh) / 2
         canvas = np.full((ih, iw, 3), 114, np.uint8)
         top, left = int(round(py - 0.1)), int(round(px - 0.1))
