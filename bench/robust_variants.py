@@ -3,14 +3,15 @@
 Makes variants of shared crash clips into ``$ROBUST_DIR/videos`` (default ``/tmp/robust``) (never into the repository):
 downscaled 640x360, upscaled 1920x1080, resampled to 15/25/30 fps, re-encoded at crf 35, letterboxed,
 pillarboxed, filmed off a screen by a phone (perspective, blur, gamma, moire, noise), a portrait 9:16
-crop, a burned-in text overlay, a 2-shot compilation, 10 frames around the crash, a frozen stretch;
+crop, a burned-in text overlay, a 2-shot compilation, 10 frames around the crash, a frozen stretch, in low light (dark,
+noisy), shaken (motion blur along a random direction per frame);
 and a label file ``/tmp/robust/labels.json`` with the clips' labels mapped (boxes, frames rescaled).
 Then ``run`` extracts each with the CLI and evaluates the fidelity as ``bench/fidelity_crashes.py``.
 
 Usage::
 
     python bench/robust_variants.py make '{"ccd_000053": ["down", "up", "fps15", "fps25", "fps30", "crf35",
-        "letterbox", "pillarbox", "phone", "portrait", "text", "compil", "short", "frozen"]}'
+        "letterbox", "pillarbox", "phone", "portrait", "text", "compil", "short", "frozen", "dark", "shake"]}'
     TAG=r1 python bench/robust_variants.py run ccd_000053_down640 ccd_000053_fps30 ...
     TAG=r1 python bench/robust_variants.py score ccd_000053_compil ...   # score out_r1 again, no extract
     TAG=r1 NEW=r2 python bench/robust_variants.py restage [--redetect] ccd_000053_phone ...  # stage 2 again
@@ -177,6 +178,26 @@ def make(base, which):
             return g
 
         variant(f"{base}_text", base, [tx(f, i) for i, f in enumerate(fr)], fps)
+    if "dark" in which:  # low light (dusk): the picture darkened (gamma 2.2, x 0.6) under high-ISO sensor noise
+        rng = np.random.default_rng(1)
+
+        def nt(f):
+            g = 255 * 0.6 * (f / 255.0) ** 2.2 + rng.normal(0, 5, f.shape)
+            return np.clip(g, 0, 255).astype(np.uint8)
+
+        variant(f"{base}_dark", base, [nt(f) for f in fr], fps, crf=26)
+    if "shake" in which:  # a loose mount: each frame blurred along a random direction (7-15 px motion blur)
+        rng = np.random.default_rng(2)
+
+        def sh(f):
+            n = int(rng.integers(7, 16))
+            k = np.zeros((n, n), np.float32)
+            k[n // 2, :] = 1.0 / n
+            rot = cv2.getRotationMatrix2D(((n - 1) / 2, (n - 1) / 2), float(rng.uniform(0, 180)), 1.0)
+            k = cv2.warpAffine(k, rot, (n, n))
+            return cv2.filter2D(f, -1, k / max(float(k.sum()), 1e-6))
+
+        variant(f"{base}_shake", base, [sh(f) for f in fr], fps)
     if "compil" in which:  # first 30 frames of another clip, a hard cut, then this clip
         other = {"ccd": "ccd_000330", "dad": "dad_000528"}[base[:3]]
         other = "ccd_000053" if other == base else other
