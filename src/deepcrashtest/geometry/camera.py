@@ -56,10 +56,17 @@ def default_camera(
     show dashcam clips so): its focal length is that of the 16:9 landscape of its height, 90 deg over
     ``height * 16 / 9`` (0.89 x the height, px), not 90 deg over its narrow width (3.2x shorter for 9:16)."""
     x0, y0, x1, y1 = area if area is not None else (0, 0, width, height)
-    w, h = x1 - x0, y1 - y0
-    span = w if w >= h else h * LANDSCAPE_ASPECT  # the width the 90 deg spread over (px)
+    portrait = portrait_size(width, height, area)
+    span = x1 - x0 if portrait is None else portrait[1] * LANDSCAPE_ASPECT  # the width the 90 deg spread over (px)
     f = 0.5 * span / math.tan(math.radians(DEFAULT_HFOV_DEG) / 2)
     return Camera(fx=f, fy=f, cx=(x0 + x1) / 2.0, cy=(y0 + y1) / 2.0, height_m=height_m, intrinsics_source="default")
+
+
+def portrait_size(width: int, height: int, area: tuple[int, int, int, int] | None = None) -> tuple[int, int] | None:
+    """The picture's (width, height) px (``area`` inside black bars, else the ``width`` x ``height`` frame) when it is
+    taller than wide: a portrait, which :func:`default_camera` takes as cut from a 16:9 landscape; None otherwise."""
+    x0, y0, x1, y1 = area if area is not None else (0, 0, width, height)
+    return (x1 - x0, y1 - y0) if x1 - x0 < y1 - y0 else None
 
 
 def _on_picture(width: int, height: int, hfov_deg: float, area: tuple[int, int, int, int] | None, **kw: Any) -> Camera:

@@ -30,7 +30,7 @@ import numpy as np
 
 from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import atomic_path, check_writable, ensure_output_dir, output_set
-from deepcrashtest.geometry.camera import default_camera, scale_camera
+from deepcrashtest.geometry.camera import default_camera, portrait_size, scale_camera
 from deepcrashtest.perception.annotate import Annotator
 from deepcrashtest.perception.detect import DEFAULT_DETECTOR, make_detector
 from deepcrashtest.perception.detections import Detector, in_picture
@@ -585,11 +585,12 @@ def _portrait_note(cam: Camera, meta: VideoMeta, area: tuple[int, int, int, int]
     """The note that the default camera took a portrait picture as cut from a landscape dashcam (none for a
     landscape picture, or a camera not the default): a phone filming upright has a shorter focal length, which
     only the user can give."""
-    x0, y0, x1, y1 = area if area is not None else (0, 0, meta.width, meta.height)
-    if cam.intrinsics_source != "default" or x1 - x0 >= y1 - y0:
+    portrait = portrait_size(meta.width, meta.height, area)
+    if cam.intrinsics_source != "default" or portrait is None:
         return []
+    w, h = portrait
     return [
-        f"portrait picture ({x1 - x0}x{y1 - y0}): the default camera takes it as cut from a 16:9 landscape dashcam "
+        f"portrait picture ({w}x{h}): the default camera takes it as cut from a 16:9 landscape dashcam "
         f"(focal length {cam.fx:.0f} px); give --hfov or --camera if it was filmed upright"
     ]
 
