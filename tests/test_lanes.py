@@ -72,6 +72,19 @@ def test_ego_lane_found_with_plausible_width(chessboard_camera, name, dashboard_
     assert draw_lanes(same, states[-1], copy=False) is same and np.array_equal(same, over)
 
 
+def test_a_line_inside_the_lane_is_not_taken_for_its_boundary(chessboard_camera):
+    """The challenge clip's concrete has seams and tar lines between its markings: the nearest line left of the image
+    centre was the ego lane's left boundary even when it ran through the lane's middle (a 2.2-3.0 m lane in 10 of the
+    first 120 frames, drawn so in the annotated video, the lateral offset off by a metre). A pair whose width is
+    off the lane's median so far by more than 20 % gives way to one that fits: 2 such frames are left (on the whole
+    clip 16 -> 2, the project video's 1,260 frames 22 -> 3, the solid-white clip 2 -> 0)."""
+    tl, states = _run(_frames("highway_lane_challenge.mp4", 120), chessboard_camera, 60)
+    width = tl.lane_width[tl.both_found]
+    assert ((width < 3.0) | (width > 4.6)).sum() <= 2  # main: 10
+    assert tl.both_found.mean() >= 0.85  # 0.89 as before: the pair is chosen among the lines found
+    assert np.nanpercentile(np.abs(tl.lateral_offset), 95) < 0.6
+
+
 def test_dark_frames_give_a_warning(chessboard_camera):
     frames = [(f * 0.08).astype(np.uint8) for f in _frames("highway_solid_white_right.mp4", 15)]
     cam = scale_camera(chessboard_camera, 0.75)

@@ -36,6 +36,10 @@ import numpy as np
 from deepcrashtest.scenario import Camera
 
 PLAUSIBLE_LANE_WIDTH_M = (2.5, 5.0)
+#: The ego lane's last this many plausible widths make its reference width (:meth:`ClassicalLaneDetector._ego_pair`).
+LANE_WIDTH_MEMORY = 50
+#: ... and a pair whose width is off that reference by more than this share is taken only when no other pair fits.
+LANE_WIDTH_TOLERANCE = 0.2
 
 
 @dataclass
@@ -138,6 +142,7 @@ class ClassicalLaneDetector:
         self._lane_index = 0
         self._last_offset: float | None = None
         self._last_width: float | None = None
+        self._widths: list[float] = []  # the ego lane's plausible widths so far (m)
         self._size: tuple[int, int] | None = None
 
     # ------------------------------------------------------------------ geometry
@@ -281,12 +286,7 @@ class ClassicalLaneDetector:
         self._associate(self.detect(img), top, bottom)
         live = [t for t in self.tracks if t.missed <= 2 and t.hits >= 2]
         lines = [LaneLine(t.line.a, t.line.b, t.line.v_top, t.line.v_bottom, t.line.support, t.track_id) for t in live]
-        cx = self.camera.cx
-        at_bottom = [float(ln.u_at(bottom)) for ln in lines]
-        lefts = [(u, ln) for u, ln in zip(at_bottom, lines, strict=True) if u < cx]
-        rights = [(u, ln) for u, ln in zip(at_bottom, lines, strict=True) if u >= cx]
-        left = max(lefts, key=lambda p: p[0])[1] if lefts else None
-        right = min(rights, key=lambda p: p[0])[1] if rights else None
+        left, right = self._ego_pair(lines, bottom)
         state = LaneState(self._frame, float(time), lines, left, right, lane_index=self._lane_index, roi_top=top)
         if left is not None and right is not None:
             xl = self.road_x(float(left.u_at(bottom)), bottom)
@@ -300,10 +300,45 @@ class ClassicalLaneDetector:
                         state.lane_change = 1 if jump < 0 else -1
                         self._lane_index = max(0, self._lane_index + state.lane_change)
                 state.lane_width, state.lateral_offset, state.lane_index = width, offset, self._lane_index
+                if PLAUSIBLE_LANE_WIDTH_M[0] <= width <= PLAUSIBLE_LANE_WIDTH_M[1]:
+                    self._widths.append(width)
                 self._last_offset, self._last_width = offset, width
         self._frame += 1
         self._states.append(state)
         return state
+
+    def _ego_pair(self, lines: list[LaneLine], bottom: float) -> tuple[LaneLine | None, LaneLine | None]:
+        """The ego lane's boundaries: the nearest line left and the nearest right of the image centre at the ROI's
+        bottom row (``bottom``, px), unless their road width is outside :data:`PLAUSIBLE_LANE_WIDTH_M` or off the
+        lane's median width so far by more than :data:`LANE_WIDTH_TOLERANCE` while another left / right pair's is
+        not: then the pair whose width is nearest that median (the range's middle before any). A seam, a tar line or
+        a shadow edge inside the lane was taken for its boundary: the Udacity challenge clip's ego lane drawn 2.2 m
+        wide through the middle of its 3.8 m."""
+        cx = self.camera.cx
+        sides = [(float(ln.u_at(bottom)), ln) for ln in lines]
+        lefts = sorted([p for p in sides if p[0] < cx], key=lambda p: -p[0])  # the nearest first
+        rights = sorted([p for p in sides if p[0] >= cx], key=lambda p: p[0])
+        if not lefts or not rights:
+            return (lefts[0][1] if lefts else None), (rights[0][1] if rights else None)
+        lo, hi = PLAUSIBLE_LANE_WIDTH_M
+        widths = {}
+        for i, (ul, _) in enumerate(lefts):
+            for j, (ur, _) in enumerate(rights):
+                xl, xr = self.road_x(ul, bottom), self.road_x(ur, bottom)
+                if xl is not None and xr is not None:
+                    widths[i, j] = xr - xl
+        ref = float(np.median(self._widths[-LANE_WIDTH_MEMORY:])) if self._widths else None
+
+        def fits(width: float) -> bool:
+            return lo <= width <= hi and (ref is None or abs(width - ref) <= LANE_WIDTH_TOLERANCE * ref)
+
+        nearest = widths.get((0, 0))
+        fitting = {k: w for k, w in widths.items() if fits(w)}
+        if nearest is None or fits(nearest) or not fitting:
+            return lefts[0][1], rights[0][1]
+        centre = 0.5 * (lo + hi) if ref is None else ref
+        i, j = min(fitting, key=lambda k: abs(fitting[k] - centre))
+        return lefts[i][1], rights[j][1]
 
     def timeline(self) -> LaneTimelineResult:
         """Per-frame lane width, lateral offset, lane index; warns when lanes were rarely found."""
