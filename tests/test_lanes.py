@@ -85,6 +85,26 @@ def test_a_line_inside_the_lane_is_not_taken_for_its_boundary(chessboard_camera)
     assert np.nanpercentile(np.abs(tl.lateral_offset), 95) < 0.6
 
 
+def test_the_ego_lane_is_drawn_only_where_measured_with_a_plausible_width():
+    """Green boundaries and the width / offset text only for a measured lane of a plausible width; a pair of lines
+    1.1 m apart (dad_000487's lines up a building front) is drawn as other lines, thin yellow."""
+    from deepcrashtest.perception.lanes import LaneLine, LaneState
+
+    frame = np.zeros((720, 1280, 3), np.uint8)
+    left, right = LaneLine(-1.2, 1100.0, 400.0, 719.0), LaneLine(1.2, 180.0, 400.0, 719.0)
+
+    def drawn(width):
+        state = LaneState(0, 0.0, [left, right], left, right, lane_width=width, lateral_offset=0.1, roi_top=400.0)
+        out = draw_lanes(frame, state)
+        green = (out[..., 1] == 255) & (out[..., 0] == 0) & (out[..., 2] == 0)
+        yellow = (out[..., 2] == 255) & (out[..., 1] == 220)
+        return int(green.sum()), int(yellow.sum())
+
+    assert drawn(3.6)[0] > 1000 and drawn(3.6)[1] == 0
+    assert drawn(1.1) == (0, drawn(1.1)[1]) and drawn(1.1)[1] > 1000
+    assert drawn(None)[0] == 0
+
+
 def test_dark_frames_give_a_warning(chessboard_camera):
     frames = [(f * 0.08).astype(np.uint8) for f in _frames("highway_solid_white_right.mp4", 15)]
     cam = scale_camera(chessboard_camera, 0.75)

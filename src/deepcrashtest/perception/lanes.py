@@ -414,18 +414,21 @@ def hausdorff_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def draw_lanes(frame_bgr: np.ndarray, state: LaneState, top_v: float | None = None, copy: bool = True) -> np.ndarray:
-    """A copy of the frame with tracked lane lines (ego boundaries thick green, others thin yellow); with
-    ``copy=False`` they are drawn into ``frame_bgr`` itself (extract draws onto the annotator's copy: one
-    full-frame copy less per frame)."""
+    """A copy of the frame with tracked lane lines (the ego lane's boundaries thick green with its width and offset,
+    others thin yellow); with ``copy=False`` they are drawn into ``frame_bgr`` itself (extract draws onto the
+    annotator's copy: one full-frame copy less per frame). The ego lane is drawn only where it was measured with a
+    plausible width (:data:`PLAUSIBLE_LANE_WIDTH_M`): elsewhere its lines are drawn as any others, not as a lane the
+    video does not show (dad_000487: a 1 m "lane" up a building front, where the lane stage is not used)."""
     out = frame_bgr.copy() if copy else frame_bgr
     h = out.shape[0]
+    lane = state.lane_width is not None and PLAUSIBLE_LANE_WIDTH_M[0] <= state.lane_width <= PLAUSIBLE_LANE_WIDTH_M[1]
     for ln in state.lines:
         v0 = (state.roi_top or ln.v_top) if top_v is None else top_v
         p0 = (int(round(float(ln.u_at(v0)))), int(round(v0)))
         p1 = (int(round(float(ln.u_at(h - 1)))), h - 1)
-        ego = ln is state.left or ln is state.right
+        ego = lane and (ln is state.left or ln is state.right)
         cv2.line(out, p0, p1, (0, 255, 0) if ego else (0, 220, 255), 4 if ego else 2, cv2.LINE_AA)
-    if state.lane_width is not None and state.lateral_offset is not None:
+    if lane and state.lane_width is not None and state.lateral_offset is not None:
         text = f"lane {state.lane_width:.2f} m  offset {state.lateral_offset:+.2f} m"
         cv2.putText(out, text, (10, 60), cv2.FONT_HERSHEY_SIMPLEX, 0.8, (0, 255, 0), 2, cv2.LINE_AA)
     return out
