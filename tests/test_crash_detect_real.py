@@ -213,3 +213,13 @@ def test_a_crash_frame_given_alone_names_the_pair_the_video_shows_there(tmp_path
     box = tracks[(tracks.track_id == other) & (tracks.frame == label.contact_frame)][["x1", "y1", "x2", "y2"]]
     struck = next(p.box for p in label.participants if p.box is not None)
     assert iou_matrix(box.to_numpy(float), np.array([struck], float)).max() > 0.5  # the car the label names
+    assert not any("likeliest pair" in w for w in res["warnings"])
+    # a frame where no two road users close in: the pair named is said to be a weak one, with how to name another
+    from deepcrashtest.pipeline.crash import crash_for_raw, parse_crash, weak_pair_note
+    from deepcrashtest.scenario import Scenario
+
+    raw = Scenario.load(tmp_path / "out" / "scenario_raw.json")
+    _, record = crash_for_raw(raw, tracks, None, parse_crash("10"))
+    note = weak_pair_note(record)
+    assert record["confidence"] < 0.35 and len(note) == 1 and "--crash 10:ID,ID" in note[0]
+    assert weak_pair_note(crash_for_raw(raw, tracks, None, parse_crash("10:ego,2"))[1]) == []  # a pair named

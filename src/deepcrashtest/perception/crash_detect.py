@@ -110,6 +110,8 @@ class CrashFinding:
 
 
 Candidate = tuple[float, int, tuple[int, int], dict[str, float]]  # (score, contact frame, pair, evidence)
+#: :func:`detect_crash`: a weaker best candidate is no crash.
+MIN_CRASH_SCORE = 0.35
 
 
 def detect_crash(
@@ -118,7 +120,7 @@ def detect_crash(
     height: int,
     fps: float,
     motion: tuple[np.ndarray, np.ndarray] | None = None,
-    min_score: float = 0.35,
+    min_score: float = MIN_CRASH_SCORE,
     allowed: set[int] | None = None,
     frames: tuple[int, int] | None = None,
     world: dict[int, WorldTrack] | None = None,

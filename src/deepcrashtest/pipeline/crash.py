@@ -18,7 +18,14 @@ import numpy as np
 import pandas as pd
 
 from deepcrashtest.errors import UserError
-from deepcrashtest.perception.crash_detect import EGO, CrashFinding, WorldTrack, crash_candidates, detect_crash
+from deepcrashtest.perception.crash_detect import (
+    EGO,
+    MIN_CRASH_SCORE,
+    CrashFinding,
+    WorldTrack,
+    crash_candidates,
+    detect_crash,
+)
 from deepcrashtest.scenario import Collision, CollisionSource, Scenario
 
 _SPEC = re.compile(r"^\s*(\d+)\s*(?::\s*([A-Za-z0-9]+)\s*,\s*([A-Za-z0-9]+)\s*)?$")
@@ -102,6 +109,24 @@ def crash_for_raw(
     conf = None if source == "user" else finding.confidence
     collision = Collision(time_s=t, other_id=a, agent_id=b, source=source, confidence=conf)
     return _with_record(raw, record, collision), record
+
+
+def weak_pair_note(record: dict[str, Any] | None) -> list[str]:
+    """The warning for a ``--crash FRAME`` whose likeliest pair there scores below what the automatic detection
+    calls a crash (:data:`MIN_CRASH_SCORE`): no two road users close in at that frame, so the pair named may not be
+    the one the user sees (none for a named pair, a crash found automatically or a likely pair)."""
+    if not record or record.get("source") != "user" or ":" in str(record.get("user_spec", ":")):
+        return []
+    confidence = float(record.get("confidence", 0.0))
+    if confidence >= MIN_CRASH_SCORE:
+        return []
+    a, b = record["pair"]
+    frame = record["frame"]
+    return [
+        f"--crash {record['user_spec']}: the likeliest pair at frame {frame}, {a} and {b}, scores {confidence:.2f} "
+        f"(a crash found automatically scores >= {MIN_CRASH_SCORE}); check them in annotated.mp4 or name the pair "
+        f"(--crash {frame}:ID,ID)"
+    ]
 
 
 def _bars(record: dict[str, Any], picture: tuple[int, int, int, int] | None, w: int, h: int) -> dict[str, Any]:

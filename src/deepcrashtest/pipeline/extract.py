@@ -238,7 +238,7 @@ def _after_pass(
     df = records_table(records).sort_values(["frame", "track_id"], ignore_index=True)
     crash_info: dict[str, Any] | None = None
     if geo is not None:  # before anything is written: a bad --crash id refuses the whole set
-        from deepcrashtest.pipeline.crash import crash_for_raw
+        from deepcrashtest.pipeline.crash import crash_for_raw, weak_pair_note
 
         motion = plan.motion
         geo.scenario, crash_info = crash_for_raw(geo.scenario, df, motion.arrays(), crash_spec, motion.area)
@@ -248,7 +248,7 @@ def _after_pass(
     result = _summary(plan, meta, df, elapsed)
     result["crash_detection"] = crash_info
     if geo is not None:
-        result["warnings"] += _dashboard_note(dashboard_rows, geo.dashboard_rows, meta)
+        result["warnings"] += weak_pair_note(crash_info) + _dashboard_note(dashboard_rows, geo.dashboard_rows, meta)
         result.update(_finish_scenario(geo, paths, force, seed, report, result["warnings"], stage2, plan.kept))
     return result
 
