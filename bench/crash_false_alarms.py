@@ -30,11 +30,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import crash_detect_bench as cdb  # noqa: E402
 
 from deepcrashtest.datasets.crash_labels import CrashLabel, load_crash_labels  # noqa: E402
-from deepcrashtest.perception.crash_detect import detect_crash  # noqa: E402
+from deepcrashtest.perception.crash_detect import MIN_CRASH_SCORE, detect_crash  # noqa: E402
 from deepcrashtest.pipeline.crash import world_tracks  # noqa: E402
 from deepcrashtest.scenario import Scenario  # noqa: E402
 
-MIN_SCORE = 0.35  # detect_crash's default
+MIN_SCORE = MIN_CRASH_SCORE  # detect_crash's default
 MIN_LEFT_S = 2.0
 
 

@@ -27,6 +27,7 @@ protocol (a learned model) can replace this one.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -40,6 +41,11 @@ PLAUSIBLE_LANE_WIDTH_M = (2.5, 5.0)
 LANE_WIDTH_MEMORY = 50
 #: ... and a pair whose width is off that reference by more than this share is taken only when no other pair fits.
 LANE_WIDTH_TOLERANCE = 0.2
+
+
+def plausible_lane_width(width: float | None) -> bool:
+    """Whether ``width`` (m) is a lane's (:data:`PLAUSIBLE_LANE_WIDTH_M`); None (not measured) is not."""
+    return width is not None and PLAUSIBLE_LANE_WIDTH_M[0] <= width <= PLAUSIBLE_LANE_WIDTH_M[1]
 
 
 @dataclass
@@ -142,7 +148,7 @@ class ClassicalLaneDetector:
         self._lane_index = 0
         self._last_offset: float | None = None
         self._last_width: float | None = None
-        self._widths: list[float] = []  # the ego lane's plausible widths so far (m)
+        self._widths: deque[float] = deque(maxlen=LANE_WIDTH_MEMORY)  # the ego lane's last plausible widths (m)
         self._size: tuple[int, int] | None = None
 
     # ------------------------------------------------------------------ geometry
@@ -300,7 +306,7 @@ class ClassicalLaneDetector:
                         state.lane_change = 1 if jump < 0 else -1
                         self._lane_index = max(0, self._lane_index + state.lane_change)
                 state.lane_width, state.lateral_offset, state.lane_index = width, offset, self._lane_index
-                if PLAUSIBLE_LANE_WIDTH_M[0] <= width <= PLAUSIBLE_LANE_WIDTH_M[1]:
+                if plausible_lane_width(width):
                     self._widths.append(width)
                 self._last_offset, self._last_width = offset, width
         self._frame += 1
@@ -320,23 +326,21 @@ class ClassicalLaneDetector:
         rights = sorted([p for p in sides if p[0] >= cx], key=lambda p: p[0])
         if not lefts or not rights:
             return (lefts[0][1] if lefts else None), (rights[0][1] if rights else None)
-        lo, hi = PLAUSIBLE_LANE_WIDTH_M
-        widths = {}
-        for i, (ul, _) in enumerate(lefts):
-            for j, (ur, _) in enumerate(rights):
-                xl, xr = self.road_x(ul, bottom), self.road_x(ur, bottom)
-                if xl is not None and xr is not None:
-                    widths[i, j] = xr - xl
-        ref = float(np.median(self._widths[-LANE_WIDTH_MEMORY:])) if self._widths else None
+        xls = [self.road_x(u, bottom) for u, _ in lefts]  # road x (m) of each line at the bottom row
+        xrs = [self.road_x(u, bottom) for u, _ in rights]
+        widths = {
+            (i, j): xr - xl for i, xl in enumerate(xls) for j, xr in enumerate(xrs) if xl is not None and xr is not None
+        }
+        ref = float(np.median(self._widths)) if self._widths else None
 
         def fits(width: float) -> bool:
-            return lo <= width <= hi and (ref is None or abs(width - ref) <= LANE_WIDTH_TOLERANCE * ref)
+            return plausible_lane_width(width) and (ref is None or abs(width - ref) <= LANE_WIDTH_TOLERANCE * ref)
 
         nearest = widths.get((0, 0))
         fitting = {k: w for k, w in widths.items() if fits(w)}
         if nearest is None or fits(nearest) or not fitting:
             return lefts[0][1], rights[0][1]
-        centre = 0.5 * (lo + hi) if ref is None else ref
+        centre = 0.5 * sum(PLAUSIBLE_LANE_WIDTH_M) if ref is None else ref
         i, j = min(fitting, key=lambda k: abs(fitting[k] - centre))
         return lefts[i][1], rights[j][1]
 
@@ -352,7 +356,7 @@ class ClassicalLaneDetector:
                 "(no clear markings, darkness or glare); lane offsets not used"
             )
         good = width[both]
-        if good.size and not (PLAUSIBLE_LANE_WIDTH_M[0] <= float(np.median(good)) <= PLAUSIBLE_LANE_WIDTH_M[1]):
+        if good.size and not plausible_lane_width(float(np.median(good))):
             warnings.append(
                 f"lanes: median lane width {float(np.median(good)):.2f} m is implausible: camera height, "
                 "horizon or focal length may be wrong"
@@ -421,7 +425,7 @@ def draw_lanes(frame_bgr: np.ndarray, state: LaneState, top_v: float | None = No
     video does not show (dad_000487: a 1 m "lane" up a building front, where the lane stage is not used)."""
     out = frame_bgr.copy() if copy else frame_bgr
     h = out.shape[0]
-    lane = state.lane_width is not None and PLAUSIBLE_LANE_WIDTH_M[0] <= state.lane_width <= PLAUSIBLE_LANE_WIDTH_M[1]
+    lane = plausible_lane_width(state.lane_width)
     for ln in state.lines:
         v0 = (state.roi_top or ln.v_top) if top_v is None else top_v
         p0 = (int(round(float(ln.u_at(v0)))), int(round(v0)))

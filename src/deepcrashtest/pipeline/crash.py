@@ -115,7 +115,8 @@ def weak_pair_note(record: dict[str, Any] | None) -> list[str]:
     """The warning for a ``--crash FRAME`` whose likeliest pair there scores below what the automatic detection
     calls a crash (:data:`MIN_CRASH_SCORE`): no two road users close in at that frame, so the pair named may not be
     the one the user sees (none for a named pair, a crash found automatically or a likely pair)."""
-    if not record or record.get("source") != "user" or ":" in str(record.get("user_spec", ":")):
+    spec = (record or {}).get("user_spec")
+    if record is None or record.get("source") != "user" or spec is None or ":" in spec:  # no spec, or a pair named
         return []
     confidence = float(record.get("confidence", 0.0))
     if confidence >= MIN_CRASH_SCORE:
@@ -123,7 +124,7 @@ def weak_pair_note(record: dict[str, Any] | None) -> list[str]:
     a, b = record["pair"]
     frame = record["frame"]
     return [
-        f"--crash {record['user_spec']}: the likeliest pair at frame {frame}, {a} and {b}, scores {confidence:.2f} "
+        f"--crash {spec}: the likeliest pair at frame {frame}, {a} and {b}, scores {confidence:.2f} "
         f"(a crash found automatically scores >= {MIN_CRASH_SCORE}); check them in annotated.mp4 or name the pair "
         f"(--crash {frame}:ID,ID)"
     ]
