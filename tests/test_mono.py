@@ -426,12 +426,27 @@ def test_forward_axis_column_from_road_users_beside_the_ego_path(kitti_root):
     assert any("forward axis column" in n for n in cal.notes)
 
 
+@pytest.mark.parametrize("sequence", [18, 19])
+def test_forward_axis_column_where_the_image_centre_is_far_off(kitti_root, sequence):
+    """Training sequences 0018 / 0019, whose principal point (KITTI P2: 600.4 px) lies 19-20 px left of the image
+    centre: the self-calibrated column lies within 6 px of it (5.3 / -1.7 px off). With the path estimate's
+    bootstrap sigma inflated x 4 (before round axis34) the image-centre prior pulled it to 11.0 / 6.3 px off."""
+    p = prepare_mono(kitti_root, sequence)
+    tracks = image_tracks(p, DEFAULT_MONO)
+    ego = EgoMotion.from_poses(p.world.poses, 10.0)
+    start = Camera(fx=621.0, fy=621.0, cx=p.size[0] / 2, cy=p.size[1] / 2, height_m=1.3)
+    cal = self_calibrate(tracks, start, p.size, ego)
+    assert abs(start.cx - p.camera.cx) > 15.0
+    assert abs(cal.camera.cx - p.camera.cx) < 6.0, (cal.camera.cx, p.camera.cx)
+
+
 def test_unknown_camera_held_out_0008(kitti_root):
     """Held-out 0008 with an unknown camera (a floor): MOTA 50.69 with the image centre as the forward
     axis, 54.17 with the axis column calibrated (618.6 px, true 609.6), 52.18 on merged main (tracks
-    confirmed after 3 hits; goal 60; never used to choose a setting)."""
+    confirmed after 3 hits), 55.85 before round axis34, 59.42 after it (616.2 px; goal 60; never used to
+    choose a setting)."""
     rows = evaluate_mono(kitti_root, [8], camera="unknown")["sequences"]
-    assert rows["0008"]["MOTA"] >= 51.0, rows["0008"]["MOTA"]
+    assert rows["0008"]["MOTA"] >= 58.0, rows["0008"]["MOTA"]
 
 
 def test_cut_boxes_at_a_track_end_are_carried(prep):
