@@ -774,3 +774,10 @@ def test_box_headings_of_a_street_of_parked_cars_follow_the_labels(kitti_root):
     assert heading["n"] > 1000
     assert heading["median_deg"] < 10.0  # measured 6.6
     assert heading["share_over_20_deg"] < 0.3  # measured 0.18
+
+
+def test_frame_size_of_a_sequence_whose_boxes_never_reach_the_bottom(kitti_root):
+    """0012's label and PointRCNN boxes end at row 272 of its 375: the frame's size (an unknown camera's principal
+    point is its centre) comes from the boxes' width and KITTI's frame aspect, as for every other sequence's boxes."""
+    assert prepare_mono(kitti_root, 12).size == (1242, 375)
+    assert prepare_mono(kitti_root, 16).size == (1224, 370)
