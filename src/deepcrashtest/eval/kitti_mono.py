@@ -121,10 +121,9 @@ class MonoSequence:
 def _image_size(*tables: pd.DataFrame) -> tuple[int, int]:
     """(width, height) px of a sequence's frames from its boxes (KITTI frames differ by a few px): the boxes' extent,
     the height at least the width over the frames' aspect (:data:`KITTI_IMAGE_SIZE`'s, 3.31: 1242 x 375, 1224 x 370,
-    1238 x 374 px by recording day). Boxes are clipped to the
-    frame, and cars leaving at its sides touch the right edge in every sequence, but where none reaches the bottom
-    their extent alone reads the frame short (0012: 273 rows of 375, which put an unknown camera's default
-    principal point 51 px above the frame's centre)."""
+    1238 x 374 px by recording day). Boxes are clipped to the frame, and cars leaving at its sides touch the right
+    edge in every sequence, but where none reaches the bottom their extent alone reads the frame short (0012: 273
+    rows of 375, which put an unknown camera's default principal point 51 px above the frame's centre)."""
     w = int(math.ceil(max(float(t["x2"].max()) for t in tables if len(t)))) + 1
     h = int(math.ceil(max(float(t["y2"].max()) for t in tables if len(t)))) + 1
     return w, max(h, round(w * KITTI_IMAGE_SIZE[1] / KITTI_IMAGE_SIZE[0]))
