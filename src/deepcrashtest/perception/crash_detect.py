@@ -133,9 +133,14 @@ def detect_crash(
     cands = crash_candidates(tracks, width, height, fps, motion, allowed, frames, world, picture)
     if not cands:
         return None
-    score, frame, pair, ev = cands[0]
-    if score < min_score:
+    if cands[0][0] < min_score:
         return None
+    return finding(cands[0], fps)
+
+
+def finding(candidate: Candidate, fps: float) -> CrashFinding:
+    """The :class:`CrashFinding` of one of :func:`crash_candidates`' candidates (its score clipped to [0, 1])."""
+    score, frame, pair, ev = candidate
     return CrashFinding(frame, frame / fps, pair, float(np.clip(score, 0, 1)), ev)
 
 

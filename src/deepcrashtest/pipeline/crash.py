@@ -25,6 +25,7 @@ from deepcrashtest.perception.crash_detect import (
     WorldTrack,
     crash_candidates,
     detect_crash,
+    finding,
 )
 from deepcrashtest.scenario import Collision, CollisionSource, Scenario
 
@@ -178,8 +179,7 @@ def _likeliest_pair_near(
     cands = crash_candidates(tracks, w, h, fps, motion, agents, world=world, picture=picture)
     close = [c for c in cands if abs(c[1] - frame) <= win]
     if close:
-        score, at, pair, evidence = close[0]
-        return CrashFinding(at, at / fps, pair, float(np.clip(score, 0, 1)), evidence)
+        return finding(close[0], fps)
     return detect_crash(
         tracks, w, h, fps, motion, allowed=agents, min_score=0.0, frames=(frame - win, frame + win), world=world,
         picture=picture,
