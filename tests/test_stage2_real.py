@@ -75,19 +75,22 @@ def test_a_trimmed_lead_in_starts_clear_of_every_road_user(ccd882_raw):
     """ccd_000882: agent 2's invented lead-in touched agent 1 at 0.85 s; trimmed to start 1 s later, it started
     0.35 m from agent 1 (main 42759cb), under the 0.5 m bystanders are kept apart by: a scenario whose first moment
     has two road users (nearly) in one place, which the replay ignores only until they part. A trimmed lead-in now
-    starts at its first sample that is clear of everyone (or where the road user is first seen)."""
+    starts at its first sample that is clear of everyone (or where the road user is first seen). (Since round
+    leadin35 the lead-in is trimmed before the crash correction, ``trajectory.leadin``: its record is ``lead_ins``.)"""
     from deepcrashtest.trajectory.collision import vehicle_box
     from deepcrashtest.trajectory.contact import ContactParams, separation
     from deepcrashtest.trajectory.pipeline import process_scenario
 
     sc = process_scenario(ccd882_raw)
     byid = {v.id: v for v in [sc.ego, *sc.agents]}
-    trims = [b for b in sc.provenance.parameters["crash"].get("bystanders", []) if "trimmed_at_s" in b]
-    leadins = [b for b in trims if b["agent"] in byid and byid[b["agent"]].trajectory.t[0] > b["trimmed_at_s"]]
+    crash = sc.provenance.parameters["crash"]
+    trims = [b for b in crash.get("bystanders", []) if "trimmed_at_s" in b]
+    leadins = [b["agent"] for b in trims if b["agent"] in byid and byid[b["agent"]].trajectory.t[0] > b["trimmed_at_s"]]
+    leadins += [c["agent"] for c in crash.get("lead_ins", []) if "to_s" in c and c["agent"] in byid]  # trimmed before
     assert leadins  # agent 2's lead-in is trimmed
     checked = 0
-    for b in leadins:
-        v = byid[b["agent"]]
+    for vid in leadins:
+        v = byid[vid]
         box = vehicle_box(v)
         t0 = np.array([box.t[0]])
         seen = v.trajectory.observed

@@ -35,6 +35,7 @@ from deepcrashtest.trajectory.contact import (
     sight_metric,
 )
 from deepcrashtest.trajectory.dense import EPS_T, Dense
+from deepcrashtest.trajectory.leadin import clear_lead_ins, clear_start, seen_at
 from deepcrashtest.trajectory.params import Stage2Params
 from deepcrashtest.trajectory.parked import parked_apart
 
@@ -129,6 +130,10 @@ def resolve_crash(
                         "its last velocity to the crash"
                     )
                 _reach(d, t_end)
+    # before the pair's correction: it cannot move them apart before its window
+    lead_ins = clear_lead_ins(ego, agents, t_from, cp.clearance_m, warnings)
+    if lead_ins:
+        record["lead_ins"] = lead_ins
     if collision is not None and not legacy:
         record.update(_enforce_pair(collision, ego, agents, cp, warnings))
     if collision is None:
@@ -171,7 +176,7 @@ def earlier_touch(known: Collision, ego: Dense, agents: list[Dense], t_from: flo
     hit = first_contact(a.box_track(), b.box_track(), t_from=t_from)
     if hit is None or hit.time_s > known.time_s - EARLIER_TOUCH_S:
         return known
-    if not all(d is ego or _seen_at(d, hit.time_s) for d in (a, b)):
+    if not all(d is ego or seen_at(d, hit.time_s) for d in (a, b)):
         return known
     warnings.append(
         f"the detected crash of {a.id} and {b.id}: their boxes, as seen, touch {known.time_s - hit.time_s:.2f} s "
@@ -348,15 +353,11 @@ def _grown(b: BoxTrack, margin_m: float) -> BoxTrack:
     return b if margin_m <= 0 else replace(b, length=b.length + margin_m, width=b.width + margin_m)
 
 
-def _seen_at(d: Dense, t: float) -> bool:
-    seen = d.t[d.observed]
-    return bool(len(seen)) and seen[0] - EPS_T <= t <= seen[-1] + EPS_T
-
-
 def _trim_invented(d: Dense, t_hit: float, others: list[Dense], clearance_m: float, margin_s: float = 1.0) -> bool:
     """A contact in the unobserved part of a track (extrapolated after it was seen, or invented before):
     keep that part only up to ``margin_s`` from the contact; an invented lead-in so trimmed starts where
-    ``d`` is at least ``clearance_m`` (m) from every road user of ``others`` (:func:`_clear_start`). False
+    ``d`` is at least ``clearance_m`` (m) from every road user of ``others``
+    (:func:`~deepcrashtest.trajectory.leadin.clear_start`). False
     when the contact is in the seen part."""
     seen = d.t[d.observed]
     if not len(seen) or d.static:
@@ -365,27 +366,10 @@ def _trim_invented(d: Dense, t_hit: float, others: list[Dense], clearance_m: flo
         d.keep(d.t <= max(float(seen[-1]), t_hit - margin_s) + EPS_T)
         return True
     if t_hit < seen[0] - EPS_T:
-        start = _clear_start(d, others, min(float(seen[0]), t_hit + margin_s), float(seen[0]), clearance_m)
+        start = clear_start(d, others, min(float(seen[0]), t_hit + margin_s), float(seen[0]), clearance_m)
         d.keep(d.t >= start - EPS_T)
         return True
     return False
-
-
-def _clear_start(d: Dense, others: list[Dense], lo: float, hi: float, clearance_m: float) -> float:
-    """The first sample time (s) of ``d`` in ``[lo, hi]`` at which its box is at least ``clearance_m`` (m) from
-    the box of every road user of ``others`` present then; ``hi`` (where it is first seen) if none is. A
-    lead-in trimmed 1 s after its contact often still overlapped the road user it touched (a scooter's
-    lead-in 1.5 m into a car, dad_000478 filmed off a screen): the scenario then starts with two road users in
-    one place, which the replay ignores only until they part (a graze 0.03 s later is a contact)."""
-    box = d.box_track()
-    ts = d.t[(d.t >= lo - EPS_T) & (d.t <= hi + EPS_T)]
-    gap = np.full(len(ts), np.inf)
-    for o in others:
-        at = (ts >= o.t[0] - EPS_T) & (ts <= o.t[-1] + EPS_T)
-        if at.any():
-            gap[at] = np.minimum(gap[at], separation(box, o.box_track(), ts[at]))
-    clear = ts[gap >= clearance_m]
-    return float(clear[0]) if len(clear) else hi
 
 
 def _reach(d: Dense, t_end: float, fit_s: float = 0.5) -> None:
@@ -456,7 +440,7 @@ def _first_clash(
             cands = [d for d in (a, b) if d is not ego and d.id not in pair]
             if not cands:
                 continue
-            invented = [d for d in cands if not _seen_at(d, hit.time_s)]  # move an invented path first
+            invented = [d for d in cands if not seen_at(d, hit.time_s)]  # move an invented path first
             mover = min(invented or cands, key=lambda d: (d.vehicle.confidence or 0.0, len(d.t)))
             if best is None or hit.time_s < best[0]:
                 best = (hit.time_s, mover)

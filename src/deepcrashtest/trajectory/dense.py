@@ -18,6 +18,7 @@ from deepcrashtest.trajectory.extrapolate import continue_after, continue_before
 from deepcrashtest.trajectory.params import Stage2Params
 from deepcrashtest.trajectory.roadframe import RoadFrame
 from deepcrashtest.trajectory.smoothing import SmoothTrack, smooth_track
+from deepcrashtest.trajectory.stepback import LeadIn
 
 EPS_T = 1e-3  # seconds: samples closer than this are merged
 
@@ -39,6 +40,8 @@ class Dense:
     rel_s: np.ndarray = field(default_factory=lambda: np.zeros(0))  # station minus the ego's, m
     box_yaw: tuple[np.ndarray, np.ndarray] | None = None
     """(t s, yaw rad) the box faces instead of the motion's direction (a crawling ego: the camera's yaw)."""
+    lead_in: LeadIn | None = None
+    """The step-back lead-in prepended to a moving vehicle present at the video's start (its samples before t_max)."""
 
     @property
     def id(self) -> int:

@@ -75,7 +75,7 @@ from deepcrashtest.trajectory.params import Stage2Params
 from deepcrashtest.trajectory.road import along_road, build_road, extend_head_on
 from deepcrashtest.trajectory.roadframe import RoadFrame
 from deepcrashtest.trajectory.smoothing import eval_xy, fit_xy_spline, smooth_track, spline_params
-from deepcrashtest.trajectory.stepback import plan_step_back, step_back_prefix
+from deepcrashtest.trajectory.stepback import LeadIn, plan_step_back
 from deepcrashtest.trajectory.traction import exceeding_s, retimed_within
 
 __all__ = ["headings", "process_scenario"]
@@ -329,7 +329,9 @@ def _step_back_phase(run: _Run, ego: Dense, agents: list[Dense]) -> float:
         for d, v in zip(present, v0, strict=True):
             moving = v > MOVING_MPS and not (d is ego and v < SLOW_EGO_MPS)
             heading = headings(d.t[:3], d.xy[:3], d.heading)[0] if moving else d.heading
-            d.prepend(t_pre, step_back_prefix(d.xy[0], heading, float(v), plan, t_pre))
+            lead_in = LeadIn(d.xy[0].copy(), float(heading), float(v), plan)
+            d.prepend(t_pre, lead_in.positions(t_pre))
+            d.lead_in = lead_in if moving else None
     return t_max
 
 

@@ -15,7 +15,7 @@ so nobody is launched from far away and parked or crawling vehicles stay where t
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -68,3 +68,28 @@ def step_back_prefix(first_xy: np.ndarray, heading: float, v: float, plan: StepB
     back = D - distance_from_rest(t, v, plan.accel, v_start)
     u = np.array([np.cos(heading), np.sin(heading)])
     return np.asarray(first_xy, float)[None, :] - back[:, None] * u[None, :]
+
+
+@dataclass(frozen=True)
+class LeadIn:
+    """One vehicle's step-back lead-in: from rest (or ``plan``'s capped start) along ``heading`` (rad) to its first
+    observed position ``first_xy`` (m) and speed ``speed`` (m/s), reached at ``plan.t_max``."""
+
+    first_xy: np.ndarray
+    heading: float
+    speed: float
+    plan: StepBackPlan
+
+    def positions(self, t: np.ndarray, accel: float | None = None) -> np.ndarray:
+        """Points (N, 2) at scenario times ``t`` (s, within [0, t_max]); ``accel`` (m/s^2): this vehicle's own
+        acceleration instead of the plan's (a gentler one starts it nearer its first observed position)."""
+        plan = self.plan if accel is None else replace(self.plan, accel=float(accel))
+        return step_back_prefix(self.first_xy, self.heading, self.speed, plan, t)
+
+    def gentler_accels(self, steps: int = 8) -> np.ndarray:
+        """Accelerations (m/s^2) below the plan's, gentlest last, down to the one that still starts from rest
+        (``speed / t_max``); none where the plan's lead-in is capped (the vehicle does not start from rest)."""
+        lo = self.speed / self.plan.t_max if self.plan.t_max > 0 else np.inf
+        if not lo < self.plan.accel:
+            return np.zeros(0)
+        return np.linspace(self.plan.accel, lo, steps + 1)[1:]
