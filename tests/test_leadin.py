@@ -94,3 +94,22 @@ def test_lead_ins_that_keep_apart_are_left_whole():
     assert _overlaps_at_start(sc) == []
     assert all(v.trajectory.t[0] == 0.0 for v in sc.vehicles())
     assert not any("lead-in" in w for w in sc.warnings)
+
+
+def test_a_track_continued_after_it_was_lost_ends_where_its_next_track_appears():
+    """The car ahead tracked 0-2 s (id 1), lost, and tracked again 3-5 s under a new id (3): stage 2 continues track 1
+    after the video lost it, through the place where track 3 then appears (a road user appearing inside another: a
+    collision in a user's simulator, ignored by ours). Now the continuation ends where track 3 appears."""
+
+    def car(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return 20.0 + 8.0 * t, -3.5 + 0.0 * t
+
+    first = vehicle(1, track(car, 0, 20), length=4.4, width=1.8)
+    again = vehicle(3, track(car, 30, 50), length=4.4, width=1.8)
+    sc = process_scenario(raw_scenario([first, again], ego=track(lambda t: (10.0 * t, 0.0 * t), 0, 50)))
+    lost, found = (next(v for v in sc.agents if v.id == i) for i in (1, 3))
+    assert lost.trajectory.t[-1] < found.trajectory.t[0]  # it ended before the new track appears (was: 2 s later)
+    assert sum(lost.trajectory.observed) == 21  # the part the video saw is whole
+    assert _overlaps_at_start(sc) == []
+    (change,) = sc.provenance.parameters["crash"]["lead_ins"]
+    assert change == {"agent": 1, "until_s": pytest.approx(lost.trajectory.t[-1], abs=1e-3)}

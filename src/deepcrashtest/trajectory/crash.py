@@ -35,7 +35,7 @@ from deepcrashtest.trajectory.contact import (
     sight_metric,
 )
 from deepcrashtest.trajectory.dense import EPS_T, Dense
-from deepcrashtest.trajectory.leadin import clear_lead_ins, clear_start, seen_at
+from deepcrashtest.trajectory.leadin import clear_appearances, clear_lead_ins, clear_start, seen_at
 from deepcrashtest.trajectory.params import Stage2Params
 from deepcrashtest.trajectory.parked import parked_apart
 
@@ -132,6 +132,8 @@ def resolve_crash(
                 _reach(d, t_end)
     # before the pair's correction: it cannot move them apart before its window
     lead_ins = clear_lead_ins(ego, agents, t_from, cp.clearance_m, warnings)
+    pair_ids = collision.participants if collision is not None else ()
+    lead_ins += clear_appearances(ego, agents, pair_ids, t_from, cp.clearance_m, warnings)
     if lead_ins:
         record["lead_ins"] = lead_ins
     if collision is not None and not legacy:

@@ -1,4 +1,4 @@
-"""A scenario that starts with no two road users in one place: invented lead-ins trimmed where they overlap.
+"""No road user starts or appears inside another: invented lead-ins and continuations kept apart.
 
 Scenario time (seconds), world frame (metres). The step-back (``trajectory.stepback``) leads every road user present
 at the video's start in from rest along its first heading; nothing in the video constrains that lead-in, and two
@@ -9,15 +9,19 @@ exist until they part, but a user's simulator spawns both at the start and meets
 correction (``trajectory.contact.make_contact``) cannot move a pair apart before its window: it failed on such a
 pair and left its crash 0.8 s early. :func:`clear_lead_ins` gives such a lead-in a gentler start from rest, or trims
 it: the road user then joins the scenario where its box is clear of every other one's (``trajectory.crash`` trims
-an invented part that touches another road user after the video starts the same way).
+an invented part that touches another road user after the video starts the same way). :func:`clear_appearances`
+does the same where a road user joins later inside another's invented path (a track continued after the video lost
+it, through the place where the same car, tracked again under a new id, appears).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
 
+from deepcrashtest.trajectory.collision import BoxTrack
 from deepcrashtest.trajectory.contact import separation
 from deepcrashtest.trajectory.dense import EPS_T, Dense
 
@@ -59,35 +63,27 @@ def clear_lead_ins(
     is trimmed: it joins at :func:`clear_start` after the contact (a lead-in through a road user standing in its
     way), but only where that ends the overlap before it is seen (two boxes that overlap where the video sees both
     are depth noise, not the lead-in's doing, and stay). Pairs in which neither can change stay as they are."""
-    changes: list[dict[str, float]] = []
     every = [ego, *agents]
-    stuck: set[tuple[int, int]] = set()
-    for _ in range(2 * len(every) + 1):
-        found = _first_lead_in_contact(every, t_max, stuck)
-        if found is None:
-            break
-        (a, b), t_hit = found
-        movers = [
-            d for d in (a, b) if d is not ego and not d.static and d.observed.any() and t_hit < _first_seen(d) - EPS_T
-        ]
-        movers.sort(key=lambda m: (m.vehicle.confidence or 0.0, len(m.t)))
+
+    def resolve(a: Dense, b: Dense, t_hit: float) -> dict[str, float] | None:
+        movers = [d for d in (a, b) if d is not ego and not d.static and d.observed.any()]
+        movers = sorted((d for d in movers if t_hit < _first_seen(d) - EPS_T), key=_least_trusted)
         change = next((c for d in movers if (c := _gentler_lead_in(d, every, clearance_m)) is not None), None)
         change = change or next(
-            (c for d in movers if (c := _trimmed(d, b if d is a else a, every, t_hit, clearance_m))), None
+            (c for d in movers if (c := _trimmed(d, _other(d, a, b), every, t_hit, clearance_m))), None
         )
-        if change is None:
-            stuck.add((a.id, b.id))
-            continue
-        changes.append(change)
-        other = b.id if change["agent"] == a.id else a.id
-        how = (
-            f"it now leaves rest at {change['accel_mps2']:.2f} m/s^2" if "accel_mps2" in change
-            else f"it joins the scenario at {change['to_s']:.2f} s instead of {change['from_s']:.2f} s"
-        )  # fmt: skip
-        warnings.append(
-            f"agent {change['agent']}: its lead-in (before the video saw it) ran into road user {other}; {how}"
-        )
-    return changes
+        if change is not None:
+            how = (
+                f"it now leaves rest at {change['accel_mps2']:.2f} m/s^2" if "accel_mps2" in change
+                else f"it joins the scenario at {change['to_s']:.2f} s instead of {change['from_s']:.2f} s"
+            )  # fmt: skip
+            other = _other(next(d for d in (a, b) if d.id == change["agent"]), a, b).id
+            warnings.append(
+                f"agent {change['agent']}: its lead-in (before the video saw it) ran into road user {other}; {how}"
+            )
+        return change
+
+    return _pair_by_pair(every, lambda stuck: _earliest(every, stuck, _lead_in_contact(t_max)), resolve)
 
 
 def _first_seen(d: Dense) -> float:
@@ -139,11 +135,77 @@ def _trimmed(d: Dense, other: Dense, every: list[Dense], t0: float, clearance_m:
     return record
 
 
-def _first_lead_in_contact(
-    every: list[Dense], t_max: float, stuck: set[tuple[int, int]]
+def clear_appearances(
+    ego: Dense, agents: list[Dense], pair: tuple[int, ...], t_max: float, clearance_m: float, warnings: list[str]
+) -> list[dict[str, float]]:
+    """Keep apart (in place) every pair whose boxes overlap where the later of the two joins the scenario after the
+    video starts (``t_max``, s) while one of them is invented there; returns one record per change.
+
+    The simulator ignores such an overlap, but a road user that appears inside another is a collision in a user's
+    simulator. The invented one (never the ego, never a parked one) gives way: a start extrapolated before the video
+    first saw it is trimmed to join at :func:`clear_start` (or where it is first seen); a track continued after the
+    video lost it (the same road user, tracked again under a new id, appears inside its continuation) ends where the
+    other appears, unless it is one of the crash ``pair`` (it must reach the crash). Two road users that overlap
+    where the video sees both stay as they are (depth noise)."""
+    every = [ego, *agents]
+
+    def resolve(a: Dense, b: Dense, t0: float) -> dict[str, float] | None:
+        for d in sorted((a, b), key=_least_trusted):
+            if d is ego or d.static or not d.observed.any():
+                continue
+            change = None
+            if t0 < _first_seen(d) - EPS_T:
+                change = _trimmed(d, _other(d, a, b), every, t0, clearance_m)
+            elif t0 > _last_seen(d) + EPS_T and d.id not in pair:
+                change = {"agent": d.id, "until_s": round(float(d.t[d.t < t0 - EPS_T][-1]), 3)}
+                d.keep(d.t < t0 - EPS_T)
+            if change is not None:
+                how = (
+                    f"it joins the scenario at {change['to_s']:.2f} s" if "to_s" in change
+                    else f"its continuation after the video lost it ends at {change['until_s']:.2f} s"
+                )  # fmt: skip
+                warnings.append(f"agent {d.id}: road user {_other(d, a, b).id} appears inside its invented path; {how}")
+                return change
+        return None
+
+    return _pair_by_pair(every, lambda stuck: _earliest(every, stuck, _overlap_on_joining(t_max)), resolve)
+
+
+def _last_seen(d: Dense) -> float:
+    return float(d.t[d.observed][-1])
+
+
+PairEvent = Callable[[Dense, Dense, BoxTrack, BoxTrack], "float | None"]
+
+
+def _lead_in_contact(t_max: float) -> PairEvent:
+    """The pair's first overlap before ``t_max`` (s, where the video starts: every sample before it is invented)."""
+
+    def when(a: Dense, b: Dense, box_a: BoxTrack, box_b: BoxTrack) -> float | None:
+        lo, hi = max(float(a.t[0]), float(b.t[0])), min(float(a.t[-1]), float(b.t[-1]), t_max - EPS_T)
+        ts = a.t[(a.t >= lo - EPS_T) & (a.t <= hi)]
+        hit = ts[separation(box_a, box_b, ts) < 0.0] if len(ts) else ts
+        return float(hit[0]) if len(hit) else None
+
+    return when
+
+
+def _overlap_on_joining(t_max: float) -> PairEvent:
+    """The first moment both exist, at or after ``t_max`` (s), where their boxes overlap then."""
+
+    def when(a: Dense, b: Dense, box_a: BoxTrack, box_b: BoxTrack) -> float | None:
+        t0 = max(float(a.t[0]), float(b.t[0]))
+        if t0 < t_max - EPS_T or t0 > min(float(a.t[-1]), float(b.t[-1])) + EPS_T:
+            return None
+        return t0 if separation(box_a, box_b, np.array([t0]))[0] < 0.0 else None
+
+    return when
+
+
+def _earliest(
+    every: list[Dense], stuck: set[tuple[int, int]], when: PairEvent
 ) -> tuple[tuple[Dense, Dense], float] | None:
-    """The pair (not both parked, not in ``stuck``) whose boxes first overlap before ``t_max`` (s, where the video
-    starts: every sample before it is invented), the earliest first, with that time (s)."""
+    """The pair (not both parked, not in ``stuck``) whose event ``when`` comes first, with its time (s)."""
     best: tuple[tuple[Dense, Dense], float] | None = None
     boxes = [d.box_track() for d in every]
     for i in range(len(every)):
@@ -151,11 +213,38 @@ def _first_lead_in_contact(
             a, b = every[i], every[j]
             if (a.static and b.static) or (a.id, b.id) in stuck:
                 continue
-            lo, hi = max(float(a.t[0]), float(b.t[0])), min(float(a.t[-1]), float(b.t[-1]), t_max - EPS_T)
-            ts = a.t[(a.t >= lo - EPS_T) & (a.t <= hi)]
-            if not len(ts) or (best is not None and ts[0] >= best[1]):
-                continue
-            hit = ts[separation(boxes[i], boxes[j], ts) < 0.0]
-            if len(hit) and (best is None or hit[0] < best[1]):
-                best = ((a, b), float(hit[0]))
+            t = when(a, b, boxes[i], boxes[j])
+            if t is not None and (best is None or t < best[1]):
+                best = ((a, b), t)
     return best
+
+
+def _pair_by_pair(
+    every: list[Dense],
+    find: Callable[[set[tuple[int, int]]], tuple[tuple[Dense, Dense], float] | None],
+    resolve: Callable[[Dense, Dense, float], dict[str, float] | None],
+) -> list[dict[str, float]]:
+    """``resolve`` the pair ``find`` gives, earliest first, until none is left (a pair it cannot resolve is not
+    offered again); the records of the changes made."""
+    changes: list[dict[str, float]] = []
+    stuck: set[tuple[int, int]] = set()
+    for _ in range(2 * len(every) + 1):
+        found = find(stuck)
+        if found is None:
+            break
+        (a, b), t = found
+        change = resolve(a, b, t)
+        if change is None:
+            stuck.add((a.id, b.id))
+        else:
+            changes.append(change)
+    return changes
+
+
+def _other(d: Dense, a: Dense, b: Dense) -> Dense:
+    return b if d is a else a
+
+
+def _least_trusted(d: Dense) -> tuple[float, int]:
+    """Sort key: the less confident road user first (then the shorter track)."""
+    return (d.vehicle.confidence or 0.0, len(d.t))
