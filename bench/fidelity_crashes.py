@@ -199,6 +199,7 @@ def plausibility_line(rows: list[dict[str, Any]]) -> str:
     flipped = sum(len(x["vehicles_with_half_turns"]) for x in p)
     spinning = sum(len(x.get("vehicles_spinning", [])) for x in p)
     through = [len(x["overlapping_pairs"]) for x in p if "overlapping_pairs" in x]
+    joining = [len(x["overlapping_on_joining"]) for x in p if "overlapping_on_joining" in x]
     return (
         f"vehicles turned half round between two samples: {flipped} of {sum(x['vehicles'] for x in p)}; "
         f"steps turning beyond the steering limit {over}/{steps} ({100 * over / max(steps, 1):.1f} %); "
@@ -211,6 +212,12 @@ def plausibility_line(rows: list[dict[str, Any]]) -> str:
             f"; pairs of road users passing through each other (>= {OVERLAP_MIN_S:g} s) {sum(through)} in "
             f"{sum(1 for n in through if n)} of {len(through)} clips"
             if through
+            else ""
+        )
+        + (
+            f"; pairs inside each other where the later one joins the scenario {sum(joining)} in "
+            f"{sum(1 for n in joining if n)} of {len(joining)} clips"
+            if joining
             else ""
         )
     )

@@ -99,3 +99,33 @@ def test_speed_changes_beyond_a_vehicles_traction_are_counted(kitti8_raw):
     jumped = car.model_copy(update={"trajectory": car.trajectory.model_copy(update={"speed": speed.tolist()})})
     q = plausibility(sc.evolve(agents=[jumped if a is car else a for a in sc.agents]))
     assert q["over_traction"] == 1 and q["over_traction_share"] > 0
+
+
+def test_road_users_joining_inside_each_other_are_counted(kitti_root):
+    """KITTI 0011's labelled road users through stage 2 (step-back lead-ins included) never start or appear inside one
+    another; the car put where another stands when it first appears is counted, at that moment, as deep as its box
+    reaches into the other's, and the report names the pair."""
+    from deepcrashtest.eval.plausibility import joining_overlaps
+    from deepcrashtest.trajectory.collision import vehicle_box
+    from deepcrashtest.trajectory.contact import separation
+    from deepcrashtest.trajectory.pipeline import process_scenario
+    from deepcrashtest.viz.report import plausibility_section
+
+    truth = process_scenario(scenario_from_kitti(kitti_root, 11))
+    assert joining_overlaps(truth) == []
+    assert plausibility(truth)["overlapping_on_joining"] == []
+    cars = [a for a in truth.agents if a.category == "car" and len(a.trajectory.t) >= 20]
+    host = cars[0]
+    guest = next(a for a in cars[1:] if host.trajectory.t[0] < a.trajectory.t[0] < host.trajectory.t[-1])
+    h, g = host.trajectory.arrays(), guest.trajectory.arrays()
+    x = g["x"] + np.interp(g["t"][0], h["t"], h["x"]) - g["x"][0]  # its first sample on the host's place then
+    y = g["y"] + np.interp(g["t"][0], h["t"], h["y"]) - g["y"][0]
+    moved = guest.model_copy(
+        update={"trajectory": guest.trajectory.model_copy(update={"x": x.tolist(), "y": y.tolist()})}
+    )
+    sc = truth.evolve(agents=[moved if a is guest else a for a in truth.agents])
+    ((a, b, t, depth),) = joining_overlaps(sc)
+    assert sorted([a, b]) == sorted([host.id, guest.id]) and t == round(g["t"][0], 3)
+    expected = -separation(vehicle_box(host), vehicle_box(moved), np.array([g["t"][0]]))[0]
+    assert depth == round(expected, 3) and depth > 1.0
+    assert "joins the scenario" in plausibility_section(sc).body

@@ -7,7 +7,8 @@ three. Counted over every vehicle's samples the video saw (``Trajectory.observed
 sideways and turn on the spot, are left out), with the simulator's kinematic bicycle
 (:data:`deepcrashtest.scenario.VEHICLE_KINEMATICS`). And two road users can pass through each other
 (:func:`overlapping_pairs`: a monocular depth error, or one road user tracked twice), which the simulator ignores
-while they overlap from their first common moment and counts as a crash once they part and touch again. Times in
+while they overlap from their first common moment and counts as a crash once they part and touch again; and two can
+start (or one appear) inside the other (:func:`joining_overlaps`), a collision at spawn in a user's simulator. Times in
 seconds, angles in radians (world frame), speeds in m/s.
 """
 
@@ -20,7 +21,7 @@ import numpy as np
 
 from deepcrashtest.scenario import Scenario, Vehicle, kinematics
 from deepcrashtest.trajectory.collision import vehicle_box
-from deepcrashtest.trajectory.contact import overlap_samples
+from deepcrashtest.trajectory.contact import overlap_samples, separation
 from deepcrashtest.trajectory.traction import beyond_traction
 
 #: A heading change between two samples larger than this (rad) is a half turn, not a turn.
@@ -130,6 +131,26 @@ def overlapping_pairs(scenario: Scenario) -> list[tuple[int, int, float]]:
     return out
 
 
+def joining_overlaps(scenario: Scenario) -> list[tuple[int, int, float, float]]:
+    """(id, id, time s, overlap m) for each pair of road users whose boxes overlap at the first moment both are in the
+    scenario (before its collision, or its end): a user's simulator spawns them (or the later one) inside each other,
+    a collision at that moment, which this project's simulator ignores until they part. Ids in the scenario's order."""
+    users = [scenario.ego, *scenario.agents]
+    t_stop = scenario.collision.time_s if scenario.collision is not None else math.inf
+    boxes = [vehicle_box(u) for u in users]
+    out = []
+    for i in range(len(users)):
+        for j in range(i + 1, len(users)):
+            a, b = boxes[i], boxes[j]
+            t0 = max(float(a.t[0]), float(b.t[0]))
+            if t0 > min(float(a.t[-1]), float(b.t[-1]), t_stop):
+                continue
+            sep = float(separation(a, b, np.array([t0]))[0])
+            if sep < 0.0:
+                out.append((users[i].id, users[j].id, round(t0, 3), round(-sep, 3)))
+    return out
+
+
 def plausibility(scenario: Scenario, rows: list[tuple[Vehicle, dict[str, int]]] | None = None) -> dict[str, Any]:
     """The scenario's vehicles' counts (``rows``: :func:`per_vehicle`'s, computed when not given) summed, with the
     shares ``over_turning_share`` (of steps), ``sliding_share`` (of moving samples) and ``vehicles_with_half_turns``,
@@ -138,6 +159,7 @@ def plausibility(scenario: Scenario, rows: list[tuple[Vehicle, dict[str, int]]] 
     total = {k: sum(r[k] for _, r in rows) for k in COUNTS}
     return total | {
         "overlapping_pairs": [list(p) for p in overlapping_pairs(scenario)],
+        "overlapping_on_joining": [list(p) for p in joining_overlaps(scenario)],
         "vehicles": len(rows),
         "vehicles_with_half_turns": sorted(v.id for v, r in rows if r["half_turns"]),
         "vehicles_spinning": sorted(v.id for v, _ in rows if excess_turn_deg(v) > SPIN_DEG),
@@ -154,6 +176,7 @@ def plausibility(scenario: Scenario, rows: list[tuple[Vehicle, dict[str, int]]] 
             f"{SLIDE_MIN_SPEED_MPS:g} m/s and heading > {SLIDE_MAX_DEG:g} deg off the direction of motion (or its "
             f"reverse); spinning: a heading turning > {SPIN_DEG:g} deg beyond the steering limit over the distance "
             f"driven, anywhere on the track; overlapping pairs: road users' boxes overlapping >= {OVERLAP_MIN_S:g} s "
-            "before the crash (the crash pair left out)"
+            "before the crash (the crash pair left out); overlapping on joining: two road users' boxes overlapping "
+            "at the first moment both are in the scenario, before the crash (a spawn inside each other)"
         ),
     }

@@ -636,6 +636,15 @@ def plausibility_section(sc: Scenario) -> Section:
             f"{who(sc, a)} and {who(sc, b)} ({s:g} s)" for a, b, s in summary["overlapping_pairs"]
         )
         line += "."
+    if summary["overlapping_on_joining"]:
+        line += (
+            " Inside each other where the later one joins the scenario (a collision at spawn in other simulators): "
+            + ", ".join(
+                f"{who(sc, a)} and {who(sc, b)} ({depth:.2f} m at {time_text(sc, t)})"
+                for a, b, t, depth in summary["overlapping_on_joining"]
+            )
+        )
+        line += "."
     head = (
         "<tr><th>vehicle</th><th>half turns</th><th>steps beyond the steering limit</th>"
         "<th>steps beyond its traction</th><th>sliding</th></tr>"
