@@ -83,7 +83,7 @@ def clear_lead_ins(
             )
         return change
 
-    return _pair_by_pair(every, lambda stuck: _earliest(every, stuck, _lead_in_contact(t_max)), resolve)
+    return _pair_by_pair(every, _lead_in_contact(t_max), resolve)
 
 
 def _first_seen(d: Dense) -> float:
@@ -168,7 +168,7 @@ def clear_appearances(
                 return change
         return None
 
-    return _pair_by_pair(every, lambda stuck: _earliest(every, stuck, _overlap_on_joining(t_max)), resolve)
+    return _pair_by_pair(every, _overlap_on_joining(t_max), resolve)
 
 
 def _last_seen(d: Dense) -> float:
@@ -202,42 +202,44 @@ def _overlap_on_joining(t_max: float) -> PairEvent:
     return when
 
 
-def _earliest(
-    every: list[Dense], stuck: set[tuple[int, int]], when: PairEvent
-) -> tuple[tuple[Dense, Dense], float] | None:
-    """The pair (not both parked, not in ``stuck``) whose event ``when`` comes first, with its time (s)."""
-    best: tuple[tuple[Dense, Dense], float] | None = None
-    boxes = [d.box_track() for d in every]
-    for i in range(len(every)):
-        for j in range(i + 1, len(every)):
-            a, b = every[i], every[j]
-            if (a.static and b.static) or (a.id, b.id) in stuck:
-                continue
-            t = when(a, b, boxes[i], boxes[j])
+def _pair_by_pair(
+    every: list[Dense], when: PairEvent, resolve: Callable[[Dense, Dense, float], dict[str, float] | None]
+) -> list[dict[str, float]]:
+    """``resolve`` the pair (not both parked) whose event ``when`` comes first, then the next, until none is left (a
+    pair it cannot resolve is not offered again); the records of the changes made. Each pair's event is computed
+    once and again only after ``resolve`` changed one of the two (the change record's ``agent``): 80 road users, a
+    few of them changed and dozens of pairs left as they are, were scanned afresh after each (KITTI 0019's labelled
+    road users: 9 s)."""
+    changes: list[dict[str, float]] = []
+    pairs = [(a, b) for i, a in enumerate(every) for b in every[i + 1 :] if not (a.static and b.static)]
+    boxes: dict[int, BoxTrack] = {}
+    times: dict[tuple[int, int], float | None] = {}
+
+    def box(d: Dense) -> BoxTrack:
+        if d.id not in boxes:
+            boxes[d.id] = d.box_track()
+        return boxes[d.id]
+
+    for _ in range(2 * len(every) + 1):
+        best: tuple[tuple[Dense, Dense], float] | None = None
+        for a, b in pairs:
+            key = (a.id, b.id)
+            if key not in times:
+                times[key] = when(a, b, box(a), box(b))
+            t = times[key]
             if t is not None and (best is None or t < best[1]):
                 best = ((a, b), t)
-    return best
-
-
-def _pair_by_pair(
-    every: list[Dense],
-    find: Callable[[set[tuple[int, int]]], tuple[tuple[Dense, Dense], float] | None],
-    resolve: Callable[[Dense, Dense, float], dict[str, float] | None],
-) -> list[dict[str, float]]:
-    """``resolve`` the pair ``find`` gives, earliest first, until none is left (a pair it cannot resolve is not
-    offered again); the records of the changes made."""
-    changes: list[dict[str, float]] = []
-    stuck: set[tuple[int, int]] = set()
-    for _ in range(2 * len(every) + 1):
-        found = find(stuck)
-        if found is None:
+        if best is None:
             break
-        (a, b), t = found
+        (a, b), t = best
         change = resolve(a, b, t)
         if change is None:
-            stuck.add((a.id, b.id))
-        else:
-            changes.append(change)
+            times[(a.id, b.id)] = None  # not offered again
+            continue
+        changes.append(change)
+        moved = int(change["agent"])
+        boxes.pop(moved, None)
+        times = {k: v for k, v in times.items() if moved not in k}
     return changes
 
 
