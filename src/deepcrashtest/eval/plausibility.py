@@ -21,7 +21,7 @@ import numpy as np
 
 from deepcrashtest.scenario import Scenario, Vehicle, kinematics
 from deepcrashtest.trajectory.collision import vehicle_box
-from deepcrashtest.trajectory.contact import overlap_samples, separation
+from deepcrashtest.trajectory.contact import overlap_samples, separation_on_joining
 from deepcrashtest.trajectory.traction import beyond_traction
 
 #: A heading change between two samples larger than this (rad) is a half turn, not a turn.
@@ -141,13 +141,9 @@ def joining_overlaps(scenario: Scenario) -> list[tuple[int, int, float, float]]:
     out = []
     for i in range(len(users)):
         for j in range(i + 1, len(users)):
-            a, b = boxes[i], boxes[j]
-            t0 = max(float(a.t[0]), float(b.t[0]))
-            if t0 > min(float(a.t[-1]), float(b.t[-1]), t_stop):
-                continue
-            sep = float(separation(a, b, np.array([t0]))[0])
-            if sep < 0.0:
-                out.append((users[i].id, users[j].id, round(t0, 3), round(-sep, 3)))
+            joining = separation_on_joining(boxes[i], boxes[j])
+            if joining is not None and joining[0] <= t_stop and joining[1] < 0.0:
+                out.append((users[i].id, users[j].id, round(joining[0], 3), round(-joining[1], 3)))
     return out
 
 

@@ -48,6 +48,15 @@ def separation(a: BoxTrack, b: BoxTrack, t: np.ndarray) -> np.ndarray:
     return _separation(a, b, t)[0]
 
 
+def separation_on_joining(a: BoxTrack, b: BoxTrack, tol_s: float = 0.0) -> tuple[float, float] | None:
+    """(the first moment both boxes exist, s; their :func:`separation` then, m), or None where they never coexist (the
+    later one starts more than ``tol_s`` after the other ends)."""
+    t0 = max(float(a.t[0]), float(b.t[0]))
+    if t0 > min(float(a.t[-1]), float(b.t[-1])) + tol_s:
+        return None
+    return t0, float(separation(a, b, np.array([t0]))[0])
+
+
 def overlap_samples(a: BoxTrack, b: BoxTrack, t_end: float = math.inf, step_s: float = 0.05) -> np.ndarray:
     """Whether the two boxes overlap (:func:`separation` < 0), every ``step_s`` (s) of the time both exist, up to
     ``t_end`` (s); empty where they never coexist before it."""

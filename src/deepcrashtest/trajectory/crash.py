@@ -32,6 +32,7 @@ from deepcrashtest.trajectory.contact import (
     nudge_apart,
     overlap_samples,
     separation,
+    separation_on_joining,
     sight_metric,
 )
 from deepcrashtest.trajectory.dense import EPS_T, Dense
@@ -390,8 +391,8 @@ def _reach(d: Dense, t_end: float, fit_s: float = 0.5) -> None:
 
 def _touch_at_start(a: BoxTrack, b: BoxTrack) -> bool:
     """Whether two boxes touch at the first moment both exist (False when they never coexist)."""
-    t0 = max(a.t[0], b.t[0])
-    return bool(t0 <= min(a.t[-1], b.t[-1]) + EPS_T and separation(a, b, np.array([t0]))[0] <= 0.0)
+    joining = separation_on_joining(a, b, EPS_T)
+    return joining is not None and joining[1] <= 0.0
 
 
 def contact_after_apart(a: BoxTrack, b: BoxTrack) -> Contact | None:

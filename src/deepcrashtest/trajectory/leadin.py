@@ -22,7 +22,7 @@ from dataclasses import replace
 import numpy as np
 
 from deepcrashtest.trajectory.collision import BoxTrack
-from deepcrashtest.trajectory.contact import separation
+from deepcrashtest.trajectory.contact import separation, separation_on_joining
 from deepcrashtest.trajectory.dense import EPS_T, Dense
 
 
@@ -68,19 +68,20 @@ def clear_lead_ins(
     def resolve(a: Dense, b: Dense, t_hit: float) -> dict[str, float] | None:
         movers = [d for d in (a, b) if d is not ego and not d.static and d.observed.any()]
         movers = sorted((d for d in movers if t_hit < _first_seen(d) - EPS_T), key=_least_trusted)
-        change = next((c for d in movers if (c := _gentler_lead_in(d, every, clearance_m)) is not None), None)
-        change = change or next(
-            (c for d in movers if (c := _trimmed(d, _other(d, a, b), every, t_hit, clearance_m))), None
+        done = next(((d, c) for d in movers if (c := _gentler_lead_in(d, every, clearance_m)) is not None), None)
+        done = done or next(
+            ((d, c) for d in movers if (c := _trimmed(d, _other(d, a, b), every, t_hit, clearance_m)) is not None), None
         )
-        if change is not None:
-            how = (
-                f"it now leaves rest at {change['accel_mps2']:.2f} m/s^2" if "accel_mps2" in change
-                else f"it joins the scenario at {change['to_s']:.2f} s instead of {change['from_s']:.2f} s"
-            )  # fmt: skip
-            other = _other(next(d for d in (a, b) if d.id == change["agent"]), a, b).id
-            warnings.append(
-                f"agent {change['agent']}: its lead-in (before the video saw it) ran into road user {other}; {how}"
-            )
+        if done is None:
+            return None
+        d, change = done
+        how = (
+            f"it now leaves rest at {change['accel_mps2']:.2f} m/s^2" if "accel_mps2" in change
+            else f"it joins the scenario at {change['to_s']:.2f} s instead of {change['from_s']:.2f} s"
+        )  # fmt: skip
+        warnings.append(
+            f"agent {d.id}: its lead-in (before the video saw it) ran into road user {_other(d, a, b).id}; {how}"
+        )
         return change
 
     return _pair_by_pair(every, _lead_in_contact(t_max), resolve)
@@ -98,25 +99,26 @@ def _gentler_lead_in(d: Dense, every: list[Dense], clearance_m: float) -> dict[s
     pre = d.t < d.lead_in.plan.t_max - EPS_T
     if not pre.any():
         return None
-    others = [o for o in every if o is not d]
+    others = [(o, o.box_track()) for o in every if o is not d]
     t_seen = np.array([d.lead_in.plan.t_max])
     for accel in d.lead_in.gentler_accels():
         xy = d.xy.copy()
         xy[pre] = d.lead_in.positions(d.t[pre], accel)
-        trial = replace(d, xy=xy)
-        if all(_keeps_clear(trial, o, d.t[pre], t_seen, clearance_m) for o in others):
+        box = replace(d, xy=xy).box_track()
+        if all(_keeps_clear(box, o, other, d.t[pre], t_seen, clearance_m) for o, other in others):
             d.xy = xy
             return {"agent": d.id, "accel_mps2": round(float(accel), 3)}
     return None
 
 
-def _keeps_clear(d: Dense, o: Dense, ts: np.ndarray, t_seen: np.ndarray, clearance_m: float) -> bool:
-    """Whether ``d``'s box stays at least ``clearance_m`` from ``o``'s at times ``ts`` where both exist, or at least
-    as far as at ``t_seen`` (s) where that is nearer (never touching)."""
+def _keeps_clear(
+    box: BoxTrack, o: Dense, other: BoxTrack, ts: np.ndarray, t_seen: np.ndarray, clearance_m: float
+) -> bool:
+    """Whether ``box`` stays at least ``clearance_m`` from ``o``'s box ``other`` at times ``ts`` where ``o`` exists,
+    or at least as far as at ``t_seen`` (s) where that is nearer (never touching)."""
     at = ts[(ts >= o.t[0] - EPS_T) & (ts <= o.t[-1] + EPS_T)]
     if not len(at):
         return True
-    box, other = d.box_track(), o.box_track()
     floor = clearance_m
     if o.t[0] - EPS_T <= t_seen[0] <= o.t[-1] + EPS_T:
         floor = min(floor, float(separation(box, other, t_seen)[0]))
@@ -194,10 +196,8 @@ def _overlap_on_joining(t_max: float) -> PairEvent:
     """The first moment both exist, at or after ``t_max`` (s), where their boxes overlap then."""
 
     def when(a: Dense, b: Dense, box_a: BoxTrack, box_b: BoxTrack) -> float | None:
-        t0 = max(float(a.t[0]), float(b.t[0]))
-        if t0 < t_max - EPS_T or t0 > min(float(a.t[-1]), float(b.t[-1])) + EPS_T:
-            return None
-        return t0 if separation(box_a, box_b, np.array([t0]))[0] < 0.0 else None
+        joining = separation_on_joining(box_a, box_b, EPS_T)
+        return joining[0] if joining is not None and joining[0] >= t_max - EPS_T and joining[1] < 0.0 else None
 
     return when
 
