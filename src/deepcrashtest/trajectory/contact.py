@@ -263,6 +263,11 @@ where it moves < 3.5)."""
 MAX_EVALS = 100_000
 APART_STEP_S = 0.05  # make_contact(apart_margin_m > 0): the grid (s) on which the pair is kept apart,
 APART_MARGIN_S = 0.3  # ... by the margin until this long before the crash (s)
+APART_FLOOR_M = 0.02
+"""... and at least this far (m) until then where they were nearer: SLSQP ends on its active constraints, and a pair
+kept apart by exactly 0 m touches (a car turning across the ego at 5 fps, ``tests/test_trajectory_crash.py``: on an
+AMD EPYC host the corrected corner met the ego at 0.000 m 0.5 s before the crash, the replay's contact; an Intel host's
+solution stopped a hair short of it)."""
 TOUCH_SLACK_S = 0.02  # make_contact(overlap_s > 0): apart until this long before the first touch (s)
 
 
@@ -731,8 +736,9 @@ def make_contact(
         if apart_margin_m > 0.0 and t_apart > lo:  # apart between the samples too, and by a margin until shortly before
             grid = np.arange(lo, t_apart, APART_STEP_S)
             early = grid[grid <= t_crash - APART_MARGIN_S]
-            early = early[separation(box_track(a), box_track(b), early) >= apart_margin_m] if len(early) else early
-            apart = [(0, 1, np.union1d(t_free, grid), 0.0), (0, 1, early, apart_margin_m)]
+            far = early[separation(box_track(a), box_track(b), early) >= apart_margin_m] if len(early) else early
+            floor = min(APART_FLOOR_M, apart_margin_m)
+            apart = [(0, 1, np.union1d(t_free, grid), 0.0), (0, 1, early, floor), (0, 1, far, apart_margin_m)]
         solve_movers = movers if kinematic else [replace(m, kin=None) for m in movers]
         ds, ok, msg = _solve(
             solve_movers, fixed, bases, eq, apart, cp, rounds=2 if kinematic else 3, budget=budget,
