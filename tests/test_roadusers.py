@@ -263,3 +263,27 @@ def test_a_pickup_reported_as_car_and_truck_is_one_road_user(yolo):
     users = road_users(yolo(_frame("dad_000550", 88)))
     vehicles = users.boxes[np.isin(users.categories, MOTOR_VEHICLES)]
     assert max(iou_matrix(b, vehicles).max() for b in label) >= 0.5  # the labelled pickup is one of them
+
+
+def test_people_walking_together_brush_past_in_stage_2_and_the_simulator():
+    """KITTI 0017's labelled road users: 9 pedestrians and 2 cyclists on a pavement, people walking in groups whose
+    boxes (larger than their bodies) touch. The simulator counts no contact between two pedestrians (it sent 7 and 8
+    into Box2D at 2.5 s, two people walking side by side), stage 2 keeps all 11 where the labels put them (it
+    dropped 2 after nudges that could not keep each 0.5 m from everyone), the plausibility check does not count
+    them as passing through each other; a cyclist moved into a pedestrian still collides."""
+    from deepcrashtest.eval.plausibility import overlapping_pairs
+    from deepcrashtest.trajectory.collision import vehicle_box
+    from deepcrashtest.trajectory.crash import contact_after_apart
+    from deepcrashtest.trajectory.pipeline import process_scenario
+
+    raw = scenario_from_kitti(need(KITTI_TRACKING), 17, road_users=True)
+    walker = {a.id: a for a in raw.agents if a.category == "pedestrian"}
+    assert contact_after_apart(vehicle_box(walker[7]), vehicle_box(walker[8])) is not None  # they do touch
+    assert simulate(raw).metrics["first_contact"] is None
+    assert not [p for p in overlapping_pairs(raw) if {p[0], p[1]} <= set(walker)]
+    processed = process_scenario(raw)
+    assert sorted(a.id for a in processed.agents) == sorted(a.id for a in raw.agents)
+    assert simulate(processed).metrics["first_contact"] is None
+    cyclist = next(a.id for a in raw.agents if a.category == "bicycle")
+    hit = simulate(meet(raw, cyclist, 7, 3.0)).metrics["first_contact"]  # on its way it meets walker 9 first
+    assert hit is not None and cyclist in hit["vehicles"] and set(hit["vehicles"]) - {cyclist} <= set(walker)

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from deepcrashtest.scenario import Scenario, Vehicle, kinematics
+from deepcrashtest.scenario import Scenario, Vehicle, brush_past, kinematics
 from deepcrashtest.trajectory.collision import vehicle_box
 from deepcrashtest.trajectory.contact import overlap_samples, separation_on_joining
 from deepcrashtest.trajectory.traction import beyond_traction
@@ -123,12 +123,17 @@ def overlapping_pairs(scenario: Scenario) -> list[tuple[int, int, float]]:
     out = []
     for i in range(len(users)):
         for j in range(i + 1, len(users)):
-            if {users[i].id, users[j].id} == crash and len(crash) == 2:
+            if {users[i].id, users[j].id} == crash and len(crash) == 2 or _brush(users[i], users[j]):
                 continue
             seconds = float(np.sum(overlap_samples(boxes[i], boxes[j], t_stop, OVERLAP_STEP_S))) * OVERLAP_STEP_S
             if seconds >= OVERLAP_MIN_S - 1e-9:
                 out.append((users[i].id, users[j].id, round(seconds, 2)))
     return out
+
+
+def _brush(a: Vehicle, b: Vehicle) -> bool:
+    """Two road users that pass each other without a collision (two pedestrians: :func:`scenario.brush_past`)."""
+    return brush_past(a.category, b.category)
 
 
 def joining_overlaps(scenario: Scenario) -> list[tuple[int, int, float, float]]:
@@ -141,6 +146,8 @@ def joining_overlaps(scenario: Scenario) -> list[tuple[int, int, float, float]]:
     out = []
     for i in range(len(users)):
         for j in range(i + 1, len(users)):
+            if _brush(users[i], users[j]):
+                continue
             joining = separation_on_joining(boxes[i], boxes[j])
             if joining is not None and joining[0] <= t_stop and joining[1] < 0.0:
                 out.append((users[i].id, users[j].id, round(joining[0], 3), round(-joining[1], 3)))

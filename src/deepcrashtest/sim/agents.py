@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from deepcrashtest.scenario import brush_past
 from deepcrashtest.sim.boxes import contact_fraction, sat_gap
 from deepcrashtest.sim.follow import Follower
 from deepcrashtest.sim.physics import PhysicsWorld
@@ -47,6 +48,9 @@ class AgentSet:
         self.end = np.array([r.end for r in refs], dtype=int)
         self.static = np.array([r.static for r in refs], dtype=bool)
         self.walk = world.holonomic[1:] & ~self.static
+        cats = [v.category for v in world.scenario.vehicles()[1:]]
+        self.brush = np.array([[brush_past(a, b) for b in cats] for a in cats], dtype=bool).reshape(M, M)
+        """(M, M) pairs that pass each other without a contact (two pedestrians: :func:`scenario.brush_past`)."""
         self.state = np.array([r.init for r in refs], float).reshape(M, 4)
         self.steer = np.zeros(M)
         self.in_phys = np.zeros(M, dtype=bool)
@@ -114,7 +118,8 @@ class AgentSet:
         return new, steer_new, self.presence(k + 1)
 
     def join_contacts(self, k: int, new: np.ndarray, pres: np.ndarray) -> list[tuple[int, int, float, float]]:
-        """Agents that touch during step ``k`` continue under Box2D; returns (a, b, time, relative speed) each."""
+        """Agents that touch during step ``k`` (not two pedestrians: ``brush``) continue under Box2D; returns (a, b,
+        time, relative speed) each."""
         if self.M < 2:
             return []
         g_aa = agent_gaps(new, self.half)
@@ -122,7 +127,7 @@ class AgentSet:
         newly = both & ~(self.pres_prev[:, None] & self.pres_prev[None, :])
         self.ignore |= newly & (g_aa <= 0)
         self.ignore &= ~(g_aa > 0)
-        hit = both & (g_aa <= 0) & ~self.ignore & ~(self.in_phys[:, None] & self.in_phys[None, :])
+        hit = both & (g_aa <= 0) & ~self.ignore & ~(self.in_phys[:, None] & self.in_phys[None, :]) & ~self.brush
         hit = np.triu(hit, 1)
         found = []
         for i, j in zip(*np.nonzero(hit), strict=True):
@@ -390,7 +395,7 @@ def _agents_touch(ag: AgentSet, states: np.ndarray, pres: np.ndarray) -> bool:
     """
     M = ag.M
     block = max(1, 65536 // (M * M))  # steps whose (M, M) gaps are computed together
-    upper = np.triu(np.ones((M, M), bool), 1)
+    upper = np.triu(np.ones((M, M), bool), 1) & ~ag.brush
     prev_pres = np.concatenate([ag.pres_prev[None], pres[1:-1]])  # presence before step k's: (T - 1, M)
     ignored = ag.ignore.copy()  # the ignore mask before the block
     for k0 in range(0, len(states) - 1, block):

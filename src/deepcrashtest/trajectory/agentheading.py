@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from deepcrashtest.scenario import Collision, Vehicle, interp_heading, kinematics
+from deepcrashtest.scenario import Collision, Vehicle, brush_past, interp_heading, kinematics
 from deepcrashtest.trajectory.collision import BoxTrack, Contact, first_contact, overlaps, vehicle_box
 from deepcrashtest.trajectory.contact import ContactParams, separation
 from deepcrashtest.trajectory.crash import contact_after_apart
@@ -113,7 +113,7 @@ def turned_no_closer(turned: Vehicle, plain: Vehicle, others: list[Vehicle], cle
     t = ta["t"][differ]
     bt, bp = vehicle_box(turned), vehicle_box(plain)
     for other in others:
-        if other.id == turned.id:
+        if other.id == turned.id or brush_past(turned.category, other.category):
             continue
         bo = vehicle_box(other)
         at = t[(t >= bo.t[0]) & (t <= bo.t[-1])]
@@ -314,7 +314,7 @@ def _broken_contact(
     for i, vi in enumerate(vehicles):
         for j in range(i + 1, len(vehicles)):
             ids = {vi.id, vehicles[j].id}
-            if ids <= pair or not ids & changed:
+            if ids <= pair or not ids & changed or brush_past(vi.category, vehicles[j].category):
                 continue
             hit = _replay_contact((grazing[i], grazing[j]), (boxes[i], boxes[j]))
             if hit is not None and hit.time_s < t_end:

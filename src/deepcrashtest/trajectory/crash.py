@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from deepcrashtest.errors import UserError
-from deepcrashtest.scenario import Collision, kinematics
+from deepcrashtest.scenario import Collision, brush_past, kinematics
 from deepcrashtest.trajectory.collision import BoxTrack, Contact, first_contact
 from deepcrashtest.trajectory.contact import (
     ContactParams,
@@ -302,7 +302,7 @@ def _separate_others(
                 "in the scenario only from/until 1 s away from there"
             )
             continue
-        others_m = [_movable(o, ego, cp) for o in others]
+        others_m = [_movable(o, ego, cp) for o in others if not brush_past(mover.vehicle.category, o.vehicle.category)]
         corr = nudge_apart(_movable(mover, ego, cp), others_m, t_end, cp, reach_m=2 * MAX_NUDGE_M)
         if corr.ok and corr.max_m <= MAX_NUDGE_M:
             mover.xy = mover.xy + corr.deltas[0]
@@ -417,7 +417,8 @@ def _first_clash(
 ) -> tuple[Dense, float] | None:
     """The earliest contact before ``t_end`` between two road users that are not both the crash pair
     (nor both parked, nor overlapping from the moment both exist: the simulator ignores those too);
-    returns the one to move (an agent outside the pair, the less confident one) and the time. Boxes
+    returns the one to move (an agent outside the pair, the less confident one) and the time; two pedestrians
+    brush past (:func:`~deepcrashtest.scenario.brush_past`). Boxes
     closer than ``near_miss_m`` (m) count as touching: a replay tracks each path within decimetres, and
     the paths are checked at their samples only. Two boxes apart by less than ``near_miss_m`` when both first
     exist overlap grown from the start, so that check ignores them: their own boxes are checked too, as the
@@ -434,6 +435,8 @@ def _first_clash(
         for j in range(i + 1, len(every)):
             a, b = every[i], every[j]
             if (a.id in pair and b.id in pair) or (a.static and b.static):
+                continue
+            if brush_past(a.vehicle.category, b.vehicle.category):
                 continue
             if (keys[i], keys[j]) not in seen:
                 seen[keys[i], keys[j]] = _pair_contact(own[i], own[j], tracks[i], tracks[j], near_miss_m)

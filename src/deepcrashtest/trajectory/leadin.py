@@ -21,6 +21,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from deepcrashtest.scenario import brush_past
 from deepcrashtest.trajectory.collision import BoxTrack
 from deepcrashtest.trajectory.contact import separation, separation_on_joining
 from deepcrashtest.trajectory.dense import EPS_T, Dense
@@ -177,6 +178,11 @@ def _last_seen(d: Dense) -> float:
     return float(d.t[d.observed][-1])
 
 
+def _brush(a: Dense, b: Dense) -> bool:
+    """Whether the two brush past each other (:func:`~deepcrashtest.scenario.brush_past`): no pair event of theirs."""
+    return brush_past(a.vehicle.category, b.vehicle.category)
+
+
 PairEvent = Callable[[Dense, Dense, BoxTrack, BoxTrack], "float | None"]
 
 
@@ -211,7 +217,7 @@ def _pair_by_pair(
     few of them changed and dozens of pairs left as they are, were scanned afresh after each (KITTI 0019's labelled
     road users: 9 s)."""
     changes: list[dict[str, float]] = []
-    pairs = [(a, b) for i, a in enumerate(every) for b in every[i + 1 :] if not (a.static and b.static)]
+    pairs = [(a, b) for i, a in enumerate(every) for b in every[i + 1 :] if not (a.static and b.static or _brush(a, b))]
     boxes: dict[int, BoxTrack] = {}
     times: dict[tuple[int, int], float | None] = {}
 
