@@ -270,7 +270,8 @@ def test_people_walking_together_brush_past_in_stage_2_and_the_simulator():
     boxes (larger than their bodies) touch. The simulator counts no contact between two pedestrians (it sent 7 and 8
     into Box2D at 2.5 s, two people walking side by side), stage 2 keeps all 11 where the labels put them (it
     dropped 2 after nudges that could not keep each 0.5 m from everyone), the plausibility check does not count
-    them as passing through each other; a cyclist moved into a pedestrian still collides."""
+    them as passing through each other; a cyclist moved into a pedestrian still collides, and so do two walkers that are
+    the scenario's collision."""
     from deepcrashtest.eval.plausibility import overlapping_pairs
     from deepcrashtest.trajectory.collision import vehicle_box
     from deepcrashtest.trajectory.crash import contact_after_apart
@@ -287,3 +288,5 @@ def test_people_walking_together_brush_past_in_stage_2_and_the_simulator():
     cyclist = next(a.id for a in raw.agents if a.category == "bicycle")
     hit = simulate(meet(raw, cyclist, 7, 3.0)).metrics["first_contact"]  # on its way it meets walker 9 first
     assert hit is not None and cyclist in hit["vehicles"] and set(hit["vehicles"]) - {cyclist} <= set(walker)
+    hit = simulate(meet(raw, 3, 5, 3.0)).metrics["first_contact"]  # two walkers the scenario says collided do
+    assert hit is not None and set(hit["vehicles"]) == {3, 5} and abs(hit["time"] - 3.0) < 0.1

@@ -106,10 +106,11 @@ def kinematics(category: str) -> Kinematics:
 def brush_past(category_a: str, category_b: str) -> bool:
     """Whether two road users of these categories pass each other without a collision when their boxes touch: two
     pedestrians. People walk and stand side by side and step round each other, and their boxes (KITTI's ~0.8 x
-    0.6 m) are larger than their bodies; two pedestrians are never a crash (``perception.crash_detect``). The
-    simulator counts no contact between them, stage 2 does not keep them apart, the plausibility checks do not
-    count them (KITTI 0019's labelled road users: people in groups touched 44 times; stage 2 dropped 11 of its 80
-    road users after 84 s of nudges that could not keep each 0.5 m from everyone)."""
+    0.6 m) are larger than their bodies; two pedestrians are never a crash (``perception.crash_detect``). Stage 2
+    does not keep them apart, the plausibility checks do not count them, the simulator counts no contact between
+    them but for the scenario's collision (two walkers a user says collided: ``extract --crash FRAME:ID,ID``).
+    KITTI 0019's labelled road users: people in groups touched 44 times; stage 2 dropped 11 of its 80 road users
+    after 84 s of nudges that could not keep each 0.5 m from everyone."""
     return category_a == category_b == "pedestrian"
 
 

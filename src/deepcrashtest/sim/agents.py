@@ -48,8 +48,7 @@ class AgentSet:
         self.end = np.array([r.end for r in refs], dtype=int)
         self.static = np.array([r.static for r in refs], dtype=bool)
         self.walk = world.holonomic[1:] & ~self.static
-        cats = [v.category for v in world.scenario.vehicles()[1:]]
-        self.brush = np.array([[brush_past(a, b) for b in cats] for a in cats], dtype=bool).reshape(M, M)
+        self.brush = _brushing_pairs(world)
         """(M, M) pairs that pass each other without a contact (two pedestrians: :func:`scenario.brush_past`)."""
         self.state = np.array([r.init for r in refs], float).reshape(M, 4)
         self.steer = np.zeros(M)
@@ -412,6 +411,20 @@ def _agents_touch(ag: AgentSet, states: np.ndarray, pres: np.ndarray) -> bool:
             return True
         ignored = ignore[-1]
     return False
+
+
+def _brushing_pairs(world: World) -> np.ndarray:
+    """(M, M) agent pairs that brush past each other (:func:`~deepcrashtest.scenario.brush_past`), but for the
+    scenario's collision: two pedestrians a user says collided (``extract --crash FRAME:ID,ID``) do."""
+    agents = world.scenario.vehicles()[1:]
+    cats = [v.category for v in agents]
+    brush = np.array([[brush_past(a, b) for b in cats] for a in cats], dtype=bool).reshape(len(cats), len(cats))
+    crash = world.scenario.collision
+    if crash is not None:
+        idx = [k for k, v in enumerate(agents) if v.id in crash.participants]
+        if len(idx) == 2:
+            brush[idx[0], idx[1]] = brush[idx[1], idx[0]] = False
+    return brush
 
 
 def agent_gaps_all(ag: np.ndarray, ah: np.ndarray) -> np.ndarray:
