@@ -43,7 +43,7 @@ STAGES = [
     ("deepcrashtest.geometry.selfcalib", "self_calibrate", "self-calibration"),
     ("deepcrashtest.geometry.world_tracks", "raw_scenario_from_tracks", "world tracks"),
     ("deepcrashtest.pipeline.crash", "crash_for_raw", "crash"),
-    ("deepcrashtest.trajectory.pipeline", "process_scenario", "stage 2"),
+    ("deepcrashtest.pipeline.stage2", "processed_scenario", "stage 2"),
     ("deepcrashtest.viz.report", "build_report", "report"),
     ("deepcrashtest.video.shots", "detect_shots", "shot scan"),
 ]

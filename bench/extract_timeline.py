@@ -31,7 +31,7 @@ MARKS = [
     ("deepcrashtest.geometry.selfcalib", "self_calibrate", "self-calibration"),
     ("deepcrashtest.geometry.world_tracks", "raw_scenario_from_tracks", "world tracks"),
     ("deepcrashtest.pipeline.crash", "crash_for_raw", "crash"),
-    ("deepcrashtest.trajectory.pipeline", "process_scenario", "stage 2"),
+    ("deepcrashtest.pipeline.stage2", "processed_scenario", "stage 2"),
     ("deepcrashtest.viz.report", "build_report", "report"),
 ]
 marks: list[tuple[str, float, float]] = []

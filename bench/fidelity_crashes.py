@@ -124,8 +124,8 @@ def restage(
     picture's bottom: 8 of the 18 portrait copies' ego crashes were not found again)."""
     from deepcrashtest.eval.fidelity import read_tracks, resolve_participants
     from deepcrashtest.pipeline.crash import CrashSpec, crash_for_raw
+    from deepcrashtest.pipeline.stage2 import processed_scenario
     from deepcrashtest.scenario import Scenario
-    from deepcrashtest.trajectory.pipeline import process_scenario
 
     raw = Scenario.load(out / "scenario_raw.json")
     spec = None
@@ -142,7 +142,7 @@ def restage(
         picture = video_picture_area(video) if video is not None else None
         raw, _rec = crash_for_raw(raw, read_tracks(out / "tracks.csv"), motion, picture=picture)
         raw.save(out / "scenario_raw.json", force=True)
-    process_scenario(raw).save(out / "scenario.json", force=True)
+    processed_scenario(raw).save(out / "scenario.json", force=True)
     return None if spec is None else spec.text
 
 

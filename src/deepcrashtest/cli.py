@@ -206,12 +206,12 @@ def scenario_build(
     """Stage 2: smooth, classify, extrapolate, step back -> a simulation-ready Scenario."""
     from deepcrashtest.config import load_config
     from deepcrashtest.fileio import check_writable
-    from deepcrashtest.trajectory.pipeline import process_scenario
+    from deepcrashtest.pipeline.stage2 import processed_scenario
 
     params = _with_driving_side(load_config(config).stage2, driving_side)
     sc_raw = _load(raw)
     check_writable(output, force)
-    sc = process_scenario(sc_raw, seed=seed, params=params)
+    sc = processed_scenario(sc_raw, seed=seed, params=params)
     path = sc.save(output, force=force)
     c = sc.collision
     emit(

@@ -680,16 +680,15 @@ def _finish_scenario(
         "dashboard_rows": geo.dashboard_rows,
     }
     warnings.extend(raw.warnings)
-    from deepcrashtest.trajectory.pipeline import process_scenario
+    from deepcrashtest.pipeline.stage2 import processed_scenario
 
     try:
-        processed = process_scenario(raw, seed=seed, params=stage2)
+        processed = processed_scenario(raw, seed=seed, params=stage2)
     except UserError as exc:  # e.g. no usable track: the run fails as a whole and writes nothing
         raise UserError(
             f"stage 2 could not process the extracted tracks: {exc} (nothing written; --no-geometry writes the "
             "tracks and the annotated video alone)"
         ) from None
-        return info
     processed.save(paths["scenario"], force=force)
     info["scenario"] = str(paths["scenario"])
     info["collision"] = processed.collision.model_dump() if processed.collision is not None else None

@@ -12,9 +12,9 @@ from typing import Any
 
 from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
 from deepcrashtest.fileio import atomic_write_text, check_writable, ensure_output_dir
+from deepcrashtest.pipeline.stage2 import processed_scenario
 from deepcrashtest.scenario import Scenario
 from deepcrashtest.trajectory.params import Stage2Params
-from deepcrashtest.trajectory.pipeline import process_scenario
 
 RESULT_FILES = ("results.json", "results.md")
 
@@ -24,7 +24,7 @@ def kitti_scenarios(
 ) -> tuple[Scenario, Scenario]:
     """The raw Scenario of a KITTI tracking sequence (labels + poses + calib) and its stage-2 processing."""
     raw = scenario_from_kitti(data, sequence)
-    return raw, process_scenario(raw, seed=seed, params=params)
+    return raw, processed_scenario(raw, seed=seed, params=params)
 
 
 def check_results_writable(folder: str | Path, force: bool) -> None:

@@ -62,7 +62,10 @@ class CrashOutcome:
 def contact_params(p: Stage2Params) -> ContactParams:
     w = p.crash_window_s
     return ContactParams(
-        windows_s=(w, 1.5 * w, 2.25 * w), accel_limit_mps2=p.crash_accel_limit_mps2, large_m=p.crash_large_correction_m
+        windows_s=(w, 1.5 * w, 2.25 * w),
+        accel_limit_mps2=p.crash_accel_limit_mps2,
+        large_m=p.crash_large_correction_m,
+        penetration_s=p.crash_overlap_s,
     )
 
 

@@ -84,6 +84,9 @@ class Stage2Params:
     """Largest acceleration the crash correction may add on each axis (driver braking/steering)."""
     crash_large_correction_m: float = 2.0
     """A crash correction larger than this is warned about."""
+    crash_overlap_s: float = 0.1
+    """The crash pair's paths go on this long (s) after their first touch, overlapping by their own closing, so that
+    a replay that lags its path slightly still touches (``ContactParams.penetration_s``; at most 1 s)."""
     # --- road (trajectory.road)
     road_sigma_m: float = 0.3
     """Heavy smoothing of the ego path into the road centre line (RMS deviation), metres."""
@@ -109,6 +112,8 @@ class Stage2Params:
                 raise UserError(f"Stage2Params.{f.name} must be a finite number (got {v!r})")
             if v <= 0:
                 raise UserError(f"Stage2Params.{f.name} must be > 0 (got {v})")
+        if self.crash_overlap_s > 1.0:
+            raise UserError(f"Stage2Params.crash_overlap_s must be <= 1 s (got {self.crash_overlap_s})")
         if self.ongoing_speed_ratio > 1:
             raise UserError(f"Stage2Params.ongoing_speed_ratio must be <= 1 (got {self.ongoing_speed_ratio})")
         if self.min_track_samples < 2:
