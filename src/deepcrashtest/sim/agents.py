@@ -417,8 +417,9 @@ def _brushing_pairs(world: World) -> np.ndarray:
     """(M, M) agent pairs that brush past each other (:func:`~deepcrashtest.scenario.brush_past`), but for the
     scenario's collision: two pedestrians a user says collided (``extract --crash FRAME:ID,ID``) do."""
     agents = world.scenario.vehicles()[1:]
-    cats = [v.category for v in agents]
-    brush = np.array([[brush_past(a, b) for b in cats] for a in cats], dtype=bool).reshape(len(cats), len(cats))
+    kinds, of = np.unique(np.array([v.category for v in agents], dtype=str), return_inverse=True)
+    table = np.array([[brush_past(a, b) for b in kinds] for a in kinds], dtype=bool).reshape(len(kinds), len(kinds))
+    brush = table[of[:, None], of[None, :]]  # the rule once per pair of categories, not per pair of agents
     crash = world.scenario.collision
     if crash is not None:
         idx = [k for k, v in enumerate(agents) if v.id in crash.participants]
