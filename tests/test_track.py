@@ -271,3 +271,39 @@ def test_only_the_corners_in_front_of_a_box_are_left_out_of_its_flow():
     assert not occluded_points(pts, 1, boxes).any()
     assert not occluded_points(np.array([[650, 420]], float), 0, boxes).any()  # inside the box beside, not in front
     assert occluded_points(np.zeros((0, 2)), 0, boxes).shape == (0,)
+
+
+def test_a_road_user_the_detector_stops_seeing_is_drawn_dashed_with_a_question_mark():
+    """The tracker counts the detector's calls that missed a confirmed track (``TrackedBox.missed``), and the
+    annotated video draws such a carried box dashed and labels it ``id class ?`` (ccd_001135: a car coasting 1.1 s
+    across the windscreen of the car spinning in front of the ego looked like a detection there)."""
+    from deepcrashtest.perception.annotate import Annotator, id_colour
+    from deepcrashtest.perception.detections import Detections
+    from deepcrashtest.perception.track import BoxTracker, FrameTracks
+
+    need(CLIP)
+    with open_video(CLIP) as src:
+        frames = [f for f, _ in zip(src, range(12), strict=False)]
+    size = (frames[0].image.shape[1], frames[0].image.shape[0])
+    tracker = BoxTracker(None, fps=20.0, detect_every=2)
+    car = np.array([[500.0, 300.0, 640.0, 400.0]], np.float32)
+    out: list[FrameTracks] = []
+    for k, fr in enumerate(frames):
+        dets = None
+        if k % 2 == 0:  # seen at the first three calls, then missed
+            seen = k < 6
+            dets = Detections(car if seen else car[:0], np.full(int(seen), 0.9, np.float32), np.array(["car"] * seen))
+        out.append(tracker.update_boxes(dets, fr.index, fr.time, size, fr.image))
+    missed = [ft.tracks[0].missed if ft.tracks else None for ft in out]
+    assert missed[2:6] == [0, 0, 0, 0] and missed[6:10] == [1, 1, 2, 2], missed
+    annotator = Annotator(fps=20.0)
+    colour = np.array(id_colour(out[4].tracks[0].track_id))
+
+    def top_edge_share(ft: FrameTracks) -> float:
+        img = annotator.draw(ft)
+        x1, y1, x2, _ = (int(round(v)) for v in ft.tracks[0].box)
+        edge = img[y1, x1 + 100 : x2 - 5].astype(int)  # right of the label
+        return float(np.mean(np.abs(edge - colour).sum(axis=1) < 60))
+
+    assert top_edge_share(out[5]) > 0.9  # carried by the flow between two calls that saw it: a solid line
+    assert 0.3 < top_edge_share(out[7]) < 0.7  # the last call missed it: dashes

@@ -141,6 +141,7 @@ class TrackedBox:
     box: tuple[float, float, float, float]
     score: float
     state: str  # 'detected' | 'predicted'
+    missed: int = 0  # the detector's calls in a row that have not seen it (0: seen at its last call)
 
 
 @dataclass
@@ -250,6 +251,7 @@ class BoxTracker:
                 box=_clip_box(t.box, w, h),
                 score=round(t.score, 4),
                 state="detected" if t.detected_now else "predicted",
+                missed=t.misses,
             )
             if not t.confirmed:
                 t.tentative_rows.append((int(index), float(time), row))
