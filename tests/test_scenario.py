@@ -143,16 +143,16 @@ def test_migrates_1_0_files_and_keeps_the_time_mapping() -> None:
 
 def test_a_1_2_file_reads_as_a_one_way_road(kitti8_raw) -> None:
     """Schema 1.3 adds the oncoming lanes (``Road.oncoming_lane_count``, ``median_width``), 1.4 the side traffic
-    keeps to (``Road.driving_side``): a 1.2 file (without them) loads as 1.4 with no oncoming lanes in right-hand
-    traffic, the road it described; a 1.3 file as 1.4 in right-hand traffic; 1.4 writes them."""
+    keeps to (``Road.driving_side``): a 1.2 file (without them) loads as 1.5 with no oncoming lanes in right-hand
+    traffic, the road it described; a 1.3 file as 1.5 in right-hand traffic; 1.4 writes them."""
     data = json.loads(kitti8_raw.to_json())
-    assert data["schema_version"] == SCHEMA_VERSION == "1.4"
+    assert data["schema_version"] == SCHEMA_VERSION == "1.5"
     assert data["road"]["oncoming_lane_count"] == 0 and data["road"]["median_width"] == 0.0
     assert data["road"]["driving_side"] == "right"
     new = ("oncoming_lane_count", "median_width", "driving_side")
     old = dict(data, schema_version="1.2", road={k: v for k, v in data["road"].items() if k not in new})
     sc = Scenario.from_dict(old)
-    assert sc.schema_version == "1.4" and sc.road == kitti8_raw.road
+    assert sc.schema_version == "1.5" and sc.road == kitti8_raw.road
     v13 = dict(data, schema_version="1.3", road={k: v for k, v in data["road"].items() if k != "driving_side"})
     assert Scenario.from_dict(v13).road == kitti8_raw.road
     with pytest.raises(ValueError, match="driving_side"):
@@ -237,3 +237,29 @@ def test_text_check_refuses_exactly_what_the_character_loop_refused(kitti8_raw):
     texts += [f"ok {chr(c)} tail\x7f" for c in range(0x110000)]
     assert all(answer(_text, v) == answer(_text_loop, v) for v in texts)
     assert answer(_text, "a\u0085b\x1fc") == "control or invalid character U+001F at position 3"
+
+
+def test_a_1_4_file_reads_with_the_camera_along_the_ego(kitti8_raw) -> None:
+    """Schema 1.5 adds the camera's yaw relative to the ego's heading (``Camera.yaw_rad``, ``CameraAttitude.yaw_rad``):
+    a 1.4 file (without them) loads as 1.5 with the camera looking along the ego; a yaw series turns the projected
+    view (a road user ahead moves right in the image when the camera turns left) and is checked like pitch and roll."""
+    from deepcrashtest.geometry.project import project_box
+    from deepcrashtest.scenario import CameraAttitude
+
+    data = json.loads(kitti8_raw.to_json())
+    assert data["camera"]["yaw_rad"] == 0.0
+    old = dict(data, schema_version="1.4", camera={k: v for k, v in data["camera"].items() if k != "yaw_rad"})
+    sc = Scenario.from_dict(old)
+    assert sc.schema_version == "1.5" and sc.camera == kitti8_raw.camera
+    att = CameraAttitude(video_t=[0.0, 1.0], pitch_rad=[0.0, 0.0], roll_rad=[0.0, 0.0], yaw_rad=[0.0, 0.05])
+    cam = kitti8_raw.camera.model_copy(update={"attitude": att})
+    assert cam.at_video_time(0.5).yaw_rad == pytest.approx(0.025) and cam.at_video_time(0.0).yaw_rad == 0.0
+    ahead = (20.0, 0.0, 0.0, 4.5, 1.8, 1.5)
+    straight = project_box(cam.at_video_time(0.0), (0.0, 0.0, 0.0), *ahead, image_size=(1242, 375)).box
+    turned = project_box(cam.at_video_time(1.0), (0.0, 0.0, 0.0), *ahead, image_size=(1242, 375)).box
+    shift = 0.5 * (turned[0] + turned[2] - straight[0] - straight[2])
+    assert shift == pytest.approx(cam.fx * math.tan(0.05), rel=0.05)
+    with pytest.raises(ValueError, match="yaw_rad"):
+        CameraAttitude(video_t=[0.0, 1.0], pitch_rad=[0.0, 0.0], roll_rad=[0.0, 0.0], yaw_rad=[0.0])
+    with pytest.raises(ValueError, match="0.5 rad"):
+        CameraAttitude(video_t=[0.0], pitch_rad=[0.0], roll_rad=[0.0], yaw_rad=[0.6])

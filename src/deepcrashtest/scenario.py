@@ -42,7 +42,7 @@ from deepcrashtest import __version__
 from deepcrashtest.errors import ScenarioError
 from deepcrashtest.fileio import atomic_write_text, require_file
 
-SCHEMA_VERSION = "1.4"
+SCHEMA_VERSION = "1.5"
 """Major.minor. A file with another major, or a newer minor, is refused; older minors are migrated on load
 (:func:`migrate`)."""
 
@@ -231,21 +231,28 @@ class CameraAttitude(_Model):
     """The camera's pitch and roll frame by frame (a car pitches when it brakes, rolls and bounces on the road;
     a road's grade changes under the road users): changes added to ``Camera.pitch_rad`` / ``roll_rad`` at each
     video time (seconds, ``frame / fps``: independent of the scenario's time offset), linear in between, the
-    ends held outside."""
+    ends held outside. ``yaw_rad`` (optional, schema 1.5): the camera's yaw relative to the ego's heading, added
+    to ``Camera.yaw_rad``: stage 2 gives the processed ego the heading its replayed vehicle has on its path, and
+    the camera keeps the yaw the video measured through it (:mod:`deepcrashtest.pipeline.stage2`)."""
 
     video_t: list[FiniteFloat] = Field(description="Video times, seconds, increasing")
     pitch_rad: list[FiniteFloat] = Field(description="Downward pitch added to Camera.pitch_rad, radians")
     roll_rad: list[FiniteFloat] = Field(description="Roll added to Camera.roll_rad, radians")
+    yaw_rad: list[FiniteFloat] | None = Field(
+        default=None, description="Yaw (to the left) added to Camera.yaw_rad, radians (None: none)"
+    )
 
     @model_validator(mode="after")
     def _same_length(self) -> CameraAttitude:
         n = len(self.video_t)
         if n == 0 or len(self.pitch_rad) != n or len(self.roll_rad) != n:
             raise ValueError("video_t, pitch_rad and roll_rad need the same (non-zero) length")
+        if self.yaw_rad is not None and len(self.yaw_rad) != n:
+            raise ValueError("yaw_rad needs the length of video_t")
         if n > 1 and not bool(np.all(np.diff(self.video_t) > 0)):
             raise ValueError("video_t must increase")
-        if max(map(abs, self.pitch_rad)) > 0.5 or max(map(abs, self.roll_rad)) > 0.5:
-            raise ValueError("pitch/roll changes above 0.5 rad")
+        if max(map(abs, [*self.pitch_rad, *self.roll_rad, *(self.yaw_rad or [])])) > 0.5:
+            raise ValueError("pitch/roll/yaw changes above 0.5 rad")
         return self
 
 
@@ -267,6 +274,12 @@ class Camera(_Model):
     )
     roll_rad: FiniteFloat = Field(
         default=0.0, ge=-math.pi, le=math.pi, description="Roll about the optical axis, radians"
+    )
+    yaw_rad: FiniteFloat = Field(
+        default=0.0,
+        ge=-math.pi,
+        le=math.pi,
+        description="Yaw of the optical axis to the left of the ego's heading, radians (schema 1.5)",
     )
     forward_offset_m: FiniteFloat = Field(
         default=0.5,
@@ -301,15 +314,15 @@ class Camera(_Model):
         return self.cy - self.fy * math.tan(self.pitch_rad)
 
     def at_video_time(self, video_t: float) -> Camera:
-        """This camera with its pitch and roll at video time ``video_t`` (s) and no attitude series."""
+        """This camera with its pitch, roll and yaw at video time ``video_t`` (s) and no attitude series."""
         if self.attitude is None:
             return self
         a = self.attitude
         dp = float(np.interp(video_t, a.video_t, a.pitch_rad))
         dr = float(np.interp(video_t, a.video_t, a.roll_rad))
-        return self.model_copy(
-            update={"pitch_rad": self.pitch_rad + dp, "roll_rad": self.roll_rad + dr, "attitude": None}
-        )
+        dy = float(np.interp(video_t, a.video_t, a.yaw_rad)) if a.yaw_rad is not None else 0.0
+        update = {"pitch_rad": self.pitch_rad + dp, "roll_rad": self.roll_rad + dr, "attitude": None}
+        return self.model_copy(update=update | ({"yaw_rad": self.yaw_rad + dy} if dy else {}))
 
 
 class SplineParams(_Model):
@@ -751,12 +764,13 @@ def migrate(data: dict[str, Any]) -> dict[str, Any]:
     ``source="video-auto"`` (the default). 1.1 -> 1.2: ``camera.attitude`` (optional) is new; nothing moves.
     1.2 -> 1.3: ``road.oncoming_lane_count`` and ``road.median_width`` are new (default 0: the road as read
     before, the ego's direction only); nothing moves. 1.3 -> 1.4: ``road.driving_side`` is new (default
-    ``right``, what every earlier file described); nothing moves.
+    ``right``, what every earlier file described); nothing moves. 1.4 -> 1.5: ``camera.yaw_rad`` and
+    ``camera.attitude.yaw_rad`` are new (default none: the camera looks along the ego's heading); nothing moves.
     """
-    if str(data.get("schema_version")) not in ("1.0", "1.1", "1.2", "1.3"):
+    if str(data.get("schema_version")) not in ("1.0", "1.1", "1.2", "1.3", "1.4"):
         return data
     out = dict(data)
-    if str(data.get("schema_version")) in ("1.1", "1.2", "1.3"):
+    if str(data.get("schema_version")) in ("1.1", "1.2", "1.3", "1.4"):
         out["schema_version"] = SCHEMA_VERSION
         return out
     out["schema_version"] = SCHEMA_VERSION

@@ -6,7 +6,7 @@ Frames (see :mod:`deepcrashtest.scenario`):
 * Ego pose ``(x, y, yaw)``: the ego centre on the road and its heading (radians, CCW from +x).
 * The camera sits ``camera.forward_offset_m`` ahead of the ego centre along its heading,
   ``camera.height_m`` above the road, pitched down by ``camera.pitch_rad`` and rolled by
-  ``camera.roll_rad`` about its optical axis (the convention of
+  ``camera.roll_rad`` about its optical axis, turned ``camera.yaw_rad`` left of the ego's heading (the convention of
   :mod:`deepcrashtest.geometry.egomotion`: a level-camera vector ``v`` reads ``Rz(roll) Rx(pitch) v``).
 * Camera: x right, y down, z forward; image u right, v down, pixels of the full frame.
 
@@ -76,11 +76,15 @@ def camera_rotation(camera: Camera) -> np.ndarray:
 
 
 def world_to_camera(points: np.ndarray, camera: Camera, ego_x: float, ego_y: float, ego_yaw: float) -> np.ndarray:
-    """(N, 3) world points (metres) -> (N, 3) camera-frame points for the ego at ``(ego_x, ego_y, ego_yaw)``."""
+    """(N, 3) world points (metres) -> (N, 3) camera-frame points for the ego at ``(ego_x, ego_y, ego_yaw)``; the
+    camera sits ``forward_offset_m`` ahead of the ego's centre along its heading and looks ``camera.yaw_rad`` left
+    of it."""
     p = np.asarray(points, dtype=float).reshape(-1, 3)
     c, s = math.cos(ego_yaw), math.sin(ego_yaw)
     cam_x = ego_x + camera.forward_offset_m * c
     cam_y = ego_y + camera.forward_offset_m * s
+    if camera.yaw_rad:
+        c, s = math.cos(ego_yaw + camera.yaw_rad), math.sin(ego_yaw + camera.yaw_rad)
     dx, dy = p[:, 0] - cam_x, p[:, 1] - cam_y
     fwd = c * dx + s * dy
     left = -s * dx + c * dy
