@@ -223,3 +223,32 @@ def test_a_crash_frame_given_alone_names_the_pair_the_video_shows_there(tmp_path
     note = weak_pair_note(record)
     assert record["confidence"] < 0.35 and len(note) == 1 and "--crash 10:ID,ID" in note[0]
     assert weak_pair_note(crash_for_raw(raw, tracks, None, parse_crash("10:ego,2"))[1]) == []  # a pair named
+
+
+def test_a_pedestrian_knocked_over_at_the_bumper_did_not_walk_past(tmp_path: Path, yolo_ok) -> None:
+    """ccd_000882 as an old 426x240 upload (scaled down with area averaging and re-encoded, as
+    ``bench/fidelity_perturbed.py --variants tiny`` writes it): the struck woman's box turns squat at the contact
+    (knocked over), then its track coasts on the left border until it ends before the clip does. That end
+    looked like a road user leaving the view past the ego, whose crash needs a camera jolt (a pedestrian struck at
+    the bumper gives none): no crash was found. A road user knocked off their feet at the bumper did not walk past."""
+    import cv2
+
+    from deepcrashtest.pipeline.extract import run_extract
+    from deepcrashtest.scenario import Scenario
+    from deepcrashtest.video.writer import VideoWriter
+
+    video, label = _label("ccd_000882")
+    with open_video(video) as src:
+        frames = [cv2.resize(f.image, (426, 240), interpolation=cv2.INTER_AREA) for f in src]
+    tiny = tmp_path / "ccd_000882_tiny.mp4"
+    out = VideoWriter(tiny, label.fps, 426, 240, force=True)
+    for f in frames:
+        out.write(f)
+    out.close()
+    run_extract(tiny, tmp_path / "out", lanes=False, report=False, annotate=False)
+    raw = Scenario.load(tmp_path / "out" / "scenario_raw.json")
+    c = raw.collision
+    assert c is not None and c.involves_ego
+    other = c.agent_id if c.other_id == raw.ego.id else c.other_id
+    assert next(a for a in raw.agents if a.id == other).category == "pedestrian"
+    assert label.contact_frame is not None and abs(c.time_s - raw.frame_time(label.contact_frame)) <= 0.25

@@ -337,7 +337,10 @@ def ego_best(s: pd.DataFrame, fps: float) -> tuple[float, int, dict[str, float]]
         peak * (0.45 + 0.3 * closing + 0.25 * jolt) if not len(jolted) else peak * (0.5 + 0.35 * jolt + 0.15 * closing)
     )
     score *= min(1.0, (closing + jolt) / EGO_MIN_EVIDENCE)  # near all along (the bonnet, a queue): no crash
-    if "exits" in s and bool(s.loc[frame, "exits"]) and not (near_enough & s["ahead"])[before.index].any():
+    fallen = s["knocked_over"] if "knocked_over" in s else pd.Series(False, index=s.index)
+    fell = s.index.to_numpy()[(fallen & near_enough).to_numpy()]
+    passed = "exits" in s and bool(s.loc[frame, "exits"]) and not (near_enough & s["ahead"])[before.index].any()
+    if passed and not len(fell):  # a pedestrian knocked off their feet at the bumper did not walk past
         score *= jolt  # it drove on out of the view past the ego: only a jolt says it touched on the way
     ev = {"near": round(peak, 3), "closing": round(closing, 3), "jolt": round(jolt, 3), "score": round(score, 3)}
     still = _still_since(s, frame, fps) if len(jolted) else None
@@ -348,8 +351,6 @@ def ego_best(s: pd.DataFrame, fps: float) -> tuple[float, int, dict[str, float]]
     elif knee is None:  # scored where it is first that near, the contact where its box is largest soon after
         frame = _largest_soon_after(s, frame, fps)
     jolt_at = frame if len(jolted) and still is None else None
-    fallen = s["knocked_over"] if "knocked_over" in s else pd.Series(False, index=s.index)
-    fell = s.index.to_numpy()[(fallen & near_enough).to_numpy()]
     if len(fell) and int(fell[0]) < frame:  # a pedestrian struck off their feet: contact before knee or jolt
         ev["later_frame"], frame = frame, int(fell[0])
     if frame == jolt_at and "reaches_border" in s:
