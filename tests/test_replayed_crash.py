@@ -80,3 +80,20 @@ def test_the_replayed_camera_looks_where_the_video_looked(ccd1135, ccd1135_dir):
     assert after["processed"]["mean_iou"] == pytest.approx(before["processed"]["mean_iou"], abs=0.005)
     assert before["simulated"]["mean_iou"] < before["processed"]["mean_iou"] - 0.1
     assert after["simulated"]["mean_iou"] > after["processed"]["mean_iou"] - 0.03
+
+
+def test_without_a_crash_the_ego_is_replayed_alone(kitti8_raw):
+    """Without a crash (stage 2 keeps every road user apart) the ego's heading comes from a replay of the ego alone:
+    the agents, replayed exactly along their paths, do not change how it drives, so the result is the same as with
+    the whole scene replayed (KITTI 0008's 28 labelled vehicles), for a fraction of the replay's cost."""
+    from deepcrashtest.pipeline.stage2 import _replay, camera_on_replayed_ego
+    from deepcrashtest.sim import simulate
+    from deepcrashtest.trajectory.pipeline import process_scenario
+
+    processed = process_scenario(kitti8_raw)
+    assert processed.collision is None and len(processed.agents) > 10
+    alone = _replay(processed)
+    assert alone is not None and list(alone.vehicle_ids) == [processed.ego.id]
+    final = camera_on_replayed_ego(processed, alone)
+    assert final.camera.attitude is not None and final.camera.attitude.yaw_rad is not None
+    assert final.model_dump_json() == camera_on_replayed_ego(processed, simulate(processed)).model_dump_json()

@@ -69,13 +69,14 @@ def _crash_pair(scenario: Scenario) -> tuple[int, int] | None:
 
 
 def _replay(scenario: Scenario) -> Any | None:
-    """The scenario's replay (a SimResult: the ego driven by its vehicle model) until ``REPLAY_AFTER_S`` after its
-    crash (to its end without one); None where the simulator does not take the scenario (longer than it runs)."""
-    until = scenario.duration()
-    if scenario.collision is not None:
-        until = min(until, scenario.collision.time_s + REPLAY_AFTER_S)
+    """The scenario's replay (a SimResult: the ego driven by its vehicle model, the agents along their paths) until
+    ``REPLAY_AFTER_S`` after its crash; without a crash the ego's alone to the scenario's end (stage 2 kept every
+    road user apart, and the agents, replayed exactly, do not change how the ego drives: KITTI 0019's 77 labelled
+    road users took 5.5 s of replay). None where the simulator does not take the scenario (longer than it runs)."""
     try:
-        return simulate(scenario, duration=until)
+        if scenario.collision is None:
+            return simulate(scenario.evolve(agents=[]))
+        return simulate(scenario, duration=min(scenario.duration(), scenario.collision.time_s + REPLAY_AFTER_S))
     except (UserError, ScenarioError):
         return None
 
