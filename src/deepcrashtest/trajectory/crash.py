@@ -292,8 +292,9 @@ def _separate_others(
             "mirror or a reflection taken for a road user?); dropped"
         )
     seen: dict[tuple[bytes, bytes], Contact | None] = {}  # each pair's contact, while neither path changed
+    stuck: set[tuple[int, float]] = set()  # (mover, time) of clashes a nudge did not move: not asked again
     for _ in range(2 * len(agents) + 1):
-        clash = _first_clash(ego, agents, pair, t_end, cp.near_miss_m, seen)
+        clash = _first_clash(ego, agents, pair, t_end, cp.near_miss_m, seen, stuck)
         if clash is None:
             break
         mover, hit_time = clash
@@ -307,6 +308,9 @@ def _separate_others(
             continue
         others_m = [_movable(o, ego, cp) for o in others if not brush_past(mover.vehicle.category, o.vehicle.category)]
         corr = nudge_apart(_movable(mover, ego, cp), others_m, t_end, cp, reach_m=2 * MAX_NUDGE_M)
+        if corr.ok and corr.max_m < NO_NUDGE_M:  # kept apart where the nudge looks (the samples): between them
+            stuck.add((mover.id, round(hit_time, 3)))
+            continue
         if corr.ok and corr.max_m <= MAX_NUDGE_M:
             mover.xy = mover.xy + corr.deltas[0]
             nudges.append({"agent": mover.id, "max_m": round(corr.max_m, 3)})
@@ -324,6 +328,12 @@ def _separate_others(
     return agents, nudges
 
 
+NO_NUDGE_M = 1e-3
+"""A nudge moving its road user less than this (m) found the pair already apart at the samples it checks (the contact
+falls between them); the clash is not asked again (it came back 6 times in a row on ccd_000014 at half its frame
+rate, each time a nudge of 0.0 m)."""
+
+
 INSIDE_EGO_SHARE = 0.5
 """A bystander whose box overlaps the ego's for more than this share of their common time is inside the ego."""
 
@@ -339,10 +349,17 @@ def _inside_ego(d: Dense, ego: Dense, t_end: float) -> bool:
 
 def _pair_contact(a: BoxTrack, b: BoxTrack, a_grown: BoxTrack, b_grown: BoxTrack, near_miss_m: float) -> Contact | None:
     """:func:`_first_clash`'s contact of two road users: of their grown boxes, or of their own where the grown
-    ones overlap from the start."""
+    ones overlap from the start; their first moment when their own boxes overlap then by less than ``near_miss_m``
+    (m): the final paths' smoothing moves each by centimetres, and two boxes a few millimetres into each other
+    when both first exist come out apart there and touching a moment later, a contact the simulator counts
+    (``bench/fidelity_perturbed.py --variants wiper``, ccd_000031: an oncoming car first seen 2.8 mm into a parked
+    one touched it 0.02 s on in the replay, 3 s before the crash)."""
     hits = [contact_after_apart(a_grown, b_grown)]
     if near_miss_m > 0 and _touch_at_start(a_grown, b_grown):
         hits.append(contact_after_apart(a, b))
+        joining = separation_on_joining(a, b, EPS_T)
+        if joining is not None and -near_miss_m < joining[1] <= 0.0:
+            hits.append(first_contact(a, b))
     return min((h for h in hits if h is not None), key=lambda h: h.time_s, default=None)
 
 
@@ -417,9 +434,11 @@ def _first_clash(
     t_end: float,
     near_miss_m: float = 0.0,
     seen: dict[tuple[bytes, bytes], Contact | None] | None = None,
+    stuck: set[tuple[int, float]] | None = None,
 ) -> tuple[Dense, float] | None:
     """The earliest contact before ``t_end`` between two road users that are not both the crash pair
-    (nor both parked, nor overlapping from the moment both exist: the simulator ignores those too);
+    (nor both parked, nor overlapping from the moment both exist by ``near_miss_m`` or more: the simulator ignores
+    those too);
     returns the one to move (an agent outside the pair, the less confident one) and the time; two pedestrians
     brush past (:func:`~deepcrashtest.scenario.brush_past`). Boxes
     closer than ``near_miss_m`` (m) count as touching: a replay tracks each path within decimetres, and
@@ -427,7 +446,8 @@ def _first_clash(
     exist overlap grown from the start, so that check ignores them: their own boxes are checked too, as the
     simulator does (dad_000487: a cyclist's invented lead-in 0.12 m from a parked car touched it 0.6 s on).
     ``seen``: each pair's contact by the two box tracks' contents, kept between calls (a nudge changes one path:
-    the 110 road users of a 200 s clip were checked pair by pair again after each of 33 nudges)."""
+    the 110 road users of a 200 s clip were checked pair by pair again after each of 33 nudges). ``stuck``: (mover
+    id, time rounded to the ms) of clashes not to return again (a nudge found the pair apart at its samples)."""
     every = [ego, *agents]
     own = [d.box_track() for d in every]
     tracks = [_grown(b, near_miss_m) for b in own]
@@ -451,6 +471,8 @@ def _first_clash(
                 continue
             invented = [d for d in cands if not seen_at(d, hit.time_s)]  # move an invented path first
             mover = min(invented or cands, key=lambda d: (d.vehicle.confidence or 0.0, len(d.t)))
+            if stuck and (mover.id, round(hit.time_s, 3)) in stuck:
+                continue
             if best is None or hit.time_s < best[0]:
                 best = (hit.time_s, mover)
     return None if best is None else (best[1], best[0])
