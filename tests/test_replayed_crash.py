@@ -97,3 +97,24 @@ def test_without_a_crash_the_ego_is_replayed_alone(kitti8_raw):
     final = camera_on_replayed_ego(processed, alone)
     assert final.camera.attitude is not None and final.camera.attitude.yaw_rad is not None
     assert final.model_dump_json() == camera_on_replayed_ego(processed, simulate(processed)).model_dump_json()
+
+
+def test_a_camera_already_turned_to_its_limit_is_left_as_it_is(kitti8_raw):
+    """A scenario whose camera series already turns it 0.45 rad (a user's) and whose ego faces 0.1 rad off the way
+    its replayed vehicle drives: the camera's yaw would pass its 0.5 rad limit, so the scenario stays as it was
+    (never an internal error)."""
+    from deepcrashtest.pipeline.stage2 import camera_on_replayed_ego
+    from deepcrashtest.scenario import CameraAttitude
+    from deepcrashtest.sim import simulate
+    from deepcrashtest.trajectory.pipeline import process_scenario
+
+    processed = process_scenario(kitti8_raw)
+    yaw = [v + 0.1 for v in processed.ego.trajectory.yaw]
+    ego = processed.ego.model_copy(update={"trajectory": processed.ego.trajectory.model_copy(update={"yaw": yaw})})
+    turned = CameraAttitude(video_t=[0.0, 1.0], pitch_rad=[0.0, 0.0], roll_rad=[0.0, 0.0], yaw_rad=[0.45, 0.45])
+    sc = processed.evolve(ego=ego, camera=processed.camera.model_copy(update={"attitude": turned}))
+    assert camera_on_replayed_ego(sc, simulate(sc.evolve(agents=[]))) is sc
+    plain = sc.evolve(camera=processed.camera)  # the same without the user's series: the camera takes the 0.1 rad
+    moved = camera_on_replayed_ego(plain, simulate(plain.evolve(agents=[])))
+    assert moved.camera.attitude is not None and moved.camera.attitude.yaw_rad is not None
+    assert max(moved.camera.attitude.yaw_rad) == pytest.approx(0.1, abs=0.02)

@@ -23,6 +23,7 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
+from pydantic import ValidationError
 
 from deepcrashtest.errors import ScenarioError, UserError
 from deepcrashtest.scenario import CameraAttitude, Scenario
@@ -95,8 +96,9 @@ def camera_on_replayed_ego(scenario: Scenario, run: Any | None) -> Scenario:
     """``scenario`` with its ego facing as in its replay ``run`` (a SimResult) and the camera looking where it did
     before, turned from that heading by ``camera.attitude.yaw_rad`` (the module docstring): over the ego's samples
     up to its first contact in the replay (the crash's impact turns the replayed car its own way), the difference
-    held after. Unchanged without a replay, where the replayed ego is absent, or where it faced further than
-    :data:`MAX_CAMERA_YAW_RAD` from the scenario's heading."""
+    held after. Unchanged without a replay, where the replayed ego is absent, where it faced further than
+    :data:`MAX_CAMERA_YAW_RAD` from the scenario's heading, or where the camera's yaw series would then pass its
+    limit (0.5 rad: a user's series already turned)."""
     if run is None or scenario.ego.id not in run.vehicle_ids:
         return scenario
     a = scenario.ego.trajectory.arrays()
@@ -116,8 +118,11 @@ def camera_on_replayed_ego(scenario: Scenario, run: Any | None) -> Scenario:
     offset = np.interp(t, t[seen], turned)
     traj = scenario.ego.trajectory.model_copy(update={"yaw": [float(v) for v in yaw - offset]})
     ego = scenario.ego.model_copy(update={"trajectory": traj})
-    camera = scenario.camera.model_copy(update={"attitude": _with_yaw(scenario, t[seen], turned)})
-    return scenario.evolve(ego=ego, camera=camera)
+    try:  # a camera already turned (a user's attitude series) may not take more: the scenario as it was
+        camera = scenario.camera.model_copy(update={"attitude": _with_yaw(scenario, t[seen], turned)})
+        return scenario.evolve(ego=ego, camera=camera)
+    except (ValidationError, ScenarioError):
+        return scenario
 
 
 def _with_yaw(scenario: Scenario, t: np.ndarray, yaw: np.ndarray) -> CameraAttitude:
