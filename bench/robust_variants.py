@@ -78,6 +78,14 @@ def variant(vname, base, frames, fps, box_map=lambda b: b, frame_map=lambda k: k
     lab["participants"] = [
         dict(p, box=[float(v) for v in box_map(p["box"])]) if "box" in p else p for p in lab["participants"]
     ]
+    cut = [
+        p["box"]
+        for p in lab["participants"]
+        if "box" in p and not (p["box"][2] > p["box"][0] and p["box"][3] > p["box"][1])
+    ]
+    if cut:  # a labelled road user outside the variant's picture (dad_000478's pair left of a portrait crop)
+        print(vname, "not labelled: a crash participant is outside its picture", cut, flush=True)
+        return
     LAB_OUT[vname] = lab
     print(vname, len(frames), frames[0].shape, fps, lab["contact_frame"], flush=True)
 
