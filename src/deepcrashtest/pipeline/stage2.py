@@ -47,7 +47,7 @@ def processed_scenario(raw: Scenario, seed: int = 0, params: Stage2Params | None
     processed = process_scenario(raw, seed=seed, params=params)
     run = _replay(processed)
     pair = _crash_pair(processed)
-    if pair is None or _touches(processed, run, pair) is not False:
+    if pair is None or _touches(run, pair) is not False:
         return camera_on_replayed_ego(processed, run)
     base = params or Stage2Params()
     for overlap in REPLAY_OVERLAPS_S:
@@ -55,7 +55,7 @@ def processed_scenario(raw: Scenario, seed: int = 0, params: Stage2Params | None
             continue
         again = process_scenario(raw, seed=seed, params=replace(base, crash_overlap_s=overlap))
         again_run = _replay(again)
-        if _crash_pair(again) == pair and _touches(again, again_run, pair):
+        if _crash_pair(again) == pair and _touches(again_run, pair):
             note = (
                 f"the replay of the crash of {pair[0]} and {pair[1]} missed it with their paths overlapping "
                 f"{base.crash_overlap_s:g} s after the first touch; they overlap {overlap:g} s after it"
@@ -82,8 +82,8 @@ def _replay(scenario: Scenario) -> Any | None:
         return None
 
 
-def _touches(scenario: Scenario, run: Any | None, pair: tuple[int, int]) -> bool | None:
-    """Whether the replay ``run`` of ``scenario`` has its crash ``pair`` touch; None without a replay."""
+def _touches(run: Any | None, pair: tuple[int, int]) -> bool | None:
+    """Whether the replay ``run`` has the crash ``pair`` touch; None without a replay."""
     return None if run is None else run.contact_between(*pair) is not None
 
 
@@ -104,12 +104,8 @@ def camera_on_replayed_ego(scenario: Scenario, run: Any | None) -> Scenario:
     a = scenario.ego.trajectory.arrays()
     t, yaw = a["t"], np.unwrap(a["yaw"])
     col = list(run.vehicle_ids).index(scenario.ego.id)
-    k = np.rint(t / run.dt).astype(int)
-    inside = (k >= 0) & (k < len(run.times))
-    seen = np.zeros(len(t), bool)
-    seen[inside] = run.present[k[inside], col]
-    contact = min((c["time"] for c in run.collisions if scenario.ego.id in c["vehicles"]), default=math.inf)
-    seen &= t <= contact + 1e-9
+    k, seen = run.present_at(t, col)
+    seen &= t <= (run.collision["time"] if run.collision is not None else math.inf) + 1e-9  # the ego's first contact
     if not seen.any():
         return scenario
     turned = (yaw[seen] - run.states[k[seen], col, 2] + math.pi) % (2 * math.pi) - math.pi
@@ -128,7 +124,7 @@ def camera_on_replayed_ego(scenario: Scenario, run: Any | None) -> Scenario:
 def _with_yaw(scenario: Scenario, t: np.ndarray, yaw: np.ndarray) -> CameraAttitude:
     """The scenario camera's attitude with the yaw ``yaw`` (rad) at scenario times ``t`` (s) added to its own, on the
     union of its video times and those of ``t`` (its pitch and roll, linear in between, unchanged)."""
-    video_t = np.array([float(scenario.video_time(float(v))) for v in t])
+    video_t = np.asarray(scenario.video_time(t), float)
     old = scenario.camera.attitude
     grid = video_t if old is None else np.union1d(np.asarray(old.video_t, float), video_t)
     grid = grid[np.r_[True, np.diff(grid) > 1e-9]]

@@ -98,6 +98,14 @@ class SimResult:
         """The first contact between road users ``a`` and ``b`` (ids), or None."""
         return next((c for c in self.collisions if set(c["vehicles"]) == {a, b}), None)
 
+    def present_at(self, t: np.ndarray, column: int) -> tuple[np.ndarray, np.ndarray]:
+        """(steps, present) at scenario times ``t`` (s) of the vehicle in column ``column``: each time's nearest step
+        of the run (clipped into it) and whether the vehicle exists there, inside the run."""
+        k = np.rint(np.asarray(t, float) / self.dt).astype(int)
+        inside = (k >= 0) & (k < len(self.times))
+        k = np.clip(k, 0, len(self.times) - 1)
+        return k, inside & self.present[k, column]
+
 
 @dataclass
 class BatchResult:
@@ -383,13 +391,11 @@ def replay_error(scenario: Scenario, result: SimResult, until_collision: bool = 
     sq_agents: list[np.ndarray] = []
     for i, v in enumerate(scenario.vehicles()):
         a = v.trajectory.arrays()
-        k = np.rint(a["t"] / result.dt).astype(int)
-        ok = (k >= 0) & (k < len(result.times)) & (a["t"] <= t_stop)
-        k, xs, ys = k[ok], a["x"][ok], a["y"][ok]
-        pres = result.present[k, i]
+        k, pres = result.present_at(a["t"], i)
+        pres &= a["t"] <= t_stop
         if not pres.any():
             continue
-        d2 = (result.states[k[pres], i, 0] - xs[pres]) ** 2 + (result.states[k[pres], i, 1] - ys[pres]) ** 2
+        d2 = (result.states[k[pres], i, 0] - a["x"][pres]) ** 2 + (result.states[k[pres], i, 1] - a["y"][pres]) ** 2
         per[str(v.id)] = float(np.sqrt(d2.mean()))
         sq_all.append(d2)
         if i > 0:

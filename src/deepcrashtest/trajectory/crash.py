@@ -356,10 +356,9 @@ def _pair_contact(a: BoxTrack, b: BoxTrack, a_grown: BoxTrack, b_grown: BoxTrack
     one touched it 0.02 s on in the replay, 3 s before the crash)."""
     hits = [contact_after_apart(a_grown, b_grown)]
     if near_miss_m > 0 and _touch_at_start(a_grown, b_grown):
-        hits.append(contact_after_apart(a, b))
         joining = separation_on_joining(a, b, EPS_T)
-        if joining is not None and -near_miss_m < joining[1] <= 0.0:
-            hits.append(first_contact(a, b))
+        shallow = joining is not None and -near_miss_m < joining[1] <= 0.0
+        hits.append(first_contact(a, b) if shallow else contact_after_apart(a, b))  # the first never comes later
     return min((h for h in hits if h is not None), key=lambda h: h.time_s, default=None)
 
 
