@@ -226,6 +226,26 @@ def test_replay_reproduces_kitti_trajectories(kitti3):
     assert m["robustness"] == pytest.approx(m["min_distance"]) and m["min_distance"] > 0
 
 
+def test_a_replayed_vehicle_is_posed_on_its_path_while_it_exists_and_nowhere_else(kitti3):
+    """``SimResult.pose_at``: KITTI 0003's agents at their own sample times sit near their recorded positions (the
+    replay's error), and are absent before their first sample, after their last and outside the run."""
+    res = simulate(kitti3)
+    for i, v in enumerate(kitti3.vehicles()):
+        if i == 0:
+            continue
+        tr = v.trajectory
+        poses = [res.pose_at(float(t), i) for t in tr.t]
+        assert all(p is not None for p in poses)
+        err = np.hypot(
+            [p[0] - x for p, x in zip(poses, tr.x, strict=True)], [p[1] - y for p, y in zip(poses, tr.y, strict=True)]
+        )  # type: ignore[index]
+        assert float(np.median(err)) < 0.3
+        assert res.pose_at(float(tr.t[0]) - 0.5, i) is None
+        assert res.pose_at(float(tr.t[-1]) + 0.5, i) is None
+    assert res.pose_at(-1.0, 0) is None and res.pose_at(float(res.times[-1]) + 1.0, 0) is None
+    assert res.pose_at(0.0, 0) is not None
+
+
 def test_replayed_ego_drives_its_path_through_bends(kitti_root):
     """KITTI training sequences 0004, 0006 and 0014 (the ego takes bends): the replayed ego stays near its path.
     The follower once asked for a curvature feed-forward on top of Stanley's heading error (which holds a

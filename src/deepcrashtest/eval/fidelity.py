@@ -102,15 +102,6 @@ def detection_anchored(tracks: pd.DataFrame) -> pd.DataFrame:
 
 
 # --------------------------------------------------------------------------- poses
-def _pose_sim(sim: Any, index: int, t: float) -> tuple[float, float, float] | None:
-    """(x, y, yaw) of vehicle column ``index`` of a SimResult at scenario time ``t``, None when absent."""
-    k = int(round(t / sim.dt))
-    if k < 0 or k >= len(sim.times) or not bool(sim.present[k, index]):
-        return None
-    x, y, yaw = sim.states[k, index, :3]
-    return float(x), float(y), float(yaw)
-
-
 def _centre_error(a: np.ndarray, b: np.ndarray) -> float:
     return float(math.hypot(0.5 * (a[0] + a[2] - b[0] - b[2]), 0.5 * (a[1] + a[3] - b[1] - b[3])))
 
@@ -155,7 +146,7 @@ def reprojection_pairs(
         camera = scenario.camera.at_video_time(float(scenario.video_time(t)))  # its pitch and roll then
         poses = {"processed": (pose_at(ego.id, t), pose_at(agent.id, t))}
         if sim is not None and agent.id in sim_col:
-            poses["simulated"] = (_pose_sim(sim, sim_col[ego.id], t), _pose_sim(sim, sim_col[agent.id], t))
+            poses["simulated"] = (sim.pose_at(t, sim_col[ego.id]), sim.pose_at(t, sim_col[agent.id]))
         for src in SOURCES:
             ego_pose, pose = poses.get(src, (None, None))
             box = None

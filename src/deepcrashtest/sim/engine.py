@@ -106,6 +106,15 @@ class SimResult:
         k = np.clip(k, 0, len(self.times) - 1)
         return k, inside & self.present[k, column]
 
+    def pose_at(self, t: float, column: int) -> tuple[float, float, float] | None:
+        """(x, y, yaw) (m, m, rad; world frame) of the vehicle in column ``column`` at scenario time ``t`` (s), its
+        nearest step (:meth:`present_at`); None where it does not exist then or ``t`` is outside the run."""
+        k, present = self.present_at(np.array([t]), column)
+        if not present[0]:
+            return None
+        x, y, yaw = self.states[int(k[0]), column, :3]
+        return float(x), float(y), float(yaw)
+
 
 @dataclass
 class BatchResult:

@@ -108,23 +108,20 @@ class FidelityPainter:
         import cv2
 
         sim: Any = self.sim
-        k = int(round(t / sim.dt))
-        if k < 0 or k >= len(sim.times):
+        ego_pose = sim.pose_at(t, sim.vehicle_ids.index(self.sc.ego.id))
+        if ego_pose is None:
             return
-        ego_col = sim.vehicle_ids.index(self.sc.ego.id)
-        if not sim.present[k, ego_col]:
-            return
-        ego_pose = tuple(float(v) for v in sim.states[k, ego_col, :3])
         hot = set(self.first["participants"]) if contact_now and self.first is not None else set()
         frame = self.sc.video_frame(t)
         rows = self.by_frame.get(frame if frame is not None else -1)
         ious = dict(zip(rows["agent_id"], rows["simulated_iou"], strict=True)) if rows is not None else {}
         camera = self.sc.camera.at_video_time(float(self.sc.video_time(t)))
         for i, vid in enumerate(sim.vehicle_ids):
-            if vid == self.sc.ego.id or not sim.present[k, i]:
+            pose = sim.pose_at(t, i) if vid != self.sc.ego.id else None
+            if pose is None:
                 continue
             v = self.vehicles[vid]
-            x, y, yaw = (float(s) for s in sim.states[k, i, :3])
+            x, y, yaw = pose
             seg = project_box_edges(camera, ego_pose, x, y, yaw, v.length, v.width, v.height)  # type: ignore[arg-type]
             colour = RED if vid in hot else id_colour(vid)
             _draw_segments(img, seg, colour, 2)
