@@ -1,7 +1,7 @@
 """One setting of the monocular path against the training sequences, both cameras, on two processes.
 
     PYTHONPATH=src nice -n 10 python bench/mono_variants.py --cache DIR [--mono k=v,...] [--tracker k=v,...]
-        [--cameras kitti,unknown] [--kitti-height M] [--errors] [--sequences 0,1,2]
+        [--cameras kitti,unknown] [--kitti-height M] [--errors] [--detect-every N] [--sequences 0,1,2]
 
 Prints, per camera, the combined CLEAR-MOT MOTA (summed FN, FP, IDSW over summed ground truth) of the 18
 training sequences other than 3, 8, 10 (never the held-out ones), its FN / FP, each sequence's MOTA, and with
@@ -9,7 +9,9 @@ training sequences other than 3, 8, 10 (never the held-out ones), its FN / FP, e
 per sequence in each distance bin (``kitti_mono.ERROR_BINS``), and the matched cars' median heading error / share
 over 20 deg (``kitti_mono.heading_errors``). ``--mono`` / ``--tracker`` override
 ``MonoConfig`` / ``MonoTracking`` fields (Python literals); ``--kitti-height`` replaces the KITTI camera's
-1.65 m. The image tracks (default tracker setting) and the unknown camera's self-calibration are cached per
+1.65 m. ``--detect-every N`` gives the image tracker the boxes of every N-th frame only, as ``extract``'s detector
+runs on a video (every 2nd frame at KITTI's 10 fps), the frames between carried by the tracker (their own cache
+files). The image tracks (default tracker setting) and the unknown camera's self-calibration are cached per
 sequence under ``--cache`` (use a fresh directory after a change to the image tracker or self-calibration).
 Where ``bench/tune_mono.py`` walks a grid on the KITTI camera, this scores one setting on both cameras at
 once (what a round must not lower: the unknown camera's figure as well).
@@ -29,7 +31,7 @@ from selfcalib_diag import _combined, load_sequence, training_args
 
 from deepcrashtest.eval.clear_mot import clear_only
 from deepcrashtest.eval.kitti import match_rule
-from deepcrashtest.eval.kitti_mono import DEFAULT_MONO, MonoTracking, ego_of, score_sequence
+from deepcrashtest.eval.kitti_mono import DEFAULT_MONO, MonoTracking, ego_of, image_tracks, score_sequence
 from deepcrashtest.geometry.selfcalib import self_calibrate
 from deepcrashtest.geometry.world_tracks import raw_scenario_from_tracks
 from deepcrashtest.scenario import Camera, VideoSource
@@ -51,10 +53,24 @@ def _calibrated(s: int, cache: Path, prep, tracks, ego, start: Camera) -> Camera
     return cam
 
 
-def _score(job: tuple[int, Path, MonoTracking, tuple[str, ...], float | None]) -> tuple[int, dict[str, Any]]:
+def _thinned_tracks(s: int, cache: Path, prep, cfg: MonoTracking, every: int):
+    """The image tracks of sequence ``s`` from the boxes of every ``every``-th frame (cached)."""
+    f = cache / f"tracks_{s:04d}_every{every}.pkl"
+    if f.exists():
+        return pickle.loads(f.read_bytes())
+    tracks = image_tracks(prep, replace(cfg, detect_every=every))
+    f.write_bytes(pickle.dumps(tracks))
+    return tracks
+
+
+def _score(job: tuple[int, Path, MonoTracking, tuple[str, ...], float | None, int]) -> tuple[int, dict[str, Any]]:
     """CLEAR-MOT row and position-error table of one sequence per camera."""
-    s, cache, cfg, cameras, kitti_height = job
+    s, cache, cfg, cameras, kitti_height, every = job
     prep, tracks, ego, start = load_sequence(s, cache)
+    if every > 1:
+        tracks = _thinned_tracks(s, cache, prep, cfg, every)
+        cache = cache / f"every{every}"  # the self-calibration of these tracks
+        cache.mkdir(exist_ok=True)
     meta = VideoSource(
         kind="image_folder", path=prep.name, fps=10.0, frame_count=prep.world.n_frames,
         width=prep.size[0], height=prep.size[1],
@@ -83,10 +99,11 @@ def main() -> None:
     ap.add_argument("--kitti-height", type=float, default=None, help="the KITTI camera's height (m)")
     ap.add_argument("--errors", action="store_true", help="position errors by distance bin per sequence")
     ap.add_argument("--processes", type=int, default=2)
+    ap.add_argument("--detect-every", type=int, default=1, help="boxes of every N-th frame only (a video's cadence)")
     args, seqs, cache = training_args(ap, None)
     cfg = replace(DEFAULT_MONO, mono=replace(DEFAULT_MONO.mono, **_overrides(args.mono)), **_overrides(args.tracker))
     cameras = tuple(args.cameras.split(","))
-    jobs = [(s, cache, cfg, cameras, args.kitti_height) for s in seqs]
+    jobs = [(s, cache, cfg, cameras, args.kitti_height, args.detect_every) for s in seqs]
     with Pool(args.processes) as pool:
         rows = dict(pool.map(_score, jobs, chunksize=1))
     for which in cameras:

@@ -493,6 +493,11 @@ def evaluate_kitti(
     camera: str = typer.Option(
         "kitti", "--camera", help="With --mono: kitti (calibration file) | unknown (self-calibration)."
     ),
+    detect_every: int = typer.Option(
+        1,
+        "--detect-every",
+        help="With --mono: the boxes of every N-th frame only, as extract's detector runs on a video (2 at 10 fps).",
+    ),
     output: Path | None = typer.Option(None, "-o", "--output", help="Also write results.json and results.md here."),
     force: bool = ForceOpt,
     as_json: bool = JsonOpt,
@@ -517,7 +522,7 @@ def evaluate_kitti(
         if mono:
             from deepcrashtest.eval.kitti_mono import evaluate_mono
 
-            return evaluate_mono(data, seqs, boxes=boxes, camera=camera, match=match)
+            return evaluate_mono(data, seqs, boxes=boxes, camera=camera, match=match, detect_every=detect_every)
         kwargs: dict[str, Any] = {"match": match, "detections": detections, "tracks": tracks}
         if online:
             kwargs["offline"] = None

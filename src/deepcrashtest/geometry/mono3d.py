@@ -106,15 +106,41 @@ def frame_horizon(
     vh = np.broadcast_to(np.asarray(vh, dtype=float), implied.shape)
     uniq, inv = np.unique(frames, return_inverse=True)
     off = np.zeros(len(uniq))
+    seen = np.zeros(len(uniq), bool)
     for k in range(len(uniq)):
         m = ok & (inv == k)
         n = int(m.sum())
         if n:
             off[k] = float(np.median(implied[m] - vh[m])) * n / (n + shrink)
-    if len(off) >= 3:
-        padded = np.r_[off[0], off, off[-1]]
-        off = np.median(np.stack([padded[:-2], padded[1:-1], padded[2:]]), axis=0)
+            seen[k] = True
+    measured = off[seen]
+    if len(measured) >= 3:  # over the frames that measured it: a video's detector runs every few frames
+        padded = np.r_[measured[0], measured, measured[-1]]
+        off[seen] = np.median(np.stack([padded[:-2], padded[1:-1], padded[2:]]), axis=0)
+    if seen.any() and not seen.all():  # frames between detections: linearly between their neighbours' offsets
+        off[~seen] = _between_measured(uniq[~seen], uniq[seen], off[seen])
     return vh + off[inv]
+
+
+#: :func:`frame_horizon` carries its offset across at most this many frames without a box (a video's detector
+#: runs every 2-6 frames); a longer gap (no road user in view) keeps the camera's horizon.
+HORIZON_GAP_FRAMES = 8
+
+
+def _between_measured(frames: np.ndarray, measured: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """The offsets (px) at ``frames`` between the ``measured`` frames (sorted) linearly interpolated where the
+    measured frames either side are at most :data:`HORIZON_GAP_FRAMES` apart (held within that many frames before the
+    first and after the last), else 0."""
+    out = np.interp(frames, measured, offsets)
+    k = np.searchsorted(measured, frames)
+    before = np.where(k > 0, measured[np.maximum(k - 1, 0)], -np.inf)
+    after = np.where(k < len(measured), measured[np.minimum(k, len(measured) - 1)], np.inf)
+    near = np.where(
+        np.isfinite(before) & np.isfinite(after),
+        after - before <= HORIZON_GAP_FRAMES,
+        np.minimum(frames - before, after - frames) <= HORIZON_GAP_FRAMES,
+    )
+    return np.where(near, out, 0.0)
 
 
 def _fuse_depth(

@@ -511,12 +511,13 @@ def _earlier_records(items: list[tuple[int, float, TrackedBox]]) -> list[tuple[o
 
 
 def track_boxes(
-    detections: Iterable[Detections],
+    detections: Iterable[Detections | None],
     fps: float,
     size: tuple[int, int],
     **tracker_options: float,
 ) -> pd.DataFrame:
-    """Track a sequence of per-frame detections without pixels (frame k at time k / fps).
+    """Track a sequence of per-frame detections without pixels (frame k at time k / fps; None: a frame the
+    detector did not run on, its boxes carried, as with ``detect_every`` in ``tracker_options``).
 
     ``size``: (width, height) of the frames, pixels. Returns the ``tracks.csv`` table sorted by
     frame and track (rows of frames before a track's confirmation included)."""
