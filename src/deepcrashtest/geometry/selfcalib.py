@@ -201,6 +201,18 @@ def focal_from_motion(
     return math.exp(est), max(spread, 0.01), int(near.sum())
 
 
+#: :func:`focal_from_rotation` and :func:`focal_from_pitch` read a track's detections at its cadence, at most this many
+#: frames apart (a video's detector runs every 2-6 frames, ``extract``'s MAX_DETECT_GAP_S; before, at every frame only,
+#: so neither measured anything at a video's cadence).
+MAX_DETECTION_GAP_FRAMES = 6
+
+
+def _cadence(d: pd.DataFrame) -> np.ndarray:
+    """Per row of ``d`` (sorted by track and frame): its track's median gap between detections (frames, >= 1)."""
+    gaps = d.groupby("track_id")["frame"].transform(lambda f: float(np.median(np.diff(f))) if len(f) > 1 else 1.0)
+    return np.maximum(gaps.to_numpy(float).round().astype(int), 1)
+
+
 def focal_from_rotation(
     tracks: pd.DataFrame, size: tuple[int, int], cx: float, ego: EgoMotion, fy0: float, min_turn_deg: float = 0.3
 ) -> tuple[float, float, int] | None:
@@ -219,7 +231,8 @@ def focal_from_rotation(
     frame_to_i = {int(f): i for i, f in enumerate(ego.frame)}
     d = d[d["frame"].isin(frame_to_i.keys())]
     frames = d["frame"].to_numpy(int)
-    same = (np.diff(d["track_id"].to_numpy()) == 0) & (np.diff(frames) == 1)
+    step = _cadence(d)[:-1]  # a video's detector runs every few frames: consecutive detections of a track
+    same = (np.diff(d["track_id"].to_numpy()) == 0) & (np.diff(frames) == step) & (step <= MAX_DETECTION_GAP_FRAMES)
     if same.sum() < MIN_BOXES:
         return None
     i = np.array([frame_to_i[int(v)] for v in frames])
@@ -286,13 +299,17 @@ def focal_from_pitch(
     for _, g in d.groupby("track_id"):
         f = g["frame"].to_numpy(int)
         v = 0.5 * (g["y1"] + g["y2"]).to_numpy(float)
-        for seg in np.split(np.arange(len(f)), np.nonzero(np.diff(f) != 1)[0] + 1):
-            if len(seg) < window + 2:
+        step = int(_cadence(g)[0])  # the detector's cadence (frames)
+        if step > MAX_DETECTION_GAP_FRAMES:
+            continue
+        samples = max(5, 2 * int(round(window / step / 2)) + 1)  # the window's span at that cadence (odd)
+        for seg in np.split(np.arange(len(f)), np.nonzero(np.diff(f) != step)[0] + 1):
+            if len(seg) < samples + 2:
                 continue
             i = np.array([frame_to_i[int(k)] for k in f[seg]])
             frames.append(f[seg])
-            rows.append(_fast_part(v[seg], window))
-            pitch.append(_fast_part(ego.pitch[i], window))
+            rows.append(_fast_part(v[seg], samples))
+            pitch.append(_fast_part(ego.pitch[i], samples))
     if not frames:
         return None
     uniq, inv = np.unique(np.concatenate(frames), return_inverse=True)
