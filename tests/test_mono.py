@@ -817,9 +817,9 @@ def test_the_monocular_path_at_a_videos_detector_cadence(kitti_root):
 def test_turns_and_bounce_calibrate_the_focal_at_a_videos_detector_cadence(kitti_root, prep):
     """With boxes of every 2nd frame only (a video's detector at 10 fps) the turn estimate of sequence 0014 and the
     pitch-bounce estimate of 0004 read the detections at their cadence (measured 728 px against the true 707, 91
-    box pairs; 0004's bounce 722 px against 721.5): before, both needed detections in consecutive frames and measured nothing,
-    and the unknown camera's focal length rested on parked and moving vehicles alone (18 training sequences at
-    this cadence: combined MOTA 38.7 -> 47.7)."""
+    box pairs; 0004's bounce 722 px against 721.5): before, both needed detections in consecutive frames and
+    measured nothing, and the unknown camera's focal length rested on parked and moving vehicles alone (18 training
+    sequences at this cadence: combined MOTA 38.7 -> 47.7)."""
     from deepcrashtest.geometry.selfcalib import focal_from_pitch, focal_from_rotation
 
     video = dataclasses.replace(DEFAULT_MONO, detect_every=2)
