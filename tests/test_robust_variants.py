@@ -543,7 +543,17 @@ def test_a_jolt_while_the_road_user_still_closes_in_is_not_the_contact(tmp_path)
         tmp_path / "out" / "scenario.json", tmp_path / "fid", video=video, tracks=tmp_path / "out" / "tracks.csv",
         labels=tmp_path / "labels.json", clip="ccd_001143", force=True,
     )  # fmt: skip
-    assert summary["crash"]["reproduced"]  # before holding_yaws_after: no contact in the replay
+    # the replay makes the crash (before holding_yaws_after: no contact in it). Since round horizon38 (the per-frame
+    # horizon on a video) its first contact is two other buses 1.2 s earlier (one cut by the picture's top and side,
+    # 0.36 m into the other when that one appears; they come apart for a moment in the replay and touch): the clip
+    # through this lens is not reproduced as a whole (docs/fidelity.md, round horizon38)
+    from deepcrashtest.sim import simulate
+
+    sc = Scenario.load(tmp_path / "out" / "scenario.json")
+    assert sc.collision is not None and sc.collision.other_id == 0
+    hit = simulate(sc).contact_between(0, sc.collision.agent_id)
+    assert hit is not None and abs(hit["time"] - sc.collision.time_s) < 0.1
+    assert summary["crash"]["same_pair"] is not None
 
 
 def _dusk(clip: Path, out: Path, gain: float = 0.3, noise: float = 3.0) -> Path:
