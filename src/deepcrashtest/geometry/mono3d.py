@@ -97,7 +97,8 @@ def frame_horizon(
 
     Each uncut box whose depth ``z_size`` (m) is known from its track's size implies a horizon row
     ``v_bottom - fy h / z_size``; the frame's median offset from ``vh`` (shrunk towards 0 by
-    ``n / (n + shrink)`` for n boxes, then a 3-frame running median) is added to ``vh``. ``vh``: one
+    ``n / (n + shrink)`` for n boxes, then a running median of 3 over the frames with boxes, and interpolated for
+    the frames between them: a video's detector runs every few frames) is added to ``vh``. ``vh``: one
     row, or one per box (the camera's pitch at each box's frame). ``road``: the road's drop against range (None:
     the camera's height everywhere)."""
     drop = camera.height_m if road is None else camera.height_m * road.ratio(z_size)
