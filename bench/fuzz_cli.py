@@ -262,6 +262,8 @@ def odd_other_commands(fz: Fuzz, d: Path, tmp: Path) -> None:
         fz.run("scenario", "from-kitti", "--data", data, "--sequence", v, "-o", tmp / "fk", "--json")
     for opt, v in (("--match", "nosuch"), ("--boxes", "nosuch"), ("--camera", "nosuch"), ("--detections", "")):
         fz.run("evaluate", "kitti", "--data", data, "--sequences", "9999", opt, v, "--mono", "--json")
+    for v in ("0", "-1", "abc", "99999999999999999999"):
+        fz.run("evaluate", "kitti", "--data", data, "--sequences", "9999", "--detect-every", v, "--mono", "--json")
     for v in ("-1", "0", "1", "99999999999999999999"):
         fz.run("evaluate", "egomotion", "--data", tmp / "no_odometry", "--max-frames", v, "--json")
     for v in ("-1", "0", "65536", "99999999999999999999", "", "abc"):
