@@ -207,10 +207,14 @@ def focal_from_motion(
 MAX_DETECTION_GAP_FRAMES = 6
 
 
+def _detection_step(frames: np.ndarray) -> int:
+    """A track's cadence: the median gap between its detections (frames, sorted; >= 1)."""
+    return max(round(float(np.median(np.diff(frames)))), 1) if len(frames) > 1 else 1
+
+
 def _cadence(d: pd.DataFrame) -> np.ndarray:
-    """Per row of ``d`` (sorted by track and frame): its track's median gap between detections (frames, >= 1)."""
-    gaps = d.groupby("track_id")["frame"].transform(lambda f: float(np.median(np.diff(f))) if len(f) > 1 else 1.0)
-    return np.maximum(gaps.to_numpy(float).round().astype(int), 1)
+    """Per row of ``d`` (sorted by track and frame): its track's :func:`_detection_step`."""
+    return d.groupby("track_id")["frame"].transform(lambda f: _detection_step(f.to_numpy(int))).to_numpy(int)
 
 
 def focal_from_rotation(
@@ -299,7 +303,7 @@ def focal_from_pitch(
     for _, g in d.groupby("track_id"):
         f = g["frame"].to_numpy(int)
         v = 0.5 * (g["y1"] + g["y2"]).to_numpy(float)
-        step = int(_cadence(g)[0])  # the detector's cadence (frames)
+        step = _detection_step(f)  # the detector's cadence (frames)
         if step > MAX_DETECTION_GAP_FRAMES:
             continue
         samples = max(5, 2 * int(round(window / step / 2)) + 1)  # the window's span at that cadence (odd)
