@@ -322,9 +322,13 @@ def print_standing(seqs: list[int], camera: str, config: MonoTracking) -> None:
             )
 
 
-def _config(spec: str) -> MonoTracking:
-    kw = {k: eval(v) for k, v in (p.split("=") for p in spec.split(",") if p)}  # noqa: S307 (bench option)
-    return replace(DEFAULT_MONO, mono=replace(DEFAULT_MONO.mono, **kw))
+def _overrides(spec: str) -> dict:
+    return {k: eval(v) for k, v in (p.split("=") for p in spec.split(",") if p)}  # noqa: S307 (bench option)
+
+
+def _config(spec: str, tracker: str = "") -> MonoTracking:
+    """``DEFAULT_MONO`` with ``MonoConfig`` overrides ``spec`` and ``MonoTracking`` overrides ``tracker``."""
+    return replace(DEFAULT_MONO, mono=replace(DEFAULT_MONO.mono, **_overrides(spec)), **_overrides(tracker))
 
 
 def main() -> None:
@@ -335,9 +339,10 @@ def main() -> None:
     ap.add_argument("--lifecycle", action="store_true", help="FN by where lost, FP by track age (KITTI camera)")
     ap.add_argument("--standing", action="store_true", help="misses split by the labelled car standing or moving")
     ap.add_argument("--mono", default="", help="MonoConfig overrides, e.g. hull_height=False,prior_scale=1.02")
+    ap.add_argument("--tracker", default="", help="MonoTracking overrides, e.g. detect_every=2 (a video's cadence)")
     args = ap.parse_args()
     if args.standing:
-        print_standing([int(x) for x in args.sequences.split(",")], args.camera, _config(args.mono))
+        print_standing([int(x) for x in args.sequences.split(",")], args.camera, _config(args.mono, args.tracker))
         return
     if args.classes:
         print_classes([int(x) for x in args.sequences.split(",")])
@@ -345,7 +350,7 @@ def main() -> None:
     if args.lifecycle:
         fn_all, fp_all = Counter(), Counter()
         for s in [int(x) for x in args.sequences.split(",")]:
-            fn, fp = lifecycle(s, _config(args.mono))
+            fn, fp = lifecycle(s, _config(args.mono, args.tracker))
             fn_all.update(fn)
             fp_all.update(fp)
             print(f"{s:04d} FN {dict(fn.most_common(4))} FP {dict(fp.most_common(3))}", flush=True)
@@ -357,7 +362,7 @@ def main() -> None:
     FN, FP = Counter(), Counter()
     n_err = 0
     for s in [int(x) for x in args.sequences.split(",")]:
-        out, fn, fp = diagnose(s, args.camera, _config(args.mono))
+        out, fn, fp = diagnose(s, args.camera, _config(args.mono, args.tracker))
         FN.update(fn)
         FP.update(fp)
         e = np.array(ERR[n_err:]) if len(ERR) > n_err else np.zeros((0, 3))

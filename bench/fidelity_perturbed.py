@@ -22,6 +22,9 @@ then extracted and replayed exactly like ``bench/fidelity_crashes.py``:
 * ``wiper``: filmed through a windscreen in the rain: two wiper blades (dark, out of focus, ``WIPER_WIDTH`` of the
   frame's width wide) pivoting below the frame's bottom sweep up across the view and back every ``WIPER_PERIOD_S``
   (labels unchanged; not in the default set);
+* ``late``: the clip starts ``LATE_LEAD_S`` before the labelled contact (a clip cut from a longer recording or a
+  compilation's shot that begins shortly before the crash: little footage to calibrate on and short tracks; a clip
+  without a contact loses its first half; label frames moved along; not in the default set);
 * ``copy``: only re-encoded, the control: what the re-encoding alone changes.
 
 Clips are written by the project's own H.264 writer (CRF 23, ultrafast): PyAV's default x264 preset fed ``bgr24``
@@ -56,7 +59,7 @@ from fidelity_crashes import DATA, all_labels, run_clip
 
 VARIANTS = ("mirror", "small", "halffps", "copy")
 #: Variants run only when asked for (``--variants large``).
-MORE_VARIANTS = ("large", "tiny", "fisheye", "zoom", "portrait", "dark", "wiper")
+MORE_VARIANTS = ("large", "tiny", "fisheye", "zoom", "portrait", "dark", "wiper", "late")
 #: ``fisheye``: source radius = r (1 + k r^2) / (1 + k), r the output pixel's distance from the centre over the
 #: half diagonal: the corners stay, the centre is magnified 1 + k, straight lines bow outwards (barrel).
 FISHEYE_K = 0.35
@@ -76,6 +79,8 @@ WIPER_WIDTH = 0.035
 WIPER_OPACITY = 0.9
 WIPER_PIVOTS = ((0.12, 1.2), (0.62, 1.2))
 WIPER_LENGTH = 1.15
+#: ``late``: the footage kept before the labelled contact (s).
+LATE_LEAD_S = 1.5
 
 
 def variant_geometry(src: Path, variant: str) -> tuple[float, int, tuple[float, float], int]:
@@ -93,8 +98,16 @@ def variant_geometry(src: Path, variant: str) -> tuple[float, int, tuple[float, 
     return fps / step, step, scale, width
 
 
-def rewrite_clip(src: Path, dst: Path, variant: str) -> None:
-    """Write ``src`` changed by ``variant`` (:func:`variant_geometry`) to ``dst``."""
+def late_start(label: dict[str, Any], frames: int) -> int:
+    """The first frame the ``late`` variant keeps of a clip of ``frames`` frames labelled ``label``."""
+    contact = label.get("contact_frame")
+    if contact is None:
+        return frames // 2
+    return max(0, int(contact) - round(LATE_LEAD_S * float(label["fps"])))
+
+
+def rewrite_clip(src: Path, dst: Path, variant: str, start: int = 0) -> None:
+    """Write ``src`` changed by ``variant`` (:func:`variant_geometry`) to ``dst``, from its frame ``start`` on."""
     import av
     import cv2
 
@@ -124,7 +137,7 @@ def rewrite_clip(src: Path, dst: Path, variant: str) -> None:
         h, w = frames[0].shape[:2]
         map_x, map_y = lens_maps(w, h, variant)
         frames = [cv2.remap(f, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE) for f in frames]
-    frames = frames[::step]
+    frames = frames[start::step]
     dst.parent.mkdir(parents=True, exist_ok=True)
     out = VideoWriter(dst, fps, frames[0].shape[1], frames[0].shape[0], force=True)  # the project's writer
     for f in frames:
@@ -227,15 +240,16 @@ def lens_box(box: list[float], width: int, height: int, variant: str) -> list[in
 
 
 def rewrite_label(
-    label: dict[str, Any], video: Path, variant: str, fps: float, step: int, scale: tuple[float, float], width: int
-) -> dict[str, Any]:
-    """The clip's label entry moved along with the rewrite (frames, boxes). A contact frame dropped by the
-    frame step moves to the next frame kept: the first frame of the new clip where the two touch."""
+    label: dict[str, Any], video: Path, variant: str, fps: float, step: int, scale: tuple[float, float], width: int,
+    start: int = 0,
+) -> dict[str, Any]:  # fmt: skip
+    """The clip's label entry moved along with the rewrite (frames from ``start`` on, boxes). A contact frame dropped
+    by the frame step moves to the next frame kept: the first frame of the new clip where the two touch."""
     out = json.loads(json.dumps(label))
     out["video"], out["fps"] = str(video), fps
     for key in ("contact_frame", "first_accident_frame"):
         if out.get(key) is not None:
-            out[key] = -(-int(out[key]) // step)
+            out[key] = -(-(int(out[key]) - start) // step)
     for p in out.get("participants", []):
         if "box" in p:
             x1, y1, x2, y2 = p["box"]
@@ -250,6 +264,13 @@ def rewrite_label(
                 continue
             p["box"] = [round(x1 * scale[0]), round(y1 * scale[1]), round(x2 * scale[0]), round(y2 * scale[1])]
     return out
+
+
+def _frame_count(video: Path) -> int:
+    import av
+
+    with av.open(str(video)) as inp:
+        return sum(1 for _ in inp.decode(inp.streams.video[0]))
 
 
 def _height(video: Path) -> int:
@@ -268,9 +289,10 @@ def prepare(variant: str, names: list[str], work: Path, reuse: bool) -> Path:
         label_file, _ = all_labels()[name]
         raw = json.loads(label_file.read_text())["clips"][name]
         video = work / variant / "clips" / f"{name}.mp4"
+        start = late_start(raw, _frame_count(DATA / raw["video"])) if variant == "late" else 0
         if not (reuse and video.is_file()):
-            rewrite_clip(DATA / raw["video"], video, variant)
-        clips[name] = rewrite_label(raw, video, variant, *variant_geometry(DATA / raw["video"], variant))
+            rewrite_clip(DATA / raw["video"], video, variant, start)
+        clips[name] = rewrite_label(raw, video, variant, *variant_geometry(DATA / raw["video"], variant), start=start)
     labels_path.write_text(json.dumps({"format": "deepcrashtest-crash-labels", "version": 1, "clips": clips}))
     return labels_path
 

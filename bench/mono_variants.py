@@ -31,7 +31,7 @@ from selfcalib_diag import _combined, load_sequence, training_args
 
 from deepcrashtest.eval.clear_mot import clear_only
 from deepcrashtest.eval.kitti import match_rule
-from deepcrashtest.eval.kitti_mono import DEFAULT_MONO, MonoTracking, ego_of, image_tracks, score_sequence
+from deepcrashtest.eval.kitti_mono import DEFAULT_MONO, MonoTracking, ego_of, score_sequence
 from deepcrashtest.geometry.selfcalib import self_calibrate
 from deepcrashtest.geometry.world_tracks import raw_scenario_from_tracks
 from deepcrashtest.scenario import Camera, VideoSource
@@ -53,22 +53,11 @@ def _calibrated(s: int, cache: Path, prep, tracks, ego, start: Camera) -> Camera
     return cam
 
 
-def _thinned_tracks(s: int, cache: Path, prep, cfg: MonoTracking, every: int):
-    """The image tracks of sequence ``s`` from the boxes of every ``every``-th frame (cached)."""
-    f = cache / f"tracks_{s:04d}_every{every}.pkl"
-    if f.exists():
-        return pickle.loads(f.read_bytes())
-    tracks = image_tracks(prep, replace(cfg, detect_every=every))
-    f.write_bytes(pickle.dumps(tracks))
-    return tracks
-
-
 def _score(job: tuple[int, Path, MonoTracking, tuple[str, ...], float | None, int]) -> tuple[int, dict[str, Any]]:
     """CLEAR-MOT row and position-error table of one sequence per camera."""
     s, cache, cfg, cameras, kitti_height, every = job
-    prep, tracks, ego, start = load_sequence(s, cache)
+    prep, tracks, ego, start = load_sequence(s, cache, replace(cfg, detect_every=every))
     if every > 1:
-        tracks = _thinned_tracks(s, cache, prep, cfg, every)
         cache = cache / f"every{every}"  # the self-calibration of these tracks
         cache.mkdir(exist_ok=True)
     meta = VideoSource(

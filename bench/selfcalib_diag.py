@@ -1,6 +1,7 @@
 """Self-calibration against the KITTI calibration, sequence by sequence (training sequences only).
 
     PYTHONPATH=src nice -n 10 python bench/selfcalib_diag.py [--sequences 0,1,2] [--oracle] [--cache DIR]
+        [--detect-every N]
 
 Per sequence: the self-calibrated focal length (and each of its estimates: parked vehicles, vehicles
 moving at a steady speed, turns, pitch bounce), forward-axis column, horizon row and camera height
@@ -19,6 +20,7 @@ from __future__ import annotations
 import argparse
 import math
 import pickle
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +29,15 @@ from deepcrashtest.datasets.kitti.files import KittiSequence, read_labels
 from deepcrashtest.datasets.kitti.scenario import KITTI_CAMERA_FORWARD_OFFSET_M
 from deepcrashtest.eval.clear_mot import clear_only
 from deepcrashtest.eval.kitti import match_rule
-from deepcrashtest.eval.kitti_mono import DEFAULT_MONO, MonoSequence, ego_of, image_tracks, prepare_mono, score_sequence
+from deepcrashtest.eval.kitti_mono import (
+    DEFAULT_MONO,
+    MonoSequence,
+    MonoTracking,
+    ego_of,
+    image_tracks,
+    prepare_mono,
+    score_sequence,
+)
 from deepcrashtest.geometry import selfcalib as sc_mod
 from deepcrashtest.geometry.camera import default_camera
 from deepcrashtest.geometry.selfcalib_moving import focal_from_moving
@@ -93,14 +103,17 @@ def training_args(ap: argparse.ArgumentParser, cache: str | None) -> tuple[argpa
     return args, seqs, path
 
 
-def load_sequence(s: int, cache: Path):
-    """(prepared sequence, image tracks cached under ``cache``, ego motion, the unknown camera's start)."""
+def load_sequence(s: int, cache: Path, config: MonoTracking = DEFAULT_MONO):
+    """(prepared sequence, image tracks cached under ``cache`` (with ``config.detect_every`` > 1 from the boxes
+    of every N-th frame only, the frames between carried by the image tracker: a video's cadence), ego motion,
+    the unknown camera's start)."""
     prep = prepare_mono(DATA, s)
-    f = cache / f"tracks_{s:04d}.pkl"
+    every = config.detect_every
+    f = cache / (f"tracks_{s:04d}.pkl" if every == 1 else f"tracks_{s:04d}_every{every}.pkl")
     if f.exists():
         tracks = pickle.loads(f.read_bytes())
     else:
-        tracks = image_tracks(prep, DEFAULT_MONO)
+        tracks = image_tracks(prep, config)
         f.write_bytes(pickle.dumps(tracks))
     start = default_camera(*prep.size).model_copy(update={"forward_offset_m": KITTI_CAMERA_FORWARD_OFFSET_M})
     return prep, tracks, ego_of(prep.world), start
@@ -113,10 +126,11 @@ def _fmt(e) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--oracle", action="store_true")
+    ap.add_argument("--detect-every", type=int, default=1, help="boxes of every N-th frame only (a video's cadence)")
     args, seqs, cache = training_args(ap, "/tmp/selfcalib_diag")
     rows = []
     for s in seqs:
-        prep, tracks, ego, start = load_sequence(s, cache)
+        prep, tracks, ego, start = load_sequence(s, cache, replace(DEFAULT_MONO, detect_every=args.detect_every))
         cal = sc_mod.self_calibrate(tracks, start, prep.size, ego)
         parts = _calib_parts(tracks, start, prep.size, ego)
         cam, true = cal.camera, prep.camera
