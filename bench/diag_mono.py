@@ -172,7 +172,7 @@ def _lost_where(gbox, gxy, f, prep, cfg, rows, agents, ndet, ah) -> str:
         return "no image-track row"
     tid = int(rows["track_id"].iloc[int(np.argmax(t_cover))])
     if tid not in agents:
-        return "dropped (min_detected)" if ndet[tid] < cfg.min_detected else "dropped (min_confidence)"
+        return "dropped (min_detected)" if ndet[tid] < cfg.min_detected_frames else "dropped (min_confidence)"
     mine = ah[ah["track_id"] == tid] if ah is not None else ah
     if mine is None or not len(mine):
         return "agent without this frame"
@@ -223,7 +223,7 @@ def class_rows(seq: int, config: MonoTracking = DEFAULT_MONO) -> pd.DataFrame:
     cam = prep.camera
     out = []
     for tid, g in states[states["detected"].astype(bool)].groupby("track_id"):
-        if len(g) < config.min_detected or g["score"].mean() <= config.min_confidence:
+        if len(g) < config.min_detected_frames or g["score"].mean() <= config.min_confidence:
             continue
         types: Counter = Counter()
         for f, box in zip(g["frame"], g[["x1", "y1", "x2", "y2"]].to_numpy(float), strict=True):

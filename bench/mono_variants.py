@@ -53,12 +53,12 @@ def _calibrated(s: int, cache: Path, prep, tracks, ego, start: Camera) -> Camera
     return cam
 
 
-def _score(job: tuple[int, Path, MonoTracking, tuple[str, ...], float | None, int]) -> tuple[int, dict[str, Any]]:
+def _score(job: tuple[int, Path, MonoTracking, tuple[str, ...], float | None]) -> tuple[int, dict[str, Any]]:
     """CLEAR-MOT row and position-error table of one sequence per camera."""
-    s, cache, cfg, cameras, kitti_height, every = job
-    prep, tracks, ego, start = load_sequence(s, cache, replace(cfg, detect_every=every))
-    if every > 1:
-        cache = cache / f"every{every}"  # the self-calibration of these tracks
+    s, cache, cfg, cameras, kitti_height = job
+    prep, tracks, ego, start = load_sequence(s, cache, cfg)
+    if cfg.detect_every > 1:
+        cache = cache / f"every{cfg.detect_every}"  # the self-calibration of these tracks
         cache.mkdir(exist_ok=True)
     meta = VideoSource(
         kind="image_folder", path=prep.name, fps=10.0, frame_count=prep.world.n_frames,
@@ -72,7 +72,7 @@ def _score(job: tuple[int, Path, MonoTracking, tuple[str, ...], float | None, in
         else:
             cam = _calibrated(s, cache, prep, tracks, ego, start)
         sc = raw_scenario_from_tracks(
-            tracks, meta, cam, ego_of(prep.world), name=prep.name, mono=cfg.mono, min_detected=cfg.min_detected,
+            tracks, meta, cam, ego_of(prep.world), name=prep.name, mono=cfg.mono, min_detected=cfg.min_detected_frames,
             min_confidence=cfg.min_confidence,
         )  # fmt: skip
         ev, err = score_sequence(prep, sc, rule, not cfg.report_predicted)
@@ -91,8 +91,9 @@ def main() -> None:
     ap.add_argument("--detect-every", type=int, default=1, help="boxes of every N-th frame only (a video's cadence)")
     args, seqs, cache = training_args(ap, None)
     cfg = replace(DEFAULT_MONO, mono=replace(DEFAULT_MONO.mono, **_overrides(args.mono)), **_overrides(args.tracker))
+    cfg = replace(cfg, detect_every=args.detect_every)
     cameras = tuple(args.cameras.split(","))
-    jobs = [(s, cache, cfg, cameras, args.kitti_height, args.detect_every) for s in seqs]
+    jobs = [(s, cache, cfg, cameras, args.kitti_height) for s in seqs]
     with Pool(args.processes) as pool:
         rows = dict(pool.map(_score, jobs, chunksize=1))
     for which in cameras:

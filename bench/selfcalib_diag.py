@@ -49,14 +49,13 @@ HELD_OUT = (3, 8, 10)
 TUNING = [s for s in range(21) if s not in HELD_OUT]
 
 
-def _mota(prep: MonoSequence, tracks, cam: Camera) -> tuple[float, dict]:
+def _mota(prep: MonoSequence, tracks, cam: Camera, cfg: MonoTracking = DEFAULT_MONO) -> tuple[float, dict]:
     meta = VideoSource(
         kind="image_folder", path=prep.name, fps=10.0, frame_count=prep.world.n_frames,
         width=prep.size[0], height=prep.size[1],
     )  # fmt: skip
-    cfg = DEFAULT_MONO
     sc = raw_scenario_from_tracks(
-        tracks, meta, cam, ego_of(prep.world), name=prep.name, mono=cfg.mono, min_detected=cfg.min_detected,
+        tracks, meta, cam, ego_of(prep.world), name=prep.name, mono=cfg.mono, min_detected=cfg.min_detected_frames,
         min_confidence=cfg.min_confidence,
     )  # fmt: skip
     rule = match_rule("distance")
@@ -128,17 +127,18 @@ def main() -> None:
     ap.add_argument("--oracle", action="store_true")
     ap.add_argument("--detect-every", type=int, default=1, help="boxes of every N-th frame only (a video's cadence)")
     args, seqs, cache = training_args(ap, "/tmp/selfcalib_diag")
+    cfg = replace(DEFAULT_MONO, detect_every=args.detect_every)
     rows = []
     for s in seqs:
-        prep, tracks, ego, start = load_sequence(s, cache, replace(DEFAULT_MONO, detect_every=args.detect_every))
+        prep, tracks, ego, start = load_sequence(s, cache, cfg)
         cal = sc_mod.self_calibrate(tracks, start, prep.size, ego)
         parts = _calib_parts(tracks, start, prep.size, ego)
         cam, true = cal.camera, prep.camera
         vh_road, hc_road = _label_road(s, true)
         travel = float(np.sum(np.hypot(np.diff(ego.x), np.diff(ego.y))))
         turn = float(np.degrees(np.sum(np.abs(np.diff(np.unwrap(ego.yaw))))))
-        m_k, res_k = _mota(prep, tracks, true)
-        m_u, res_u = _mota(prep, tracks, cam)
+        m_k, res_k = _mota(prep, tracks, true, cfg)
+        m_u, res_u = _mota(prep, tracks, cam, cfg)
         row = {
             "seq": s, "frames": prep.world.n_frames, "travel_m": travel, "turn_deg": turn,
             "fy": cam.fy, "fy_sig": cam.focal_sigma_px or float("nan"), "fy_true": true.fy,
@@ -160,7 +160,7 @@ def main() -> None:
             fixes["all"] = cam.model_copy(
                 update={k: getattr(true, k) for k in ("fx", "fy", "cx", "cy", "height_m", "pitch_rad")}
             )
-            row["oracle_res"] = {k: _mota(prep, tracks, c)[1] for k, c in fixes.items()}
+            row["oracle_res"] = {k: _mota(prep, tracks, c, cfg)[1] for k, c in fixes.items()}
             row["oracle"] = {k: 100 * float(v["MOTA"]) for k, v in row["oracle_res"].items()}
         rows.append(row)
         print(
