@@ -532,10 +532,10 @@ def dashboard_rows_from_contour(
     ok = np.isfinite(contour.top_px)
     if ok[centre].mean() < min_coverage:
         return 0
-    found = contour.top_px[ok & centre]
-    if len(found) >= 3:  # a bin off on its own (a dashboard's vent, a reflection) is no roughness of the contour
-        found = np.r_[found[0], np.median(np.stack([found[:-2], found[1:-1], found[2:]]), axis=0), found[-1]]
-    steps = np.abs(np.diff(found))
+    from scipy.ndimage import median_filter  # (SciPy loads in the background while the frames flow)
+
+    # a bin off on its own (a dashboard's vent, a reflection) is no roughness of the contour
+    steps = np.abs(np.diff(median_filter(contour.top_px[ok & centre], size=3, mode="nearest")))
     if steps.size and float(np.median(steps)) > max_step_px:
         return 0
     central = contour.top_px[ok & centre]

@@ -64,6 +64,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pandas as pd
 from filterpy.kalman import KalmanFilter
+from scipy.ndimage import median_filter
 
 from deepcrashtest.geometry.egomotion import EgoMotion
 from deepcrashtest.geometry.mono_config import (
@@ -114,10 +115,8 @@ def frame_horizon(
         if n:
             off[k] = float(np.median(implied[m] - vh[m])) * n / (n + shrink)
             seen[k] = True
-    measured = off[seen]
-    if len(measured) >= 3:  # over the frames that measured it: a video's detector runs every few frames
-        padded = np.r_[measured[0], measured, measured[-1]]
-        off[seen] = np.median(np.stack([padded[:-2], padded[1:-1], padded[2:]]), axis=0)
+    # over the frames that measured it: a video's detector runs every few frames
+    off[seen] = median_filter(off[seen], size=3, mode="nearest")
     if seen.any() and not seen.all():  # frames between detections: linearly between their neighbours' offsets
         off[~seen] = _between_measured(uniq[~seen], uniq[seen], off[seen])
     return vh + off[inv]
