@@ -363,8 +363,9 @@ def test_near_ground_contacts_size_the_track(kitti_root):
 def test_tracks_without_near_contacts_size_themselves_from_their_nearest(kitti_root):
     """A track that never comes within 150 px of the horizon takes its size from its nearest ground contacts
     (bottom edge >= 90 px below the horizon, ``MonoConfig.contact_far_below_px``): on training sequence 0004
-    (MOTA 54.2 against 41.3 without; chosen on the 18 training sequences: 64.55 -> 65.37 combined) only such
-    tracks change, and the sizes the per-frame horizon rests on do not."""
+    (MOTA 45.2 against 34.6 without; 54.2 / 41.3 before the image tracker moved its carried boxes with the camera's
+    rotation, ``MonoTracking.camera_motion``; chosen on the 18 training sequences: 64.55 -> 65.37 combined) only
+    such tracks change, and the sizes the per-frame horizon rests on do not."""
     from deepcrashtest.eval.kitti_mono import ego_of, quick_mota
     from deepcrashtest.geometry.mono3d import localize_tracks
 
@@ -384,7 +385,7 @@ def test_tracks_without_near_contacts_size_themselves_from_their_nearest(kitti_r
     assert (nearest[changed] < 150 + 10).all()  # tracks with contacts >= 150 px keep their size (horizon row +- few px)
     mota_on = quick_mota([prep], DEFAULT_MONO)[0]
     mota_off = quick_mota([prep], dataclasses.replace(DEFAULT_MONO, mono=off_cfg))[0]
-    assert mota_on >= 52.0 and mota_on - mota_off > 8.0, (mota_on, mota_off)
+    assert mota_on >= 43.0 and mota_on - mota_off > 8.0, (mota_on, mota_off)
 
 
 def test_near_ground_contacts_need_a_measured_camera_height(prep):
@@ -822,6 +823,21 @@ def test_a_track_needs_the_same_time_seen_at_a_videos_detector_cadence(kitti_roo
     assert dataclasses.replace(DEFAULT_MONO, detect_every=3).min_detected_frames == 3
     every = evaluate_mono(kitti_root, [0], detect_every=2)
     assert every["sequences"]["0000"]["MOTA"] >= 72.0
+
+
+def test_boxes_carried_between_detections_turn_with_the_camera(kitti_root):
+    """Without pixels the image tracker carries a box between detections by its own image velocity; the camera's
+    rotation between frames, read from the poses (``MonoTracking.camera_motion``), moves it first. KITTI 0004
+    (training; the ego turns 98 deg) with the boxes of every 2nd frame: MOTA measured 38.0 against 9.5 with constant
+    image velocity alone (18 training sequences at that cadence: combined 64.79 -> 67.34 with the KITTI camera,
+    48.30 -> 52.56 unknown; at every frame 70.44 -> 70.87 and 64.27 -> 64.52)."""
+    from deepcrashtest.eval.kitti_mono import quick_mota
+
+    prep = prepare_mono(kitti_root, 4)
+    video = dataclasses.replace(DEFAULT_MONO, detect_every=2)
+    mota_on = quick_mota([prep], video)[0]
+    mota_off = quick_mota([prep], dataclasses.replace(video, camera_motion=False))[0]
+    assert mota_on >= 33.0 and mota_on - mota_off > 20.0, (mota_on, mota_off)
 
 
 def test_turns_and_bounce_calibrate_the_focal_at_a_videos_detector_cadence(kitti_root, prep):

@@ -11,7 +11,7 @@ import pytest
 from conftest import DATA, need
 from deepcrashtest.perception.detect import make_detector
 from deepcrashtest.perception.lifecycle import TrackBase, TrackCore, TrackState, assign
-from deepcrashtest.perception.track import TRACK_COLUMNS, iter_tracks, track_video
+from deepcrashtest.perception.track import TRACK_COLUMNS, iter_tracks, track_video, warp_boxes
 from deepcrashtest.video.source import open_video
 
 CLIP = DATA / "crash_dad" / "dad_000478.mp4"
@@ -307,3 +307,40 @@ def test_a_road_user_the_detector_stops_seeing_is_drawn_dashed_with_a_question_m
 
     assert top_edge_share(out[5]) > 0.9  # carried by the flow between two calls that saw it: a solid line
     assert 0.3 < top_edge_share(out[7]) < 0.7  # the last call missed it: dashes
+
+
+def test_boxes_warp_through_a_homography_as_opencv_maps_their_corners():
+    """``warp_boxes``: each edge at the mean of its two corners' images, the corners mapped as OpenCV's
+    ``perspectiveTransform`` maps them; the identity leaves the boxes as they are."""
+    cv2 = pytest.importorskip("cv2")
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(0, 1000, (20, 2))
+    boxes = np.c_[xy, xy + rng.uniform(5, 200, (20, 2))]
+    H = np.array([[1.01, 0.02, -30.0], [-0.01, 0.99, 5.0], [1e-5, -2e-5, 1.0]])
+    x1, y1, x2, y2 = boxes.T
+    corners = np.stack([np.c_[x1, y1], np.c_[x2, y1], np.c_[x2, y2], np.c_[x1, y2]], axis=1)  # (n, 4, 2)
+    img = cv2.perspectiveTransform(corners.reshape(-1, 1, 2), H).reshape(-1, 4, 2)
+    expected = np.c_[
+        (img[:, 0, 0] + img[:, 3, 0]) / 2, (img[:, 0, 1] + img[:, 1, 1]) / 2,
+        (img[:, 1, 0] + img[:, 2, 0]) / 2, (img[:, 2, 1] + img[:, 3, 1]) / 2,
+    ]  # fmt: skip
+    np.testing.assert_allclose(warp_boxes(boxes, H), expected, rtol=1e-9, atol=1e-6)
+    np.testing.assert_allclose(warp_boxes(boxes, np.eye(3)), boxes)
+
+
+def test_a_camera_turning_right_moves_the_scene_left_by_its_focal_times_the_angles_tangent():
+    """``rotation_homographies``: a camera yawing right by 3 deg between two frames (camera axes: x right, y down,
+    z forward; the rotation about y) moves a box at the principal point left by fx tan(3 deg) and keeps its row."""
+    from scipy.spatial.transform import Rotation
+
+    from deepcrashtest.geometry.frames import rotation_homographies
+
+    K = np.array([[700.0, 0.0, 620.0], [0.0, 700.0, 190.0], [0.0, 0.0, 1.0]])
+    poses = np.repeat(np.eye(4)[None], 2, axis=0)
+    poses[1, :3, :3] = Rotation.from_euler("y", 3.0, degrees=True).as_matrix()
+    H = rotation_homographies(poses, K)
+    assert H[0] is None
+    moved = warp_boxes(np.array([[600.0, 170.0, 640.0, 210.0]]), H[1])[0]
+    shift = 700.0 * np.tan(np.radians(3.0))
+    assert np.mean(moved[[0, 2]]) == pytest.approx(620.0 - shift, abs=0.05)
+    assert np.mean(moved[[1, 3]]) == pytest.approx(190.0, abs=0.05)

@@ -53,6 +53,7 @@ from deepcrashtest.eval.kitti import PAPER_TABLE, ground_truth_frames, hypothese
 from deepcrashtest.eval.kitti_rules import GroundTruthFrame, MatchRule, apply_kitti_rules
 from deepcrashtest.geometry.camera import default_camera
 from deepcrashtest.geometry.egomotion import EgoMotion
+from deepcrashtest.geometry.frames import rotation_homographies
 from deepcrashtest.geometry.mono_config import MonoConfig
 from deepcrashtest.geometry.selfcalib import SelfCalibration, self_calibrate
 from deepcrashtest.geometry.world_tracks import raw_scenario_from_tracks
@@ -100,6 +101,11 @@ class MonoTracking:
     # the image tracker gets the boxes of every N-th frame only, as ``extract``'s detector runs on a video (at most
     # MAX_DETECT_GAP_S apart: every 2nd frame at KITTI's 10 fps), the frames between carried by the tracker
     detect_every: int = 1
+    # the boxes the tracker carries between detections move with the camera's own rotation, read from the poses
+    # (:func:`~deepcrashtest.geometry.frames.rotation_homographies`) through the unknown-dashcam default's
+    # intrinsics (90 deg field of view, never the calibration file: the image tracks are the same for both
+    # cameras), before their own image velocity; off: constant image velocity alone
+    camera_motion: bool = True
     mono: MonoConfig = field(default_factory=MonoConfig)
 
     @property
@@ -247,8 +253,10 @@ def image_tracks(prep: MonoSequence, config: MonoTracking) -> pd.DataFrame:
     ``config.detect_every``-th frame)."""
     every = config.detect_every
     dets = prep.detections if every == 1 else [d if k % every == 0 else None for k, d in enumerate(prep.detections)]
+    K = default_camera(*prep.size).matrix()
+    motion = rotation_homographies(prep.world.poses, K) if config.camera_motion else None
     return track_boxes(
-        dets, KITTI_FPS, prep.size, detect_every=every, min_score=config.min_score,
+        dets, KITTI_FPS, prep.size, camera_motion=motion, detect_every=every, min_score=config.min_score,
         new_track_score=config.new_track_score, min_hits=config.min_hits, max_age_s=config.max_age_s,
         min_iou=config.min_iou, min_evidence=config.min_evidence,
     )  # fmt: skip
@@ -422,7 +430,7 @@ def quick_mota(
     rule = match_rule("distance")
     key = (
         config.min_score, config.new_track_score, config.min_hits, config.max_age_s, config.min_iou,
-        config.min_evidence,
+        config.min_evidence, config.detect_every, config.camera_motion,
     )  # fmt: skip
     evs = []
     for p in preps:

@@ -42,3 +42,15 @@ def camera_yaw_to_world(T_cam0_camk: np.ndarray, ry: np.ndarray) -> np.ndarray:
     heading_cam = np.stack([np.cos(ry), np.zeros_like(ry), -np.sin(ry)], axis=-1)
     heading_w = cam0_points_to_world(heading_cam @ T_cam0_camk[:3, :3].T)
     return np.arctan2(heading_w[..., 1], heading_w[..., 0])
+
+
+def rotation_homographies(poses: np.ndarray, K: np.ndarray) -> list[np.ndarray | None]:
+    """Per frame k the 3x3 homography ``K R K^-1`` taking frame k-1's pixels to frame k's for the camera's own
+    rotation between them (exact for points at infinity; None for frame 0), from the camera poses ``poses``
+    ((n, 4, 4) or (n, 3, 4), camera k -> a fixed reference frame, camera axes x right, y down, z forward) and the
+    intrinsic matrix ``K`` (px): the image motion a pose log predicts for the tracker's boxes
+    (:meth:`~deepcrashtest.perception.track.BoxTracker.update_boxes`' ``motion``)."""
+    R = np.asarray(poses, float)[:, :3, :3]
+    K = np.asarray(K, float)
+    K_inv = np.linalg.inv(K)
+    return [None] + [K @ R[k].T @ R[k - 1] @ K_inv for k in range(1, len(R))]

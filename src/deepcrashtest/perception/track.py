@@ -15,7 +15,11 @@ Per frame:
 
 Pixels are optional: :meth:`BoxTracker.update_boxes` takes a frame's detections (a detector's, or
 boxes read from a file) and, when no image comes with them, carries boxes by their constant image
-velocity instead of optical flow; :func:`track_boxes` runs a whole sequence of boxes that way.
+velocity instead of optical flow; :func:`track_boxes` runs a whole sequence of boxes that way. Where the
+camera's own rotation between frames is known (a pose log:
+:func:`~deepcrashtest.geometry.frames.rotation_homographies`), ``motion`` moves those boxes by it first, and
+their velocity is the road user's own image motion (camera-motion compensation, as BoT-SORT's; without pixels a
+turning ego otherwise leaves the boxes behind between detections).
 
 ``iter_tracks`` yields one :class:`FrameTracks` per frame, so later stages can share one decoding
 pass; ``track_video`` collects everything into the ``tracks.csv`` DataFrame.
@@ -25,7 +29,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
@@ -118,6 +122,13 @@ class ImageTrack(TrackBase):
     corrected_rows: list[tuple[int, float, TrackedBox]] = field(default_factory=list)  # to report again (bridged)
     wheel: str = ""  # the two-wheeler class once the track was one
     flow_carried: bool = False  # moved by optical flow since its last detection (the height gate applies)
+    # the last detected box moved on by the camera's own rotation since (None: no rotation given since)
+    rotated_detected_box: np.ndarray | None = None
+
+    @property
+    def anchor_box(self) -> np.ndarray:
+        """The last detected box where the camera's rotation since has moved it (px): what the box velocity adds to."""
+        return self.detected_box if self.rotated_detected_box is None else self.rotated_detected_box
 
     @property
     def category(self) -> str:
@@ -222,14 +233,17 @@ class BoxTracker:
         time: float,
         size: tuple[int, int],
         image: np.ndarray | None = None,
+        motion: np.ndarray | None = None,
     ) -> FrameTracks:
         """Advance every track by one frame given its detections (None: no detection round).
 
         ``size``: (width, height) of the frame, pixels; ``image``: the frame (BGR) for optical flow,
-        or None to carry boxes by their constant image velocity."""
+        or None to carry boxes by their constant image velocity; ``motion``: the 3x3 homography taking the
+        previous frame's pixels to this frame's for the camera's own rotation (None: unknown), which moves the
+        boxes optical flow does not carry before their velocity does."""
         w, h = size
         self._width, self._height, self._frame = int(w), int(h), int(index)
-        self._carry(self.flow.prepare(image) if image is not None else None)
+        self._carry(self.flow.prepare(image) if image is not None else None, motion)
         for t in self.core.tracks:
             t.detected_now = False
         was_confirmed = {id(t) for t in self.core.confirmed}
@@ -269,8 +283,9 @@ class BoxTracker:
         frame = Frame(int(index), float(time), image if image is not None else _NO_IMAGE)
         return FrameTracks(frame, sorted(out, key=lambda b: b.track_id), dets, backfill, bridged)
 
-    def _carry(self, grey: GreyFrame | None) -> None:
-        """Move every track's box into the new frame: optical flow, else constant image velocity."""
+    def _carry(self, grey: GreyFrame | None, motion: np.ndarray | None = None) -> None:
+        """Move every track's box into the new frame: optical flow, else the camera's rotation (``motion``, a 3x3
+        homography; None: none known) and the box's constant image velocity."""
         tracks = self.core.tracks
         prev, self._prev = self._prev, grey
         if not tracks:
@@ -280,9 +295,14 @@ class BoxTracker:
             moved, ok = self.flow.propagate(prev, grey, boxes)
         else:
             moved, ok = boxes, np.zeros(len(tracks), bool)
-        for t, b, good in zip(tracks, moved, ok, strict=True):
-            t.box = b if good else t.box + t.velocity
+        if motion is not None:
+            rotated = warp_boxes(np.stack([t.anchor_box for t in tracks]), motion)
+            boxes = np.where(ok[:, None], boxes, warp_boxes(boxes, motion))
+        for i, (t, b, good) in enumerate(zip(tracks, moved, ok, strict=True)):
+            t.box = b if good else boxes[i] + t.velocity
             t.flow_carried = t.flow_carried or bool(good)
+            if motion is not None:
+                t.rotated_detected_box = rotated[i]
 
     def _associate(self, dets: Detections) -> None:
         tracks = self.core.tracks
@@ -331,11 +351,12 @@ class BoxTracker:
     def _absorb(self, t: ImageTrack, dets: Detections, j: int) -> None:
         box = dets.boxes[j].astype(np.float64)
         gap = max(1, self._n - t.last_detected)
-        v = (box - t.detected_box) / gap
+        v = (box - t.anchor_box) / gap
         t.velocity = 0.5 * t.velocity + 0.5 * v if t.hits > 2 else v
         t.box = box
         t.flow_carried = False
         t.detected_box = box.copy()
+        t.rotated_detected_box = None
         t.last_detected, t.detected_frame = self._n, self._frame
         t.score = float(dets.scores[j])
         t.vote(str(dets.categories[j]), float(dets.scores[j]))
@@ -371,7 +392,8 @@ def _recovered(
     """The second matching (:meth:`TrackCore.step`'s ``second``): (track row, detection column) pairs of a
     confirmed track left unmatched by the ``first`` assignment of ``cost`` (tracks x detections, 1 - IoU; its
     carried box overlaps no free detection enough) with a free detection of its group that its constant-velocity
-    box (its last detected box moved on by its box velocity; ``n``: this round's running frame number) overlaps:
+    box (its last detected box moved on by the camera's rotation and its box velocity; ``n``: this round's running
+    frame number) overlaps:
     a track of :data:`RECOVER_CATEGORIES` detected in the previous detection round (``every`` frames ago) by
     IoU >= 1 - ``max_cost`` (only one round on: further on, a walker's extrapolated box ran 280 px across a crowd
     onto another one, dad_000487), any other track by IoU >= :data:`REACQUIRE_IOU`."""
@@ -384,7 +406,7 @@ def _recovered(
     if not rows or not first.unmatched_cols:
         return []
     cols = first.unmatched_cols
-    moved = np.stack([tracks[r].detected_box + tracks[r].velocity * (n - tracks[r].last_detected) for r in rows])
+    moved = np.stack([tracks[r].anchor_box + tracks[r].velocity * (n - tracks[r].last_detected) for r in rows])
     second_cost = 1.0 - iou_matrix(moved, dets.boxes[cols])
     strict = np.array([tracks[r].category not in RECOVER_CATEGORIES for r in rows])
     second_cost[strict[:, None] & (second_cost > 1.0 - REACQUIRE_IOU)] = np.inf
@@ -424,6 +446,17 @@ def _comes_back(tracks: list[ImageTrack], boxes: np.ndarray, width: int) -> np.n
         elif d[0] <= BORDER_PX and d[2] < width - BORDER_PX and -v[2] > LEAVING_RATE * w:  # out to the left
             out[i] = boxes[:, 2] - d[2] > MAX_LEAVING_BACK * w
     return out
+
+
+def warp_boxes(boxes: np.ndarray, H: np.ndarray) -> np.ndarray:
+    """(n, 4) boxes ``x1, y1, x2, y2`` (px) through the 3x3 homography ``H``: each edge at the mean of its two
+    corners' images (a rotation about the optical axis does not grow the box as its corners' hull would)."""
+    x1, y1, x2, y2 = np.asarray(boxes, float).T
+    corners = np.stack([[x1, y1], [x2, y1], [x2, y2], [x1, y2]], axis=0)  # (4, 2, n): tl, tr, br, bl
+    pts = np.concatenate([corners, np.ones((4, 1, corners.shape[2]))], axis=1)  # (4, 3, n)
+    img = np.einsum("ij,kjn->kin", H, pts)
+    u, v = img[:, 0] / img[:, 2], img[:, 1] / img[:, 2]  # (4, n)
+    return np.stack([(u[0] + u[3]) / 2, (v[0] + v[1]) / 2, (u[1] + u[2]) / 2, (v[2] + v[3]) / 2], axis=1)
 
 
 def _visible_fraction(box: np.ndarray, w: int, h: int) -> float:
@@ -514,17 +547,21 @@ def track_boxes(
     detections: Iterable[Detections | None],
     fps: float,
     size: tuple[int, int],
+    camera_motion: Sequence[np.ndarray | None] | None = None,
     **tracker_options: float,
 ) -> pd.DataFrame:
     """Track a sequence of per-frame detections without pixels (frame k at time k / fps; None: a frame the
     detector did not run on, its boxes carried, as with ``detect_every`` in ``tracker_options``).
 
-    ``size``: (width, height) of the frames, pixels. Returns the ``tracks.csv`` table sorted by
-    frame and track (rows of frames before a track's confirmation included)."""
+    ``size``: (width, height) of the frames, pixels; ``camera_motion``: per frame the 3x3 homography of the
+    camera's own rotation from the frame before (:meth:`BoxTracker.update_boxes`' ``motion``; None: unknown).
+    Returns the ``tracks.csv`` table sorted by frame and track (rows of frames before a track's confirmation
+    included)."""
     tracker = BoxTracker(None, fps=fps, **tracker_options)  # type: ignore[arg-type]
     records: list[tuple[object, ...]] = []
     for k, dets in enumerate(detections):
-        records.extend(frame_records(tracker.update_boxes(dets, k, k / fps, size)))
+        motion = camera_motion[k] if camera_motion is not None else None
+        records.extend(frame_records(tracker.update_boxes(dets, k, k / fps, size, motion=motion)))
     return records_table(records).sort_values(["frame", "track_id"], ignore_index=True)
 
 
