@@ -25,6 +25,11 @@ then extracted and replayed exactly like ``bench/fidelity_crashes.py``:
 * ``late``: the clip starts ``LATE_LEAD_S`` before the labelled contact (a clip cut from a longer recording or a
   compilation's shot that begins shortly before the crash: little footage to calibrate on and short tracks; a clip
   without a contact loses its first half; label frames moved along; not in the default set);
+* ``end``: the clip ends ``END_TAIL_S`` after the labelled contact (a compilation's shot cut right after the impact:
+  little or no aftermath, no shaking or stopping after it to see; clips already ending sooner and clips without a
+  contact keep their end; labels unchanged; not in the default set);
+* ``shot``: ``late`` and ``end`` together: ``LATE_LEAD_S`` before the contact to ``END_TAIL_S`` after it (a
+  compilation's shot of the crash alone, ~2 s; not in the default set);
 * ``copy``: only re-encoded, the control: what the re-encoding alone changes.
 
 Clips are written by the project's own H.264 writer (CRF 23, ultrafast): PyAV's default x264 preset fed ``bgr24``
@@ -59,7 +64,7 @@ from fidelity_crashes import DATA, all_labels, run_clip
 
 VARIANTS = ("mirror", "small", "halffps", "copy")
 #: Variants run only when asked for (``--variants large``).
-MORE_VARIANTS = ("large", "tiny", "fisheye", "zoom", "portrait", "dark", "wiper", "late")
+MORE_VARIANTS = ("large", "tiny", "fisheye", "zoom", "portrait", "dark", "wiper", "late", "end", "shot")
 #: ``fisheye``: source radius = r (1 + k r^2) / (1 + k), r the output pixel's distance from the centre over the
 #: half diagonal: the corners stay, the centre is magnified 1 + k, straight lines bow outwards (barrel).
 FISHEYE_K = 0.35
@@ -81,6 +86,8 @@ WIPER_PIVOTS = ((0.12, 1.2), (0.62, 1.2))
 WIPER_LENGTH = 1.15
 #: ``late``: the footage kept before the labelled contact (s).
 LATE_LEAD_S = 1.5
+#: ``end``: the footage kept after the labelled contact (s).
+END_TAIL_S = 0.3
 
 
 def variant_geometry(src: Path, variant: str) -> tuple[float, int, tuple[float, float], int]:
@@ -106,8 +113,17 @@ def late_start(label: dict[str, Any], frames: int) -> int:
     return max(0, int(contact) - round(LATE_LEAD_S * float(label["fps"])))
 
 
-def rewrite_clip(src: Path, dst: Path, variant: str, start: int = 0) -> None:
-    """Write ``src`` changed by ``variant`` (:func:`variant_geometry`) to ``dst``, from its frame ``start`` on."""
+def end_stop(label: dict[str, Any], frames: int) -> int:
+    """The frame after the last one the ``end`` variant keeps of a clip of ``frames`` frames labelled ``label``."""
+    contact = label.get("contact_frame")
+    if contact is None:
+        return frames
+    return min(frames, int(contact) + round(END_TAIL_S * float(label["fps"])) + 1)
+
+
+def rewrite_clip(src: Path, dst: Path, variant: str, start: int = 0, stop: int | None = None) -> None:
+    """Write ``src`` changed by ``variant`` (:func:`variant_geometry`) to ``dst``, its frames ``start`` to ``stop``
+    (exclusive; None: to the end)."""
     import av
     import cv2
 
@@ -137,7 +153,7 @@ def rewrite_clip(src: Path, dst: Path, variant: str, start: int = 0) -> None:
         h, w = frames[0].shape[:2]
         map_x, map_y = lens_maps(w, h, variant)
         frames = [cv2.remap(f, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE) for f in frames]
-    frames = frames[start::step]
+    frames = frames[start:stop:step]
     dst.parent.mkdir(parents=True, exist_ok=True)
     out = VideoWriter(dst, fps, frames[0].shape[1], frames[0].shape[0], force=True)  # the project's writer
     for f in frames:
@@ -289,9 +305,10 @@ def prepare(variant: str, names: list[str], work: Path, reuse: bool) -> Path:
         label_file, _ = all_labels()[name]
         raw = json.loads(label_file.read_text())["clips"][name]
         video = work / variant / "clips" / f"{name}.mp4"
-        start = late_start(raw, _frame_count(DATA / raw["video"])) if variant == "late" else 0
+        start = late_start(raw, _frame_count(DATA / raw["video"])) if variant in ("late", "shot") else 0
+        stop = end_stop(raw, _frame_count(DATA / raw["video"])) if variant in ("end", "shot") else None
         if not (reuse and video.is_file()):
-            rewrite_clip(DATA / raw["video"], video, variant, start)
+            rewrite_clip(DATA / raw["video"], video, variant, start, stop)
         clips[name] = rewrite_label(raw, video, variant, *variant_geometry(DATA / raw["video"], variant), start=start)
     labels_path.write_text(json.dumps({"format": "deepcrashtest-crash-labels", "version": 1, "clips": clips}))
     return labels_path
