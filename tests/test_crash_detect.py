@@ -105,6 +105,35 @@ def test_a_squat_box_over_two_riders_is_not_a_pedestrian_knocked_over():
     assert list(fell[fell].index) == [30]
 
 
+#: dad_000487 cut 1.5 s before its crash (``bench/fidelity_perturbed.py --variants late``), 20 fps: a scooter rider
+#: detected as a person every 5th frame, one detection (frame 20) boxed with the scooter under them.
+RIDER_LATE = [(0, 1094, 335, 1236, 691), (5, 1072, 328, 1237, 684), (10, 1038, 303, 1280, 692)]
+RIDER_LATE += [(15, 990, 320, 1157, 678), (20, 900, 282, 1208, 702), (25, 963, 276, 1179, 706)]
+RIDER_LATE += [(30, 1059, 335, 1211, 649)]
+
+
+def test_a_person_box_upright_again_at_the_next_detection_did_not_fall():
+    """A person's box squat for one detection (height/width 2.1 -> 1.36) and upright again at the next, a quarter
+    second later (2.0), is no one struck off their feet: the late-cut dad_000487 had its crash put there, 0.5 s
+    before the contact (found on the label since). A next detection further off than ``BACK_UP_WITHIN_S`` says
+    nothing: the squat box is a fall (the struck woman of ccd_000882 is next seen 0.6 s later, on the bonnet)."""
+    from deepcrashtest.perception.crash_ego import BACK_UP_WITHIN_S
+
+    rider = _person_rows(3, RIDER_LATE)
+    timed = rider.assign(time=rider["frame"] / 20.0)
+    assert not ego_scores(timed.set_index("frame"), 1280, 720, 20.0, {})["knocked_over"].any()
+    untimed = ego_scores(rider.set_index("frame"), 1280, 720, 20.0, {})["knocked_over"]  # no time: read as a fall
+    assert list(untimed[untimed].index) == [20]
+    slow = timed[timed["frame"] != 25]  # the next detection 0.5 s later
+    assert 0.5 > BACK_UP_WITHIN_S
+    fell = ego_scores(slow.set_index("frame"), 1280, 720, 20.0, {})["knocked_over"]
+    assert list(fell[fell].index) == [20]
+    woman = _person_rows(6, STRUCK)
+    woman = woman.assign(time=woman["frame"] / 10.0)
+    fell = ego_scores(woman.set_index("frame"), 1280, 720, 10.0, {}, people=woman)["knocked_over"]
+    assert list(fell[fell].index) == [30]
+
+
 def test_a_box_that_only_widens_is_not_closing_in():
     """dad_000512 through a longer lens (``bench/fidelity_perturbed.py --variants zoom``): a scooter crosses in front of
     the stopped ego, its box 184 px wide then 449 px (the detector boxed it from its side) at a steady 330 px height;
