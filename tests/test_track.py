@@ -344,3 +344,15 @@ def test_a_camera_turning_right_moves_the_scene_left_by_its_focal_times_the_angl
     shift = 700.0 * np.tan(np.radians(3.0))
     assert np.mean(moved[[0, 2]]) == pytest.approx(620.0 - shift, abs=0.05)
     assert np.mean(moved[[1, 3]]) == pytest.approx(190.0, abs=0.05)
+
+
+def test_tracking_boxes_needs_a_camera_motion_for_every_frame():
+    """``track_boxes(..., camera_motion=...)``: a pose log shorter than the detections is a clear error."""
+    from deepcrashtest.perception.detections import Detections
+    from deepcrashtest.perception.track import track_boxes
+
+    box = Detections(np.array([[100.0, 100.0, 150.0, 140.0]]), np.array([0.9]), np.array(["car"]))
+    with pytest.raises(ValueError, match="camera_motion has 1 frames"):
+        track_boxes([box, box], 10.0, (640, 480), camera_motion=[None])
+    table = track_boxes([box, box, box], 10.0, (640, 480), camera_motion=[None, np.eye(3), np.eye(3)], min_hits=1)
+    assert set(table["frame"]) == {0, 1, 2}

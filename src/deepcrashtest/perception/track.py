@@ -560,6 +560,8 @@ def track_boxes(
     tracker = BoxTracker(None, fps=fps, **tracker_options)  # type: ignore[arg-type]
     records: list[tuple[object, ...]] = []
     for k, dets in enumerate(detections):
+        if camera_motion is not None and k >= len(camera_motion):
+            raise ValueError(f"camera_motion has {len(camera_motion)} frames, the detections more")
         motion = camera_motion[k] if camera_motion is not None else None
         records.extend(frame_records(tracker.update_boxes(dets, k, k / fps, size, motion=motion)))
     return records_table(records).sort_values(["frame", "track_id"], ignore_index=True)
