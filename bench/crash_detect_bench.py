@@ -104,7 +104,15 @@ def run_clip(name: str, label: CrashLabel, dirs: list[Path], cache: Path) -> dic
     tracks = pd.read_csv(d / "tracks.csv")
     last = int(tracks["frame"].max()) + 1 if len(tracks) else None
     motion = global_motion(DATA / label.video, cache, last if name.startswith("highway") else None)
-    scen, rec = crash_for_raw(raw, tracks, motion, picture=video_picture_area(DATA / label.video))
+    picture = video_picture_area(DATA / label.video)
+    stored = raw.provenance.parameters.get("frames_scaled_from")  # processed scaled (--max-width): its pixels
+    if stored:
+        kx, ky = raw.source.width / stored[0], raw.source.height / stored[1]
+        label = label.scaled(kx, ky)  # as ``evaluate fidelity`` scales it (pipeline.fidelity.pick_label)
+        if picture is not None:
+            x0, y0, x1, y1 = picture
+            picture = (round(x0 * kx), round(y0 * ky), round(x1 * kx), round(y1 * ky))
+    scen, rec = crash_for_raw(raw, tracks, motion, picture=picture)
     col = scen.collision
     split = "held-out" if name in HELD_OUT else "tune" if name in BASE else "other"
     row: dict[str, Any] = {"clip": name, "split": split, "from": str(d.parent)}
