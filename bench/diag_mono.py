@@ -30,12 +30,12 @@ from __future__ import annotations
 
 import argparse
 from collections import Counter
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 from scipy.optimize import linear_sum_assignment
+from selfcalib_diag import tracking_config
 
 from deepcrashtest.datasets.kitti.files import KITTI_FPS, KittiSequence, read_labels
 from deepcrashtest.datasets.kitti.results import scenario_result_table
@@ -322,15 +322,6 @@ def print_standing(seqs: list[int], camera: str, config: MonoTracking) -> None:
             )
 
 
-def _overrides(spec: str) -> dict:
-    return {k: eval(v) for k, v in (p.split("=") for p in spec.split(",") if p)}  # noqa: S307 (bench option)
-
-
-def _config(spec: str, tracker: str = "") -> MonoTracking:
-    """``DEFAULT_MONO`` with ``MonoConfig`` overrides ``spec`` and ``MonoTracking`` overrides ``tracker``."""
-    return replace(DEFAULT_MONO, mono=replace(DEFAULT_MONO.mono, **_overrides(spec)), **_overrides(tracker))
-
-
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--sequences", default=",".join(map(str, TUNING)))
@@ -342,7 +333,9 @@ def main() -> None:
     ap.add_argument("--tracker", default="", help="MonoTracking overrides, e.g. detect_every=2 (a video's cadence)")
     args = ap.parse_args()
     if args.standing:
-        print_standing([int(x) for x in args.sequences.split(",")], args.camera, _config(args.mono, args.tracker))
+        print_standing(
+            [int(x) for x in args.sequences.split(",")], args.camera, tracking_config(args.mono, args.tracker)
+        )
         return
     if args.classes:
         print_classes([int(x) for x in args.sequences.split(",")])
@@ -350,7 +343,7 @@ def main() -> None:
     if args.lifecycle:
         fn_all, fp_all = Counter(), Counter()
         for s in [int(x) for x in args.sequences.split(",")]:
-            fn, fp = lifecycle(s, _config(args.mono, args.tracker))
+            fn, fp = lifecycle(s, tracking_config(args.mono, args.tracker))
             fn_all.update(fn)
             fp_all.update(fp)
             print(f"{s:04d} FN {dict(fn.most_common(4))} FP {dict(fp.most_common(3))}", flush=True)
@@ -362,7 +355,7 @@ def main() -> None:
     FN, FP = Counter(), Counter()
     n_err = 0
     for s in [int(x) for x in args.sequences.split(",")]:
-        out, fn, fp = diagnose(s, args.camera, _config(args.mono, args.tracker))
+        out, fn, fp = diagnose(s, args.camera, tracking_config(args.mono, args.tracker))
         FN.update(fn)
         FP.update(fp)
         e = np.array(ERR[n_err:]) if len(ERR) > n_err else np.zeros((0, 3))

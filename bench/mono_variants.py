@@ -20,27 +20,22 @@ once (what a round must not lower: the unknown camera's figure as well).
 from __future__ import annotations
 
 import argparse
-import ast
 import pickle
 from dataclasses import replace
 from multiprocessing import Pool
 from pathlib import Path
 from typing import Any
 
-from selfcalib_diag import _combined, load_sequence, training_args
+from selfcalib_diag import _combined, load_sequence, tracking_config, tracks_tag, training_args
 
 from deepcrashtest.eval.clear_mot import clear_only
 from deepcrashtest.eval.kitti import match_rule
-from deepcrashtest.eval.kitti_mono import DEFAULT_MONO, MonoTracking, ego_of, score_sequence
+from deepcrashtest.eval.kitti_mono import MonoTracking, ego_of, score_sequence
 from deepcrashtest.geometry.selfcalib import self_calibrate
 from deepcrashtest.geometry.world_tracks import raw_scenario_from_tracks
 from deepcrashtest.scenario import Camera, VideoSource
 
 BIN_KEYS = ("0-20 m", "20-40 m", "40-60 m")
-
-
-def _overrides(spec: str) -> dict[str, Any]:
-    return {k: ast.literal_eval(v) for k, v in (p.split("=", 1) for p in spec.split(",") if p)}
 
 
 def _calibrated(s: int, cache: Path, prep, tracks, ego, start: Camera) -> Camera:
@@ -57,9 +52,8 @@ def _score(job: tuple[int, Path, MonoTracking, tuple[str, ...], float | None]) -
     """CLEAR-MOT row and position-error table of one sequence per camera."""
     s, cache, cfg, cameras, kitti_height = job
     prep, tracks, ego, start = load_sequence(s, cache, cfg)
-    if cfg.detect_every > 1:
-        cache = cache / f"every{cfg.detect_every}"  # the self-calibration of these tracks
-        cache.mkdir(exist_ok=True)
+    cache = cache / f"calibrated_{tracks_tag(cfg)}"  # the self-calibration of these tracks
+    cache.mkdir(exist_ok=True)
     meta = VideoSource(
         kind="image_folder", path=prep.name, fps=10.0, frame_count=prep.world.n_frames,
         width=prep.size[0], height=prep.size[1],
@@ -90,8 +84,7 @@ def main() -> None:
     ap.add_argument("--processes", type=int, default=2)
     ap.add_argument("--detect-every", type=int, default=1, help="boxes of every N-th frame only (a video's cadence)")
     args, seqs, cache = training_args(ap, None)
-    cfg = replace(DEFAULT_MONO, mono=replace(DEFAULT_MONO.mono, **_overrides(args.mono)), **_overrides(args.tracker))
-    cfg = replace(cfg, detect_every=args.detect_every)
+    cfg = replace(tracking_config(args.mono, args.tracker), detect_every=args.detect_every)
     cameras = tuple(args.cameras.split(","))
     jobs = [(s, cache, cfg, cameras, args.kitti_height) for s in seqs]
     with Pool(args.processes) as pool:

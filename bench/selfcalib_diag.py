@@ -18,10 +18,13 @@ training sequences other than 3, 8, 10 (never the held-out ones). At the end the
 from __future__ import annotations
 
 import argparse
+import ast
+import hashlib
 import math
 import pickle
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -35,6 +38,7 @@ from deepcrashtest.eval.kitti_mono import (
     MonoTracking,
     ego_of,
     image_tracks,
+    image_tracks_key,
     prepare_mono,
     score_sequence,
 )
@@ -102,13 +106,28 @@ def training_args(ap: argparse.ArgumentParser, cache: str | None) -> tuple[argpa
     return args, seqs, path
 
 
+def tracks_tag(config: MonoTracking) -> str:
+    """A short name of the image tracker's settings (:func:`~deepcrashtest.eval.kitti_mono.image_tracks_key`): the
+    cached tracks and what is computed from them are kept apart per setting."""
+    return hashlib.sha1(repr(image_tracks_key(config)).encode()).hexdigest()[:10]
+
+
+def tracking_config(mono: str = "", tracker: str = "") -> MonoTracking:
+    """``DEFAULT_MONO`` with ``MonoConfig`` overrides ``mono`` and ``MonoTracking`` overrides ``tracker``
+    (``name=literal,...``)."""
+
+    def parsed(spec: str) -> dict[str, Any]:
+        return {k: ast.literal_eval(v) for k, v in (p.split("=", 1) for p in spec.split(",") if p)}
+
+    return replace(DEFAULT_MONO, mono=replace(DEFAULT_MONO.mono, **parsed(mono)), **parsed(tracker))
+
+
 def load_sequence(s: int, cache: Path, config: MonoTracking = DEFAULT_MONO):
-    """(prepared sequence, image tracks cached under ``cache`` (with ``config.detect_every`` > 1 from the boxes
-    of every N-th frame only, the frames between carried by the image tracker: a video's cadence), ego motion,
-    the unknown camera's start)."""
+    """(prepared sequence, image tracks cached under ``cache`` per tracker setting (:func:`tracks_tag`; with
+    ``config.detect_every`` > 1 from the boxes of every N-th frame only, the frames between carried by the image
+    tracker: a video's cadence), ego motion, the unknown camera's start)."""
     prep = prepare_mono(DATA, s)
-    every = config.detect_every
-    f = cache / (f"tracks_{s:04d}.pkl" if every == 1 else f"tracks_{s:04d}_every{every}.pkl")
+    f = cache / f"tracks_{s:04d}_{tracks_tag(config)}.pkl"
     if f.exists():
         tracks = pickle.loads(f.read_bytes())
     else:

@@ -262,6 +262,14 @@ def image_tracks(prep: MonoSequence, config: MonoTracking) -> pd.DataFrame:
     )  # fmt: skip
 
 
+def image_tracks_key(config: MonoTracking) -> tuple[Any, ...]:
+    """The settings :func:`image_tracks` depends on: a key to cache a sequence's image tracks under."""
+    return (
+        config.min_score, config.new_track_score, config.min_hits, config.max_age_s, config.min_iou,
+        config.min_evidence, config.detect_every, config.camera_motion,
+    )  # fmt: skip
+
+
 def mono_scenario(
     prep: MonoSequence, config: MonoTracking, camera: str = "kitti", tracks: pd.DataFrame | None = None
 ) -> tuple[Scenario, Camera]:
@@ -428,10 +436,7 @@ def quick_mota(
     """Combined MOTA (percent) of ``config`` over prepared sequences, CLEAR only (for tuning);
     ``cache`` (a dict) keeps image tracks per sequence and tracker setting between calls."""
     rule = match_rule("distance")
-    key = (
-        config.min_score, config.new_track_score, config.min_hits, config.max_age_s, config.min_iou,
-        config.min_evidence, config.detect_every, config.camera_motion,
-    )  # fmt: skip
+    key = image_tracks_key(config)
     evs = []
     for p in preps:
         tracks = None
