@@ -305,8 +305,9 @@ def prepare(variant: str, names: list[str], work: Path, reuse: bool) -> Path:
         label_file, _ = all_labels()[name]
         raw = json.loads(label_file.read_text())["clips"][name]
         video = work / variant / "clips" / f"{name}.mp4"
-        start = late_start(raw, _frame_count(DATA / raw["video"])) if variant in ("late", "shot") else 0
-        stop = end_stop(raw, _frame_count(DATA / raw["video"])) if variant in ("end", "shot") else None
+        frames = _frame_count(DATA / raw["video"]) if variant in ("late", "end", "shot") else 0
+        start = late_start(raw, frames) if variant in ("late", "shot") else 0
+        stop = end_stop(raw, frames) if variant in ("end", "shot") else None
         if not (reuse and video.is_file()):
             rewrite_clip(DATA / raw["video"], video, variant, start, stop)
         clips[name] = rewrite_label(raw, video, variant, *variant_geometry(DATA / raw["video"], variant), start=start)

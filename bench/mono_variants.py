@@ -11,8 +11,9 @@ over 20 deg (``kitti_mono.heading_errors``). ``--mono`` / ``--tracker`` override
 ``MonoConfig`` / ``MonoTracking`` fields (Python literals); ``--kitti-height`` replaces the KITTI camera's
 1.65 m. ``--detect-every N`` gives the image tracker the boxes of every N-th frame only, as ``extract``'s detector
 runs on a video (every 2nd frame at KITTI's 10 fps), the frames between carried by the tracker (their own cache
-files). The image tracks (default tracker setting) and the unknown camera's self-calibration are cached per
-sequence under ``--cache`` (use a fresh directory after a change to the image tracker or self-calibration).
+files). The image tracks and the unknown camera's self-calibration are cached per sequence and tracker setting
+under ``--cache`` (``selfcalib_diag.tracks_tag``; use a fresh directory after a change to the image tracker's or the
+self-calibration's code).
 Where ``bench/tune_mono.py`` walks a grid on the KITTI camera, this scores one setting on both cameras at
 once (what a round must not lower: the unknown camera's figure as well).
 """
