@@ -498,6 +498,11 @@ def evaluate_kitti(
         "--detect-every",
         help="With --mono: the boxes of every N-th frame only, as extract's detector runs on a video (2 at 10 fps).",
     ),
+    object_class: str = typer.Option(
+        "car",
+        "--class",
+        help="car | pedestrian | cyclist (with --tracks, or --mono --boxes labels-noisy: PointRCNN's are cars).",
+    ),
     output: Path | None = typer.Option(None, "-o", "--output", help="Also write results.json and results.md here."),
     force: bool = ForceOpt,
     as_json: bool = JsonOpt,
@@ -522,8 +527,13 @@ def evaluate_kitti(
         if mono:
             from deepcrashtest.eval.kitti_mono import evaluate_mono
 
-            return evaluate_mono(data, seqs, boxes=boxes, camera=camera, match=match, detect_every=detect_every)
-        kwargs: dict[str, Any] = {"match": match, "detections": detections, "tracks": tracks}
+            return evaluate_mono(
+                data, seqs, boxes=boxes, camera=camera, match=match, detect_every=detect_every,
+                object_class=object_class,
+            )  # fmt: skip
+        kwargs: dict[str, Any] = {
+            "match": match, "detections": detections, "tracks": tracks, "object_class": object_class,
+        }  # fmt: skip
         if online:
             kwargs["offline"] = None
         return run_eval(data, seqs, **kwargs)

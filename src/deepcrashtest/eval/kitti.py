@@ -32,13 +32,13 @@ from deepcrashtest.datasets.kitti.world_tracker import WorldDetections, WorldTra
 from deepcrashtest.errors import UserError
 from deepcrashtest.eval.clear_mot import EvalSequence, evaluate_sequences
 from deepcrashtest.eval.kitti_rules import (
-    DISTRACTOR_CLASSES,
-    EVAL_CLASS,
+    KITTI_CLASSES,
     MATCH_RULES,
     MAX_OCCLUSION,
     MAX_TRUNCATION,
     FrameObjects,
     GroundTruthFrame,
+    KittiClass,
     MatchRule,
     apply_kitti_rules,
 )
@@ -80,17 +80,26 @@ def match_rule(name: str) -> MatchRule:
     return MATCH_RULES[name]
 
 
-def ground_truth_frames(root: Path, sequence: int, world: KittiWorld) -> list[GroundTruthFrame]:
-    """Car/Van ground truth and DontCare regions of every frame, world positions from
-    :func:`~deepcrashtest.datasets.kitti.scenario.labels_frame_table` (the Scenario's frame)."""
+def kitti_class(name: str) -> KittiClass:
+    """``--class`` -> the evaluated KITTI class (:data:`~deepcrashtest.eval.kitti_rules.KITTI_CLASSES`)."""
+    if name not in KITTI_CLASSES:
+        raise UserError(f"--class must be one of {', '.join(KITTI_CLASSES)} (got {name!r})")
+    return KITTI_CLASSES[name]
+
+
+def ground_truth_frames(
+    root: Path, sequence: int, world: KittiWorld, cls: KittiClass = KITTI_CLASSES["car"]
+) -> list[GroundTruthFrame]:
+    """Ground truth of class ``cls`` and its distractors (Car/Van by default) and DontCare regions of every frame,
+    world positions from :func:`~deepcrashtest.datasets.kitti.scenario.labels_frame_table` (the Scenario's frame)."""
     labels = labels_frame_table(root, sequence)
     boxes = world_table(world, labels)
     # ground-plane positions are labels_frame_table's own (the transform of the Scenario's agents)
     boxes["wx"], boxes["wy"] = labels["wx"], labels["wy"]
     kind = boxes["type"].to_numpy(dtype=str)
-    is_vehicle = np.isin(kind, [EVAL_CLASS, *DISTRACTOR_CLASSES]) & (boxes["track_id"].to_numpy() >= 0)
+    is_vehicle = np.isin(kind, [cls.label_type, *cls.distractors]) & (boxes["track_id"].to_numpy() >= 0)
     evaluated = (
-        (kind == EVAL_CLASS)
+        (kind == cls.label_type)
         & (boxes["occluded"].to_numpy() <= MAX_OCCLUSION)
         & (boxes["truncated"].to_numpy() <= MAX_TRUNCATION)
     )
@@ -111,18 +120,22 @@ def _objects(table: pd.DataFrame) -> FrameObjects:
     )
 
 
-def hypotheses_from_results(path: Path, world: KittiWorld) -> list[FrameObjects]:
-    """A tracker's results in KITTI tracking format (see :func:`hypotheses_from_table`)."""
+def hypotheses_from_results(
+    path: Path, world: KittiWorld, cls: KittiClass = KITTI_CLASSES["car"]
+) -> list[FrameObjects]:
+    """A tracker's results in KITTI tracking format, the rows of class ``cls`` (see :func:`hypotheses_from_table`)."""
     res = read_labels(path)
     if len(res) and (res["frame"].max() >= world.n_frames or res["frame"].min() < 0):
         raise UserError(f"{path}: frame numbers outside 0..{world.n_frames - 1}")
-    return hypotheses_from_table(res, world)
+    return hypotheses_from_table(res, world, cls)
 
 
-def hypotheses_from_table(res: pd.DataFrame, world: KittiWorld) -> list[FrameObjects]:
-    """KITTI result rows -> per-frame hypotheses: rows of type Car; world boxes where the row has a
-    valid 3D box (positive size, in front of the camera), NaN otherwise (usable with ``iou2d`` only)."""
-    res = res[res["type"].astype(str).str.lower() == "car"]
+def hypotheses_from_table(
+    res: pd.DataFrame, world: KittiWorld, cls: KittiClass = KITTI_CLASSES["car"]
+) -> list[FrameObjects]:
+    """KITTI result rows -> per-frame hypotheses: rows of ``cls``'s type (Car by default); world boxes where the row
+    has a valid 3D box (positive size, in front of the camera), NaN otherwise (usable with ``iou2d`` only)."""
+    res = res[res["type"].astype(str).str.lower() == cls.label_type.lower()]
     res = world_table(world, res)
     invalid = (res[["h", "w", "l"]].to_numpy(dtype=float) <= 0).any(axis=1) | (res["z"].to_numpy(dtype=float) <= 0)
     res.loc[invalid, WORLD_BOX_COLUMNS] = np.nan
@@ -193,12 +206,14 @@ class PreparedSequence:
     detections: list[WorldDetections]
 
 
-def prepare_sequence(root: str | Path, sequence: int, detections: str | None = "pointrcnn") -> PreparedSequence:
-    """Read one sequence (``detections=None``: no detections needed)."""
+def prepare_sequence(
+    root: str | Path, sequence: int, detections: str | None = "pointrcnn", cls: KittiClass = KITTI_CLASSES["car"]
+) -> PreparedSequence:
+    """Read one sequence (``detections=None``: no detections needed; ``cls``: the evaluated class)."""
     root = Path(root)
     seq = KittiSequence(root, sequence).check()
     world = KittiWorld(read_poses(seq.poses))
-    gt = ground_truth_frames(root, sequence, world)
+    gt = ground_truth_frames(root, sequence, world, cls)
     dets: list[WorldDetections] = []
     if detections is not None:
         dets = world_detections(read_ab3dmot_detections(_detection_file(root, sequence, detections)), world)
@@ -223,18 +238,26 @@ def evaluate_kitti(
     tracks: str | Path | None = None,
     tracker: WorldTrackerConfig | None = None,
     offline: OfflineConfig | None = DEFAULT_OFFLINE,
+    object_class: str = "car",
 ) -> dict[str, Any]:
     """Evaluate this project's tracker (or the results in ``tracks``) on KITTI tracking sequences.
 
-    ``offline=None`` scores the online tracker's per-frame output alone (no offline pass)."""
+    ``offline=None`` scores the online tracker's per-frame output alone (no offline pass); ``object_class``: the
+    class scored (car; pedestrian or cyclist only for ``tracks``: the PointRCNN detections are cars)."""
     rule = match_rule(match)
+    cls = kitti_class(object_class)
+    if tracks is None and cls.name != "car":
+        raise UserError(
+            f"--class {cls.name}: the LiDAR tracker runs on the PointRCNN car detections; score a tracker's results "
+            "(--tracks) or the monocular path (--mono --boxes labels-noisy)"
+        )
     config = tracker or DEFAULT_TRACKER
     seqs = list(sequences)
     evaluated = []
     for s in track(seqs, "evaluating sequences", total=len(seqs)):
         if tracks is not None:
-            prep = prepare_sequence(root, s, None)
-            hyps = hypotheses_from_results(Path(tracks) / f"{prep.name}.txt", prep.world)
+            prep = prepare_sequence(root, s, None, cls)
+            hyps = hypotheses_from_results(Path(tracks) / f"{prep.name}.txt", prep.world, cls)
             frames = [apply_kitti_rules(g, h, rule) for g, h in zip(prep.ground_truth, hyps, strict=True)]
             evaluated.append(EvalSequence(prep.name, frames))
         else:
@@ -252,11 +275,12 @@ def evaluate_kitti(
     return {
         "match": match,
         "match_rule": rule.describe(),
+        "class": cls.name,
         "hypotheses": str(tracks) if tracks is not None else f"world tracker on {detections} detections",
         "tracker": None if tracks is not None else asdict(config),
         "offline": None if tracks is not None or offline is None else asdict(offline),
         "sequences": rows,
-        "paper": {f"{s:04d}": PAPER_TABLE[s] for s in seqs if s in PAPER_TABLE},
+        "paper": {f"{s:04d}": PAPER_TABLE[s] for s in seqs if s in PAPER_TABLE and cls.name == "car"},
         "notes": notes,
     }
 

@@ -13,10 +13,13 @@ Inputs per sequence:
 
 * boxes: ``pointrcnn`` - the image-plane columns ``x1 y1 x2 y2 score`` of the PointRCNN detections
   (their 3D columns are never read; score -> ``1 / (1 + exp(-score))``); or ``labels-noisy`` - the
-  Car/Van/Truck label boxes through :class:`LabelNoise` (seeded): each box is missed with
+  Car/Van/Truck label boxes (with ``--class pedestrian``: Pedestrian and Person, ``cyclist``: Cyclist)
+  through :class:`LabelNoise` (seeded): each box is missed with
   probability ``miss_rate`` (doubled per occlusion level), its corners jittered by
   ``jitter_rel`` x its height (1 sigma, pixels), and ``false_per_frame`` false boxes per frame on
-  average (Poisson), each the box of a car at a random place on the road, scored lower.
+  average (Poisson), each the box of a road user of the class at a random place on the road; the scores of both
+  drawn from PointRCNN's measured scores of boxes on and off a label (:data:`TRUE_BOX_SCORES`).
+  PointRCNN's detections are cars only: the pedestrian and cyclist classes are scored on ``labels-noisy``.
 * ego: the sequence's ORB-SLAM3 poses (:meth:`EgoMotion.from_poses`);
 * camera: ``kitti`` - intrinsics from ``P2`` and the KITTI camera height (1.65 m), level; or
   ``unknown`` - the unknown-dashcam default (90 deg field of view, 1.3 m), then self-calibrated.
@@ -49,11 +52,18 @@ from deepcrashtest.datasets.kitti.scenario import KITTI_CAMERA_FORWARD_OFFSET_M
 from deepcrashtest.datasets.kitti.world import KittiWorld
 from deepcrashtest.errors import UserError
 from deepcrashtest.eval.clear_mot import EvalSequence, clear_only, evaluate_sequences
-from deepcrashtest.eval.kitti import PAPER_TABLE, ground_truth_frames, hypotheses_from_table, match_rule
-from deepcrashtest.eval.kitti_rules import GroundTruthFrame, MatchRule, apply_kitti_rules
+from deepcrashtest.eval.kitti import (
+    PAPER_TABLE,
+    ground_truth_frames,
+    hypotheses_from_table,
+    kitti_class,
+    match_rule,
+)
+from deepcrashtest.eval.kitti_rules import KITTI_CLASSES, GroundTruthFrame, KittiClass, MatchRule, apply_kitti_rules
 from deepcrashtest.geometry.camera import default_camera
 from deepcrashtest.geometry.egomotion import EgoMotion
 from deepcrashtest.geometry.frames import rotation_homographies
+from deepcrashtest.geometry.localize import CLASS_DIMENSIONS
 from deepcrashtest.geometry.mono_config import MonoConfig
 from deepcrashtest.geometry.selfcalib import SelfCalibration, self_calibrate
 from deepcrashtest.geometry.world_tracks import raw_scenario_from_tracks
@@ -66,6 +76,22 @@ BOX_SOURCES = ("pointrcnn", "labels-noisy")
 CAMERAS = ("kitti", "unknown")
 #: Distance bins (m, camera to the labelled car's centre) of the position-error table.
 ERROR_BINS = ((0.0, 20.0), (20.0, 40.0), (40.0, 60.0))
+
+
+#: The scores of PointRCNN's boxes (sigmoid of its score) on the 18 training sequences other than 3, 8 and 10, as
+#: quantiles at :data:`SCORE_LEVELS`: of the boxes on a Car/Van/Truck/DontCare label (image IoU >= 0.5; 25,995 boxes)
+#: and of those on none (IoU < 0.3; 16,500). ``labels-noisy`` draws its boxes' scores from them (inverse CDF): the
+#: tracker's thresholds (:class:`MonoTracking`), chosen on PointRCNN's boxes, see the scores they were chosen on (a
+#: uniform 0.6-1.0 put every track's mean under ``min_confidence`` 0.9: MOTA 0 on every sequence until 2026-12-07).
+SCORE_LEVELS = (0.0, 0.02, 0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5, 1.0)
+TRUE_BOX_SCORES = (0.3006, 0.4974, 0.7529, 0.9219, 0.9711, 0.9885, 0.995, 0.9976, 0.9994, 0.9998, 1.0)
+FALSE_SCORE_LEVELS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
+FALSE_BOX_SCORES = (0.3, 0.3444, 0.3954, 0.4518, 0.5211, 0.596, 0.6735, 0.7613, 0.8512, 0.9371, 0.9999)
+
+
+def _draw_scores(rng: np.random.Generator, n: int, levels: tuple[float, ...], scores: tuple[float, ...]) -> np.ndarray:
+    """``n`` scores drawn from the distribution with these quantiles (piecewise-linear inverse CDF)."""
+    return np.interp(rng.random(n), levels, scores)
 
 
 @dataclass(frozen=True)
@@ -133,6 +159,7 @@ class MonoSequence:
     detections: list[Detections]
     camera: Camera
     calibration: SelfCalibration | None
+    cls: KittiClass = KITTI_CLASSES["car"]
 
 
 def _image_size(*tables: pd.DataFrame) -> tuple[int, int]:
@@ -154,12 +181,28 @@ def pointrcnn_boxes(table: pd.DataFrame, n_frames: int) -> list[Detections]:
     )  # fmt: skip
 
 
+#: The label types whose boxes ``labels-noisy`` gives the detector per evaluated class, and their detector category:
+#: what a COCO detector reports of them (a sitting person is a person; a cyclist, rider and bicycle, is the pipeline's
+#: ``bicycle`` road user).
+LABEL_BOX_KINDS: dict[str, dict[str, str]] = {
+    "car": {"Car": "car", "Van": "van", "Truck": "truck"},
+    "pedestrian": {"Pedestrian": "pedestrian", "Person": "pedestrian"},
+    "cyclist": {"Cyclist": "bicycle"},
+}
+
+
 def noisy_label_boxes(
-    labels: pd.DataFrame, n_frames: int, size: tuple[int, int], noise: LabelNoise, camera: Camera
+    labels: pd.DataFrame,
+    n_frames: int,
+    size: tuple[int, int],
+    noise: LabelNoise,
+    camera: Camera,
+    cls: KittiClass = KITTI_CLASSES["car"],
 ) -> list[Detections]:
-    """Label boxes of Car/Van/Truck through the seeded noise model of :class:`LabelNoise`."""
+    """Label boxes of the class ``cls`` (Car/Van/Truck by default, :data:`LABEL_BOX_KINDS`) through the seeded noise
+    model of :class:`LabelNoise`."""
     rng = np.random.default_rng(noise.seed)
-    kinds = {"Car": "car", "Van": "van", "Truck": "truck"}
+    kinds = LABEL_BOX_KINDS[cls.name]
     lab = labels[labels["type"].isin(list(kinds))]
     occl = lab["occluded"].to_numpy(float).clip(0, 3)
     keep = rng.random(len(lab)) >= noise.miss_rate * 2.0**occl
@@ -168,26 +211,30 @@ def noisy_label_boxes(
     b += rng.normal(0.0, 1.0, b.shape) * noise.jitter_rel * (b[:, 3:4] - b[:, 1:2])
     frames = lab["frame"].to_numpy(int)
     cats = lab["type"].map(kinds).to_numpy(dtype=str)
-    scores = rng.uniform(0.6, 1.0, len(lab))
+    scores = _draw_scores(rng, len(lab), SCORE_LEVELS, TRUE_BOX_SCORES)
     n_false = rng.poisson(noise.false_per_frame, n_frames)
     ff = np.repeat(np.arange(n_frames), n_false)
-    fb = _random_car_boxes(len(ff), size, camera, rng)
-    scores_f = rng.uniform(0.3, 0.9, len(ff))
+    fb = _random_boxes(len(ff), size, camera, rng, cls.category)
+    scores_f = _draw_scores(rng, len(ff), FALSE_SCORE_LEVELS, FALSE_BOX_SCORES)
     w, h = size
     all_b = np.clip(np.vstack([b, fb]), 0, [w - 1, h - 1, w - 1, h - 1])
     ok = (all_b[:, 2] - all_b[:, 0] > 2) & (all_b[:, 3] - all_b[:, 1] > 2)
     return _per_frame(
         np.r_[frames, ff][ok], all_b[ok], np.r_[scores, scores_f][ok],
-        np.r_[cats, np.full(len(ff), "car")][ok], n_frames,
+        np.r_[cats, np.full(len(ff), cls.category)][ok], n_frames,
     )  # fmt: skip
 
 
-def _random_car_boxes(n: int, size: tuple[int, int], camera: Camera, rng: np.random.Generator) -> np.ndarray:
-    """Boxes of a car-sized object on the road 5-60 m ahead, anywhere across the image."""
+def _random_boxes(
+    n: int, size: tuple[int, int], camera: Camera, rng: np.random.Generator, category: str = "car"
+) -> np.ndarray:
+    """Boxes of an object of ``category``'s size (:data:`~deepcrashtest.geometry.localize.CLASS_DIMENSIONS`, its
+    height x 0.6-1.5, its width x 0.6-2) on the road 5-60 m ahead, anywhere across the image."""
+    _, width_m, height_m = CLASS_DIMENSIONS[category]
     z = rng.uniform(5.0, 60.0, n)
     v_b = camera.cy + camera.fy * camera.height_m / z
-    h = camera.fy * 1.5 / z * rng.uniform(0.6, 1.5, n)
-    w = camera.fx * 1.8 / z * rng.uniform(0.6, 2.0, n)
+    h = camera.fy * height_m / z * rng.uniform(0.6, 1.5, n)
+    w = camera.fx * width_m / z * rng.uniform(0.6, 2.0, n)
     u = rng.uniform(0.0, size[0], n)
     return np.column_stack([u - w / 2, v_b - h, u + w / 2, v_b])
 
@@ -214,13 +261,22 @@ def kitti_camera(P2: np.ndarray) -> Camera:
 
 
 def prepare_mono(
-    root: str | Path, sequence: int, boxes: str = "pointrcnn", camera: str = "kitti", noise: LabelNoise | None = None
+    root: str | Path,
+    sequence: int,
+    boxes: str = "pointrcnn",
+    camera: str = "kitti",
+    noise: LabelNoise | None = None,
+    object_class: str = "car",
 ) -> MonoSequence:
-    """Read one sequence's boxes, poses, ground truth; choose (or self-calibrate) the camera."""
+    """Read one sequence's boxes, poses, ground truth (of ``object_class``: car, pedestrian or cyclist); choose (or
+    self-calibrate) the camera."""
     if boxes not in BOX_SOURCES:
         raise UserError(f"--boxes must be one of {', '.join(BOX_SOURCES)} (got {boxes!r})")
     if camera not in CAMERAS:
         raise UserError(f"--camera must be one of {', '.join(CAMERAS)} (got {camera!r})")
+    cls = kitti_class(object_class)
+    if boxes == "pointrcnn" and cls.name != "car":
+        raise UserError(f"--class {cls.name}: the PointRCNN detections are cars only; use --boxes labels-noisy")
     root = Path(root)
     seq = KittiSequence(root, sequence).check()
     world = KittiWorld(read_poses(seq.poses))
@@ -232,10 +288,10 @@ def prepare_mono(
     if boxes == "pointrcnn":
         dets = pointrcnn_boxes(dets_table, world.n_frames)
     else:
-        dets = noisy_label_boxes(labels, world.n_frames, size, noise or LabelNoise(seed=sequence), cam_true)
-    gt = ground_truth_frames(root, sequence, world)
+        dets = noisy_label_boxes(labels, world.n_frames, size, noise or LabelNoise(seed=sequence), cam_true, cls)
+    gt = ground_truth_frames(root, sequence, world, cls)
     gt_range = [_ground_range(g, world, f) for f, g in enumerate(gt)]
-    return MonoSequence(seq.name, world, P2, size, gt, gt_range, dets, cam_true, None)
+    return MonoSequence(seq.name, world, P2, size, gt, gt_range, dets, cam_true, None, cls)
 
 
 def _ground_range(g: GroundTruthFrame, world: KittiWorld, frame: int) -> np.ndarray:
@@ -301,7 +357,7 @@ def score_sequence(
     """KITTI rules applied to the scenario's tracks, and the position-error-by-distance table
     (``observed_only``: only the frames where a track was detected, else its predicted ones too)."""
     table = scenario_result_table(scenario, prep.world, prep.P2, observed_only, image_size=prep.size)
-    hyps = hypotheses_from_table(table, prep.world)
+    hyps = hypotheses_from_table(table, prep.world, prep.cls)
     frames = [apply_kitti_rules(g, h, rule) for g, h in zip(prep.ground_truth, hyps, strict=True)]
     errors = _position_errors(prep, hyps)
     return EvalSequence(prep.name, frames), errors
@@ -380,9 +436,11 @@ def evaluate_mono(
     config: MonoTracking | None = None,
     noise: LabelNoise | None = None,
     detect_every: int | None = None,
+    object_class: str = "car",
 ) -> dict[str, Any]:
-    """Evaluate the monocular path on KITTI tracking sequences (see the module docstring); ``detect_every``
-    replaces ``config``'s (:attr:`MonoTracking.detect_every`)."""
+    """Evaluate the monocular path on KITTI tracking sequences (see the module docstring) for one class
+    (``object_class``: car, pedestrian or cyclist); ``detect_every`` replaces ``config``'s
+    (:attr:`MonoTracking.detect_every`)."""
     rule = match_rule(match)
     cfg = config or DEFAULT_MONO
     if detect_every is not None:
@@ -392,7 +450,7 @@ def evaluate_mono(
     seqs = list(sequences)
     evaluated, errors, cameras = [], {}, {}
     for s in progress(seqs, "evaluating sequences (monocular)", total=len(seqs)):
-        prep = prepare_mono(root, s, boxes, camera, noise)
+        prep = prepare_mono(root, s, boxes, camera, noise, object_class)
         sc, cam = mono_scenario(prep, cfg, camera)
         ev, err = score_sequence(prep, sc, rule, not cfg.report_predicted)
         evaluated.append(ev)
@@ -407,13 +465,14 @@ def evaluate_mono(
     return {
         "match": match,
         "match_rule": rule.describe(),
+        "class": object_class,
         "hypotheses": f"monocular path on {boxes} 2D boxes"
         + (f" of one frame in {cfg.detect_every}" if cfg.detect_every > 1 else "")
         + f", camera {camera}",
         "tracker": asdict(cfg),
         "noise": asdict(noise or LabelNoise()) if boxes == "labels-noisy" else None,
         "sequences": rows,
-        "paper": {f"{s:04d}": PAPER_TABLE[s] for s in seqs if s in PAPER_TABLE},
+        "paper": {f"{s:04d}": PAPER_TABLE[s] for s in seqs if s in PAPER_TABLE and object_class == "car"},
         "notes": [],
     }
 

@@ -1,19 +1,21 @@
-"""KITTI tracking evaluation rules (class *car*), as TrackEval's ``Kitti2DBox`` applies them, with a
-pluggable similarity so the same rules hold for image boxes and for world-frame boxes.
+"""KITTI tracking evaluation rules (class *car*; *pedestrian* and *cyclist* alike, :data:`KITTI_CLASSES`), as
+TrackEval's ``Kitti2DBox`` applies them, with a pluggable similarity so the same rules hold for image boxes and for
+world-frame boxes.
 
 Per frame:
 
 1. Ground truth of class Car and Van is matched to hypotheses (Hungarian, on the similarity, pairs
    below the match threshold excluded).
 2. Hypotheses matched to a *distractor* (a Van, or a Car with occlusion > 2 or truncation > 0) are
-   dropped: they are neither true nor false positives.
+   dropped: they are neither true nor false positives. (Class pedestrian: Pedestrian and its distractor
+   Person, KITTI's person sitting, as TrackEval; class cyclist: Cyclist, no distractor class.)
 3. Unmatched hypotheses are dropped when their image box is 25 px tall or less, or lies more than
    50 % inside a DontCare region (intersection over the hypothesis' own area). A hypothesis that
    does not project into the image at all (a world-frame track outside the camera's view, where
    nothing is labelled) counts as 0 px tall.
 4. Distractor ground truth is removed; what is left (visible, untruncated Cars) is evaluated.
 
-Trucks, pedestrians and other classes take no part (a hypothesis on a truck is a false positive).
+Other classes take no part (for cars, a hypothesis on a truck is a false positive).
 """
 
 from __future__ import annotations
@@ -28,6 +30,26 @@ from deepcrashtest.eval.boxes import bev_distance, ioa_2d, iou_2d, iou_3d
 
 EVAL_CLASS = "Car"
 DISTRACTOR_CLASSES = ("Van",)
+
+
+@dataclass(frozen=True)
+class KittiClass:
+    """One evaluated KITTI class: its label type, the label types that are its distractors, and the detector
+    category of its boxes (the pipeline's road-user category, :mod:`deepcrashtest.perception.roadusers`)."""
+
+    name: str
+    label_type: str
+    distractors: tuple[str, ...]
+    category: str
+
+
+#: The classes ``evaluate kitti`` scores (``--class``). A KITTI Cyclist box holds the rider and the bicycle, as the
+#: pipeline's ``bicycle`` road user does (the rider's box joined to the two-wheeler's).
+KITTI_CLASSES: dict[str, KittiClass] = {
+    "car": KittiClass("car", EVAL_CLASS, DISTRACTOR_CLASSES, "car"),
+    "pedestrian": KittiClass("pedestrian", "Pedestrian", ("Person",), "pedestrian"),
+    "cyclist": KittiClass("cyclist", "Cyclist", (), "bicycle"),
+}
 MAX_OCCLUSION = 2
 MAX_TRUNCATION = 0
 MIN_HEIGHT_PX = 25.0
