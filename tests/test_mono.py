@@ -125,7 +125,8 @@ def test_noisy_label_boxes_are_seeded(kitti_root, prep):
     c = noisy_label_boxes(labels, prep.world.n_frames, prep.size, LabelNoise(seed=2), prep.camera)
     assert all(np.array_equal(x.boxes, y.boxes) for x, y in zip(a, b, strict=True))
     assert not all(np.array_equal(x.boxes, y.boxes) for x, y in zip(a, c, strict=True))
-    n_labels = int(labels["type"].isin(["Car", "Van", "Truck"]).sum())
+    n_labels = int(labels["type"].isin(["Car", "Van", "Truck", "Pedestrian", "Person"]).sum())  # every road user
+    n_labels += 2 * int((labels["type"] == "Cyclist").sum())  # a rider and a bicycle
     n = sum(len(x) for x in a)
     assert 0.7 * n_labels < n < 1.3 * n_labels + 0.3 * prep.world.n_frames * 2
 

@@ -222,7 +222,8 @@ def test_riders_of_a_hidden_scooter_and_two_scooters_in_one_box_are_separate_roa
     for clip, frames, near in (("dad_000487", (85, 90), (85,)), ("dad_000512", (89, 90), (89, 90))):
         labels = _labelled_boxes(clip)
         for f in frames:
-            users = road_users(yolo(_frame(clip, f)))
+            image = _frame(clip, f)
+            users = road_users(yolo(image), picture=(image.shape[1], image.shape[0]))  # as the tracker calls it
             motos = users.boxes[users.categories == "motorcycle"]
             tall = users.boxes[:, 3] - users.boxes[:, 1] > 250  # the riders, 280-420 px tall
             assert not (tall & (users.categories == "pedestrian")).any(), (clip, f, users)

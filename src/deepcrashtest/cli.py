@@ -501,7 +501,7 @@ def evaluate_kitti(
     object_class: str = typer.Option(
         "car",
         "--class",
-        help="car | pedestrian | cyclist (with --tracks, or --mono --boxes labels-noisy: PointRCNN's are cars).",
+        help="car | pedestrian | cyclist (with --tracks or --mono; PointRCNN's are cars: others from noisy labels).",
     ),
     output: Path | None = typer.Option(None, "-o", "--output", help="Also write results.json and results.md here."),
     force: bool = ForceOpt,

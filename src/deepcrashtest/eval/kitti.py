@@ -249,7 +249,7 @@ def evaluate_kitti(
     if tracks is None and cls.name != "car":
         raise UserError(
             f"--class {cls.name}: the LiDAR tracker runs on the PointRCNN car detections; score a tracker's results "
-            "(--tracks) or the monocular path (--mono --boxes labels-noisy)"
+            "(--tracks) or the monocular path (--mono)"
         )
     config = tracker or DEFAULT_TRACKER
     seqs = list(sequences)

@@ -20,7 +20,8 @@ Inputs per sequence:
   and ``false_per_frame`` false boxes per frame on
   average (Poisson), each the box of a road user of the scored class at a random place on the road; the scores of both
   drawn from PointRCNN's measured scores of boxes on and off a label (:data:`TRUE_BOX_SCORES`).
-  PointRCNN's detections are cars only: the pedestrian and cyclist classes are scored on ``labels-noisy``.
+  PointRCNN's detections are cars only: with ``--class pedestrian`` or ``cyclist`` and ``pointrcnn`` the other road
+  users' label boxes (:data:`NON_VEHICLE_TYPES`) go through the noise model beside PointRCNN's cars.
 * ego: the sequence's ORB-SLAM3 poses (:meth:`EgoMotion.from_poses`);
 * camera: ``kitti`` - intrinsics from ``P2`` and the KITTI camera height (1.65 m), level; or
   ``unknown`` - the unknown-dashcam default (90 deg field of view, 1.3 m), then self-calibrated.
@@ -199,6 +200,9 @@ LABEL_BOX_KINDS: dict[str, str] = {
     "Car": "car", "Van": "van", "Truck": "truck", "Pedestrian": "pedestrian", "Person": "pedestrian",
     "Cyclist": "bicycle",
 }  # fmt: skip
+#: The road users PointRCNN's car detections leave out: with ``--boxes pointrcnn --class pedestrian|cyclist`` their
+#: label boxes go through the noise model beside PointRCNN's cars.
+NON_VEHICLE_TYPES = ("Pedestrian", "Person", "Cyclist")
 #: A COCO detector sees a cyclist (KITTI's box: the rider's head to the wheels) as a ``person``, the rider (head to
 #: the pedals: the top RIDER_BOTTOM of the box, at most RIDER_ASPECT x as wide as it is tall: narrower than the bicycle
 #: seen from the side), and a ``bicycle`` (wheels to the handlebars: the bottom BICYCLE_TOP of the box,
@@ -240,11 +244,12 @@ def noisy_label_boxes(
     noise: LabelNoise,
     camera: Camera,
     cls: KittiClass = KITTI_CLASSES["car"],
+    types: tuple[str, ...] = tuple(LABEL_BOX_KINDS),
 ) -> list[Detections]:
-    """The label boxes of every road user (:data:`LABEL_BOX_KINDS`) through the seeded noise model of
-    :class:`LabelNoise`, its false boxes of the scored class ``cls``."""
+    """The label boxes of the road users of ``types`` (all of :data:`LABEL_BOX_KINDS` by default) through the seeded
+    noise model of :class:`LabelNoise`, its false boxes of the scored class ``cls``."""
     rng = np.random.default_rng(noise.seed)
-    lab = _detector_view(labels)
+    lab = _detector_view(labels[labels["type"].isin(types)])
     occl = lab["occluded"].to_numpy(float).clip(0, 3)
     keep = rng.random(len(lab)) >= noise.miss_rate * noise.miss_growth**occl
     uniq, which = np.unique(lab["object"].to_numpy(int), return_inverse=True)
@@ -318,8 +323,6 @@ def prepare_mono(
     if camera not in CAMERAS:
         raise UserError(f"--camera must be one of {', '.join(CAMERAS)} (got {camera!r})")
     cls = kitti_class(object_class)
-    if boxes == "pointrcnn" and cls.name != "car":
-        raise UserError(f"--class {cls.name}: the PointRCNN detections are cars only; use --boxes labels-noisy")
     root = Path(root)
     seq = KittiSequence(root, sequence).check()
     world = KittiWorld(read_poses(seq.poses))
@@ -328,13 +331,25 @@ def prepare_mono(
     dets_table = read_ab3dmot_detections(seq.detections_pointrcnn) if boxes == "pointrcnn" else labels.iloc[:0]
     size = _image_size(labels, dets_table)
     cam_true = kitti_camera(P2)
+    noise = noise or LabelNoise(seed=sequence)
     if boxes == "pointrcnn":
         dets = pointrcnn_boxes(dets_table, world.n_frames)
+        if cls.name != "car":  # PointRCNN's are cars: the other road users from their labels, through the noise
+            vru = noisy_label_boxes(labels, world.n_frames, size, noise, cam_true, cls, NON_VEHICLE_TYPES)
+            dets = [_joined(a, b) for a, b in zip(dets, vru, strict=True)]
     else:
-        dets = noisy_label_boxes(labels, world.n_frames, size, noise or LabelNoise(seed=sequence), cam_true, cls)
+        dets = noisy_label_boxes(labels, world.n_frames, size, noise, cam_true, cls)
     gt = ground_truth_frames(root, sequence, world, cls)
     gt_range = [_ground_range(g, world, f) for f, g in enumerate(gt)]
     return MonoSequence(seq.name, world, P2, size, gt, gt_range, dets, cam_true, None, cls)
+
+
+def _joined(a: Detections, b: Detections) -> Detections:
+    """One frame's detections of two sources (no masks)."""
+    return Detections(
+        np.vstack([a.boxes, b.boxes]).astype(np.float32), np.r_[a.scores, b.scores].astype(np.float32),
+        np.r_[np.asarray(a.categories, str), np.asarray(b.categories, str)],
+    )  # fmt: skip
 
 
 def _ground_range(g: GroundTruthFrame, world: KittiWorld, frame: int) -> np.ndarray:

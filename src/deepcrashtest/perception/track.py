@@ -248,7 +248,7 @@ class BoxTracker:
             t.detected_now = False
         was_confirmed = {id(t) for t in self.core.confirmed}
         if dets is not None:
-            dets = road_users(dets)
+            dets = road_users(dets, picture=(w, h))
             self._associate(dets.subset(np.nonzero(dets.scores >= self.min_score)[0]))
         for t in self.core.tracks:
             if _visible_fraction(t.box, w, h) < 0.3 or min(t.box[2] - t.box[0], t.box[3] - t.box[1]) < 3:
