@@ -76,14 +76,14 @@ def test_a_cyclist_is_seen_as_its_rider_and_bicycle_and_joined_again(kitti_root)
             rows[["x1", "y1", "x2", "y2"]].to_numpy(np.float32), np.ones(len(rows), np.float32),
             rows["category"].to_numpy(str),
         )  # fmt: skip
-        users = road_users(det, picture=(1242, 375))
+        users = road_users(det, picture=(0, 0, 1242, 375))
         bikes = users.boxes[users.categories == "bicycle"]
         assert not (users.categories == "pedestrian").sum() > (rows["category"] == "pedestrian").sum() - len(lab)
         ious.extend(iou_matrix(lab[["x1", "y1", "x2", "y2"]].to_numpy(float), bikes.astype(float)).max(axis=1))
     assert len(ious) == len(cyc) and np.median(ious) > 0.99 and np.mean(np.array(ious) > 0.9) > 0.95
 
 
-@pytest.mark.parametrize(("picture", "share"), [(None, 0.008), ((1242.0, 375.0), 0.011)])
+@pytest.mark.parametrize(("picture", "share"), [(None, 0.008), ((0.0, 0.0, 1242.0, 375.0), 0.011)])
 def test_walkers_side_by_side_are_not_riders_of_a_hidden_scooter(kitti_root, picture, share):
     """Two walkers at the same distance overlapping side by side stay two pedestrians: only a squat box over another
     or two boxes reaching the picture's lowest rows are riders of a hidden two-wheeler. On the pedestrian labels of

@@ -223,7 +223,7 @@ def test_riders_of_a_hidden_scooter_and_two_scooters_in_one_box_are_separate_roa
         labels = _labelled_boxes(clip)
         for f in frames:
             image = _frame(clip, f)
-            users = road_users(yolo(image), picture=(image.shape[1], image.shape[0]))  # as the tracker calls it
+            users = road_users(yolo(image), picture=(0, 0, image.shape[1], image.shape[0]))  # as the tracker calls it
             motos = users.boxes[users.categories == "motorcycle"]
             tall = users.boxes[:, 3] - users.boxes[:, 1] > 250  # the riders, 280-420 px tall
             assert not (tall & (users.categories == "pedestrian")).any(), (clip, f, users)
@@ -291,3 +291,24 @@ def test_people_walking_together_brush_past_in_stage_2_and_the_simulator():
     assert hit is not None and cyclist in hit["vehicles"] and set(hit["vehicles"]) - {cyclist} <= set(walker)
     hit = simulate(meet(raw, 3, 5, 3.0)).metrics["first_contact"]  # two walkers the scenario says collided do
     assert hit is not None and set(hit["vehicles"]) == {3, 5} and abs(hit["time"] - 3.0) < 0.1
+
+
+def test_riders_at_the_bumper_of_a_letterboxed_picture_are_found_at_the_pictures_bottom(yolo):
+    """dad_000487 frame 90: the two riders at the ego's bumper, two upright person boxes whose scooter is hidden, are
+    one motorcycle because they reach the picture's lowest rows. Letterboxed (120 px bars above and below) the
+    picture's bottom is not the frame's: the tracker passes the picture, and only the picture finds them; two walkers
+    side by side higher up are no riders however the frame is framed."""
+    from deepcrashtest.perception.detections import Detections
+    from deepcrashtest.perception.roadusers import road_users
+
+    det = yolo(_frame("dad_000487", 90))
+    shifted = Detections(det.boxes + np.array([0, 120, 0, 120], np.float32), det.scores, det.categories)
+
+    def riders(users: Detections) -> int:
+        tall = users.boxes[:, 3] - users.boxes[:, 1] > 250
+        return int((tall & (users.categories == "motorcycle")).sum())
+
+    assert riders(road_users(det, picture=(0, 0, 1280, 720))) == 1
+    assert riders(road_users(shifted, picture=(0, 120, 1280, 840))) == 1
+    assert riders(road_users(shifted, picture=(0, 0, 1280, 960))) == 0  # the frame's bottom is the bars'
+    assert riders(road_users(det)) == 0  # no picture: only a squat box over both riders joins them

@@ -120,7 +120,8 @@ def kitti_table(result: dict[str, Any]) -> None:
 
     from deepcrashtest.eval.kitti import TABLE_COLUMNS
 
-    table = Table(title=f"KITTI tracking, world frame: {result['hypotheses']}; match: {result['match_rule']}")
+    what = {"car": "cars", "pedestrian": "pedestrians", "cyclist": "cyclists"}.get(result.get("class", "car"), "cars")
+    table = Table(title=f"KITTI tracking ({what}), world frame: {result['hypotheses']}; match: {result['match_rule']}")
     for c in ["seq", *TABLE_COLUMNS, "HOTA", "IDSW"]:
         table.add_column(c, justify="right")
     for name, row in result["sequences"].items():
@@ -131,7 +132,7 @@ def kitti_table(result: dict[str, Any]) -> None:
     console.print(table)
     errors = {n: r["position_error"] for n, r in result["sequences"].items() if "position_error" in r}
     if errors:
-        err = Table(title="ground-position error of matched cars, median / p90 m (median % of range)")
+        err = Table(title=f"ground-position error of matched {what}, median / p90 m (median % of range)")
         bins = list(next(iter(errors.values())))
         for c in ["seq", *bins]:
             err.add_column(c, justify="right")
@@ -142,7 +143,7 @@ def kitti_table(result: dict[str, Any]) -> None:
         h = row.get("heading_error")
         if h and h["n"]:
             console.print(
-                f"{name}: heading of matched cars (modulo a half turn) median {h['median_deg']:.1f} deg, p90 "
+                f"{name}: heading of matched {what} (modulo a half turn) median {h['median_deg']:.1f} deg, p90 "
                 f"{h['p90_deg']:.1f} deg, {100 * h['share_over_20_deg']:.0f} % over 20 deg, "
                 f"{100 * h['share_reversed']:.0f} % facing the other way round"
             )

@@ -525,6 +525,7 @@ def evaluate_mono(
         "match_rule": rule.describe(),
         "class": object_class,
         "hypotheses": f"monocular path on {boxes} 2D boxes"
+        + (" (cars; pedestrians and cyclists: noisy labels)" if boxes == "pointrcnn" and object_class != "car" else "")
         + (f" of one frame in {cfg.detect_every}" if cfg.detect_every > 1 else "")
         + f", camera {camera}",
         "tracker": asdict(cfg),

@@ -132,9 +132,9 @@ def occupants(det: Detections) -> np.ndarray:
     return persons[(inside & high).any(axis=1)]
 
 
-def road_users(det: Detections, picture: tuple[float, float] | None = None) -> Detections:
+def road_users(det: Detections, picture: tuple[float, float, float, float] | None = None) -> Detections:
     """Detections as road users: occupants of vehicles dropped, riders joined to their two-wheelers
-    (``picture``: the frame's (width, height), px, for :func:`rider_groups`).
+    (``picture``: the picture's ``(x0, y0, x1, y1)`` in the frame, px, inside any black bars, for :func:`rider_groups`).
 
     A two-wheeler that grew by its rider may now cover a part-box of itself (the scooter without the
     rider, detected too): two-wheelers go through NMS again (IoU 0.5, or 80 % inside a better box).
@@ -236,10 +236,10 @@ def split_two_wheelers(det: Detections) -> Detections:
     return out.subset(keep)
 
 
-def rider_groups(det: Detections, picture: tuple[float, float] | None = None) -> Detections:
+def rider_groups(det: Detections, picture: tuple[float, float, float, float] | None = None) -> Detections:
     """``det`` with every group of persons riding one hidden two-wheeler (see the module docstring) joined
-    into one ``motorcycle`` box (the union, the highest score); ``picture``: its (width, height), px (None: unknown,
-    only a box over both riders groups them). Call after :func:`merge_riders`."""
+    into one ``motorcycle`` box (the union, the highest score); ``picture``: the picture's ``(x0, y0, x1, y1)``, px
+    (None: unknown, only a box over both riders groups them). Call after :func:`merge_riders`."""
     persons = np.flatnonzero(np.asarray(det.categories).astype(str) == "pedestrian")
     if len(persons) < 2:
         return det
@@ -256,8 +256,9 @@ def rider_groups(det: Detections, picture: tuple[float, float] | None = None) ->
     if picture is None:
         at_bumper = np.zeros((len(p), len(p)), bool)
     else:
-        low = p[:, 3] >= GROUP_AT_BOTTOM * picture[1]
-        at_bumper = low[:, None] & low[None, :] & ((union[..., 2] - union[..., 0]) >= GROUP_NEAR_WIDTH * picture[0])
+        x0, y0, x1, y1 = picture
+        low = p[:, 3] >= y0 + GROUP_AT_BOTTOM * (y1 - y0)
+        at_bumper = low[:, None] & low[None, :] & ((union[..., 2] - union[..., 0]) >= GROUP_NEAR_WIDTH * (x1 - x0))
     ok = (
         (np.abs(p[:, None, 3] - p[None, :, 3]) <= GROUP_BOTTOM * hmin)
         & (np.maximum(h[:, None], h[None, :]) <= GROUP_HEIGHT_RATIO * hmin)

@@ -180,7 +180,9 @@ class BoxTracker:
     are ignored; ``new_track_score``: the least score of a detection that starts a track (weaker ones
     only extend tracks); ``min_evidence``: the least sum of a tentative track's detection scores for
     it to be confirmed, besides ``min_hits`` (0: the hits alone). ``detector`` may be None when
-    detections are passed to :meth:`update_boxes`.
+    detections are passed to :meth:`update_boxes`. ``picture``: the picture's ``(x0, y0, x1, y1)`` inside any
+    black bars, px (None: the whole frame), where :func:`~deepcrashtest.perception.roadusers.road_users` looks
+    for the ego's bumper.
     """
 
     def __init__(
@@ -195,6 +197,7 @@ class BoxTracker:
         flow: BoxFlow | None = None,
         min_score: float = 0.0,
         min_evidence: float = 0.0,
+        picture: tuple[int, int, int, int] | None = None,
     ) -> None:
         if detect_every < 1:
             raise ValueError(f"detect_every must be >= 1 (got {detect_every})")
@@ -209,6 +212,7 @@ class BoxTracker:
             min_hits=min_hits, max_misses=max_misses, min_evidence=min_evidence
         )
         self.flow = flow or BoxFlow()
+        self.picture = picture
         self._prev: GreyFrame | None = None
         self._width = 0  # image width (px) of the current frame
         self._height = 0  # ... and height (px)
@@ -248,7 +252,7 @@ class BoxTracker:
             t.detected_now = False
         was_confirmed = {id(t) for t in self.core.confirmed}
         if dets is not None:
-            dets = road_users(dets, picture=(w, h))
+            dets = road_users(dets, picture=self.picture or (0, 0, w, h))
             self._associate(dets.subset(np.nonzero(dets.scores >= self.min_score)[0]))
         for t in self.core.tracks:
             if _visible_fraction(t.box, w, h) < 0.3 or min(t.box[2] - t.box[0], t.box[3] - t.box[1]) < 3:
@@ -494,7 +498,7 @@ def iter_tracks(
     if rate is None:
         raise ValueError("fps unknown: pass fps= for a plain iterable of frames")
     frames = itertools.islice(source, max_frames)
-    yield from track_detected(detect_ahead(frames, detector, detect_every), rate, detect_every, **tracker_options)
+    yield from track_detected(detect_ahead(frames, detector, detect_every), rate, detect_every, None, **tracker_options)
 
 
 def detect_ahead(
@@ -513,11 +517,21 @@ def detect_ahead(
 
 
 def track_detected(
-    detected: Iterable[tuple[Frame, Detections | None]], fps: float, detect_every: int = 1, **tracker_options: float
+    detected: Iterable[tuple[Frame, Detections | None]],
+    fps: float,
+    detect_every: int = 1,
+    picture: tuple[int, int, int, int] | None = None,
+    **tracker_options: float,
 ) -> Iterator[FrameTracks]:
     """Track frames whose detections were made already (:func:`detect_ahead`): the same tracks as
-    :func:`iter_tracks` with the same ``detect_every``."""
-    tracker = BoxTracker(None, fps=fps, detect_every=detect_every, **tracker_options)  # type: ignore[arg-type]
+    :func:`iter_tracks` with the same ``detect_every`` (``picture``: :class:`BoxTracker`'s)."""
+    tracker = BoxTracker(
+        None,
+        fps=fps,
+        detect_every=detect_every,
+        picture=picture,
+        **tracker_options,  # type: ignore[arg-type]
+    )
     for frame, dets in detected:
         h, w = frame.image.shape[:2]
         yield tracker.update_boxes(dets, frame.index, frame.time, (w, h), frame.image)

@@ -455,7 +455,8 @@ class _Pass:
             det = in_picture(self.det, self.motion.area, meta.width, meta.height)  # the bars are no scene
             detected = detect_ahead(itertools.islice(frames, self.max_frames), det, every)
             detected = stack.enter_context(closing(prefetch(detected, 8, "detect")))
-            tracking = stack.enter_context(closing(prefetch(track_detected(detected, meta.fps, every), 8, "track")))
+            tracked_boxes = track_detected(detected, meta.fps, every, picture=self.motion.area)
+            tracking = stack.enter_context(closing(prefetch(tracked_boxes, 8, "track")))
             tracked = progress(tracking, "extract", total=self._total(meta))
             draw = self._drawing(meta, stack)
             if not geometry:
