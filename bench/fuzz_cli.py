@@ -260,8 +260,13 @@ def odd_other_commands(fz: Fuzz, d: Path, tmp: Path) -> None:
         fz.run("evaluate", "kitti", "--data", data, "--sequences", v, "--json")
     for v in ("-1", "99999999999999999999", "9999"):
         fz.run("scenario", "from-kitti", "--data", data, "--sequence", v, "-o", tmp / "fk", "--json")
-    for opt, v in (("--match", "nosuch"), ("--boxes", "nosuch"), ("--camera", "nosuch"), ("--detections", "")):
+    for opt, v in (
+        ("--match", "nosuch"), ("--boxes", "nosuch"), ("--camera", "nosuch"), ("--detections", ""),
+        ("--class", "nosuch"), ("--class", ""),
+    ):  # fmt: skip
         fz.run("evaluate", "kitti", "--data", data, "--sequences", "9999", opt, v, "--mono", "--json")
+    for v in ("pedestrian", "cyclist", "nosuch"):  # the LiDAR tracker's detections are cars
+        fz.run("evaluate", "kitti", "--data", data, "--sequences", "12", "--class", v, "--json")
     for v in ("0", "-1", "abc", "99999999999999999999"):
         fz.run("evaluate", "kitti", "--data", data, "--sequences", "9999", "--detect-every", v, "--mono", "--json")
     for v in ("-1", "0", "1", "99999999999999999999"):
