@@ -105,8 +105,7 @@ class LabelNoise:
     per-object offset held over the object's track (x1 y1 x2 y2: 3.5 / 3.0 / 2.9 / 2.7 %) and a frame-to-frame jitter
     (2.9 / 2.3 / 2.7 / 2.0 %; 5.4 / 4.4 / 4.7 / 4.0 % in all); recall by occlusion level 0-3: 0.93 / 0.87 / 0.77 /
     0.66 (a miss rate of 0.07 growing x 1.8 per level). Until 2026-12-07 the whole 5 % was drawn afresh every frame
-    and misses doubled per level: the self-calibration's pitch-bounce focal length read the white jitter as bounces
-    (0018: 1398 px, true 721)."""
+    and misses doubled per level."""
 
     jitter_rel: float = 0.025
     offset_rel: float = 0.03
