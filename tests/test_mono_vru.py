@@ -122,3 +122,18 @@ def test_class_option_errors_are_one_line(kitti_root):
     base = ("evaluate", "kitti", "--data", str(kitti_root), "--sequences", "12")
     assert_one_line_error(run(*base, "--mono", "--class", "bus"), "--class must be one of")
     assert_one_line_error(run(*base, "--class", "pedestrian"), "the LiDAR tracker runs on the PointRCNN car")
+
+
+def test_results_name_the_class(kitti_root, tmp_path):
+    """``evaluate kitti --class pedestrian -o DIR``: results.md says which class and boxes it scored, results.json too."""
+    import json
+
+    from test_cli import run
+
+    out = tmp_path / "res"
+    res = run("evaluate", "kitti", "--data", str(kitti_root), "--sequences", str(CYCLISTS), "--mono", "--class",
+              "pedestrian", "-o", str(out))  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    first = (out / "results.md").read_text().splitlines()[0]
+    assert "class pedestrian" in first and "noisy labels" in first, first
+    assert json.loads((out / "results.json").read_text())["class"] == "pedestrian"

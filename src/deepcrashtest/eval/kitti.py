@@ -286,9 +286,11 @@ def evaluate_kitti(
 
 
 def results_markdown(result: dict[str, Any]) -> str:
-    """The result as a markdown table (our rows, then the paper's rows where it has them)."""
+    """The result as a markdown table (our rows, then the paper's rows where it has them), under a line naming the
+    class, the hypotheses and the match rule."""
     head = "| seq | " + " | ".join(TABLE_COLUMNS) + " | HOTA | IDSW |"
-    lines = [head, "|" + "---|" * (len(TABLE_COLUMNS) + 3)]
+    title = f"KITTI tracking, class {result.get('class', 'car')}: {result['hypotheses']}; match: {result['match_rule']}"
+    lines = [title, "", head, "|" + "---|" * (len(TABLE_COLUMNS) + 3)]
     for name, row in result["sequences"].items():
         lines.append(f"| {name} | " + " | ".join(_fmt(row[c]) for c in [*TABLE_COLUMNS, "HOTA", "IDSW"]) + " |")
     for name, row in result["paper"].items():
