@@ -125,7 +125,7 @@ def test_class_option_errors_are_one_line(kitti_root):
 
 
 def test_results_name_the_class(kitti_root, tmp_path):
-    """``evaluate kitti --class pedestrian -o DIR``: results.md says which class and boxes it scored, results.json too."""
+    """``evaluate kitti --class pedestrian -o DIR``: results.md names the class and boxes it scored, as results.json."""
     import json
 
     from test_cli import run
