@@ -120,7 +120,7 @@ def kitti_table(result: dict[str, Any]) -> None:
 
     from deepcrashtest.eval.kitti import TABLE_COLUMNS
 
-    what = {"car": "cars", "pedestrian": "pedestrians", "cyclist": "cyclists"}.get(result.get("class", "car"), "cars")
+    what = f"{result.get('class', 'car')}s"  # cars, pedestrians, cyclists
     table = Table(title=f"KITTI tracking ({what}), world frame: {result['hypotheses']}; match: {result['match_rule']}")
     for c in ["seq", *TABLE_COLUMNS, "HOTA", "IDSW"]:
         table.add_column(c, justify="right")
