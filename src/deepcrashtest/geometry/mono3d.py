@@ -73,6 +73,7 @@ from deepcrashtest.geometry.mono_config import (
     MonoConfig,
     RoadProfile,
     class_size,
+    width_cue_sigma,
 )
 from deepcrashtest.geometry.mono_size import box_cues, hull_factor, size_scale, track_size, width_m
 from deepcrashtest.geometry.standing import StandingFit, StandingNoise, Views, fit_standing
@@ -146,16 +147,18 @@ def _between_measured(frames: np.ndarray, measured: np.ndarray, offsets: np.ndar
 def _fuse_depth(
     cues: Cues, rows: np.ndarray, size: tuple[float, float, float], h_rel: float, w_scale: float, w_rel: float,
     camera: Camera, cfg: MonoConfig, edges: np.ndarray | None = None, rel_yaw: np.ndarray | None = None,
+    width_sigma: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """Fused depth of the visible face (m) and its relative sigma, per row (``edges``, ``rel_yaw``:
-    :func:`width_m`)."""
+    :func:`width_m`; ``width_sigma``: the width cue's relative sigma, else ``cfg.width_sigma_rel``)."""
     length, width, height = size
     z_h = _height_depth(cues, rows, ("", length, width, height), camera, cfg)
     r_h = np.hypot(h_rel, cfg.height_sigma_px / cues.box_h[rows])
     z_h[cues.cut_v[rows]] = np.nan
     app = w_scale * width_m(length, width, cues, rows, camera, cfg, edges, rel_yaw)
     z_w = camera.fx * app / cues.box_w[rows]
-    r_w = np.hypot(w_rel, np.hypot(cfg.width_sigma_rel, cfg.height_sigma_px / cues.box_w[rows]))
+    w_sigma = cfg.width_sigma_rel if width_sigma is None else width_sigma
+    r_w = np.hypot(w_rel, np.hypot(w_sigma, cfg.height_sigma_px / cues.box_w[rows]))
     z_w[cues.cut_u[rows]] = np.nan
     num = np.zeros(len(rows))
     den = np.zeros(len(rows))
@@ -365,8 +368,11 @@ def _measurements(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """World-frame centres (n, 2; NaN: no measurement), their covariances (n, 2, 2) and the
     camera-to-centre ranges (n,) of one track's rows (``edges``, ``rel_yaw``: :func:`width_m`)."""
-    _, length, width, height, h_rel, w_scale, w_rel = size
-    z_near, rel = _fuse_depth(cues, rows, (length, width, height), h_rel, w_scale, w_rel, camera, cfg, edges, rel_yaw)
+    cls, length, width, height, h_rel, w_scale, w_rel = size
+    z_near, rel = _fuse_depth(
+        cues, rows, (length, width, height), h_rel, w_scale, w_rel, camera, cfg, edges, rel_yaw,
+        width_cue_sigma(cls, cfg),
+    )  # fmt: skip
     bearing = cues.bearing[rows]
     a = np.arctan(bearing)
     off = 0.5 * (length * np.abs(np.cos(a)) + width * np.abs(np.sin(a)))
