@@ -74,7 +74,8 @@ GROUP_NEAR_WIDTH = 0.2
 #: with the scooter.
 SAME_VEHICLE_IOU = 0.8
 #: A track seen as a two-wheeler in at least this share of its two-wheeler + person frames (or votes) is a
-#: two-wheeler: a rider whose scooter is hidden is detected as a person, a walker is never a two-wheeler.
+#: two-wheeler: a rider whose scooter is hidden is detected as a person, a walker seldom as a two-wheeler (joined with
+#: a bicycle box beside it now and then: ``perception.track.WHEEL_LATCH_HITS``).
 #: dad_000487: the two riders at the ego's bumper are a two-wheeler in 2 of their 7 detection rounds.
 RIDER_TRACK_SHARE = 0.25
 
