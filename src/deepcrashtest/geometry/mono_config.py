@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from deepcrashtest.geometry.localize import CLASS_DIMENSIONS, SIZE_PRIOR_SIGMA
+from deepcrashtest.perception.roadusers import TWO_WHEELERS
 
 #: Classes a detector's category may really be (the size decides among them).
 CANDIDATES: dict[str, tuple[str, ...]] = {
@@ -22,9 +23,6 @@ CANDIDATES: dict[str, tuple[str, ...]] = {
     "pedestrian": ("pedestrian",),
 }
 
-
-#: Classes on two wheels.
-TWO_WHEELERS = ("bicycle", "motorcycle")
 
 #: ``Camera.height_source`` values of a measured camera height (the near ground contacts need one).
 MEASURED_HEIGHT_SOURCES = ("user", "kitti_calib")
