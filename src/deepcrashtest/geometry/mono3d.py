@@ -364,15 +364,15 @@ def _ridge(basis: np.ndarray, y: np.ndarray, w: np.ndarray, prior_sigma: float, 
 
 def _measurements(
     rows: np.ndarray, size: tuple, cues: Cues, r: _Rows, ego: EgoMotion, camera: Camera, cfg: MonoConfig,
-    edges: np.ndarray | None = None, rel_yaw: np.ndarray | None = None,
+    edges: np.ndarray | None = None, rel_yaw: np.ndarray | None = None, width_sigma: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """World-frame centres (n, 2; NaN: no measurement), their covariances (n, 2, 2) and the
-    camera-to-centre ranges (n,) of one track's rows (``edges``, ``rel_yaw``: :func:`width_m`)."""
-    cls, length, width, height, h_rel, w_scale, w_rel = size
+    camera-to-centre ranges (n,) of one track's rows (``edges``, ``rel_yaw``: :func:`width_m`; ``width_sigma``: the
+    width cue's relative sigma, :func:`~deepcrashtest.geometry.mono_config.width_cue_sigma`)."""
+    _, length, width, height, h_rel, w_scale, w_rel = size
     z_near, rel = _fuse_depth(
-        cues, rows, (length, width, height), h_rel, w_scale, w_rel, camera, cfg, edges, rel_yaw,
-        width_cue_sigma(cls, cfg),
-    )  # fmt: skip
+        cues, rows, (length, width, height), h_rel, w_scale, w_rel, camera, cfg, edges, rel_yaw, width_sigma
+    )
     bearing = cues.bearing[rows]
     a = np.arctan(bearing)
     off = 0.5 * (length * np.abs(np.cos(a)) + width * np.abs(np.sin(a)))
@@ -572,7 +572,9 @@ def localize_tracks(
     cats = r.df["category"].to_numpy(dtype=str)
     for (s0, s1), size in zip(r.spans, sizes, strict=True):
         rows = np.arange(s0, s1)
-        meas, covs, rng = _measurements(rows, size, cues, r, ego, camera, cfg)
+        detector_class = track_category(Counter(cats[s0:s1]))
+        w_sigma = width_cue_sigma(detector_class, cfg)
+        meas, covs, rng = _measurements(rows, size, cues, r, ego, camera, cfg, width_sigma=w_sigma)
         valid = np.nonzero(np.isfinite(meas[:, 0]))[0]
         if len(valid) == 0:
             continue
@@ -584,13 +586,13 @@ def localize_tracks(
         along = _heading_along(rel, speed, cfg)
         turned = _oblique_yaw(rel, speed, along, cfg)
         if (along is not None and along.any()) or turned is not None:  # again with the heading's width geometry
-            meas, covs, rng = _measurements(rows, size, cues, r, ego, camera, cfg, along, turned)
+            meas, covs, rng = _measurements(rows, size, cues, r, ego, camera, cfg, along, turned, w_sigma)
             xs = _kalman(span, meas, covs, fps, cfg)[1][span - span[0]]
         standing = None
         if cfg.static_fit:  # the class its standing height fits only where it is placed standing
             trial = size
             if cfg.static_class:
-                trial = _standing_class(rows, xs, size, cues, r, ego, camera, cfg, track_category(Counter(cats[s0:s1])))
+                trial = _standing_class(rows, xs, size, cues, r, ego, camera, cfg, detector_class)
             standing = _static_fit(rows, xs, trial, cues, r, ego, camera, cfg)
             if standing is None and trial is not size:
                 standing = _static_fit(rows, xs, size, cues, r, ego, camera, cfg)

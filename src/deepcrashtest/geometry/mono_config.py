@@ -10,7 +10,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from deepcrashtest.geometry.localize import CLASS_DIMENSIONS, SIZE_PRIOR_SIGMA
-from deepcrashtest.perception.roadusers import TWO_WHEELERS
 
 #: Classes a detector's category may really be (the size decides among them).
 CANDIDATES: dict[str, tuple[str, ...]] = {
@@ -38,13 +37,16 @@ class MonoConfig:
     road_height_rel: float = 0.5
     height_sigma_px: float = 0.4
     width_sigma_rel: float = 0.2
-    # the width cue's relative sigma for a bicycle or motorcycle (None: ``width_sigma_rel``): its box is 0.6-1.9 m
-    # wide with its heading (end-on to side-on), which a standing or slow two-wheeler does not reveal (KITTI 0015's
-    # standing cyclist seen end-on 30 deg right read 47 % far on its width; 0002's, side-on, half as near).
-    # Round wid42, the tune split of bench/mono_vru.py, cyclist MOTA KITTI / unknown camera: 0.2 (width_sigma_rel)
-    # 2.87 / -13.48, 0.5 11.56, 1.0 25.70, 2.0 27.54, 3.0 28.35 / 39.18, 5.0 28.65 / 39.32, 10.0 28.65 / 39.40.
+    # the width cue's relative sigma for a road user the detector calls a bicycle (None: ``width_sigma_rel``): its box
+    # is 0.6-1.9 m wide with its heading (end-on to side-on), which a bicycle standing at a kerb, crossing or ridden on
+    # the pavement does not reveal (KITTI 0015's standing cyclist seen end-on 30 deg right read 47 % far on its width;
+    # 0002's, side-on, half as near). Round wid42, the tune split of bench/mono_vru.py, cyclist MOTA KITTI / unknown
+    # camera: 0.2 (width_sigma_rel) 2.87 / -13.48, 0.5 11.56, 1.0 25.70, 2.0 27.54, 3.0 28.35 / 39.18, 5.0 28.65 /
+    # 39.32, 10.0 28.65 / 39.40 (for bicycles and motorcycles alike, by the size-chosen class). Not for motorcycles:
+    # scooters on the crash clips run along the lanes like cars, and there it moved dad_000550's crash (re-encoded at
+    # crf 35) 0.3 s early and lowered all five DAD clips' reprojection (no motorcycle truth to choose it on).
     # Pedestrians keep width_sigma_rel (0.12 / 0.4 / 5.0: pedestrian MOTA 72.61 / 71.08 / 69.92 against 72.74)
-    two_wheeler_width_sigma_rel: float | None = 5.0
+    bicycle_width_sigma_rel: float | None = 5.0
     bearing_sigma_px: float = 3.0
     accel_std: float = 3.0
     init_speed_std: float = 15.0
@@ -167,10 +169,10 @@ def class_size(category: str) -> tuple[float, float, float]:
     return CLASS_DIMENSIONS.get(category, CLASS_DIMENSIONS["car"])
 
 
-def width_cue_sigma(category: str, cfg: MonoConfig) -> float:
-    """Relative 1-sigma of one box's width cue for a road user of class ``category``."""
-    if category in TWO_WHEELERS and cfg.two_wheeler_width_sigma_rel is not None:
-        return cfg.two_wheeler_width_sigma_rel
+def width_cue_sigma(detector_class: str, cfg: MonoConfig) -> float:
+    """Relative 1-sigma of one box's width cue for a track the detector calls ``detector_class``."""
+    if detector_class == "bicycle" and cfg.bicycle_width_sigma_rel is not None:
+        return cfg.bicycle_width_sigma_rel
     return cfg.width_sigma_rel
 
 
