@@ -118,11 +118,11 @@ def test_pedestrians_are_placed_within_a_few_percent_of_their_range(kitti_root):
         assert cell["n"] > 50 and cell["median_pct"] < most, (key, cell)
 
 
-def test_a_two_wheelers_box_width_does_not_place_it(kitti_root):
+def test_a_bicycles_box_width_does_not_place_it(kitti_root):
     """A bicycle's box is 0.6-1.9 m wide with its heading, which a standing cyclist does not reveal: on 0015 (a
     cyclist standing 18 m ahead, 30 deg right, seen end-on; the road climbs) the width cue read it 47 % far and the
-    path put it 15 % far at 20-40 m (MOTA -61.3); with the width cue's sigma for two-wheelers
-    (``MonoConfig.two_wheeler_width_sigma_rel``) 7.9 % and MOTA 17.2."""
+    path put it 15 % far at 20-40 m (MOTA -61.3); with the width cue's sigma for bicycles
+    (``MonoConfig.bicycle_width_sigma_rel``) 7.9 % and MOTA 17.2."""
     seq = 15
     row = evaluate_mono(kitti_root, [seq], object_class="cyclist")["sequences"][f"{seq:04d}"]
     cell = row["position_error"]["20-40 m"]
