@@ -82,13 +82,22 @@ class MonoConfig:
     extend_min_range_m: float = 45.0  # (40 m: 58.42, 50 m: 57.96, 30 m with 1 s: 55.05)
     # tuning MOTA 60.68 -> 62.52 (100 px: 62.22, 125: 62.35, 175: 61.92, 200: 60.67; row 0.1: 61.82, 0.3: 62.10;
     # floor 0.04: 62.53, 0.09: 62.38; at least 3 / 6 contacts: 61.99 / 61.22; not for the horizon: 62.33)
-    # near ground contacts (bottom edge this far below the horizon; None: unused) ... Used only where the camera's
-    # height is measured (``Camera.height_source`` in :data:`MEASURED_HEIGHT_SOURCES`): they measure a vehicle's
-    # height in units of the camera's, so with a self-calibrated or default height (which the boxes' sizes against
-    # the class priors set) they only echo it. With the KITTI camera (round mono8) 150 px lifts KITTI training
-    # MOTA 62.04 -> 63.84; on the dashcam fidelity clips (heights self-calibrated or default) it is off: there it
-    # had lost two reproduced crashes (dad_000478's pair no longer close in 3D; ccd_000014's replay missed)
+    # near ground contacts (bottom edge this far below the horizon; None: unused) ... Used where the camera's height is
+    # measured (``Camera.height_source`` in :data:`MEASURED_HEIGHT_SOURCES`) or self-calibrated (below): they measure a
+    # vehicle's height in units of the camera's, so with a default height they measure nothing. With the KITTI camera
+    # (round mono8) 150 px lifts KITTI training MOTA 62.04 -> 63.84; on the dashcam fidelity clips (heights
+    # self-calibrated or default) the same weights as the KITTI camera's had lost two reproduced crashes (dad_000478's
+    # pair no longer close in 3D; ccd_000014's replay missed): there the self-calibrated height's own error counts
     contact_min_below_px: float | None = 150.0
+    # ... and where the camera's height is self-calibrated (``height_source`` "self_calibration"), the contacts measure
+    # a vehicle's height against the fleet's (the box line's slope is the fleet's height in units of the camera's), a
+    # tall van's or a low saloon's own: used there too, with the camera height's relative 1-sigma x this many added to
+    # their floor (``contact_floor_rel``: every contact shares the camera's height error; None: a self-calibrated
+    # height has no contacts). Round cont43, 18 training sequences, unknown camera: off 64.52, 1 / 2 / 3 / 4 / 6 / 10
+    # sigmas 65.30 / 65.46 / 65.46 / - / - / - (with the class-free height cost as well: 65.56 / 65.78 / 65.84 / 65.76
+    # / 65.27 / 64.96; the bare sigma without the floor 64.99): the stated 1-sigma of the self-calibrated height is
+    # short of its error by 2-4x on those sequences (0000 1.40 +- 0.06 m against 1.65, 0004 1.45 +- 0.15 against 1.72)
+    contact_self_calibrated_sigmas: float | None = 3.0
     contact_row_rel: float = 0.2  # ... each measure the track's height to this (1 sigma, relative) ...
     contact_floor_rel: float = 0.06  # ... and all of them together no better than this (road shape)
     # ... and a track without such contacts uses its nearest ones, bottom edge this far below the horizon (None:

@@ -138,20 +138,33 @@ def track_size(
     return cls, length * scale, width * scale, height, h_rel_post, w_scale, w_scale_rel
 
 
+def contact_floor(camera: Camera, cfg: MonoConfig) -> float | None:
+    """The relative error all of a track's near ground contacts share (road shape, the camera's height): the
+    configured floor where the camera's height is measured, widened by ``contact_self_calibrated_sigmas`` of its
+    relative 1-sigma where it is self-calibrated; None where the contacts measure nothing (a default height)."""
+    if camera.height_source in MEASURED_HEIGHT_SOURCES:
+        return cfg.contact_floor_rel
+    k, sigma = cfg.contact_self_calibrated_sigmas, camera.height_sigma_m
+    if camera.height_source != "self_calibration" or k is None or sigma is None or not math.isfinite(sigma):
+        return None
+    return math.hypot(cfg.contact_floor_rel, k * sigma / camera.height_m)
+
+
 def contact_height(
     cls: str, height: float, rel: float, cues: Cues, use: np.ndarray, camera: Camera, cfg: MonoConfig,
     scale: float,
 ) -> tuple[float, float]:  # fmt: skip
     """The track's height (m) and relative sigma, fused with what its near ground contacts imply.
 
-    Only where the camera's height is measured (:data:`MEASURED_HEIGHT_SOURCES`), boxes whose bottom edge lies
+    Where the camera's height is measured or self-calibrated (:func:`contact_floor`), boxes whose bottom edge lies
     at least ``contact_min_below_px`` below the horizon (None: unused) give the depth
     of the vehicle's near face to a few per cent, hence its height ``box_h Z_bottom / fy /
     hull_factor`` (the roof's far edge removed); each such frame errs by ``contact_row_rel`` (road
     height under the car) and the bottom edge's and top edge's pixel errors, their inverse-variance
-    mean no better than ``contact_floor_rel`` (the road's shape is shared by the frames). That mean
+    mean no better than :func:`contact_floor` (the road's shape is shared by the frames). That mean
     and ``height`` (the class prior's posterior) are fused by inverse variance in log."""
-    if cfg.contact_min_below_px is None or camera.height_source not in MEASURED_HEIGHT_SOURCES:
+    floor_rel = contact_floor(camera, cfg)
+    if cfg.contact_min_below_px is None or floor_rel is None:
         return height, rel
     below = camera.fy * camera.height_m / cues.z_bottom[use]
     near = use[below >= cfg.contact_min_below_px]
@@ -165,7 +178,7 @@ def contact_height(
     b = camera.fy * camera.height_m / z
     w = 1.0 / ((cfg.bottom_sigma_px / b) ** 2 + cfg.contact_row_rel**2 + (cfg.height_sigma_px / cues.box_h[near]) ** 2)
     mean = float(np.sum(w * np.log(h)) / np.sum(w))
-    var = cfg.contact_floor_rel**2 + 1.0 / float(np.sum(w))
+    var = floor_rel**2 + 1.0 / float(np.sum(w))
     w_prior = 1.0 / rel**2
     log_h = (w_prior * math.log(height) + mean / var) / (w_prior + 1.0 / var)
     return math.exp(log_h), 1.0 / math.sqrt(w_prior + 1.0 / var)
