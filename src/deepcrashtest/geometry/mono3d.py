@@ -26,9 +26,10 @@ Per track:
    (``box_height Z_bottom / fy``) is pooled over the track (inverse-variance, in log) with the class
    prior of each candidate class (car, van, truck, bus, motorcycle, bicycle, pedestrian, see
    :data:`CANDIDATES`); the class whose prior explains the pooled height best is kept, and its
-   posterior height is then fused, where the camera's height is measured, with the height its near
-   ground contacts imply (boxes whose bottom edge lies far below the horizon, where the bottom edge
-   gives the depth to a few per cent: :func:`contact_height`) and scales its length and width. The
+   posterior height is then fused, where the camera's height is measured or self-calibrated, with the
+   height its near ground contacts imply (boxes whose bottom edge lies far below the horizon, where the
+   bottom edge gives the depth to a few per cent: :func:`contact_height`, their shared error
+   :func:`contact_floor`) and scales its length and width. The
    same pooling gives the width cue's scale.
 
 3. The cues are fused per frame by inverse variance (in log depth); the visible face is moved to

@@ -1,9 +1,9 @@
 """One size per monocular track, and the box geometry its depth cues rest on (steps 1-2 of
 :mod:`deepcrashtest.geometry.mono3d`): each detected box's cues (bottom edge on the road, box height, box width), the
 track's class and height pooled from its bottom-edge heights against each candidate class's prior (with the box
-shape, the detector's class and, where the camera's height is measured, its near ground contacts), the roof's far
-edge in a box's height (:func:`hull_factor`) and a vehicle's apparent width at its view angle. Camera frame: x right,
-y down, z forward; pixels, metres, radians."""
+shape, the detector's class and, where the camera's height is measured or self-calibrated, its near ground
+contacts), the roof's far edge in a box's height (:func:`hull_factor`) and a vehicle's apparent width at its view
+angle. Camera frame: x right, y down, z forward; pixels, metres, radians."""
 
 from __future__ import annotations
 
