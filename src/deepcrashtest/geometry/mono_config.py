@@ -93,9 +93,9 @@ class MonoConfig:
     # a vehicle's height against the fleet's (the box line's slope is the fleet's height in units of the camera's), a
     # tall van's or a low saloon's own: used there too, with the camera height's relative 1-sigma x this many added to
     # their floor (``contact_floor_rel``: every contact shares the camera's height error; None: a self-calibrated
-    # height has no contacts). Round cont43, 18 training sequences, unknown camera: off 64.52, 1 / 2 / 3 / 4 / 6 / 10
-    # sigmas 65.30 / 65.46 / 65.46 / - / - / - (with the class-free height cost as well: 65.56 / 65.78 / 65.84 / 65.76
-    # / 65.27 / 64.96; the bare sigma without the floor 64.99): the stated 1-sigma of the self-calibrated height is
+    # height has no contacts). Round cont43, 18 training sequences, unknown camera: off 64.52, 1 / 2 / 3 sigmas 65.30 /
+    # 65.46 / 65.46 (with the class-free height cost as well, 1 / 2 / 3 / 4 / 6 / 10 sigmas: 65.56 / 65.78 / 65.84 /
+    # 65.76 / 65.27 / 64.96; the floor not widened 64.99): the stated 1-sigma of the self-calibrated height is
     # short of its error by 2-4x on those sequences (0000 1.40 +- 0.06 m against 1.65, 0004 1.45 +- 0.15 against 1.72)
     contact_self_calibrated_sigmas: float | None = 3.0
     contact_row_rel: float = 0.2  # ... each measure the track's height to this (1 sigma, relative) ...
