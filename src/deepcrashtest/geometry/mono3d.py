@@ -147,19 +147,18 @@ def _between_measured(frames: np.ndarray, measured: np.ndarray, offsets: np.ndar
 
 def _fuse_depth(
     cues: Cues, rows: np.ndarray, size: tuple[float, float, float], h_rel: float, w_scale: float, w_rel: float,
-    camera: Camera, cfg: MonoConfig, edges: np.ndarray | None = None, rel_yaw: np.ndarray | None = None,
-    width_sigma: float | None = None,
+    camera: Camera, cfg: MonoConfig, width_sigma: float, edges: np.ndarray | None = None,
+    rel_yaw: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """Fused depth of the visible face (m) and its relative sigma, per row (``edges``, ``rel_yaw``:
-    :func:`width_m`; ``width_sigma``: the width cue's relative sigma, else ``cfg.width_sigma_rel``)."""
+    """Fused depth of the visible face (m) and its relative sigma, per row (``width_sigma``: the width cue's relative
+    sigma, :func:`~deepcrashtest.geometry.mono_config.width_cue_sigma`; ``edges``, ``rel_yaw``: :func:`width_m`)."""
     length, width, height = size
     z_h = _height_depth(cues, rows, ("", length, width, height), camera, cfg)
     r_h = np.hypot(h_rel, cfg.height_sigma_px / cues.box_h[rows])
     z_h[cues.cut_v[rows]] = np.nan
     app = w_scale * width_m(length, width, cues, rows, camera, cfg, edges, rel_yaw)
     z_w = camera.fx * app / cues.box_w[rows]
-    w_sigma = cfg.width_sigma_rel if width_sigma is None else width_sigma
-    r_w = np.hypot(w_rel, np.hypot(w_sigma, cfg.height_sigma_px / cues.box_w[rows]))
+    r_w = np.hypot(w_rel, np.hypot(width_sigma, cfg.height_sigma_px / cues.box_w[rows]))
     z_w[cues.cut_u[rows]] = np.nan
     num = np.zeros(len(rows))
     den = np.zeros(len(rows))
@@ -233,6 +232,7 @@ class _Rows:
     frames: np.ndarray
     ego_i: np.ndarray
     spans: list[tuple[int, int]]
+    classes: list[str]  # each track's class as the detector reports it (:func:`track_category` of its rows)
 
 
 def _rows(tracks: pd.DataFrame, ego: EgoMotion) -> _Rows:
@@ -245,13 +245,16 @@ def _rows(tracks: pd.DataFrame, ego: EgoMotion) -> _Rows:
         df = df.assign(score=1.0)
     tid = df["track_id"].to_numpy()
     starts = np.r_[0, np.nonzero(np.diff(tid))[0] + 1, len(df)] if len(df) else np.zeros(1, int)
+    spans = [(int(a), int(b)) for a, b in zip(starts[:-1], starts[1:], strict=True)]
+    cats = df["category"].to_numpy(dtype=str)
     return _Rows(
         df=df,
         boxes=df[["x1", "y1", "x2", "y2"]].to_numpy(float),
         detected=(df["state"] == "detected").to_numpy(),
         frames=df["frame"].to_numpy(int),
         ego_i=np.array([frame_to_i[int(f)] for f in df["frame"]], dtype=int),
-        spans=[(int(a), int(b)) for a, b in zip(starts[:-1], starts[1:], strict=True)],
+        spans=spans,
+        classes=[track_category(Counter(cats[a:b].tolist())) for a, b in spans],
     )
 
 
@@ -261,8 +264,6 @@ def _sizes_and_cues(
     """Each track's size (:func:`track_size`), the rows' cues, horizon rows (px): ``vh`` (per row)
     moved by the per-frame horizon of the boxes (:func:`frame_horizon`), and the road profile the cues
     read the bottom edges on (:func:`road_profile`, where ``cfg.road_profile``; else None)."""
-    cats = r.df["category"].to_numpy(dtype=str)
-    track_cat = [track_category(Counter(cats[a:b].tolist())) for a, b in r.spans]
     cues = box_cues(r.boxes, camera, image_size, vh, cfg)
     scale = size_scale(r.df, cues, r.detected, camera, cfg.size_scale_min_below_px) * cfg.prior_scale
 
@@ -270,7 +271,7 @@ def _sizes_and_cues(
         c_cfg = cfg if choose else replace(cfg, contact_far_below_px=None)  # the horizon's sizes: near contacts only
         return [
             track_size(c, cues, np.arange(a, b), r.detected, camera, c_cfg, scale, choose)
-            for c, (a, b) in zip(track_cat, r.spans, strict=True)
+            for c, (a, b) in zip(r.classes, r.spans, strict=True)
         ]
 
     if not cfg.frame_horizon:
@@ -365,14 +366,14 @@ def _ridge(basis: np.ndarray, y: np.ndarray, w: np.ndarray, prior_sigma: float, 
 
 def _measurements(
     rows: np.ndarray, size: tuple, cues: Cues, r: _Rows, ego: EgoMotion, camera: Camera, cfg: MonoConfig,
-    edges: np.ndarray | None = None, rel_yaw: np.ndarray | None = None, width_sigma: float | None = None,
+    width_sigma: float, edges: np.ndarray | None = None, rel_yaw: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """World-frame centres (n, 2; NaN: no measurement), their covariances (n, 2, 2) and the
-    camera-to-centre ranges (n,) of one track's rows (``edges``, ``rel_yaw``: :func:`width_m`; ``width_sigma``: the
-    width cue's relative sigma, :func:`~deepcrashtest.geometry.mono_config.width_cue_sigma`)."""
+    camera-to-centre ranges (n,) of one track's rows (``width_sigma``: :func:`_fuse_depth`'s; ``edges``,
+    ``rel_yaw``: :func:`width_m`)."""
     _, length, width, height, h_rel, w_scale, w_rel = size
     z_near, rel = _fuse_depth(
-        cues, rows, (length, width, height), h_rel, w_scale, w_rel, camera, cfg, edges, rel_yaw, width_sigma
+        cues, rows, (length, width, height), h_rel, w_scale, w_rel, camera, cfg, width_sigma, edges, rel_yaw
     )
     bearing = cues.bearing[rows]
     a = np.arctan(bearing)
@@ -570,12 +571,10 @@ def localize_tracks(
         # flip moves the whole track (ccd_000014's car with a roof box became a car, 4 m nearer, and its
         # crash no longer replayed)
         _, cues, vh_rows, _ = _sizes_and_cues(r, camera, image_size, pitched, cfg)
-    cats = r.df["category"].to_numpy(dtype=str)
-    for (s0, s1), size in zip(r.spans, sizes, strict=True):
+    for (s0, s1), size, detector_class in zip(r.spans, sizes, r.classes, strict=True):
         rows = np.arange(s0, s1)
-        detector_class = track_category(Counter(cats[s0:s1]))
         w_sigma = width_cue_sigma(detector_class, cfg)
-        meas, covs, rng = _measurements(rows, size, cues, r, ego, camera, cfg, width_sigma=w_sigma)
+        meas, covs, rng = _measurements(rows, size, cues, r, ego, camera, cfg, w_sigma)
         valid = np.nonzero(np.isfinite(meas[:, 0]))[0]
         if len(valid) == 0:
             continue
@@ -587,7 +586,7 @@ def localize_tracks(
         along = _heading_along(rel, speed, cfg)
         turned = _oblique_yaw(rel, speed, along, cfg)
         if (along is not None and along.any()) or turned is not None:  # again with the heading's width geometry
-            meas, covs, rng = _measurements(rows, size, cues, r, ego, camera, cfg, along, turned, w_sigma)
+            meas, covs, rng = _measurements(rows, size, cues, r, ego, camera, cfg, w_sigma, along, turned)
             xs = _kalman(span, meas, covs, fps, cfg)[1][span - span[0]]
         standing = None
         if cfg.static_fit:  # the class its standing height fits only where it is placed standing
