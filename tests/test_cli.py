@@ -132,3 +132,27 @@ def test_cli_imports_without_numpy():
     code = "import sys, deepcrashtest.cli; print('numpy' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+@pytest.mark.parametrize(("given", "expected"), [(None, 1), ("2", 2)])
+def test_console_command_runs_blas_on_one_thread_unless_told(given, expected):
+    """The console command (``cli.run``) sets OPENBLAS_NUM_THREADS to 1 before NumPy loads where the environment
+    leaves it unset (no thread pool started per process), and keeps a user's own setting."""
+    import os
+
+    code = (
+        "import json, deepcrashtest.cli as c\n"
+        "def report(argv=None):\n"
+        "    import numpy, threadpoolctl\n"
+        "    pools = [p['num_threads'] for p in threadpoolctl.threadpool_info() if p['user_api'] == 'blas']\n"
+        "    print(json.dumps(pools))\n"
+        "    return 0\n"
+        "c.main = report\n"
+        "c.run()\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+    if given is not None:
+        env["OPENBLAS_NUM_THREADS"] = given
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
+    pools = json.loads(out.stdout)
+    assert pools and all(n == expected for n in pools), pools

@@ -727,13 +727,25 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+#: The BLAS libraries' thread-count variables the command sets to one where the environment leaves them unset. Every
+#: pass runs its BLAS on one thread already (``threadpoolctl``: its matrices are small, and a multi-threaded OpenBLAS
+#: splits reductions by its thread count, so results would differ between machines), but OpenBLAS starts its thread
+#: pool when NumPy (and again when SciPy) is imported, and again in each forked worker: ~0.07 s of CPU a process,
+#: spinning, a sixth of a 2,000-variant search of a one-agent crash scene (``bench/search_speed.py``).
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
 def run() -> NoReturn:
     """The ``deepcrashtest`` console command: :func:`main`, then leave without Python's interpreter teardown.
 
     After a command every output file is closed; what is left is freeing the process's objects and modules one
     by one (a search: ~0.15 s of CPU, ~6 % of a 2,000-variant KITTI search on 2 cores). The exit handlers still
     run and the standard streams are flushed; with another thread still running, the usual exit waits for it.
+    Before anything loads, the BLAS libraries are told to run on one thread (:data:`BLAS_THREAD_VARIABLES`) unless
+    the environment says otherwise.
     """
+    for variable in BLAS_THREAD_VARIABLES:  # the command's own setting, not the library's (an importer keeps theirs)
+        os.environ.setdefault(variable, "1")
     code = main()
     if threading.active_count() > 1:
         sys.exit(code)
