@@ -71,36 +71,63 @@ def _separation(a: BoxTrack, b: BoxTrack, t: np.ndarray, partials: bool = False)
     t = np.atleast_1d(np.asarray(t, float))
     xa, ya, ha = a.at(t)
     xb, yb, hb = b.at(t)
-    d = np.stack([xb - xa, yb - ya], axis=-1)
-    ua = np.stack([np.cos(ha), np.sin(ha)], axis=-1)
-    ub = np.stack([np.cos(hb), np.sin(hb)], axis=-1)
-    va = np.stack([-ua[:, 1], ua[:, 0]], axis=-1)
-    vb = np.stack([-ub[:, 1], ub[:, 0]], axis=-1)
-    gaps = []
-    for n in (ua, va, ub, vb):
-        ra = 0.5 * a.length * np.abs(np.sum(ua * n, -1)) + 0.5 * a.width * np.abs(np.sum(va * n, -1))
-        rb = 0.5 * b.length * np.abs(np.sum(ub * n, -1)) + 0.5 * b.width * np.abs(np.sum(vb * n, -1))
-        gaps.append(np.abs(np.sum(d * n, -1)) - ra - rb)
-    stacked = np.stack(gaps)
-    value = np.max(stacked, axis=0)
-    if not partials:
-        return value, np.zeros((len(t), 0))
-    # axis n = (cos th, sin th) turns with its owner's heading th: dn/dth = perp(n); likewise each box edge e
-    perp = {id(ua): va, id(va): -ua, id(ub): vb, id(vb): -ub}
-    boxes = ((2, ((ua, 0.5 * a.length), (va, 0.5 * a.width))), (5, ((ub, 0.5 * b.length), (vb, 0.5 * b.width))))
-    out = np.zeros((4, len(t), 6))
-    for k, (n, own) in enumerate(((ua, 2), (va, 2), (ub, 5), (vb, 5))):
-        n_perp = perp[id(n)]
-        s = np.sign(np.sum(d * n, -1))
-        out[k, :, 0:2] = -s[:, None] * n
-        out[k, :, 3:5] = s[:, None] * n
-        out[k, :, own] += s * np.sum(d * n_perp, -1)
-        for col, edges in boxes:
+    if not partials:  # SLSQP's constraint values, ~10,000 calls a crash: the same arithmetic without the stacked arrays
+        return _separation_value(a, b, xb - xa, yb - ya, ha, hb), np.zeros((len(t), 0))
+    return _separation_partials(a, b, xb - xa, yb - ya, ha, hb)
+
+
+def _separation_value(
+    a: BoxTrack, b: BoxTrack, dx: np.ndarray, dy: np.ndarray, ha: np.ndarray, hb: np.ndarray
+) -> np.ndarray:
+    """:func:`_separation`'s value from the centres' offset (``dx``, ``dy``, m) and the headings (rad): each dot
+    product of two 2-vectors written out (``p0 q0 + p1 q1``, NumPy's own order for a sum of two), so the numbers are
+    the same to the last bit."""
+    ca, sa, cb, sb = np.cos(ha), np.sin(ha), np.cos(hb), np.sin(hb)
+    axes = ((ca, sa), (-sa, ca), (cb, sb), (-sb, cb))  # ua, va, ub, vb: each box's length and width axes
+    hla, hwa, hlb, hwb = 0.5 * a.length, 0.5 * a.width, 0.5 * b.length, 0.5 * b.width
+    value = None
+    for n0, n1 in axes:
+        ra = hla * np.abs(ca * n0 + sa * n1) + hwa * np.abs(-sa * n0 + ca * n1)
+        rb = hlb * np.abs(cb * n0 + sb * n1) + hwb * np.abs(-sb * n0 + cb * n1)
+        gap = np.abs(dx * n0 + dy * n1) - ra - rb
+        value = gap if value is None else np.maximum(value, gap)
+    assert value is not None
+    return value
+
+
+def _separation_partials(
+    a: BoxTrack, b: BoxTrack, dx: np.ndarray, dy: np.ndarray, ha: np.ndarray, hb: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_separation` with ``partials``: the value and, per time, the derivatives (6,) of the axis whose gap is
+    the largest. An axis n = (cos th, sin th) turns with its owner's heading th: dn/dth = perp(n); likewise each box
+    edge e. Each dot product of two 2-vectors is written out (``p0 q0 + p1 q1``) and every term added in the order of
+    the stacked-array form it replaced (SLSQP follows the last bit of a Jacobian)."""
+    ca, sa, cb, sb = np.cos(ha), np.sin(ha), np.cos(hb), np.sin(hb)
+    ua, va, ub, vb = (ca, sa), (-sa, ca), (cb, sb), (-sb, cb)
+    perp = {id(ua): va, id(va): (-ca, -sa), id(ub): vb, id(vb): (-cb, -sb)}
+    hla, hwa, hlb, hwb = 0.5 * a.length, 0.5 * a.width, 0.5 * b.length, 0.5 * b.width
+    boxes = ((2, ((ua, hla), (va, hwa))), (5, ((ub, hlb), (vb, hwb))))
+    gaps, parts = [], []
+    for n, own in ((ua, 2), (va, 2), (ub, 5), (vb, 5)):
+        n0, n1 = n
+        ra = hla * np.abs(ca * n0 + sa * n1) + hwa * np.abs(-sa * n0 + ca * n1)
+        rb = hlb * np.abs(cb * n0 + sb * n1) + hwb * np.abs(-sb * n0 + cb * n1)
+        gaps.append(np.abs(dx * n0 + dy * n1) - ra - rb)
+        p0, p1 = perp[id(n)]
+        sgn = np.sign(dx * n0 + dy * n1)
+        col: list[Any] = [-sgn * n0, -sgn * n1, 0.0, sgn * n0, sgn * n1, 0.0]
+        col[own] = col[own] + sgn * (dx * p0 + dy * p1)
+        for c, edges in boxes:
             for e, half in edges:
-                se = half * np.sign(np.sum(e * n, -1))
-                out[k, :, col] -= se * np.sum(perp[id(e)] * n, -1)
-                out[k, :, own] -= se * np.sum(e * n_perp, -1)
-    return value, out[np.argmax(stacked, axis=0), np.arange(len(t))]
+                e0, e1 = e
+                q0, q1 = perp[id(e)]
+                se = half * np.sign(e0 * n0 + e1 * n1)
+                col[c] = col[c] - se * (q0 * n0 + q1 * n1)
+                col[own] = col[own] - se * (e0 * p0 + e1 * p1)
+        parts.append(np.stack([np.broadcast_to(np.asarray(v, float), dx.shape) for v in col], axis=-1))
+    stacked = np.stack(gaps)
+    best = np.argmax(stacked, axis=0)
+    return np.max(stacked, axis=0), np.stack(parts)[best, np.arange(len(dx))]
 
 
 @dataclass(frozen=True)
