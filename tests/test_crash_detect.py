@@ -353,3 +353,21 @@ def _mirrored(folder: Path, dest: Path) -> Path:
     for f in sorted(folder.glob("*.png")):
         cv2.imwrite(str(dest / f.name), cv2.flip(cv2.imread(str(f)), 1))
     return dest
+
+
+def test_two_road_users_whose_boxes_never_meet_are_no_crash_pair():
+    """A pair whose boxes never meet in the image scores 0 on every frame (no costlier cue computed for it: most
+    pairs of a busy street), its contact at their first common frame, and the clip has no crash."""
+    from deepcrashtest.perception.crash_pair import pair_contact, pair_scores
+    from deepcrashtest.perception.crash_tracks import per_track
+
+    def right(f: int) -> tuple[float, float, float, float]:  # a car keeping its lane far right
+        return 1000 - f, 380, 1100 - f, 450
+
+    tracks = pd.DataFrame(_rows(2, range(5, 30), _far) + _rows(3, range(0, 30), right))
+    per = per_track(tracks, FPS)
+    s = pair_scores(per[2], per[3], W, H, fps=FPS)
+    assert list(s.index) == list(range(5, 30)) and not s["score"].any()
+    score, frame, pair, _ = pair_contact(s, (2, 3), FPS)
+    assert (score, frame, pair) == (0.0, 5, (2, 3))
+    assert detect_crash(tracks, W, H, FPS) is None

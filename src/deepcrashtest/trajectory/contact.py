@@ -107,8 +107,8 @@ def _separation_partials(
     perp = {id(ua): va, id(va): (-ca, -sa), id(ub): vb, id(vb): (-cb, -sb)}
     hla, hwa, hlb, hwb = 0.5 * a.length, 0.5 * a.width, 0.5 * b.length, 0.5 * b.width
     boxes = ((2, ((ua, hla), (va, hwa))), (5, ((ub, hlb), (vb, hwb))))
-    gaps, parts = [], []
-    for n, own in ((ua, 2), (va, 2), (ub, 5), (vb, 5)):
+    gaps, parts = [], np.empty((4, len(dx), 6))
+    for k, (n, own) in enumerate(((ua, 2), (va, 2), (ub, 5), (vb, 5))):
         n0, n1 = n
         ra = hla * np.abs(ca * n0 + sa * n1) + hwa * np.abs(-sa * n0 + ca * n1)
         rb = hlb * np.abs(cb * n0 + sb * n1) + hwb * np.abs(-sb * n0 + cb * n1)
@@ -124,10 +124,10 @@ def _separation_partials(
                 se = half * np.sign(e0 * n0 + e1 * n1)
                 col[c] = col[c] - se * (q0 * n0 + q1 * n1)
                 col[own] = col[own] - se * (e0 * p0 + e1 * p1)
-        parts.append(np.stack([np.broadcast_to(np.asarray(v, float), dx.shape) for v in col], axis=-1))
+        for j, v in enumerate(col):
+            parts[k, :, j] = v
     stacked = np.stack(gaps)
-    best = np.argmax(stacked, axis=0)
-    return np.max(stacked, axis=0), np.stack(parts)[best, np.arange(len(dx))]
+    return np.max(stacked, axis=0), parts[np.argmax(stacked, axis=0), np.arange(len(dx))]
 
 
 @dataclass(frozen=True)
