@@ -204,7 +204,6 @@ def pair_scores(
     common = a.index.intersection(b.index)
     if not len(common):
         return pd.DataFrame(columns=["touch", "depth", "change", "onset", "seen", "score"])
-    seen = np.minimum(_seen(a).loc[common].to_numpy(), _seen(b).loc[common].to_numpy())
     a, b = a.loc[common], b.loc[common]
     ix = np.minimum(a["x2"], b["x2"]) - np.maximum(a["x1"], b["x1"])
     iy = np.minimum(a["y2"], b["y2"]) - np.maximum(a["y1"], b["y1"])
@@ -213,6 +212,7 @@ def pair_scores(
     touch = np.clip(1 + np.minimum(ix, iy) / np.maximum(scale, least) / 0.15, 0, 1) * (iy > 0)
     if not np.any(np.asarray(touch, float) > 0):  # the boxes never meet: no score on any frame (most pairs of a
         return _never_touching(common)  # busy street), and none of the costlier cues is needed
+    seen = np.minimum(_seen(a).to_numpy(), _seen(b).to_numpy())
     hb = np.maximum(np.maximum(a["y2"] - a["y1"], b["y2"] - b["y1"]), least)
     rows = np.clip(1 - np.abs(a["y2"].to_numpy(float) - b["y2"].to_numpy(float)) / np.asarray(hb, float) / 0.35, 0, 1)
     near3 = close_3d(*world, common.to_numpy(), fps) if world is not None else np.full(len(common), np.nan)

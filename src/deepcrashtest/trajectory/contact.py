@@ -76,23 +76,32 @@ def _separation(a: BoxTrack, b: BoxTrack, t: np.ndarray, partials: bool = False)
     return _separation_partials(a, b, xb - xa, yb - ya, ha, hb)
 
 
+def _gap_along(
+    n: tuple[np.ndarray, np.ndarray],
+    d: tuple[np.ndarray, np.ndarray],
+    heads: tuple[np.ndarray, ...],
+    a: BoxTrack,
+    b: BoxTrack,
+) -> np.ndarray:
+    """The two boxes' gap (m) along the axis ``n`` (unit 2-vector per time): the centres' offset ``d`` projected on it
+    less each box's half extent there (``heads``: cos and sin of each box's heading, a's then b's). Each dot product
+    of two 2-vectors is written out (``p0 q0 + p1 q1``, NumPy's own order for a sum of two), so the numbers are those
+    of the stacked-array form to the last bit (SLSQP follows the last bit)."""
+    (n0, n1), (dx, dy), (ca, sa, cb, sb) = n, d, heads
+    ra = 0.5 * a.length * np.abs(ca * n0 + sa * n1) + 0.5 * a.width * np.abs(-sa * n0 + ca * n1)
+    rb = 0.5 * b.length * np.abs(cb * n0 + sb * n1) + 0.5 * b.width * np.abs(-sb * n0 + cb * n1)
+    return np.abs(dx * n0 + dy * n1) - ra - rb
+
+
 def _separation_value(
     a: BoxTrack, b: BoxTrack, dx: np.ndarray, dy: np.ndarray, ha: np.ndarray, hb: np.ndarray
 ) -> np.ndarray:
-    """:func:`_separation`'s value from the centres' offset (``dx``, ``dy``, m) and the headings (rad): each dot
-    product of two 2-vectors written out (``p0 q0 + p1 q1``, NumPy's own order for a sum of two), so the numbers are
-    the same to the last bit."""
-    ca, sa, cb, sb = np.cos(ha), np.sin(ha), np.cos(hb), np.sin(hb)
+    """:func:`_separation`'s value from the centres' offset (``dx``, ``dy``, m) and the headings (rad): the largest
+    gap along the four box axes (:func:`_gap_along`)."""
+    heads = (np.cos(ha), np.sin(ha), np.cos(hb), np.sin(hb))
+    ca, sa, cb, sb = heads
     axes = ((ca, sa), (-sa, ca), (cb, sb), (-sb, cb))  # ua, va, ub, vb: each box's length and width axes
-    hla, hwa, hlb, hwb = 0.5 * a.length, 0.5 * a.width, 0.5 * b.length, 0.5 * b.width
-    value = None
-    for n0, n1 in axes:
-        ra = hla * np.abs(ca * n0 + sa * n1) + hwa * np.abs(-sa * n0 + ca * n1)
-        rb = hlb * np.abs(cb * n0 + sb * n1) + hwb * np.abs(-sb * n0 + cb * n1)
-        gap = np.abs(dx * n0 + dy * n1) - ra - rb
-        value = gap if value is None else np.maximum(value, gap)
-    assert value is not None
-    return value
+    return np.maximum.reduce([_gap_along(n, (dx, dy), heads, a, b) for n in axes])
 
 
 def _separation_partials(
@@ -100,9 +109,10 @@ def _separation_partials(
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`_separation` with ``partials``: the value and, per time, the derivatives (6,) of the axis whose gap is
     the largest. An axis n = (cos th, sin th) turns with its owner's heading th: dn/dth = perp(n); likewise each box
-    edge e. Each dot product of two 2-vectors is written out (``p0 q0 + p1 q1``) and every term added in the order of
-    the stacked-array form it replaced (SLSQP follows the last bit of a Jacobian)."""
-    ca, sa, cb, sb = np.cos(ha), np.sin(ha), np.cos(hb), np.sin(hb)
+    edge e. The gaps are :func:`_gap_along`'s; each other dot product is written out alike and every term added in the
+    order of the stacked-array form it replaced (SLSQP follows the last bit of a Jacobian)."""
+    heads = (np.cos(ha), np.sin(ha), np.cos(hb), np.sin(hb))
+    ca, sa, cb, sb = heads
     ua, va, ub, vb = (ca, sa), (-sa, ca), (cb, sb), (-sb, cb)
     perp = {id(ua): va, id(va): (-ca, -sa), id(ub): vb, id(vb): (-cb, -sb)}
     hla, hwa, hlb, hwb = 0.5 * a.length, 0.5 * a.width, 0.5 * b.length, 0.5 * b.width
@@ -110,9 +120,7 @@ def _separation_partials(
     gaps, parts = [], np.empty((4, len(dx), 6))
     for k, (n, own) in enumerate(((ua, 2), (va, 2), (ub, 5), (vb, 5))):
         n0, n1 = n
-        ra = hla * np.abs(ca * n0 + sa * n1) + hwa * np.abs(-sa * n0 + ca * n1)
-        rb = hlb * np.abs(cb * n0 + sb * n1) + hwb * np.abs(-sb * n0 + cb * n1)
-        gaps.append(np.abs(dx * n0 + dy * n1) - ra - rb)
+        gaps.append(_gap_along(n, (dx, dy), heads, a, b))
         p0, p1 = perp[id(n)]
         sgn = np.sign(dx * n0 + dy * n1)
         col: list[Any] = [-sgn * n0, -sgn * n1, 0.0, sgn * n0, sgn * n1, 0.0]
