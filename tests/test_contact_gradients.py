@@ -181,3 +181,28 @@ def test_separation_equals_the_stacked_array_form_to_the_last_bit():
         value2, partials = contact._separation(a, b, ts, partials=True)
         assert np.array_equal(value, want) and np.array_equal(value2, want)
         assert np.array_equal(partials, want_partials)
+
+
+def test_a_try_whose_window_reaches_past_the_tracks_start_is_solved_once(kitti_crash_problem, monkeypatch):
+    """Every window of ``ContactParams.windows_s`` longer than the time the pair has been seen poses the same
+    problem (the correction starts where the tracks do): make_contact solves it once and takes that answer for the
+    other windows (dad_000487's scooter, seen 1.5 s before its crash: three identical 0.7 s failures). Here the car
+    of KITTI 0002 is seen from 1 s before the crash, and the standing pedestrian 6 m back, out of the car's reach
+    within its kinematics: the kinematic try fails, and the one without the steering limits succeeds."""
+    a, b, t_crash, cp = kitti_crash_problem
+    a = replace(a, xy=a.xy + np.array([-6.0, 0.0]))
+    k = int(np.searchsorted(b.t, t_crash - 1.0))
+    b = replace(b, t=b.t[k:], xy=b.xy[k:], metric=b.metric[k:])
+    solved, solve = [], contact._solve
+
+    def counted(movers, *args, **kw):
+        solved.append(movers[0].kin is not None)
+        return solve(movers, *args, **kw)
+
+    monkeypatch.setattr(contact, "_solve", counted)
+    correction = contact.make_contact(a, b, t_crash, cp, movable=(False, True))
+    assert len(cp.windows_s) == 3
+    assert solved == [True, False]  # on 3dbf7a2: [True, True, True, False]
+    assert correction.ok and not correction.kinematic
+    one_window = contact.make_contact(a, b, t_crash, replace(cp, windows_s=(2.0,)), movable=(False, True))
+    assert all(np.array_equal(p, q) for p, q in zip(correction.deltas, one_window.deltas, strict=True))

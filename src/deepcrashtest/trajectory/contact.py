@@ -69,10 +69,20 @@ def _separation(a: BoxTrack, b: BoxTrack, t: np.ndarray, partials: bool = False)
     interpolated states (xa, ya, ha, xb, yb, hb) (m, rad): those of the axis whose gap is the largest
     (the separation is piecewise smooth; elsewhere the derivative of the active piece)."""
     t = np.atleast_1d(np.asarray(t, float))
-    xa, ya, ha = a.at(t)
-    xb, yb, hb = b.at(t)
+    return _separation_of_states(a, b, a.at(t), b.at(t), partials)
+
+
+States = tuple[np.ndarray, np.ndarray, np.ndarray]
+"""A box track's centre x, y (m) and heading (rad) at some times (:meth:`BoxTrack.at`)."""
+
+
+def _separation_of_states(
+    a: BoxTrack, b: BoxTrack, sa: States, sb: States, partials: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_separation` from the two tracks' states at the times (``sa``, ``sb``: :meth:`BoxTrack.at`)."""
+    (xa, ya, ha), (xb, yb, hb) = sa, sb
     if not partials:  # SLSQP's constraint values, ~10,000 calls a crash: the same arithmetic without the stacked arrays
-        return _separation_value(a, b, xb - xa, yb - ya, ha, hb), np.zeros((len(t), 0))
+        return _separation_value(a, b, xb - xa, yb - ya, ha, hb), np.zeros((len(xa), 0))
     return _separation_partials(a, b, xb - xa, yb - ya, ha, hb)
 
 
@@ -97,11 +107,12 @@ def _separation_value(
     a: BoxTrack, b: BoxTrack, dx: np.ndarray, dy: np.ndarray, ha: np.ndarray, hb: np.ndarray
 ) -> np.ndarray:
     """:func:`_separation`'s value from the centres' offset (``dx``, ``dy``, m) and the headings (rad): the largest
-    gap along the four box axes (:func:`_gap_along`)."""
+    gap along the four box axes, :func:`_gap_along` on the four axes at once (rows ua, va, ub, vb: each box's length
+    and width axes; elementwise the same operations, so the same numbers to the last bit)."""
     heads = (np.cos(ha), np.sin(ha), np.cos(hb), np.sin(hb))
     ca, sa, cb, sb = heads
-    axes = ((ca, sa), (-sa, ca), (cb, sb), (-sb, cb))  # ua, va, ub, vb: each box's length and width axes
-    return np.maximum.reduce([_gap_along(n, (dx, dy), heads, a, b) for n in axes])
+    axes = (np.stack([ca, -sa, cb, -sb]), np.stack([sa, ca, sb, cb]))
+    return np.max(_gap_along(axes, (dx, dy), heads, a, b), axis=0)
 
 
 def _separation_partials(
@@ -508,12 +519,26 @@ class _Gap:
         self.interp = {
             k: (w, w @ paths.mats[k]) for k in (i, j) if k < n for w in [_interp_matrix(paths.movers[k].t, ts)]
         }
+        self._states: dict[int, tuple[BoxTrack, States]] = {}  # side -> (track, its states at ts)
+
+    def _states_at(self, z: np.ndarray) -> tuple[BoxTrack, BoxTrack, States, States]:
+        """The pair's box tracks for ``z`` and their states at ``ts``, each track's reused while it is the same
+        object (a fixed road user's for good, a mover's while SLSQP stays at one ``z``: its value, then its
+        Jacobian)."""
+        pair = _pick(self.paths.tracks(z), self.i, self.j)
+        states = []
+        for side, track in enumerate(pair):
+            held = self._states.get(side)
+            if held is None or held[0] is not track:
+                held = self._states[side] = (track, track.at(self.ts))
+            states.append(held[1])
+        return pair[0], pair[1], states[0], states[1]
 
     def fun(self, z: np.ndarray) -> np.ndarray:
-        return separation(*_pick(self.paths.tracks(z), self.i, self.j), self.ts) - self.target
+        return _separation_of_states(*self._states_at(z))[0] - self.target
 
     def jac(self, z: np.ndarray) -> np.ndarray:
-        _, part = _separation(*_pick(self.paths.tracks(z), self.i, self.j), self.ts, partials=True)
+        _, part = _separation_of_states(*self._states_at(z), partials=True)
         out = np.zeros((len(self.ts), len(z)))
         for side, k in ((0, self.i), (1, self.j)):
             if k not in self.interp:
@@ -761,6 +786,7 @@ def make_contact(
         eq = [(0, 1, t_crash, -_penetration(a, b, t_crash, cp))]
     last: Correction | None = None
     budget = _Budget()
+    solved: dict[tuple[float, bool, int], tuple[tuple[list[np.ndarray], bool, str], int]] = {}
     tries = [(kinematic, w, MAX_ITER) for kinematic in (True, False) for w in cp.windows_s]
     for kinematic, w, max_iter in tries + [(False, w, LONG_MAX_ITER) for w in cp.windows_s]:
         lo = max(t_crash - w, lo_common)
@@ -775,10 +801,17 @@ def make_contact(
             floor = min(APART_FLOOR_M, apart_margin_m)
             apart = [(0, 1, np.union1d(t_free, grid), 0.0), (0, 1, early, floor), (0, 1, far, apart_margin_m)]
         solve_movers = movers if kinematic else [replace(m, kin=None) for m in movers]
-        ds, ok, msg = _solve(
-            solve_movers, fixed, bases, eq, apart, cp, rounds=2 if kinematic else 3, budget=budget,
-            max_iter=max_iter,
-        )  # fmt: skip
+        key = (float(lo), kinematic, max_iter)  # the try's problem: a window reaching past the track's start is the
+        if key in solved and budget.left >= solved[key][1]:  # last one's, solved again to the same end
+            (ds, ok, msg), spent = solved[key]
+            budget.left -= spent
+        else:
+            left = budget.left
+            ds, ok, msg = _solve(
+                solve_movers, fixed, bases, eq, apart, cp, rounds=2 if kinematic else 3, budget=budget,
+                max_iter=max_iter,
+            )  # fmt: skip
+            solved[key] = ((ds, ok, msg), left - budget.left)
         full = _full(ds, movable)
         size = max((float(np.hypot(*d.T).max()) if len(d) else 0.0) for d in ds)
         rms = float(np.sqrt(np.mean(np.concatenate([np.sum(d**2, 1) for d in ds]))))
