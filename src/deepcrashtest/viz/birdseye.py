@@ -87,6 +87,58 @@ def _text(img: np.ndarray, text: str, org: tuple[int, int], scale: float, colour
     cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, colour, thick, cv2.LINE_AA)
 
 
+TAG_SCALE = 0.45
+TAG_PAD_PX = 2
+#: Where a road user's tag may go, tried in turn: (dx, dy, left) px from its centre to the text's lower left ("left":
+#: the text ends there instead): above, below, right, left, the four corners, then each again further out.
+TAG_OFFSETS = tuple(
+    (dx * ring, dy + (ring - 1) * sy, left)
+    for ring in (1, 2, 3)
+    for dx, dy, sy, left in (
+        (-6, -14, -16, False),
+        (-6, 26, 16, False),
+        (14, 5, 0, False),
+        (-14, 5, 0, True),
+        (14, -10, -16, False),
+        (-14, -10, -16, True),
+        (14, 20, 16, False),
+        (-14, 20, 16, True),
+    )
+)
+
+
+def place_tags(
+    anchors: list[tuple[int, int]], texts: list[str], shapes: list[tuple[int, int, int, int]] | None = None
+) -> list[tuple[tuple[int, int], bool]]:
+    """Where to write each road user's tag ``texts[i]`` near its centre ``anchors[i]`` (px) so that no two tags
+    overlap and as few as can cover a road user: of the :data:`TAG_OFFSETS` whose text box meets no tag placed
+    before (earlier road users keep theirs), the first that covers the fewest other road users (``shapes``: each
+    one's drawn box, x0, y0, x1, y1 px, in the order of ``anchors``); the first offset where every one meets a tag.
+    Returns each tag's text origin (lower left, px) and whether it moved from the first offset (then a thin line
+    joins it to its road user). A crowd of pedestrians at a kerb wrote their ids over each other (dad_000487's 10,
+    14, 16)."""
+    shapes = shapes or []
+    placed: list[tuple[int, int, int, int]] = []
+    out: list[tuple[tuple[int, int], bool]] = []
+    for i, ((ax, ay), text) in enumerate(zip(anchors, texts, strict=True)):
+        others = shapes[:i] + shapes[i + 1 :]
+        (w, h), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, TAG_SCALE, 1)
+        boxes = []
+        for dx, dy, left in TAG_OFFSETS:
+            x, y = ax + dx - (w if left else 0), ay + dy
+            boxes.append(((x, y), (x - TAG_PAD_PX, y - h - TAG_PAD_PX, x + w + TAG_PAD_PX, y + base + TAG_PAD_PX)))
+        free = [k for k, (_, b) in enumerate(boxes) if not any(_meet(b, q) for q in placed)]
+        k = min(free, key=lambda k: (sum(_meet(boxes[k][1], q) for q in others), k)) if free else 0
+        placed.append(boxes[k][1])
+        out.append((boxes[k][0], k > 0))
+    return out
+
+
+def _meet(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool:
+    """Whether two pixel rectangles (x0, y0, x1, y1) overlap."""
+    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
+
+
 def render_frames(scenario: Scenario, result: Any, stride: int | None = None) -> Any:
     """Yield BGR frames (HEIGHT, WIDTH, 3) of ``result`` (a ``SimResult``), one per ``stride`` steps."""
     dt = float(result.dt)
@@ -117,6 +169,8 @@ def render_frames(scenario: Scenario, result: Any, stride: int | None = None) ->
             for a in range(0, len(pts) - 1, 2):
                 cv2.line(img, tuple(map(int, pts[a])), tuple(map(int, pts[a + 1])), LANE, 1, cv2.LINE_AA)
         lo = max(0, k - trail_n)
+        tags: list[tuple[tuple[int, int], str]] = []  # (centre px, tag), written once every box is drawn
+        shapes: list[tuple[int, int, int, int]] = []  # each drawn road user's bounding box (px)
         for i, vid in enumerate(result.vehicle_ids):
             pres = result.present[lo : k + 1, i]
             if pres.sum() >= 2:
@@ -133,13 +187,20 @@ def render_frames(scenario: Scenario, result: Any, stride: int | None = None) ->
                 r = max(3, int(round(0.5 * max(sizes[vid]) * PX_PER_M)))
                 cv2.circle(img, (int(p[0]), int(p[1])), r, colour, -1, cv2.LINE_AA)
                 cv2.circle(img, (int(p[0]), int(p[1])), r, (20, 20, 20), 1, cv2.LINE_AA)
+                shapes.append((int(p[0]) - r, int(p[1]) - r, int(p[0]) + r, int(p[1]) + r))
             else:
                 pts = view.px(_box(x, y, yaw, *sizes[vid]))
                 cv2.fillPoly(img, [pts], colour, cv2.LINE_AA)
                 cv2.polylines(img, [pts], True, (20, 20, 20), 1, cv2.LINE_AA)
                 cv2.line(img, tuple(map(int, pts[0])), tuple(map(int, pts[3])), (20, 20, 20), 3, cv2.LINE_AA)  # front
-            tag = f"{vid} {SHORT[cat]}" if cat in SHORT else str(vid)
-            _text(img, tag, (int(p[0]) - 6, int(p[1]) - 14), 0.45, TEXT)
+                (x0, y0), (x1, y1) = pts.min(axis=0), pts.max(axis=0)
+                shapes.append((int(x0), int(y0), int(x1), int(y1)))
+            tags.append(((int(p[0]), int(p[1])), f"{vid} {SHORT[cat]}" if cat in SHORT else str(vid)))
+        where = place_tags([a for a, _ in tags], [t for _, t in tags], shapes)
+        for (anchor, tag), (org, moved) in zip(tags, where, strict=True):
+            if moved:
+                cv2.line(img, anchor, (org[0], org[1] - 4), (150, 150, 150), 1, cv2.LINE_AA)
+            _text(img, tag, org, TAG_SCALE, TEXT)
         label = f"t = {t:6.2f} s   ego {ego[3] * 3.6:5.1f} km/h   controller: {result.controller}"
         _text(img, label, (12, 26), 0.6, TEXT)
         if scenario.road.source == "road_users":
