@@ -143,16 +143,16 @@ def test_migrates_1_0_files_and_keeps_the_time_mapping() -> None:
 
 def test_a_1_2_file_reads_as_a_one_way_road(kitti8_raw) -> None:
     """Schema 1.3 adds the oncoming lanes (``Road.oncoming_lane_count``, ``median_width``), 1.4 the side traffic
-    keeps to (``Road.driving_side``): a 1.2 file (without them) loads as 1.5 with no oncoming lanes in right-hand
-    traffic, the road it described; a 1.3 file as 1.5 in right-hand traffic; 1.4 writes them."""
+    keeps to (``Road.driving_side``): a 1.2 file (without them) loads as 1.6 with no oncoming lanes in right-hand
+    traffic, the road it described; a 1.3 file as 1.6 in right-hand traffic; 1.4 writes them."""
     data = json.loads(kitti8_raw.to_json())
-    assert data["schema_version"] == SCHEMA_VERSION == "1.5"
+    assert data["schema_version"] == SCHEMA_VERSION == "1.6"
     assert data["road"]["oncoming_lane_count"] == 0 and data["road"]["median_width"] == 0.0
     assert data["road"]["driving_side"] == "right"
     new = ("oncoming_lane_count", "median_width", "driving_side")
     old = dict(data, schema_version="1.2", road={k: v for k, v in data["road"].items() if k not in new})
     sc = Scenario.from_dict(old)
-    assert sc.schema_version == "1.5" and sc.road == kitti8_raw.road
+    assert sc.schema_version == "1.6" and sc.road == kitti8_raw.road
     v13 = dict(data, schema_version="1.3", road={k: v for k, v in data["road"].items() if k != "driving_side"})
     assert Scenario.from_dict(v13).road == kitti8_raw.road
     with pytest.raises(ValueError, match="driving_side"):
@@ -241,7 +241,7 @@ def test_text_check_refuses_exactly_what_the_character_loop_refused(kitti8_raw):
 
 def test_a_1_4_file_reads_with_the_camera_along_the_ego(kitti8_raw) -> None:
     """Schema 1.5 adds the camera's yaw relative to the ego's heading (``Camera.yaw_rad``, ``CameraAttitude.yaw_rad``):
-    a 1.4 file (without them) loads as 1.5 with the camera looking along the ego; a yaw series turns the projected
+    a 1.4 file (without them) loads as 1.6 with the camera looking along the ego; a yaw series turns the projected
     view (a road user ahead moves right in the image when the camera turns left) and is checked like pitch and roll."""
     from deepcrashtest.geometry.project import project_box
     from deepcrashtest.scenario import CameraAttitude
@@ -250,7 +250,7 @@ def test_a_1_4_file_reads_with_the_camera_along_the_ego(kitti8_raw) -> None:
     assert data["camera"]["yaw_rad"] == 0.0
     old = dict(data, schema_version="1.4", camera={k: v for k, v in data["camera"].items() if k != "yaw_rad"})
     sc = Scenario.from_dict(old)
-    assert sc.schema_version == "1.5" and sc.camera == kitti8_raw.camera
+    assert sc.schema_version == "1.6" and sc.camera == kitti8_raw.camera
     att = CameraAttitude(video_t=[0.0, 1.0], pitch_rad=[0.0, 0.0], roll_rad=[0.0, 0.0], yaw_rad=[0.0, 0.05])
     cam = kitti8_raw.camera.model_copy(update={"attitude": att})
     assert cam.at_video_time(0.5).yaw_rad == pytest.approx(0.025) and cam.at_video_time(0.0).yaw_rad == 0.0
@@ -263,3 +263,33 @@ def test_a_1_4_file_reads_with_the_camera_along_the_ego(kitti8_raw) -> None:
         CameraAttitude(video_t=[0.0, 1.0], pitch_rad=[0.0, 0.0], roll_rad=[0.0, 0.0], yaw_rad=[0.0])
     with pytest.raises(ValueError, match="0.5 rad"):
         CameraAttitude(video_t=[0.0], pitch_rad=[0.0], roll_rad=[0.0], yaw_rad=[0.6])
+
+
+def test_a_variable_frame_rate_video_maps_each_frame_by_its_own_time(kitti8_raw) -> None:
+    """Schema 1.6 adds ``VideoSource.frame_times``: a phone's variable-frame-rate file (frames dropped, their own
+    timestamps kept) is not ``frame / fps`` apart, and every frame <-> time conversion (the crash's frame, the
+    fidelity's reprojection, the viewer's frame) goes through them: each frame's time is its own, the frame shown at a
+    time is the last one not after it, frames past the list continue at the mean rate. A 1.5 file loads as 1.6 with
+    none (``frame / fps``); times that do not increase are refused."""
+    times = [0.0, 0.05, 0.10, 0.25, 0.30, 0.45, 0.50]  # 20 fps with frames 3, 4, 7, 8 dropped
+    fps = (len(times) - 1) / times[-1]
+    src = kitti8_raw.source.model_copy(
+        update={"fps": fps, "frame_count": len(times), "time_offset_s": 2.0, "frame_times": times}
+    )
+    sc = kitti8_raw.evolve(source=src)
+    for k, t in enumerate(times):
+        assert sc.frame_time(k) == pytest.approx(t + 2.0)
+        assert sc.video_frame(sc.frame_time(k)) == k
+        assert sc.video_frame(sc.frame_time(k) + 0.01) == k
+    assert sc.video_frame(2.0 + 0.2) == 2  # frame 2 (0.10 s) is on screen until frame 3 (0.25 s)
+    assert sc.video_frame(2.0 - 0.01) is None and sc.video_frame(2.0 + 0.5 + 1.0 / fps) is None
+    assert sc.frame_time(len(times)) == pytest.approx(2.0 + 0.5 + 1.0 / fps)
+    assert Scenario.from_dict(json.loads(sc.to_json())).source.frame_times == times
+    data = json.loads(kitti8_raw.to_json())
+    assert "frame_times" in data["source"] and data["source"]["frame_times"] is None
+    v15 = dict(data, schema_version="1.5", source={k: v for k, v in data["source"].items() if k != "frame_times"})
+    assert Scenario.from_dict(v15).source == kitti8_raw.source
+    cfr = kitti8_raw.source
+    assert kitti8_raw.video_frame(kitti8_raw.frame_time(7)) == 7 and cfr.frame_times is None
+    with pytest.raises(ValueError, match="frame_times"):
+        Scenario.from_dict(dict(data, source=dict(data["source"], frame_times=[0.0, 0.1, 0.1])))

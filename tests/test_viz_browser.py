@@ -418,3 +418,34 @@ def test_layout_fits_the_window_and_opens_on_the_ego(browser, crash_case, tmp_pa
             page.close()
     finally:
         (crash_case.parent / "annotated.mp4").unlink()
+
+
+def test_a_variable_frame_rate_videos_frames_map_by_their_own_times(browser, tmp_path, kitti8_raw):
+    """Where the file's frame rate varies (``source.frame_times``), the page maps scenario time to a frame and a
+    frame to its time as Scenario.video_frame / frame_time do (by the listed times, not frame / fps), and a step
+    with the keyboard lands on the next frame's own time."""
+    d = tmp_path / "vfr"
+    d.mkdir()
+    rng = np.random.default_rng(3)
+    times = np.round(np.cumsum(np.r_[0.0, rng.choice([0.04, 0.08, 0.12], 199)]), 3).tolist()
+    fps = (len(times) - 1) / times[-1]
+    src = kitti8_raw.source.model_copy(
+        update={"fps": fps, "frame_count": 200, "time_offset_s": 1.5, "frame_times": times}
+    )
+    sc = kitti8_raw.evolve(source=src)
+    sc.save(d / "scenario.json")
+    shutil.copyfile(SAMPLE_VIDEO, d / "annotated.mp4")
+    with Server(d / "scenario.json") as url:
+        page, errors = _open(browser, url, 1280, 720)
+        for t in (0.5, 1.5, 1.52, 4.04, 6.52, 9.46, 1.5 + times[-1] + 0.5 / fps, 40.0):
+            assert page.evaluate(f"window.dct.videoFrame({t})") == sc.video_frame(t), t
+        for k in (0, 1, 57, 199, 200):
+            assert page.evaluate(f"window.dct.frameTime({k})") == pytest.approx(sc.frame_time(k)), k
+        page.evaluate("window.dct.setTime(4.04)")
+        page.focus("#bev")
+        page.keyboard.press("ArrowRight")
+        k = sc.video_frame(4.04) + 1
+        assert page.evaluate("window.dct.S.t") == pytest.approx(sc.frame_time(k))
+        assert page.evaluate("window.dct.videoFrame(window.dct.S.t)") == k
+        assert errors == []
+        page.close()

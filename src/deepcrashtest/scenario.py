@@ -42,7 +42,7 @@ from deepcrashtest import __version__
 from deepcrashtest.errors import ScenarioError
 from deepcrashtest.fileio import atomic_write_text, require_file
 
-SCHEMA_VERSION = "1.5"
+SCHEMA_VERSION = "1.6"
 """Major.minor. A file with another major, or a newer minor, is refused; older minors are migrated on load
 (:func:`migrate`)."""
 
@@ -225,6 +225,19 @@ class VideoSource(_Model):
         description="Caveat on the frame rate (uploaded videos may be re-timed: relative speed trends are "
         "what extraction gets right; absolute speeds scale with the true frame rate)",
     )
+    frame_times: list[FiniteFloat] | None = Field(
+        default=None,
+        description="Video time (s) of each frame, by index, where the file's frame rate varies (a phone's "
+        "variable-frame-rate recording, dropped frames): video time = frame_times[frame] instead of frame / fps "
+        "(fps is then the mean; frames beyond the list continue at it). None: frame / fps (schema 1.6)",
+    )
+
+    @model_validator(mode="after")
+    def _increasing_frame_times(self) -> VideoSource:
+        t = self.frame_times
+        if t is not None and (not t or (len(t) > 1 and not bool(np.all(np.diff(t) > 0)))):
+            raise ValueError("frame_times must be a non-empty list of increasing video times")
+        return self
 
 
 class CameraAttitude(_Model):
@@ -666,15 +679,29 @@ class Scenario(_Model):
         return np.asarray(video_t, dtype=float) + self.source.time_offset_s
 
     def video_frame(self, t: float) -> int | None:
-        """Video frame index shown at scenario time ``t``, or None before the first / after the last frame."""
-        f = int(math.floor(self.video_time(t) * self.source.fps + 1e-6))
+        """Video frame index shown at scenario time ``t``, or None before the first / after the last frame (the
+        last frame whose video time is not after ``t``: ``floor(video time x fps)`` at a constant rate, by
+        ``source.frame_times`` where the rate varies)."""
+        times, vt = self.source.frame_times, float(self.video_time(t))
+        if times is None or vt > times[-1] + 1.0 / self.source.fps:
+            f = int(math.floor(vt * self.source.fps + 1e-6))
+            if times is not None:  # beyond the listed frames: they continue at the mean rate
+                f = len(times) - 1 + int(math.floor((vt - times[-1]) * self.source.fps + 1e-6))
+        else:
+            f = int(np.searchsorted(times, vt + 1e-6, side="right")) - 1 if vt >= times[0] - 1e-6 else -1
         if f < 0 or (self.source.frame_count > 0 and f >= self.source.frame_count):
             return None
         return f
 
     def frame_time(self, frame: int) -> float:
-        """Scenario time (s) of video frame ``frame``."""
-        return float(frame) / self.source.fps + self.source.time_offset_s
+        """Scenario time (s) of video frame ``frame``: ``frame / fps`` of video time, or ``source.frame_times``
+        where the rate varies (frames beyond them continue at the mean rate)."""
+        times = self.source.frame_times
+        if times is None or frame < 0:
+            return float(frame) / self.source.fps + self.source.time_offset_s
+        if frame < len(times):
+            return float(times[frame]) + self.source.time_offset_s
+        return float(times[-1]) + (frame - len(times) + 1) / self.source.fps + self.source.time_offset_s
 
     # ------------------------------------------------------------------ access
     def vehicles(self) -> list[Vehicle]:
@@ -766,11 +793,12 @@ def migrate(data: dict[str, Any]) -> dict[str, Any]:
     before, the ego's direction only); nothing moves. 1.3 -> 1.4: ``road.driving_side`` is new (default
     ``right``, what every earlier file described); nothing moves. 1.4 -> 1.5: ``camera.yaw_rad`` and
     ``camera.attitude.yaw_rad`` are new (default none: the camera looks along the ego's heading); nothing moves.
+    1.5 -> 1.6: ``source.frame_times`` is new (default none: frame / fps, what every earlier file meant); nothing moves.
     """
-    if str(data.get("schema_version")) not in ("1.0", "1.1", "1.2", "1.3", "1.4"):
+    if str(data.get("schema_version")) not in ("1.0", "1.1", "1.2", "1.3", "1.4", "1.5"):
         return data
     out = dict(data)
-    if str(data.get("schema_version")) in ("1.1", "1.2", "1.3", "1.4"):
+    if str(data.get("schema_version")) in ("1.1", "1.2", "1.3", "1.4", "1.5"):
         out["schema_version"] = SCHEMA_VERSION
         return out
     out["schema_version"] = SCHEMA_VERSION

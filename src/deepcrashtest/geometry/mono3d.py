@@ -171,29 +171,47 @@ def _fuse_depth(
     return z, 1.0 / np.sqrt(np.maximum(den, 1e-12))
 
 
+def _motion_model(kf: KalmanFilter, dt: float, accel_std: float) -> None:
+    """Constant-velocity transition and white-acceleration noise (``accel_std``, m/s^2) over ``dt`` seconds."""
+    kf.F = np.array([[1, 0, dt, 0], [0, 1, 0, dt], [0, 0, 1, 0], [0, 0, 0, 1]], float)
+    g = np.array([[dt**2 / 2, 0], [0, dt**2 / 2], [dt, 0], [0, dt]])
+    kf.Q = g @ g.T * accel_std**2
+
+
 def _kalman(
-    frames: np.ndarray, meas: np.ndarray, covs: np.ndarray, fps: float, cfg: MonoConfig
+    frames: np.ndarray,
+    meas: np.ndarray,
+    covs: np.ndarray,
+    fps: float,
+    cfg: MonoConfig,
+    frame_t: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """CV Kalman filter + RTS smoother over frames ``frames[0]..frames[-1]``; ``meas`` (n, 2) world xy
-    at ``frames`` (NaN rows: no measurement), ``covs`` (n, 2, 2). Returns (all frames, states (m, 4))."""
+    at ``frames`` (NaN rows: no measurement), ``covs`` (n, 2, 2). Returns (all frames, states (m, 4)).
+    ``frame_t``: the video time (s) of every frame index, where the frames are not ``1 / fps`` apart (a
+    variable-frame-rate video: each step then spans its own interval); None: ``1 / fps`` each."""
     span = np.arange(frames[0], frames[-1] + 1)
     at = {int(f): i for i, f in enumerate(frames)}
     dt = 1.0 / fps
+    steps = np.diff(frame_t[span]) if frame_t is not None else None
     kf = KalmanFilter(dim_x=4, dim_z=2)
-    kf.F = np.array([[1, 0, dt, 0], [0, 1, 0, dt], [0, 0, 1, 0], [0, 0, 0, 1]], float)
-    g = np.array([[dt**2 / 2, 0], [0, dt**2 / 2], [dt, 0], [0, dt]])
-    kf.Q = g @ g.T * cfg.accel_std**2
+    _motion_model(kf, dt, cfg.accel_std)
     kf.H = np.array([[1, 0, 0, 0], [0, 1, 0, 0]], float)
     first = int(np.nonzero(np.isfinite(meas[:, 0]))[0][0])  # rows before it: carried (smoothed back)
-    lead_s = (frames[first] - frames[0]) * dt
+    lead_s = (frames[first] - frames[0]) * dt if frame_t is None else float(frame_t[frames[first]] - frame_t[frames[0]])
     _restart(kf, meas[first], covs[first] + np.eye(2) * (cfg.init_speed_std * lead_s) ** 2, cfg.init_speed_std)
     xs = np.zeros((len(span), 4))
     ps = np.zeros((len(span), 4, 4))
+    fs = np.zeros((len(span), 4, 4))
+    qs = np.zeros((len(span), 4, 4))
     updates = 0
     gated: list[int] = []  # frames of the measurements gated out since the last one taken
     for k, f in enumerate(span):
         if k:
+            if steps is not None:
+                _motion_model(kf, float(steps[k - 1]), cfg.accel_std)
             kf.predict()
+        fs[k], qs[k] = kf.F, kf.Q
         i = at.get(int(f))
         if i is not None and np.isfinite(meas[i, 0]):
             resid = meas[i] - kf.H @ kf.x
@@ -202,16 +220,26 @@ def _kalman(
                 kf.update(meas[i], R=covs[i])
                 updates += 1
                 gated = []
-            elif len(gated) >= 2 and cfg.gate_reset_s is not None and (f - gated[0]) * dt >= cfg.gate_reset_s:
+            elif (
+                len(gated) >= 2
+                and cfg.gate_reset_s is not None
+                and _elapsed(gated[0], f, dt, frame_t) >= cfg.gate_reset_s
+            ):
                 _restart(kf, meas[i], covs[i], cfg.init_speed_std)  # the prediction has left the road user
                 updates, gated = 1, []
             else:
                 gated.append(int(f))
         xs[k], ps[k] = kf.x, kf.P
     if len(span) > 1:
-        xs, _, _, _ = kf.rts_smoother(xs[:, :, None], ps)
+        # the transition into step k is fs[k] (filterpy's smoother takes Fs[k + 1] from step k)
+        xs, _, _, _ = kf.rts_smoother(xs[:, :, None], ps, *((fs, qs) if steps is not None else ()))
         xs = xs[:, :, 0]
     return span, xs
+
+
+def _elapsed(f0: int, f1: int, dt: float, frame_t: np.ndarray | None) -> float:
+    """Seconds from frame ``f0`` to frame ``f1``: ``dt`` a frame, or ``frame_t``'s own times."""
+    return (f1 - f0) * dt if frame_t is None else float(frame_t[f1] - frame_t[f0])
 
 
 def _restart(kf: KalmanFilter, z: np.ndarray, cov: np.ndarray, speed_std: float) -> None:
@@ -533,6 +561,24 @@ def _measured_span(valid: np.ndarray, det: np.ndarray, frames: np.ndarray, fps: 
     return slice(first, int(far.max()) + 1 if len(far) else int(valid[-1]) + 1)
 
 
+#: Frames further from evenly spaced than this (s, between the shortest and the longest interval) are a
+#: variable-frame-rate video's (:func:`irregular_frame_times`); recorders round timestamps to milliseconds (30 fps:
+#: 33 or 34 ms apart), which is still a constant rate.
+EVEN_FRAMES_TOL_S = 1.5e-3
+
+
+def irregular_frame_times(ego: EgoMotion) -> np.ndarray | None:
+    """The video time (s) of every frame index up to the ego's last where its frames are not evenly spaced (a
+    phone's variable-frame-rate recording, dropped frames: ``ego.t`` holds each frame's own time), else None."""
+    if len(ego.t) < 3:
+        return None
+    frames = np.asarray(ego.frame, dtype=float)
+    steps = np.diff(ego.t) / np.maximum(np.diff(frames), 1.0)
+    if float(steps.max() - steps.min()) <= EVEN_FRAMES_TOL_S:
+        return None
+    return np.interp(np.arange(int(frames.max()) + 1, dtype=float), frames, np.asarray(ego.t, dtype=float))
+
+
 def _fps(ego: EgoMotion) -> float:
     return float((len(ego.t) - 1) / max(ego.t[-1] - ego.t[0], 1e-9)) if len(ego.t) > 1 else 10.0
 
@@ -559,6 +605,7 @@ def localize_tracks(
     of each row's measurement; ``horizon_v`` the horizon row (px) its box was read against (NaN: no box)."""
     cfg = config or MonoConfig()
     vh = camera.horizon_v() if horizon_v is None else float(horizon_v)
+    frame_t = irregular_frame_times(ego)
     r = _rows(tracks, ego)
     out: dict[str, list[np.ndarray]] = {c: [] for c in OUTPUT_COLUMNS}
     if len(r.df) == 0:
@@ -581,13 +628,13 @@ def localize_tracks(
         inside = _measured_span(valid, r.detected[rows], r.frames[rows], fps, cfg.carry_cut_s)
         rows, meas, covs, rng = rows[inside], meas[inside], covs[inside], rng[inside]
         span = r.frames[rows]
-        xs = _kalman(span, meas, covs, fps, cfg)[1][span - span[0]]
+        xs = _kalman(span, meas, covs, fps, cfg, frame_t)[1][span - span[0]]
         rel, speed = _heading_against_axis(xs, r.ego_i[rows], ego)
         along = _heading_along(rel, speed, cfg)
         turned = _oblique_yaw(rel, speed, along, cfg)
         if (along is not None and along.any()) or turned is not None:  # again with the heading's width geometry
             meas, covs, rng = _measurements(rows, size, cues, r, ego, camera, cfg, w_sigma, along, turned)
-            xs = _kalman(span, meas, covs, fps, cfg)[1][span - span[0]]
+            xs = _kalman(span, meas, covs, fps, cfg, frame_t)[1][span - span[0]]
         standing = None
         if cfg.static_fit:  # the class its standing height fits only where it is placed standing
             trial = size

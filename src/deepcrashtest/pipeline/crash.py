@@ -74,15 +74,16 @@ def crash_for_raw(
     ``picture``: the picture ``(x0, y0, x1, y1)`` (px) inside black bars, if any
     (:func:`deepcrashtest.video.bars.video_picture_area`)."""
     fps = float(raw.source.fps)
-    agents = {a.id for a in raw.agents}
     w, h = raw.source.width, raw.source.height
-    finding: CrashFinding | None
-    source: CollisionSource
-    if spec is not None:
-        finding, source = _user_crash(spec, raw, tracks, motion, agents, picture), "user"
-    else:
-        finding = detect_crash(tracks, w, h, fps, motion, allowed=agents, world=world_tracks(raw), picture=picture)
-        source = "video-auto"
+    grid = EvenGrid.of(raw)
+    source: CollisionSource = "user" if spec is not None else "video-auto"
+    if grid is None:
+        finding = _find(raw, tracks, motion, spec, picture)
+    else:  # a variable frame rate: found on an even grid of frames (every rate and window of the cues is per frame)
+        if spec is not None:
+            _check_crash_frame(spec, raw)
+        found = _find(grid.raw(raw), grid.tracks(tracks), grid.motion(motion), grid.spec(spec), picture)
+        finding = None if found is None else grid.back(found, raw)
     if finding is None:
         record: dict[str, Any] = {
             "found": False,
@@ -90,7 +91,7 @@ def crash_for_raw(
             "method": "image evidence (perception.crash_detect)",
         }
         return _with_record(raw, _bars(record, picture, w, h), None), record
-    t_video = finding.frame / fps
+    t_video = float(raw.video_time(raw.frame_time(finding.frame)))  # frame / fps, or a variable rate's frame time
     t = float(raw.scenario_time(t_video))
     t_ego = raw.ego.trajectory.t
     t = float(np.clip(t, t_ego[0] + 1.0 / fps, t_ego[-1]))
@@ -136,6 +137,79 @@ def _bars(record: dict[str, Any], picture: tuple[int, int, int, int] | None, w: 
     if picture is not None and tuple(picture) != (0, 0, w, h):
         record["picture_area"] = [int(v) for v in picture]
     return record
+
+
+def _find(
+    raw: Scenario,
+    tracks: pd.DataFrame,
+    motion: tuple[np.ndarray, np.ndarray] | None,
+    spec: CrashSpec | None,
+    picture: tuple[int, int, int, int] | None,
+) -> CrashFinding | None:
+    """The user's crash (``spec``) or the one the video shows (None: none found)."""
+    agents = {a.id for a in raw.agents}
+    if spec is not None:
+        return _user_crash(spec, raw, tracks, motion, agents, picture)
+    w, h = raw.source.width, raw.source.height
+    fps = float(raw.source.fps)
+    return detect_crash(tracks, w, h, fps, motion, allowed=agents, world=world_tracks(raw), picture=picture)
+
+
+@dataclass(frozen=True)
+class EvenGrid:
+    """A variable-frame-rate video's frames placed on an even grid of ``fps`` (its most common interval): frame k
+    at ``index[k]`` = its time x ``fps`` (rounded, kept increasing), dropped frames leaving gaps. The crash cues
+    (box growth, motion change, the camera's jolt) are rates per frame and windows of frames: on the video's own
+    frame numbers a dropped frame doubles a step's motion, which reads as a jolt (a phone recording with 30 % of its
+    frames dropped: dad_000487's crash found 0.58 s early)."""
+
+    fps: float
+    index: np.ndarray
+
+    @classmethod
+    def of(cls, raw: Scenario) -> EvenGrid | None:
+        """The grid of ``raw``'s frames, or None at a constant frame rate (``source.frame_times`` None)."""
+        times = raw.source.frame_times
+        if times is None or len(times) < 2:
+            return None
+        t = np.asarray(times, dtype=float)
+        fps = 1.0 / float(np.median(np.diff(t)))
+        k = np.arange(len(t))
+        index = np.maximum.accumulate(np.round(t * fps).astype(int) - k) + k  # increasing by at least 1
+        return cls(fps, index)
+
+    def at(self, frames: Any) -> np.ndarray:
+        """Grid indices of video frames (beyond the listed ones: one grid step each)."""
+        f = np.asarray(frames, dtype=int)
+        last = len(self.index) - 1
+        return np.where(f <= last, self.index[np.clip(f, 0, last)], self.index[last] + f - last)
+
+    def raw(self, raw: Scenario) -> Scenario:
+        """``raw`` as if filmed at the grid's constant rate (its road users' times unchanged)."""
+        count = int(self.at(raw.source.frame_count - 1)) + 1 if raw.source.frame_count else 0
+        src = raw.source.model_copy(update={"fps": self.fps, "frame_times": None, "frame_count": count})
+        return raw.evolve(source=src)
+
+    def tracks(self, tracks: pd.DataFrame) -> pd.DataFrame:
+        return tracks.assign(frame=self.at(tracks["frame"].to_numpy(int))) if len(tracks) else tracks
+
+    def motion(self, motion: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, np.ndarray] | None:
+        """The camera's per-frame shift on the grid: a step over a gap of n grid frames moved n frames' worth."""
+        if motion is None or not len(motion[0]):
+            return motion
+        frames, shifts = motion
+        grid = self.at(frames)
+        gap = np.maximum(np.diff(np.r_[grid[0] - 1, grid]), 1)
+        return grid, shifts / gap[:, None]
+
+    def spec(self, spec: CrashSpec | None) -> CrashSpec | None:
+        return None if spec is None else CrashSpec(int(self.at(spec.frame)), spec.pair, spec.text)
+
+    def back(self, found: CrashFinding, raw: Scenario) -> CrashFinding:
+        """``found`` at the video frame nearest its grid frame, at that frame's own time."""
+        frame = int(np.argmin(np.abs(self.index - found.frame)))
+        return CrashFinding(frame, float(raw.video_time(raw.frame_time(frame))), found.pair, found.confidence,
+                            found.evidence)  # fmt: skip
 
 
 def world_tracks(raw: Scenario) -> dict[int, WorldTrack]:
@@ -186,14 +260,8 @@ def _likeliest_pair_near(
     )  # fmt: skip
 
 
-def _user_crash(
-    spec: CrashSpec,
-    raw: Scenario,
-    tracks: pd.DataFrame,
-    motion: tuple[np.ndarray, np.ndarray] | None,
-    agents: set[int],
-    picture: tuple[int, int, int, int] | None = None,
-) -> CrashFinding:
+def _check_crash_frame(spec: CrashSpec, raw: Scenario) -> None:
+    """Refuse a ``--crash`` frame outside the video (or its first frame) in one line."""
     fps = float(raw.source.fps)
     last = (
         raw.source.frame_count - 1
@@ -203,6 +271,17 @@ def _user_crash(
     if not 0 < spec.frame <= last:
         where = "is the first frame (a crash needs one before it)" if spec.frame == 0 else "is outside the video"
         raise UserError(f"--crash {spec.text!r}: frame {spec.frame} {where}; give 1..{last}")
+
+
+def _user_crash(
+    spec: CrashSpec,
+    raw: Scenario,
+    tracks: pd.DataFrame,
+    motion: tuple[np.ndarray, np.ndarray] | None,
+    agents: set[int],
+    picture: tuple[int, int, int, int] | None = None,
+) -> CrashFinding:
+    _check_crash_frame(spec, raw)
     if spec.pair is not None:
         seen = set(int(v) for v in tracks["track_id"].unique()) if len(tracks) else set()
         for vid in spec.pair:
@@ -210,8 +289,9 @@ def _user_crash(
                 raise UserError(f"--crash {spec.text!r}: there is no track {vid} in tracks.csv")
             if vid != EGO and vid not in agents:
                 raise UserError(f"--crash {spec.text!r}: track {vid} is too short or could not be placed in 3D")
-        return CrashFinding(spec.frame, spec.frame / fps, spec.pair, 1.0, {})
+        return CrashFinding(spec.frame, float(raw.video_time(raw.frame_time(spec.frame))), spec.pair, 1.0, {})
     found = _likeliest_pair_near(spec.frame, raw, tracks, motion, agents, picture)
     if found is None:
         raise UserError(f"--crash {spec.text!r}: no road user is near frame {spec.frame}; name the pair (FRAME:ID,ID)")
-    return CrashFinding(spec.frame, spec.frame / fps, found.pair, found.confidence, found.evidence)
+    t_video = float(raw.video_time(raw.frame_time(spec.frame)))
+    return CrashFinding(spec.frame, t_video, found.pair, found.confidence, found.evidence)

@@ -62,6 +62,9 @@ class VideoMeta:
     #: The file's frame size (width, height px) when the frames are yielded scaled to ``width`` x ``height``
     #: (``open_video(max_width=...)``); None: as stored.
     scaled_from: tuple[int, int] | None = None
+    #: The time (s) of every frame yielded so far, by index: a variable-frame-rate file's frames are not
+    #: ``index / fps`` apart (``rate_range``), and the Scenario keeps these times then (``VideoSource.frame_times``).
+    frame_times: list[float] = field(default_factory=list)
 
     @property
     def stored_size(self) -> tuple[int, int]:
@@ -254,6 +257,7 @@ class PyAVSource(VideoSource):
             resampled = self.meta.scaled_from is not None or self._square is not None
             image = display_array(raw, "bgr24", size=(self.meta.width, self.meta.height) if resampled else None)
             self.meta.decoded_frames = index + 1
+            self.meta.frame_times.append(t)
             yield Frame(index=index, time=t, image=image)
             index += 1
             raw = self._next_raw()

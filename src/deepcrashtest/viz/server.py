@@ -107,7 +107,9 @@ def time_mapping(scenario: Scenario, video: VideoFrames | None) -> dict[str, Any
         "frame_count": count,
         "video_start_s": scenario.frame_time(0),
         "video_end_s": scenario.frame_time(count),
-        "formula": "frame = floor((t - offset_s) * fps + 1e-6), none if < 0 or >= frame_count",
+        "frame_times": src.frame_times,
+        "formula": "frame = floor((t - offset_s) * fps + 1e-6), or the last frame whose frame_times entry is not "
+        "after t - offset_s where the rate varies; none if < 0 or >= frame_count",
     }
 
 

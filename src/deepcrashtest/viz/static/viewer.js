@@ -4,8 +4,9 @@
 //
 // Time: the slider is scenario time. The ONE mapping to the video is the Scenario's (scenario.py,
 // Scenario.video_frame): video time = t - offset_s, frame = floor(video time * fps + 1e-6), no frame
-// before 0 or from frame_count on. The server sends offset_s, fps and frame_count (/api/scenario "time");
-// videoFrame() and frameTime() below are that formula and nothing else.
+// before 0 or from frame_count on; where the file's frame rate varies, the frame is the last one whose
+// listed video time (frame_times) is not after it. The server sends offset_s, fps, frame_count and
+// frame_times (/api/scenario "time"); frameIndex(), videoFrame() and frameTime() below are that mapping.
 "use strict";
 (() => {
   const $ = (id) => document.getElementById(id);
@@ -22,13 +23,37 @@
   };
 
   // ------------------------------------------------------------------ time mapping (Scenario.video_frame)
+  function frameIndex(t) {
+    // the frame shown at scenario time t, not clamped to the video (Scenario.video_frame)
+    const T = S.time;
+    const vt = t - T.offset_s;
+    const ft = T.frame_times;
+    if (!ft) return Math.floor(vt * T.fps + 1e-6);
+    const last = ft.length - 1;
+    if (vt > ft[last] + 1 / T.fps) return last + Math.floor((vt - ft[last]) * T.fps + 1e-6);
+    if (vt < ft[0] - 1e-6) return -1;
+    let lo = 0;
+    let hi = last;
+    while (lo < hi) {
+      const mid = (lo + hi + 1) >> 1;
+      if (ft[mid] <= vt + 1e-6) lo = mid;
+      else hi = mid - 1;
+    }
+    return lo;
+  }
   function videoFrame(t) {
     const T = S.time;
     if (!T) return null;
-    const f = Math.floor((t - T.offset_s) * T.fps + 1e-6);
+    const f = frameIndex(t);
     return f < 0 || f >= T.frame_count ? null : f;
   }
-  const frameTime = (f) => f / S.time.fps + S.time.offset_s;
+  function frameTime(f) {
+    const T = S.time;
+    const ft = T.frame_times;
+    if (!ft || f < 0) return f / T.fps + T.offset_s;
+    if (f < ft.length) return ft[f] + T.offset_s;
+    return ft[ft.length - 1] + (f - ft.length + 1) / T.fps + T.offset_s;
+  }
   const videoTime = (t) => t - S.time.offset_s;
 
   // ------------------------------------------------------------------ helpers
@@ -770,7 +795,7 @@
     S.frameLoading = true;
     S.frameShown = f;
     img.src = `/api/frame?frame=${f}`;
-    S.caption = `frame ${f}, video ${(f / S.time.fps).toFixed(2)} s = scenario ${frameTime(f).toFixed(2)} s`;
+    S.caption = `frame ${f}, video ${videoTime(frameTime(f)).toFixed(2)} s = scenario ${frameTime(f).toFixed(2)} s`;
     $("video-caption").textContent = S.caption;
   }
 
@@ -846,9 +871,7 @@
   function stepFrames(n) {
     // one video frame per step (between frames: the time grid of the video, continued outside it)
     togglePlay(false);
-    const fps = S.time.fps;
-    const cur = Math.floor((S.t - S.time.offset_s) * fps + 1e-6);
-    setTime(frameTime(cur + n));
+    setTime(frameTime(frameIndex(S.t) + n));
   }
 
   // ------------------------------------------------------------------ edits

@@ -1,0 +1,78 @@
+"""A variable-frame-rate video (a phone's recording, dropped frames): every frame keeps its own time through extract,
+and the Scenario's frame <-> time mapping (``VideoSource.frame_times``) is what the crash, the fidelity and the viewer
+read. A real crash clip (ccd_000053, 10 fps) written again without 15 of its 50 frames, each kept frame at its own
+timestamp."""
+
+from __future__ import annotations
+
+import json
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import DATA, need
+from deepcrashtest.cli import main
+from deepcrashtest.scenario import Scenario
+
+DROPPED = {3, 4, 9, 10, 11, 17, 18, 24, 25, 26, 31, 32, 36, 37, 38}
+
+
+@pytest.fixture(scope="module")
+def vfr_extract(tmp_path_factory) -> tuple[Path, list[float]]:
+    import av
+
+    with av.open(str(need(DATA / "crash_ccd" / "ccd_000053.mp4"))) as c:
+        frames = [(f.to_ndarray(format="bgr24"), float(f.time)) for f in c.decode(video=0)]
+    kept = [(img, t - frames[0][1]) for i, (img, t) in enumerate(frames) if i not in DROPPED]
+    d = tmp_path_factory.mktemp("vfr")
+    clip = d / "ccd_000053_vfr.mp4"
+    with av.open(str(clip), "w") as out:
+        s = out.add_stream("libx264", rate=10)
+        s.height, s.width = kept[0][0].shape[:2]
+        s.codec_context.time_base = Fraction(1, 1000)
+        for img, t in kept:
+            frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="bgr24")
+            frame.pts, frame.time_base = round(t * 1000), Fraction(1, 1000)
+            out.mux(s.encode(frame))
+        out.mux(s.encode())
+    assert main(["--quiet", "extract", str(clip), "-o", str(d / "out")]) == 0
+    return d / "out", [round(t, 3) for _, t in kept]
+
+
+def test_a_variable_frame_rate_clip_keeps_each_frames_time(vfr_extract):
+    """The raw and the processed scenario list every frame's own time (the mean rate, 35 frames over 4.9 s, is
+    what ``fps`` says), and the crash found at a frame is placed at that frame's time, not at ``frame / fps``."""
+    out, times = vfr_extract
+    raw, processed = Scenario.load(out / "scenario_raw.json"), Scenario.load(out / "scenario.json")
+    for sc in (raw, processed):
+        assert sc.source.frame_times == pytest.approx(times, abs=1e-6)
+        assert [sc.video_frame(sc.frame_time(k)) for k in range(len(times))] == list(range(len(times)))
+    record = raw.provenance.parameters["crash_detection"]
+    frame = int(record["frame"])
+    assert record["video_time_s"] == pytest.approx(times[frame], abs=1e-4)
+    assert abs(times[frame] - frame / raw.source.fps) > 0.05  # where frame / fps would have put it
+    # found where it is in the clip as filmed (3.4 s, the label 3.3 s): on the file's frame numbers a dropped frame
+    # doubled a step's motion and the crash came at 3.0 s without the camera's jolt
+    assert record["video_time_s"] == pytest.approx(3.4, abs=0.1) and record["evidence"]["jolt"] > 0.5
+
+    tracks = np.genfromtxt(out / "tracks.csv", delimiter=",", names=True)
+    assert np.allclose(tracks["time"], np.asarray(times)[tracks["frame"].astype(int)], atol=1e-3)
+    summary = json.loads((out / "scenario.json").read_text())["source"]
+    assert summary["fps"] == pytest.approx((len(times) - 1) / times[-1], rel=0.05)
+
+
+def test_an_even_grid_holds_a_variable_rate_videos_frames_at_their_times(kitti8_raw):
+    """The crash cues' grid (``pipeline.crash.EvenGrid``): each frame at its time x the most common rate, a dropped
+    frame a gap, never two frames on one grid frame; the camera's shift over a gap spread over its grid frames."""
+    from deepcrashtest.pipeline.crash import EvenGrid
+
+    times = [0.0, 0.05, 0.10, 0.25, 0.30, 0.45, 0.50, 0.5004]
+    src = kitti8_raw.source.model_copy(update={"fps": 14.0, "frame_count": len(times), "frame_times": times})
+    grid = EvenGrid.of(kitti8_raw.evolve(source=src))
+    assert grid is not None and grid.fps == pytest.approx(20.0)
+    assert grid.index.tolist() == [0, 1, 2, 5, 6, 9, 10, 11]
+    frames, shifts = grid.motion((np.arange(8), np.full((8, 2), 6.0)))
+    assert frames.tolist() == grid.index.tolist() and shifts[:, 0].tolist() == [6, 6, 6, 2, 6, 2, 6, 6]
+    assert EvenGrid.of(kitti8_raw) is None
