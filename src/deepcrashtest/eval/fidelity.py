@@ -338,7 +338,9 @@ def evaluate_fidelity(
     mapping = {
         "fps": scenario.source.fps,
         "time_offset_s": scenario.source.time_offset_s,
-        "rule": "scenario time = frame / fps + time_offset_s (Scenario.frame_time / video_time)",
+        "rule": "scenario time = frame / fps + time_offset_s (Scenario.frame_time / video_time)"
+        if scenario.source.frame_times is None
+        else "scenario time = source.frame_times[frame] + time_offset_s (a variable frame rate; Scenario.frame_time)",
     }
     return FidelityResult(name or scenario.name, mapping, pairs, overall, per, crash, notes, plausibility(scenario))
 
