@@ -118,6 +118,9 @@ def scenario_dicts(draw: st.DrawFn, stage: str = "processed") -> dict[str, Any]:
             "agent_id": draw(st.integers(1, n_agents)),
             "source": "user",
         }
+    if draw(st.booleans()):  # a variable-frame-rate video's own frame times (schema 1.6)
+        gaps = draw(st.lists(st.floats(0.005, 0.5), min_size=1, max_size=60))
+        data["source"]["frame_times"] = np.concatenate([[0.0], np.cumsum(gaps)]).tolist()
     return data
 
 
