@@ -275,7 +275,8 @@ def _cut_at_crash(geo: GeometryResult, crash_info: dict[str, Any]) -> GeometryRe
         return geo
     params = {**geo.scenario.provenance.parameters, **cut.scenario.provenance.parameters}
     prov = cut.scenario.provenance.model_copy(update={"parameters": params})
-    cut.scenario = cut.scenario.evolve(collision=geo.scenario.collision, provenance=prov)
+    source = cut.scenario.source.model_copy(update={"frame_times": geo.scenario.source.frame_times})
+    cut.scenario = cut.scenario.evolve(collision=geo.scenario.collision, provenance=prov, source=source)
     return cut
 
 

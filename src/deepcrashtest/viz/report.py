@@ -185,7 +185,7 @@ def overview_section(sc: Scenario) -> Section:
         (
             "time mapping",
             f"scenario t = video t + {sc.source.time_offset_s:.2f} s; the video covers scenario t "
-            f"{sc.frame_time(0):.2f}-{sc.frame_time(n):.2f} s ({n} frames at {sc.source.fps:g} fps)",
+            f"{sc.frame_time(0):.2f}-{sc.frame_time(n):.2f} s ({n} frames at {_rate(sc.source)})",
         ),
         (
             "road",
@@ -232,9 +232,9 @@ def source_section(sc: Scenario) -> Section:
     rows: list[tuple[str, Any]] = [
         ("kind", s.kind),
         ("file", Path(s.path).name),
-        ("frame rate (fps)", s.fps),
+        ("frame rate (fps)", s.fps if s.frame_times is None else f"variable (frames' own times), mean {s.fps:.3f}"),
         ("frames", s.frame_count),
-        ("length (s)", s.frame_count / s.fps),
+        ("length (s)", sc.video_time(sc.frame_time(s.frame_count))),
         ("scenario time of frame 0 (s)", sc.frame_time(0)),
         ("size (px)", f"{s.width} x {s.height}"),
         ("SHA-256", s.sha256 or "-"),
@@ -821,3 +821,8 @@ def build_report(
         "search": None if search_p is None else str(search_p),
         "bytes": path.stat().st_size,
     }
+
+
+def _rate(source: Any) -> str:
+    """The video's frame rate in words: constant, or variable with its mean (``VideoSource.frame_times``)."""
+    return f"{source.fps:g} fps" if source.frame_times is None else f"a variable rate, mean {source.fps:.3f} fps"
