@@ -82,3 +82,24 @@ def test_an_even_grid_holds_a_variable_rate_videos_frames_at_their_times(kitti8_
     frames, shifts = grid.motion((np.arange(8), np.full((8, 2), 6.0)))
     assert frames.tolist() == grid.index.tolist() and shifts[:, 0].tolist() == [6, 6, 6, 2, 6, 2, 6, 6]
     assert EvenGrid.of(kitti8_raw) is None
+
+
+def test_the_fidelity_scores_a_variable_rate_crash_at_its_labelled_frames_own_time(vfr_extract):
+    """``evaluate fidelity`` with ccd_000053's label (its contact frame, 33, renumbered for the dropped frames): the
+    labelled contact is at that frame's own time (3.3 s), not at its new number / the mean rate, and the crash's dt
+    is measured from it."""
+    out, times = vfr_extract
+    label = json.loads((Path(__file__).resolve().parents[1] / "bench/labels/ccd_crashes.json").read_text())
+    lab = dict(label["clips"]["ccd_000053"])
+    kept = [round(k / 10, 3) for k in range(50)]
+    frame = times.index(kept[lab["contact_frame"]])  # the contact frame is never dropped
+    lab.update(video=str(out.parent / "ccd_000053_vfr.mp4"), contact_frame=frame, first_accident_frame=frame)
+    labels = out.parent / "labels.json"
+    labels.write_text(json.dumps(dict(label, clips={"ccd_000053_vfr": lab})))
+    fid = out.parent / "fidelity"
+    args = ["--quiet", "evaluate", "fidelity", str(out / "scenario.json"), "--labels", str(labels)]
+    assert main([*args, "--clip", "ccd_000053_vfr", "-o", str(fid), "--no-video-out", "--force"]) == 0
+    crash = json.loads((fid / "fidelity.json").read_text())["crash"]
+    assert crash["label"]["video_time_s"] == pytest.approx(3.3, abs=1e-6)
+    assert crash["dt_s"] == pytest.approx(crash["first_contact"]["video_time_s"] - 3.3, abs=1e-3)
+    assert crash["reproduced"]

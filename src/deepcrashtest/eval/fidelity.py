@@ -301,6 +301,7 @@ def compare_crash(
     t_label = float(label.contact_video_time or 0.0)
     if scenario.source.frame_times is not None:  # a variable frame rate: the labelled frame's own time
         t_label = float(scenario.video_time(scenario.frame_time(label.contact_frame)))
+        out["label"]["video_time_s"] = t_label
     out["label"]["scenario_ids"] = ids
     pair = sorted(i for i in ids if i is not None) if None not in ids else None
     same = bool(first is not None and pair is not None and first["participants"] == pair)
