@@ -82,6 +82,10 @@ def test_an_even_grid_holds_a_variable_rate_videos_frames_at_their_times(kitti8_
     frames, shifts = grid.motion((np.arange(8), np.full((8, 2), 6.0)))
     assert frames.tolist() == grid.index.tolist() and shifts[:, 0].tolist() == [6, 6, 6, 2, 6, 2, 6, 6]
     assert EvenGrid.of(kitti8_raw) is None
+    burst = [0.0, 0.001, 0.002, 0.003, 0.5, 1.0]  # frames a millisecond apart: the grid stays at 4 x the mean rate
+    src = src.model_copy(update={"fps": 5.0, "frame_count": len(burst), "frame_times": burst})
+    grid = EvenGrid.of(kitti8_raw.evolve(source=src))
+    assert grid is not None and grid.fps == pytest.approx(20.0) and grid.index.tolist() == [0, 1, 2, 3, 10, 20]
 
 
 def test_the_fidelity_scores_a_variable_rate_crash_at_its_labelled_frames_own_time(vfr_extract):

@@ -31,6 +31,7 @@ from deepcrashtest.scenario import Collision, CollisionSource, Scenario
 
 _SPEC = re.compile(r"^\s*(\d+)\s*(?::\s*([A-Za-z0-9]+)\s*,\s*([A-Za-z0-9]+)\s*)?$")
 AUTO_PAIR_WINDOW_S = 0.3  # --crash FRAME without ids: the best pair within this of the frame
+GRID_MAX_RATE = 4.0  # EvenGrid's rate is at most this many times a variable-rate video's mean rate
 
 
 @dataclass(frozen=True)
@@ -173,7 +174,8 @@ class EvenGrid:
         if times is None or len(times) < 2:
             return None
         t = np.asarray(times, dtype=float)
-        fps = 1.0 / float(np.median(np.diff(t)))
+        # at most GRID_MAX_RATE x the mean rate: a burst of frames milliseconds apart would make a grid of millions
+        fps = min(1.0 / float(np.median(np.diff(t))), GRID_MAX_RATE * float(raw.source.fps))
         k = np.arange(len(t))
         index = np.maximum.accumulate(np.round(t * fps).astype(int) - k) + k  # increasing by at least 1
         return cls(fps, index)
