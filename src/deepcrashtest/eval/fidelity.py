@@ -258,6 +258,14 @@ def _contact(scenario: Scenario, c: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def labelled_contact_time(scenario: Scenario, label: CrashLabel) -> float:
+    """Video time (s) of the label's contact frame: the frame's own where the video's rate varies
+    (``source.frame_times``), else the label's ``contact_frame / fps`` (0 without a contact frame)."""
+    if scenario.source.frame_times is not None and label.contact_frame is not None:
+        return float(scenario.video_time(scenario.frame_time(label.contact_frame)))
+    return float(label.contact_video_time or 0.0)
+
+
 def compare_crash(
     scenario: Scenario, sim: Any | None, label: CrashLabel | None, tracks: pd.DataFrame
 ) -> tuple[dict[str, Any], list[str]]:
@@ -298,10 +306,8 @@ def compare_crash(
         out.update(reproduced=None, contacts_before_crash=None, same_pair=None, dt_s=None)
         return out, notes
     ids, notes = resolve_participants(label, scenario, tracks)
-    t_label = float(label.contact_video_time or 0.0)
-    if scenario.source.frame_times is not None:  # a variable frame rate: the labelled frame's own time
-        t_label = float(scenario.video_time(scenario.frame_time(label.contact_frame)))
-        out["label"]["video_time_s"] = t_label
+    t_label = labelled_contact_time(scenario, label)
+    out["label"]["video_time_s"] = t_label
     out["label"]["scenario_ids"] = ids
     pair = sorted(i for i in ids if i is not None) if None not in ids else None
     same = bool(first is not None and pair is not None and first["participants"] == pair)

@@ -202,8 +202,8 @@ def _kalman(
     _restart(kf, meas[first], covs[first] + np.eye(2) * (cfg.init_speed_std * lead_s) ** 2, cfg.init_speed_std)
     xs = np.zeros((len(span), 4))
     ps = np.zeros((len(span), 4, 4))
-    fs = np.zeros((len(span), 4, 4))
-    qs = np.zeros((len(span), 4, 4))
+    fs = np.zeros((len(span), 4, 4)) if steps is not None else None  # each step's transition (frames unevenly apart)
+    qs = np.zeros((len(span), 4, 4)) if steps is not None else None
     updates = 0
     gated: list[int] = []  # frames of the measurements gated out since the last one taken
     for k, f in enumerate(span):
@@ -211,7 +211,8 @@ def _kalman(
             if steps is not None:
                 _motion_model(kf, float(steps[k - 1]), cfg.accel_std)
             kf.predict()
-        fs[k], qs[k] = kf.F, kf.Q
+        if fs is not None and qs is not None:
+            fs[k], qs[k] = kf.F, kf.Q
         i = at.get(int(f))
         if i is not None and np.isfinite(meas[i, 0]):
             resid = meas[i] - kf.H @ kf.x
@@ -232,7 +233,7 @@ def _kalman(
         xs[k], ps[k] = kf.x, kf.P
     if len(span) > 1:
         # the transition into step k is fs[k] (filterpy's smoother takes Fs[k + 1] from step k)
-        xs, _, _, _ = kf.rts_smoother(xs[:, :, None], ps, *((fs, qs) if steps is not None else ()))
+        xs, _, _, _ = kf.rts_smoother(xs[:, :, None], ps, fs, qs)  # None: the filter's own F and Q throughout
         xs = xs[:, :, 0]
     return span, xs
 

@@ -801,8 +801,9 @@ def make_contact(
             floor = min(APART_FLOOR_M, apart_margin_m)
             apart = [(0, 1, np.union1d(t_free, grid), 0.0), (0, 1, early, floor), (0, 1, far, apart_margin_m)]
         solve_movers = movers if kinematic else [replace(m, kin=None) for m in movers]
-        key = (float(lo), kinematic, max_iter)  # the try's problem: a window reaching past the track's start is the
-        if key in solved and budget.left >= solved[key][1]:  # last one's, solved again to the same end
+        # the try's problem: a window reaching past the tracks' start poses the last one's again, to the same end
+        key = (float(lo), kinematic, max_iter)
+        if key in solved and budget.left >= solved[key][1]:
             (ds, ok, msg), spent = solved[key]
             budget.left -= spent
         else:

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from deepcrashtest.datasets.crash_labels import CrashLabel
-from deepcrashtest.eval.fidelity import FidelityResult
+from deepcrashtest.eval.fidelity import FidelityResult, labelled_contact_time
 from deepcrashtest.geometry.project import project_box_edges, project_camera_points, world_to_camera
 from deepcrashtest.perception.annotate import id_colour
 from deepcrashtest.scenario import Scenario
@@ -92,7 +92,7 @@ class FidelityPainter:
         if lab is not None and lab.crash and lab.contact_frame is not None and frame_index >= lab.contact_frame:
             _text(
                 img,
-                f"LABELLED CONTACT frame {lab.contact_frame} ({self._label_time(lab.contact_frame, lab):.2f}s)",
+                f"LABELLED CONTACT frame {lab.contact_frame} ({labelled_contact_time(self.sc, lab):.2f}s)",
                 (10, 80),
                 YELLOW,
                 0.7,
@@ -103,12 +103,6 @@ class FidelityPainter:
                         x1, y1, x2, y2 = (int(v) for v in p.box)
                         cv2.rectangle(img, (x1, y1), (x2, y2), YELLOW, 2, cv2.LINE_AA)
         return img
-
-    def _label_time(self, frame: int, label: Any) -> float:
-        """Video time (s) of a labelled frame: the frame's own where the video's rate varies, else the label's."""
-        if self.sc.source.frame_times is not None:
-            return float(self.sc.video_time(self.sc.frame_time(frame)))
-        return float(label.contact_video_time)
 
     def _draw_sim(self, img: np.ndarray, t: float, contact_now: bool) -> None:
         import cv2
