@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
 import pytest
 
 from deepcrashtest.errors import ScenarioError, UserError
@@ -284,6 +285,11 @@ def test_a_variable_frame_rate_video_maps_each_frame_by_its_own_time(kitti8_raw)
     assert sc.video_frame(2.0 + 0.2) == 2  # frame 2 (0.10 s) is on screen until frame 3 (0.25 s)
     assert sc.video_frame(2.0 - 0.01) is None and sc.video_frame(2.0 + 0.5 + 1.0 / fps) is None
     assert sc.frame_time(len(times)) == pytest.approx(2.0 + 0.5 + 1.0 / fps)
+    for offset in np.linspace(-3.0, 3.0, 61):  # frames past the list round-trip too (the viewer steps through them)
+        for rate in (5.0, 12.0, 29.97):
+            src = sc.source.model_copy(update={"fps": rate, "frame_count": 12, "time_offset_s": float(offset)})
+            late = sc.evolve(source=src)
+            assert [late.video_frame(late.frame_time(k)) for k in range(12)] == list(range(12)), (offset, rate)
     assert Scenario.from_dict(json.loads(sc.to_json())).source.frame_times == times
     data = json.loads(kitti8_raw.to_json())
     assert "frame_times" in data["source"] and data["source"]["frame_times"] is None

@@ -447,5 +447,9 @@ def test_a_variable_frame_rate_videos_frames_map_by_their_own_times(browser, tmp
         k = sc.video_frame(4.04) + 1
         assert page.evaluate("window.dct.S.t") == pytest.approx(sc.frame_time(k))
         assert page.evaluate("window.dct.videoFrame(window.dct.S.t)") == k
+        page.evaluate(f"window.dct.setTime({sc.frame_time(199)})")  # on past the last listed frame, frame by frame
+        for k in (200, 201, 202):
+            page.keyboard.press("ArrowRight")
+            assert page.evaluate("window.dct.S.t") == pytest.approx(sc.frame_time(k)), k
         assert errors == []
         page.close()

@@ -682,11 +682,11 @@ class Scenario(_Model):
         """Video frame index shown at scenario time ``t``, or None before the first / after the last frame (the
         last frame whose video time is not after ``t``: ``floor(video time x fps)`` at a constant rate, by
         ``source.frame_times`` where the rate varies)."""
-        times, vt = self.source.frame_times, float(self.video_time(t))
-        if times is None or vt > times[-1] + 1.0 / self.source.fps:
-            f = int(math.floor(vt * self.source.fps + 1e-6))
-            if times is not None:  # beyond the listed frames: they continue at the mean rate
-                f = len(times) - 1 + int(math.floor((vt - times[-1]) * self.source.fps + 1e-6))
+        times, vt, fps = self.source.frame_times, float(self.video_time(t)), self.source.fps
+        if times is None:
+            f = int(math.floor(vt * fps + 1e-6))
+        elif vt + 1e-6 >= times[-1] + 1.0 / fps:  # beyond the listed frames: they continue at the mean rate
+            f = len(times) - 1 + int(math.floor((vt - times[-1]) * fps + 1e-6))
         else:
             f = int(np.searchsorted(times, vt + 1e-6, side="right")) - 1 if vt >= times[0] - 1e-6 else -1
         if f < 0 or (self.source.frame_count > 0 and f >= self.source.frame_count):

@@ -30,7 +30,7 @@
     const ft = T.frame_times;
     if (!ft) return Math.floor(vt * T.fps + 1e-6);
     const last = ft.length - 1;
-    if (vt > ft[last] + 1 / T.fps) return last + Math.floor((vt - ft[last]) * T.fps + 1e-6);
+    if (vt + 1e-6 >= ft[last] + 1 / T.fps) return last + Math.floor((vt - ft[last]) * T.fps + 1e-6);
     if (vt < ft[0] - 1e-6) return -1;
     let lo = 0;
     let hi = last;
