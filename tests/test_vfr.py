@@ -10,6 +10,7 @@ from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from conftest import DATA, need
@@ -86,6 +87,32 @@ def test_an_even_grid_holds_a_variable_rate_videos_frames_at_their_times(kitti8_
     src = src.model_copy(update={"fps": 5.0, "frame_count": len(burst), "frame_times": burst})
     grid = EvenGrid.of(kitti8_raw.evolve(source=src))
     assert grid is not None and grid.fps == pytest.approx(20.0) and grid.index.tolist() == [0, 1, 2, 3, 10, 20]
+
+
+def test_the_monocular_filter_steps_by_the_frame_times_the_video_lists(kitti_root):
+    """One rule says a video's rate varies: the file's (``VideoMeta.variable_frame_times`` -> the raw Scenario's
+    ``source.frame_times``), which the monocular filter reads (``localize_tracks(frame_times=...)``) as the box
+    headings do; it no longer judges the ego's times on its own. An even clock listed (in part: frames past the
+    list continue at the mean rate) is the same as none; frames listed 0.2 s apart where they are 0.1 s move the
+    tracks (KITTI 0001's boxes)."""
+    from deepcrashtest.eval.kitti_mono import DEFAULT_MONO, ego_of, image_tracks, prepare_mono
+    from deepcrashtest.geometry.mono3d import localize_tracks
+
+    prep = prepare_mono(kitti_root, 1)
+    tracks, ego = image_tracks(prep, DEFAULT_MONO), ego_of(prep.world)
+    n = int(ego.frame.max()) + 1
+
+    def states(times):
+        out = localize_tracks(tracks, prep.camera, ego, prep.size, 10.0, DEFAULT_MONO.mono, frame_times=times)
+        return out.sort_values(["track_id", "frame"], ignore_index=True)
+
+    none = states(None)
+    assert len(none) > 500
+    pd.testing.assert_frame_equal(states(list(np.arange(n) / 10.0)), none)
+    pd.testing.assert_frame_equal(states(list(np.arange(n // 2) / 10.0)), none)
+    stretched = states(list(np.arange(n) / 5.0))
+    moved = np.hypot(stretched["x"] - none["x"], stretched["y"] - none["y"])
+    assert stretched[["track_id", "frame"]].equals(none[["track_id", "frame"]]) and float(moved.max()) > 0.5
 
 
 def test_the_fidelity_scores_a_variable_rate_crash_at_its_labelled_frames_own_time(vfr_extract):

@@ -60,6 +60,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -562,22 +563,15 @@ def _measured_span(valid: np.ndarray, det: np.ndarray, frames: np.ndarray, fps: 
     return slice(first, int(far.max()) + 1 if len(far) else int(valid[-1]) + 1)
 
 
-#: Frames further from evenly spaced than this (s, between the shortest and the longest interval) are a
-#: variable-frame-rate video's (:func:`irregular_frame_times`); recorders round timestamps to milliseconds (30 fps:
-#: 33 or 34 ms apart), which is still a constant rate.
-EVEN_FRAMES_TOL_S = 1.5e-3
-
-
-def irregular_frame_times(ego: EgoMotion) -> np.ndarray | None:
-    """The video time (s) of every frame index up to the ego's last where its frames are not evenly spaced (a
-    phone's variable-frame-rate recording, dropped frames: ``ego.t`` holds each frame's own time), else None."""
-    if len(ego.t) < 3:
+def _frame_clock(frame_times: Sequence[float] | None, last_frame: int, fps: float) -> np.ndarray | None:
+    """The video time (s) of every frame index up to ``last_frame`` from a variable-rate video's frame times
+    (frames past the listed ones continue at ``fps``, as :meth:`deepcrashtest.scenario.Scenario.frame_time`
+    says); None where the video's frames are evenly ``1 / fps`` apart (``frame_times`` None)."""
+    if frame_times is None or len(frame_times) == 0:
         return None
-    frames = np.asarray(ego.frame, dtype=float)
-    steps = np.diff(ego.t) / np.maximum(np.diff(frames), 1.0)
-    if float(steps.max() - steps.min()) <= EVEN_FRAMES_TOL_S:
-        return None
-    return np.interp(np.arange(int(frames.max()) + 1, dtype=float), frames, np.asarray(ego.t, dtype=float))
+    t = np.asarray(frame_times, dtype=float)
+    extra = np.arange(1, max(last_frame + 1 - len(t), 0) + 1) / fps
+    return np.concatenate([t, t[-1] + extra])
 
 
 def _fps(ego: EgoMotion) -> float:
@@ -593,6 +587,7 @@ def localize_tracks(
     config: MonoConfig | None = None,
     horizon_v: float | None = None,
     pitch_change: np.ndarray | None = None,
+    frame_times: Sequence[float] | None = None,
 ) -> pd.DataFrame:
     """World-frame states of every track (columns :data:`OUTPUT_COLUMNS`), see the module docstring.
 
@@ -602,11 +597,13 @@ def localize_tracks(
     rows of other frames are ignored. ``horizon_v``: the horizon row (pixels), else the camera's pitch
     gives it. ``pitch_change``: the camera's downward pitch at each of ``ego``'s frames minus its pitch
     (rad; :func:`~deepcrashtest.geometry.attitude.camera_wobble`), moving the horizon frame by frame.
+    ``frame_times``: every video frame's time (s, by index) where the video's frame rate varies (the Scenario's
+    ``source.frame_times``): the filter then steps each frame's own interval; None: ``1 / fps`` a frame.
     Positions are in the frame of ``ego.x``/``ego.y``; ``range`` is the camera-to-centre ground distance (m)
     of each row's measurement; ``horizon_v`` the horizon row (px) its box was read against (NaN: no box)."""
     cfg = config or MonoConfig()
     vh = camera.horizon_v() if horizon_v is None else float(horizon_v)
-    frame_t = irregular_frame_times(ego)
+    frame_t = _frame_clock(frame_times, int(np.max(ego.frame, initial=0)), fps)
     r = _rows(tracks, ego)
     out: dict[str, list[np.ndarray]] = {c: [] for c in OUTPUT_COLUMNS}
     if len(r.df) == 0:

@@ -70,7 +70,7 @@ def _video_source(meta: VideoSource | Mapping[str, Any]) -> VideoSource:
     if isinstance(meta, VideoSource):
         src = meta
     else:
-        keys = {k: meta[k] for k in ("path", "fps", "frame_count", "width", "height") if k in meta}
+        keys = {k: meta[k] for k in ("path", "fps", "frame_count", "width", "height", "frame_times") if k in meta}
         try:
             src = VideoSource(kind=meta.get("kind", "video"), sha256=meta.get("sha256"), **keys)
         except Exception as exc:  # pydantic error -> one line
@@ -199,7 +199,9 @@ def raw_scenario_from_tracks(
         path = dataclasses.replace(ego, x=cam_xy[:, 0], y=cam_xy[:, 1])
         wobble = camera_wobble(ego, roll=False)
         pitch_change = None if wobble is None else wobble[:, 0]
-        states = localize_tracks(tracks, camera, path, size, source.fps, mono, horizon_v, pitch_change)
+        states = localize_tracks(
+            tracks, camera, path, size, source.fps, mono, horizon_v, pitch_change, frame_times=source.frame_times
+        )
         camera = camera.model_copy(update={"attitude": frame_attitude(states, camera, ego, pitch_change, horizon_v)})
         agents = _mono_agents(states, t0, origin, min_detected, warnings, min_confidence)
         method = "mono3d"

@@ -46,7 +46,7 @@ from deepcrashtest.perception.track import (
 )
 from deepcrashtest.pipeline.geometry_pass import GeometryResult, TrackRows, cut_at_crash, extract_geometry
 from deepcrashtest.pipeline.threads import Worker, prefetch
-from deepcrashtest.scenario import Camera, Scenario, VideoSource
+from deepcrashtest.scenario import Camera, VideoSource
 from deepcrashtest.trajectory.params import Stage2Params
 from deepcrashtest.ui import status
 from deepcrashtest.ui import track as progress
@@ -240,7 +240,6 @@ def _after_pass(
     if geo is not None:  # before anything is written: a bad --crash id refuses the whole set
         from deepcrashtest.pipeline.crash import crash_for_raw, weak_pair_note
 
-        geo.scenario = with_frame_times(geo.scenario, meta)
         motion = plan.motion
         geo.scenario, crash_info = crash_for_raw(geo.scenario, df, motion.arrays(), crash_spec, motion.area)
         geo = _cut_at_crash(geo, crash_info)
@@ -254,17 +253,6 @@ def _after_pass(
     return result
 
 
-def with_frame_times(raw: Scenario, meta: VideoMeta) -> Scenario:
-    """``raw`` with its video's frame times (``VideoSource.frame_times``, s) where the file's frame rate varies
-    (``meta.rate_range``): the tracks and the ego-motion run on each frame's own time, and the Scenario's frame <->
-    time mapping (crash frame, fidelity, viewer, report) must too; at a constant rate ``frame / fps`` holds and the
-    scenario is unchanged."""
-    if meta.rate_range is None or not meta.frame_times:
-        return raw
-    times = [round(float(t), 6) for t in meta.frame_times]
-    return raw.evolve(source=raw.source.model_copy(update={"frame_times": times}))
-
-
 def _cut_at_crash(geo: GeometryResult, crash_info: dict[str, Any]) -> GeometryResult:
     """``geo`` with the ego speeds before the crash found (if any) smoothed from readings before it only
     (:func:`~deepcrashtest.pipeline.geometry_pass.cut_at_crash`), the crash kept as it was found."""
@@ -275,8 +263,7 @@ def _cut_at_crash(geo: GeometryResult, crash_info: dict[str, Any]) -> GeometryRe
         return geo
     params = {**geo.scenario.provenance.parameters, **cut.scenario.provenance.parameters}
     prov = cut.scenario.provenance.model_copy(update={"parameters": params})
-    source = cut.scenario.source.model_copy(update={"frame_times": geo.scenario.source.frame_times})
-    cut.scenario = cut.scenario.evolve(collision=geo.scenario.collision, provenance=prov, source=source)
+    cut.scenario = cut.scenario.evolve(collision=geo.scenario.collision, provenance=prov)
     return cut
 
 
@@ -552,6 +539,7 @@ class _Pass:
             seed=self.seed,
             on_frame=on_frame,
             lens=self.lens == "auto",
+            frame_times=meta.variable_frame_times,
         )
 
 

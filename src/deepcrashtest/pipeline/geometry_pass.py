@@ -23,7 +23,7 @@ uncertainty and source) and the ego path is rescaled to the measured camera heig
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from itertools import chain
@@ -185,12 +185,16 @@ def extract_geometry(
     seed: int = 0,
     on_frame: Callable[[FrameLike, TrackRows, LaneState | None], None] | None = None,
     lens: bool = False,
+    frame_times: Callable[[], Sequence[float] | None] | None = None,
 ) -> GeometryResult:
     """Run the geometry stage over one pass of frames (see the module docstring).
 
     ``on_frame(frame, tracks, lane_state)`` is called once per frame, in order, after the frame went
     through ego-motion and lanes (annotation draws the lanes in the same pass). ``lens``: without a calibration,
     read the lens's radial distortion from the first frames' straight edges (:mod:`deepcrashtest.geometry.lens`).
+    ``frame_times``: asked after the last frame, every frame's time (s, by index) where the video's frame rate
+    varies (:meth:`deepcrashtest.video.source.VideoMeta.variable_frame_times`), else None: the raw Scenario's
+    ``source.frame_times``, which the monocular filter steps by.
     """
     buffer, rest = _calibration_frames(frames, calib_seconds)
     cam, rows, horizon_source = estimate_camera(
@@ -248,12 +252,22 @@ def extract_geometry(
         cam = calibration.camera
         horizon_source = cam.pitch_source
 
+    times = frame_times() if frame_times is not None else None
+    if times is not None:
+        meta = _with_frame_times(meta, times)
     cut = SpeedCut(
         estimator=ego_est, indices=indices, ego=ego, tracks=tracks, meta=meta, camera=cam, lanes=lane_tl,
         lane_states=lane_states, localizer=localizer, dashboard_rows=rows, horizon_source=horizon_source,
         calibration=calibration, scale=scale, name=name, seed=seed, lens=lens_est,
     )  # fmt: skip
     return cut.result()
+
+
+def _with_frame_times(meta: VideoSource | Mapping[str, Any], times: Sequence[float]) -> VideoSource | Mapping[str, Any]:
+    """The video's description with every frame's time (s, by index): ``VideoSource.frame_times``."""
+    if isinstance(meta, VideoSource):
+        return meta.model_copy(update={"frame_times": list(times)})
+    return {**meta, "frame_times": list(times)}
 
 
 def _ego_result(est: EgoMotionEstimator, indices: list[int], cut_time: float | None = None) -> EgoMotion:

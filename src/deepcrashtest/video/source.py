@@ -71,6 +71,14 @@ class VideoMeta:
         """The file's frame size (width, height px), whether or not the frames are scaled."""
         return self.scaled_from or (self.width, self.height)
 
+    def variable_frame_times(self) -> list[float] | None:
+        """Every frame's time (s, by index, rounded to the microsecond) where the file's frame rate varies
+        (``rate_range``: the one rule of what a variable rate is), else None (frames ``index / fps`` apart); the
+        Scenario's ``VideoSource.frame_times`` and the monocular filter's steps come from it."""
+        if self.rate_range is None or not self.frame_times:
+            return None
+        return [round(float(t), 6) for t in self.frame_times]
+
     @property
     def scale(self) -> float:
         """Frame px per file px (1.0 unless the frames are scaled)."""
