@@ -281,3 +281,36 @@ def test_frames_wider_than_max_width_come_scaled_down_with_the_files_size_kept(d
         assert (same.meta.width, same.meta.scaled_from) == (1280, None)
     assert processed_size(1280, 721, 640) == (640, 360) and processed_size(100, 75, 640) == (100, 75)
     assert processed_size(3840, 1634, 1280) == (1280, 544)  # 2.35:1, height even
+
+
+@pytest.mark.parametrize(
+    ("dropped", "variable"),
+    [((), False), ((3, 4, 8), True)],
+    ids=["even", "dropped"],
+)
+def test_a_variable_frame_rate_is_the_files_own_rule(tmp_path, dropped, variable):
+    """What a variable frame rate is, decided once, by the file (``VideoMeta.variable_frame_times``, which the raw
+    Scenario's ``source.frame_times`` and the monocular filter take): 30 fps on a millisecond clock (33 / 34 ms apart,
+    as recorders round) is constant, and the same clip with frames dropped lists every frame's own time."""
+    from fractions import Fraction
+
+    tick = Fraction(1, 1000)
+    times = [k / 30 for k in range(12) if k not in dropped]
+    clip = tmp_path / "clock.mkv"
+    with av.open(str(clip), "w") as out:
+        stream = out.add_stream("libx264", rate=30)
+        stream.width, stream.height, stream.pix_fmt = 64, 48, "yuv420p"
+        stream.codec_context.time_base = tick
+        for t in times:
+            frame = av.VideoFrame.from_ndarray(np.zeros((48, 64, 3), np.uint8), format="bgr24")
+            frame.pts, frame.time_base = round(t * 1000), tick
+            out.mux(stream.encode(frame))
+        out.mux(stream.encode())
+    with open_video(clip) as source:
+        decoded = [f.time for f in source]
+        listed = source.meta.variable_frame_times()
+    assert len(decoded) == len(times)
+    if variable:
+        assert listed == pytest.approx(decoded, abs=1e-6) and listed == pytest.approx(times, abs=1e-3)
+    else:
+        assert listed is None
