@@ -284,18 +284,19 @@ def test_frames_wider_than_max_width_come_scaled_down_with_the_files_size_kept(d
 
 
 @pytest.mark.parametrize(
-    ("dropped", "variable"),
-    [((), False), ((3, 4, 8), True)],
-    ids=["even", "dropped"],
+    ("dropped", "paused", "variable"),
+    [((), False, False), ((3, 4, 8), False, True), ((), True, True)],
+    ids=["even", "dropped", "paused"],
 )
-def test_a_variable_frame_rate_is_the_files_own_rule(tmp_path, dropped, variable):
+def test_a_variable_frame_rate_is_the_files_own_rule(tmp_path, dropped, paused, variable):
     """What a variable frame rate is, decided once, by the file (``VideoMeta.variable_frame_times``, which the raw
     Scenario's ``source.frame_times`` and the monocular filter take): 30 fps on a millisecond clock (33 / 34 ms apart,
-    as recorders round) is constant, and the same clip with frames dropped lists every frame's own time."""
+    as recorders round) is constant, and the same clip with frames dropped lists every frame's own time. A recording
+    paused for 2 s between two frames says so (one warning naming them); dropped frames do not."""
     from fractions import Fraction
 
     tick = Fraction(1, 1000)
-    times = [k / 30 for k in range(12) if k not in dropped]
+    times = [k / 30 + (2.0 if paused and k >= 6 else 0.0) for k in range(12) if k not in dropped]
     clip = tmp_path / "clock.mkv"
     with av.open(str(clip), "w") as out:
         stream = out.add_stream("libx264", rate=30)
@@ -309,8 +310,10 @@ def test_a_variable_frame_rate_is_the_files_own_rule(tmp_path, dropped, variable
     with open_video(clip) as source:
         decoded = [f.time for f in source]
         listed = source.meta.variable_frame_times()
+        gaps = [w for w in source.meta.warnings if "gap in the recording" in w]
     assert len(decoded) == len(times)
     if variable:
         assert listed == pytest.approx(decoded, abs=1e-6) and listed == pytest.approx(times, abs=1e-3)
     else:
         assert listed is None
+    assert len(gaps) == int(paused) and (not paused or gaps[0].startswith("frames 5 and 6 are 2.03 s apart"))

@@ -261,6 +261,8 @@ class PyAVSource(VideoSource):
                 t = index / self.meta.fps
             elif index > 0:
                 self.meta.rate_range = gaps.add(t - last_t)
+                if (note := gaps.recording_gap(index, t - last_t, self.meta.fps)) is not None:
+                    self.meta.warnings.append(note)
             last_t = t
             resampled = self.meta.scaled_from is not None or self._square is not None
             image = display_array(raw, "bgr24", size=(self.meta.width, self.meta.height) if resampled else None)
@@ -287,6 +289,12 @@ class PyAVSource(VideoSource):
             pass
 
 
+#: Frames further apart than this (s, and than 3 mean intervals) are a gap in the recording (:class:`_FrameGaps`).
+RECORDING_GAP_S = 1.0
+#: At most this many recording gaps are named in the warnings.
+MAX_GAP_NOTES = 3
+
+
 class _FrameGaps:
     """The shortest and longest interval (s) between consecutive frames' timestamps; ``add`` returns the
     (lowest, highest) frame rate (1/s) once they differ by more than their rounding, else None: a constant
@@ -296,6 +304,21 @@ class _FrameGaps:
     def __init__(self, tick: float) -> None:
         self.tick = tick
         self.lo, self.hi = np.inf, 0.0
+        self.gap_notes = 0
+
+    def recording_gap(self, index: int, gap: float, fps: float) -> str | None:
+        """A warning for a gap in the recording (frames ``index - 1`` and ``index`` more than
+        :data:`RECORDING_GAP_S` and 3 mean intervals apart: a paused or cut recording, not a phone's dropped frame),
+        the first :data:`MAX_GAP_NOTES` of them; None otherwise."""
+        if gap <= max(RECORDING_GAP_S, 3.0 / fps if fps > 0 else 0.0):
+            return None
+        self.gap_notes += 1
+        if self.gap_notes > MAX_GAP_NOTES:
+            return None
+        return (
+            f"frames {index - 1} and {index} are {gap:.2f} s apart: a gap in the recording; what moved across it is "
+            "not seen, only carried over it by the motion models"
+        )
 
     def add(self, gap: float) -> tuple[float, float] | None:
         self.lo, self.hi = min(self.lo, gap), max(self.hi, gap)
