@@ -144,3 +144,25 @@ def test_batch_extracts_real_videos_and_records_a_broken_one(kitti_root, tmp_pat
     }
     with pytest.raises(UserError):
         process_video(folder / "broken.mp4", tmp_path / "one", cfg)
+
+
+def test_two_inputs_at_once_write_what_one_at_a_time_writes(inputs, tmp_path):
+    """``--jobs 2`` (two inputs at once, each in its own process, the search's processes shared) writes the same
+    results as ``--jobs 1``, and records the broken input the same way."""
+    runs = {}
+    for jobs in ("1", "2"):
+        out = tmp_path / f"jobs{jobs}"
+        proc = batch(str(inputs), "-o", str(out), *SMALL, "--jobs", jobs, "--json")
+        stdout, err = proc.communicate(timeout=300)
+        assert proc.returncode == 1, err  # e_broken failed, the others done
+        res = json.loads(stdout)
+        assert res["done"] == len(CRASHES) and res["failed"] == 1
+        runs[jobs] = (out, res, read_manifest(out / "manifest.json")["items"])
+    (one, res1, items1), (two, res2, items2) = runs["1"], runs["2"]
+    assert res1["errors"] == res2["errors"]
+    for n in CRASHES:
+        assert items2[n]["status"] == "done" and items2[n]["result"] == items1[n]["result"]
+        assert (one / n / "search" / "results.csv").read_bytes() == (two / n / "search" / "results.csv").read_bytes()
+    bad = batch(str(inputs), "-o", str(tmp_path / "bad"), *SMALL, "--jobs", "0")
+    _, err = bad.communicate(timeout=60)
+    assert bad.returncode == 2 and "--jobs must be 1-64" in err

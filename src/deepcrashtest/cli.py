@@ -596,6 +596,12 @@ def batch(
         None, "--workers", help="Processes (local) or Ray CPUs for each search [default: the cores]."
     ),
     resume: bool = typer.Option(False, "--resume", help="Skip the inputs the manifest marks done."),
+    jobs: int | None = typer.Option(
+        None,
+        "--jobs",
+        help="Inputs processed at once, each in its own process [default: the cores, at most 4, and no more than "
+        "the free memory holds at 1.5 GB each].",
+    ),
     starts: int | None = typer.Option(None, "--starts", help="Random ego start positions per video [32]."),
     noise_variants: int | None = typer.Option(None, "--noise-variants", help="Noisy ego paths per start [4]."),
     method: str | None = typer.Option(None, "--method", help="random | cem | both [both]"),
@@ -612,7 +618,7 @@ def batch(
     """
     _quiet_if_json(as_json)
     from deepcrashtest.config import load_config
-    from deepcrashtest.pipeline.batch import run_batch
+    from deepcrashtest.pipeline.batch import default_jobs, run_batch
 
     cfg = load_config(config).with_search(
         starts=starts,
@@ -623,7 +629,10 @@ def batch(
         video=False,
         duration=duration,
     )
-    result = run_batch(videos, output, cfg, engine=engine, workers=_workers(workers), resume=resume, force=force)
+    jobs = default_jobs() if jobs is None else jobs
+    result = run_batch(
+        videos, output, cfg, engine=engine, workers=_workers(workers), resume=resume, force=force, jobs=jobs
+    )
     emit(result, as_json)
     if result.get("failed"):  # the batch went on; the exit code still tells a script that some inputs failed
         sys.stderr.write(f"deepcrashtest: {result['failed']} input(s) failed; see {Path(output) / 'manifest.json'}\n")
