@@ -274,7 +274,13 @@ def odd_other_commands(fz: Fuzz, d: Path, tmp: Path) -> None:
         fz.run("evaluate", "egomotion", "--data", tmp / "no_odometry", "--max-frames", v, "--json")
     for v in ("-1", "0", "65536", "99999999999999999999", "", "abc"):
         fz.run("view", d / "scenario.json", "--port", v)
-    for opt, values in (("--workers", INTS), ("--starts", INTS), ("--duration", FLOATS), ("--engine", ["", "x"])):
+    for opt, values in (
+        ("--workers", INTS),
+        ("--jobs", INTS),
+        ("--starts", INTS),
+        ("--duration", FLOATS),
+        ("--engine", ["", "x"]),
+    ):
         for v in values:
             if (opt, v) not in (("--duration", "1e308"), ("--duration", "1e-12")):  # valid: would run the batch
                 fz.run("batch", d, "-o", tmp / "batch", opt, v, "--json")
