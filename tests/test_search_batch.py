@@ -163,6 +163,8 @@ def test_two_inputs_at_once_write_what_one_at_a_time_writes(inputs, tmp_path):
     for n in CRASHES:
         assert items2[n]["status"] == "done" and items2[n]["result"] == items1[n]["result"]
         assert (one / n / "search" / "results.csv").read_bytes() == (two / n / "search" / "results.csv").read_bytes()
-    bad = batch(str(inputs), "-o", str(tmp_path / "bad"), *SMALL, "--jobs", "0")
-    _, err = bad.communicate(timeout=60)
-    assert bad.returncode == 2 and "--jobs must be 1-64" in err
+    refused = ((["--jobs", "0"], "--jobs must be 1-64"), (["--jobs", "2", "--engine", "ray"], "--engine local"))
+    for opts, says in refused:
+        bad = batch(str(inputs), "-o", str(tmp_path / "bad"), *SMALL, *opts)
+        _, err = bad.communicate(timeout=60)
+        assert bad.returncode == 2 and says in err, err

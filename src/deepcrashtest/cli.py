@@ -600,7 +600,7 @@ def batch(
         None,
         "--jobs",
         help="Inputs processed at once, each in its own process [default: the cores, at most 4, and no more than "
-        "the free memory holds at 1.5 GB each].",
+        "the free memory holds at 1.5 GB each; 1 with --engine ray].",
     ),
     starts: int | None = typer.Option(None, "--starts", help="Random ego start positions per video [32]."),
     noise_variants: int | None = typer.Option(None, "--noise-variants", help="Noisy ego paths per start [4]."),
@@ -629,7 +629,7 @@ def batch(
         video=False,
         duration=duration,
     )
-    jobs = default_jobs() if jobs is None else jobs
+    jobs = (default_jobs() if engine == "local" else 1) if jobs is None else jobs
     result = run_batch(
         videos, output, cfg, engine=engine, workers=_workers(workers), resume=resume, force=force, jobs=jobs
     )

@@ -322,6 +322,8 @@ def check_options(cfg: SearchConfig, engine: str, workers: int, jobs: int = 1) -
     """Refuse bad search options (method, counts, seed, engine, workers, controller) and jobs as one UserError."""
     if not 1 <= jobs <= MAX_JOBS:
         raise UserError(f"--jobs must be 1-{MAX_JOBS} (got {jobs})")
+    if jobs > 1 and engine != "local":
+        raise UserError(f"--jobs {jobs} needs --engine local (a Ray cluster spreads each search itself)")
     from deepcrashtest.search.evaluate import ENGINES, check_workers
     from deepcrashtest.sim.controllers import resolve_controller
 
