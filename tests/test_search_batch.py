@@ -168,3 +168,19 @@ def test_two_inputs_at_once_write_what_one_at_a_time_writes(inputs, tmp_path):
         bad = batch(str(inputs), "-o", str(tmp_path / "bad"), *SMALL, *opts)
         _, err = bad.communicate(timeout=60)
         assert bad.returncode == 2 and says in err, err
+
+
+def test_two_jobs_asked_by_a_program_read_from_stdin_run_one_at_a_time(inputs, tmp_path):
+    """``spawn`` starts a job's process by running the caller's main script again, which ``python -`` does not have:
+    the inputs are then taken one at a time instead of each failing as "its process died"."""
+    program = (
+        "from deepcrashtest.pipeline.batch import run_batch\n"
+        "from deepcrashtest.search.run import SearchConfig\n"
+        "import json, sys\n"
+        "cfg = SearchConfig(starts=2, noise_variants=2, method='random', video=False)\n"
+        f"print(json.dumps(run_batch({str(inputs)!r}, {str(tmp_path / 'out')!r}, cfg, jobs=2)))\n"
+    )
+    proc = subprocess.run([sys.executable, "-"], input=program, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    res = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert res["done"] == len(CRASHES) and res["failed"] == 1 and "e_broken" in res["errors"]

@@ -218,7 +218,7 @@ def _outcomes(
     An extraction keeps ~1.4 of 2 cores busy (its serial parts: start-up, stage 2, the report), so two inputs at
     once finish sooner (6 crash clips on 2 cores: 38.5 s one at a time, 27.4 s two at a time). A job's process dies
     with the batch (``kill -9`` too: it must not go on writing an input that ``--resume`` takes up again)."""
-    if jobs <= 1 or len(todo) <= 1:
+    if jobs <= 1 or len(todo) <= 1 or not _spawn_can_start():
         for item, name in todo:
             started(name)
             yield name, attempt(item, out / name, cfg, engine, workers)
@@ -250,6 +250,16 @@ def _outcomes(
                 yield name, _outcome(fut, item)
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _spawn_can_start() -> bool:
+    """Whether a job's process can start here: ``spawn`` runs the caller's main script again in it, which a program
+    read from standard input (``python -``, ``python < file``) does not have (a ``-c`` program or a notebook has no
+    script, which is fine); the inputs are then taken one at a time."""
+    import sys
+
+    path = getattr(sys.modules.get("__main__"), "__file__", None)
+    return path is None or Path(path).is_file()
 
 
 def _outcome(fut: Future[dict[str, Any]], item: Path) -> dict[str, Any]:
