@@ -21,6 +21,7 @@ import json
 import math
 import os
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -238,6 +239,17 @@ class VideoSource(_Model):
         if t is not None and (not t or (len(t) > 1 and not bool(np.all(np.diff(t) > 0)))):
             raise ValueError("frame_times must be a non-empty list of increasing video times")
         return self
+
+
+def frame_video_time(frame: int, fps: float, frame_times: Sequence[float] | None) -> float:
+    """Video time (s) of video frame ``frame``: ``frame / fps`` at a constant rate (``frame_times`` None, and for a
+    negative index), else ``frame_times[frame]``, frames past the list continuing at ``fps`` from its last time
+    (``VideoSource.frame_times``; :meth:`Scenario.frame_time`, the monocular filter's clock)."""
+    if frame_times is None or frame < 0:
+        return float(frame) / fps
+    if frame < len(frame_times):
+        return float(frame_times[frame])
+    return float(frame_times[-1]) + (frame - len(frame_times) + 1) / fps
 
 
 class CameraAttitude(_Model):
@@ -695,13 +707,8 @@ class Scenario(_Model):
 
     def frame_time(self, frame: int) -> float:
         """Scenario time (s) of video frame ``frame``: ``frame / fps`` of video time, or ``source.frame_times``
-        where the rate varies (frames beyond them continue at the mean rate)."""
-        times = self.source.frame_times
-        if times is None or frame < 0:
-            return float(frame) / self.source.fps + self.source.time_offset_s
-        if frame < len(times):
-            return float(times[frame]) + self.source.time_offset_s
-        return float(times[-1]) + (frame - len(times) + 1) / self.source.fps + self.source.time_offset_s
+        where the rate varies (frames beyond them continue at the mean rate: :func:`frame_video_time`)."""
+        return frame_video_time(frame, self.source.fps, self.source.frame_times) + self.source.time_offset_s
 
     # ------------------------------------------------------------------ access
     def vehicles(self) -> list[Vehicle]:

@@ -80,7 +80,7 @@ from deepcrashtest.geometry.mono_config import (
 from deepcrashtest.geometry.mono_size import box_cues, hull_factor, size_scale, track_size, width_m
 from deepcrashtest.geometry.standing import StandingFit, StandingNoise, Views, fit_standing
 from deepcrashtest.perception.roadusers import track_category
-from deepcrashtest.scenario import Camera
+from deepcrashtest.scenario import Camera, frame_video_time
 
 OUTPUT_COLUMNS = (
     "frame", "time", "track_id", "category", "x", "y", "vx", "vy", "yaw", "speed",
@@ -199,7 +199,7 @@ def _kalman(
     _motion_model(kf, dt, cfg.accel_std)
     kf.H = np.array([[1, 0, 0, 0], [0, 1, 0, 0]], float)
     first = int(np.nonzero(np.isfinite(meas[:, 0]))[0][0])  # rows before it: carried (smoothed back)
-    lead_s = (frames[first] - frames[0]) * dt if frame_t is None else float(frame_t[frames[first]] - frame_t[frames[0]])
+    lead_s = _elapsed(int(frames[0]), int(frames[first]), dt, frame_t)
     _restart(kf, meas[first], covs[first] + np.eye(2) * (cfg.init_speed_std * lead_s) ** 2, cfg.init_speed_std)
     xs = np.zeros((len(span), 4))
     ps = np.zeros((len(span), 4, 4))
@@ -565,13 +565,11 @@ def _measured_span(valid: np.ndarray, det: np.ndarray, frames: np.ndarray, fps: 
 
 def _frame_clock(frame_times: Sequence[float] | None, last_frame: int, fps: float) -> np.ndarray | None:
     """The video time (s) of every frame index up to ``last_frame`` from a variable-rate video's frame times
-    (frames past the listed ones continue at ``fps``, as :meth:`deepcrashtest.scenario.Scenario.frame_time`
-    says); None where the video's frames are evenly ``1 / fps`` apart (``frame_times`` None)."""
-    if frame_times is None or len(frame_times) == 0:
+    (:func:`deepcrashtest.scenario.frame_video_time`); None where the video's frames are evenly ``1 / fps`` apart
+    (``frame_times`` None)."""
+    if not frame_times:
         return None
-    t = np.asarray(frame_times, dtype=float)
-    extra = np.arange(1, max(last_frame + 1 - len(t), 0) + 1) / fps
-    return np.concatenate([t, t[-1] + extra])
+    return np.array([frame_video_time(f, fps, frame_times) for f in range(last_frame + 1)])
 
 
 def _fps(ego: EgoMotion) -> float:
