@@ -449,7 +449,9 @@ def search(
 def _workers(workers: int | None) -> int:
     """``--workers``: the CPU cores this process may use unless given."""
     if workers is None:
-        return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+        from deepcrashtest.forking import usable_cores
+
+        return usable_cores()
     return workers
 
 

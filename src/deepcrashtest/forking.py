@@ -18,6 +18,11 @@ from typing import Any, Generic, TypeVar
 T = TypeVar("T")
 
 
+def usable_cores() -> int:
+    """The CPU cores this process may run on (its affinity where the system has one), at least 1."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
 class Forked(Generic[T]):
     """``fn(*args)`` started in a forked child now; :meth:`result` waits for it (or computes it here).
 

@@ -24,6 +24,7 @@ from typing import Any
 from deepcrashtest.errors import UserError
 from deepcrashtest.eval.plausibility import plausibility
 from deepcrashtest.fileio import atomic_write_text, ensure_output_dir
+from deepcrashtest.forking import usable_cores
 from deepcrashtest.scenario import Scenario
 from deepcrashtest.search.run import SearchConfig, run_search
 from deepcrashtest.ui import track
@@ -45,13 +46,12 @@ def default_jobs() -> int:
     """``batch --jobs`` unless given: the cores this process may use (at most :data:`DEFAULT_MAX_JOBS`), no more
     than the free memory holds at :data:`JOB_MEMORY_GB` each (``MemAvailable`` of ``/proc/meminfo``, where there
     is one), at least 1."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
     fit = DEFAULT_MAX_JOBS
     with contextlib.suppress(OSError, ValueError, StopIteration):
         lines = Path("/proc/meminfo").read_text().splitlines()
         kb = next(int(line.split()[1]) for line in lines if line.startswith("MemAvailable:"))
         fit = int(kb / 1024**2 // JOB_MEMORY_GB)
-    return max(1, min(cores, DEFAULT_MAX_JOBS, fit))
+    return max(1, min(usable_cores(), DEFAULT_MAX_JOBS, fit))
 
 
 def list_inputs(folder: str | Path) -> list[Path]:
