@@ -22,6 +22,7 @@ if not hasattr(sim, "simulate_batch"):
 from deepcrashtest.pipeline.batch import list_inputs, process_video, read_manifest, run_batch  # noqa: E402
 from deepcrashtest.search.run import SearchConfig  # noqa: E402
 from deepcrashtest.sim.testcases import meet_ego  # noqa: E402
+from deepcrashtest.video.source import open_video  # noqa: E402
 
 SMALL = ["--starts", "4", "--noise-variants", "2", "--method", "random", "--duration", "13"]
 #: Oncoming cars of KITTI 0008 and a time inside each one's observed span (s).
@@ -94,12 +95,12 @@ def test_kill_9_loses_nothing_finished_and_resume_completes(inputs, tmp_path):
         assert (out / n / "search" / "summary.json").stat().st_mtime_ns == stamp
 
 
-def _cut(clip: Path, dest: Path, frames: int) -> Path:
-    """The first ``frames`` frames of a real clip, re-encoded (a short real video for a fast test)."""
+def _cut(clip: Path, dest: Path, frames: int, codec: str = "libx264") -> Path:
+    """The first ``frames`` frames of a real clip, re-encoded with ``codec`` (a short real video for a fast test)."""
     import av
 
     with av.open(str(clip)) as src, av.open(str(dest), "w") as out:
-        stream = out.add_stream("libx264", rate=20)
+        stream = out.add_stream(codec, rate=20)
         stream.width, stream.height, stream.pix_fmt = 640, 360, "yuv420p"
         for i, frame in enumerate(src.decode(video=0)):
             if i >= frames:
@@ -144,6 +145,25 @@ def test_batch_extracts_real_videos_and_records_a_broken_one(kitti_root, tmp_pat
     }
     with pytest.raises(UserError):
         process_video(folder / "broken.mp4", tmp_path / "one", cfg)
+
+
+def test_a_folder_lists_the_videos_phones_and_dashcams_write(kitti_root, tmp_path):
+    """``batch`` takes a folder's WebM (VP9), MPEG transport stream (a dashcam's ``.TS``) and 3GP clips as ``extract``
+    does; before, only ``*.mp4 *.mov *.avi *.mkv`` were read and these were left out without a word."""
+    dad = kitti_root.parent / "crash_dad"
+    if not dad.is_dir():
+        pytest.skip(f"real data not found: {dad}")
+    clip = sorted(dad.glob("*.mp4"))[0]
+    written = [
+        _cut(clip, tmp_path / "a.webm", 6, "libvpx-vp9"),
+        _cut(clip, tmp_path / "b.TS", 6, "mpeg2video"),
+        _cut(clip, tmp_path / "c.3gp", 6),
+    ]
+    (tmp_path / "notes.txt").write_text("not an input")
+    assert list_inputs(tmp_path) == written
+    for video in written:
+        with open_video(video) as source:
+            assert sum(1 for _ in source) == 6
 
 
 def test_two_inputs_at_once_write_what_one_at_a_time_writes(inputs, tmp_path):

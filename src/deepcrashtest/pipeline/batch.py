@@ -28,8 +28,8 @@ from deepcrashtest.forking import usable_cores
 from deepcrashtest.scenario import Scenario
 from deepcrashtest.search.run import SearchConfig, run_search
 from deepcrashtest.ui import track
+from deepcrashtest.video.source import VIDEO_SUFFIXES
 
-VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv")
 SCENARIO_SUFFIX = ".json"
 MANIFEST = "manifest.json"
 MANIFEST_VERSION = 1

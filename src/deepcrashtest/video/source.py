@@ -24,7 +24,14 @@ from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import require_file, sha256_file
 from deepcrashtest.video.size import processed_size
 
-VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm")
+#: File names taken for videos where a folder is read (``batch``): phones' and dashcams' containers (MP4 / QuickTime,
+#: AVI, Matroska, WebM, MPEG transport streams of AVCHD and some dashcams, 3GP, MPEG program streams, Flash, Windows
+#: Media).
+#: ``extract`` opens any file FFmpeg reads, whatever its name.
+VIDEO_SUFFIXES = (
+    ".mp4", ".mov", ".m4v", ".avi", ".mkv", ".webm", ".ts", ".mts", ".m2ts", ".3gp", ".mpg", ".mpeg", ".flv", ".wmv",
+    ".asf",
+)  # fmt: skip
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
 
 
