@@ -317,3 +317,33 @@ def test_a_variable_frame_rate_is_the_files_own_rule(tmp_path, dropped, paused, 
     else:
         assert listed is None
     assert len(gaps) == int(paused) and (not paused or gaps[0].startswith("frames 5 and 6 are 2.03 s apart"))
+
+
+def test_a_still_picture_stored_before_the_clip_is_not_the_video(dad, tmp_path):
+    """A downloaded clip may carry a cover picture or thumbnail as its first video stream: the clip is read (FFmpeg's
+    best video stream, as players show it), with a warning naming the stream left out; before, the one-frame
+    picture was taken for the video and ``extract`` refused it as under 2 frames."""
+    path = tmp_path / "with_cover.mkv"
+    with av.open(str(dad)) as src, av.open(str(path), "w") as out:
+        cover = out.add_stream("mjpeg", rate=1)
+        cover.width, cover.height, cover.pix_fmt = 320, 180, "yuvj420p"
+        clip = out.add_stream_from_template(src.streams.video[0])
+        for packet in cover.encode(av.VideoFrame.from_ndarray(np.full((180, 320, 3), 200, np.uint8), format="rgb24")):
+            out.mux(packet)
+        for packet in cover.encode():
+            out.mux(packet)
+        for packet in src.demux(src.streams.video[0]):
+            if packet.dts is not None:
+                packet.stream = clip
+                out.mux(packet)
+    with open_video(dad) as src:
+        plain = [f.image for _, f in zip(range(3), src, strict=False)]
+    with open_video(path) as src:
+        m = src.meta
+        images = [f.image for f in src]
+    assert (m.fps, m.width, m.height, len(images)) == (20.0, 1280, 720, 100)
+    assert all(np.array_equal(a, b) for a, b in zip(plain, images, strict=False))
+    named = "2 video streams; reading stream 1 (h264 1280x720)"
+    assert any(named in w and "0 (mjpeg 320x180)" in w for w in m.warnings)
+    frames = VideoFrames(path)
+    assert (frames.width, frames.height, frames.fps) == (1280, 720, 20.0)

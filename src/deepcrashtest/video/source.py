@@ -175,10 +175,11 @@ class PyAVSource(VideoSource):
                     "before it was finalised; no frame can be located"
                 ) from None
             raise UserError(f"{path}: not a readable video ({_short(exc)})") from None
-        if not self._container.streams.video:
+        stream = main_video_stream(self._container)
+        if stream is None:
             self._container.close()
-            raise UserError(f"{path}: contains no video stream")
-        stream = self._container.streams.video[0]
+            still = " (only a still picture: a cover or thumbnail)" if self._container.streams.video else ""
+            raise UserError(f"{path}: contains no video stream{still}")
         stream.thread_type = "AUTO"
         self._stream = stream
         rate = stream.average_rate or stream.guessed_rate or stream.base_rate
@@ -218,6 +219,12 @@ class PyAVSource(VideoSource):
             height=height,
             sha256=sha256_file(path),
         )
+        others = other_video_streams(self._container, stream)
+        if others:
+            self.meta.warnings.append(
+                f"{path}: {len(others) + 1} video streams; reading stream {stream.index} ({_stream_text(stream)}), the "
+                f"one players show, and leaving out {', '.join(f'{s.index} ({_stream_text(s)})' for s in others)}"
+            )
         if self._square is not None:
             self.meta.warnings.append(
                 f"{path}: pixels {stream.sample_aspect_ratio} as wide as high (sample aspect ratio); frames resampled "
@@ -377,6 +384,32 @@ def _quarter_turns(rotation_deg: float) -> int | None:
     if abs(turns - round(turns)) > 1.0 / 90.0:
         return None
     return int(round(turns)) % 4
+
+
+def main_video_stream(container: Any) -> Any | None:
+    """The video stream of an opened PyAV container that players show: FFmpeg's best one (``av_find_best_stream``:
+    moving pictures before a still one, then the default track, then the higher bit rate), never a cover picture
+    or thumbnail (disposition ``attached_pic``, which a downloaded clip may carry as its first video stream); None
+    without one."""
+    import av
+
+    still = int(av.stream.Disposition.attached_pic)
+    moving = [s for s in container.streams.video if not int(s.disposition) & still]
+    if not moving:
+        return None
+    best = container.streams.best("video")
+    return best if best in moving else moving[0]
+
+
+def other_video_streams(container: Any, stream: Any) -> list[Any]:
+    """The container's video streams other than ``stream`` (a cover picture, a second camera)."""
+    return [s for s in container.streams.video if s.index != stream.index]
+
+
+def _stream_text(stream: Any) -> str:
+    """``codec WxH`` of a video stream, e.g. ``h264 1280x720``."""
+    ctx = stream.codec_context
+    return f"{ctx.name} {ctx.width}x{ctx.height}"
 
 
 def _duration_s(container: Any, stream: Any) -> float:

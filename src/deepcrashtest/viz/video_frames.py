@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from deepcrashtest.errors import UserError
-from deepcrashtest.video.source import display_array, display_size
+from deepcrashtest.video.source import display_array, display_size, main_video_stream
 
 #: Decode on instead of seeking when the requested time is at most this far ahead (seconds).
 _DECODE_AHEAD_S = 2.0
@@ -30,10 +30,11 @@ class VideoFrames:
             self._container: Any = av.open(str(self.path))
         except (av.error.FFmpegError, OSError) as exc:  # type: ignore[attr-defined]
             raise UserError(f"{self.path}: cannot open video ({exc})") from None
-        if not self._container.streams.video:
+        stream = main_video_stream(self._container)
+        if stream is None:
             self._container.close()
             raise UserError(f"{self.path}: has no video stream")
-        self._stream = self._container.streams.video[0]
+        self._stream = stream
         rate = self._stream.average_rate or self._stream.guessed_rate
         self.fps = float(rate) if rate else 25.0
         tb = self._stream.time_base
