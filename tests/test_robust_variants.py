@@ -663,6 +663,35 @@ def test_a_crash_without_a_jolt_has_its_contact_where_the_box_is_largest(tmp_pat
     assert abs(sc.video_time(first["time"]) - label.contact_frame / label.fps) <= 0.25  # before: 0.33 s early
 
 
+def test_a_box_growing_on_slower_after_a_pause_is_no_knee(tmp_path):
+    """dad_000487 (the ego's scooter closing slowly on a scooter at its bumper, labelled contact frame 97 of 20 fps, no
+    camera jolt) written as an MPEG-2 transport stream, a dashcam's ``.TS`` (``bench/codec_variants.py``): the
+    scooter's box pauses for two frames at 90 and grows on at half its pace, and that pause was taken for the knee
+    where it stops growing at the bumper (the contact put at frame 90, 0.35 s early). A knee now also needs the box
+    to grow less than ``KNEE_LATER_SHARE`` of its half second's growth before: the contact is within 0.15 s."""
+    from deepcrashtest.datasets.crash_labels import load_crash_labels
+    from deepcrashtest.pipeline.extract import run_extract
+    from deepcrashtest.scenario import Scenario
+
+    root = Path(__file__).resolve().parents[1]
+    label = load_crash_labels(root / "bench" / "labels" / "dad_crashes.json")["dad_000487"]
+    video = tmp_path / "dad_000487.ts"
+    with av.open(str(need(DATA / label.video))) as src, av.open(str(video), "w") as out:
+        stream = out.add_stream("mpeg2video", rate=src.streams.video[0].average_rate)
+        stream.width, stream.height, stream.pix_fmt = 1280, 720, "yuv420p"
+        stream.options = {"q:v": "5"}
+        for frame in src.decode(video=0):
+            image = frame.to_ndarray(format="bgr24")
+            for packet in stream.encode(av.VideoFrame.from_ndarray(image, format="bgr24")):
+                out.mux(packet)
+        for packet in stream.encode():
+            out.mux(packet)
+    run_extract(video, tmp_path / "out", report=False, annotate=False)
+    found = Scenario.load(tmp_path / "out" / "scenario_raw.json").provenance.parameters["crash_detection"]
+    assert label.contact_frame is not None and found["found"] and found["pair"][0] == "ego"
+    assert abs(found["frame"] - label.contact_frame) <= 3  # before: frame 90
+
+
 def test_a_portrait_crop_keeps_the_focal_length_of_the_landscape_dashcam(tmp_path):
     """ccd_000330 (the ego rear-ends a RAV4, contact at frame 38) cut to its central 9:16 portrait, 404 x 720 px, as
     phones and short-video sites show dashcam clips. The unknown-camera default spread 90 deg over the narrow width

@@ -18,6 +18,13 @@ from deepcrashtest.perception.roadusers import MOTOR_VEHICLES, track_category
 KNEE_MAX_LATER_GROWTH = 0.1
 
 
+#: ... nor more than this share of what it grew over the half second before at its rate then: a box still growing
+#: at half its pace is still approaching, slower (chosen on dad_000487's variants in ``bench/codec_variants.py``, the
+#: scooter ahead closing slowly: its box grew 0.10 in the half second after a two-frame pause at frame 83 against
+#: 0.2 before, and the contact was put there, 0.7 s before the label; 1/3 and 1/4 gave the same, 1/2 nothing).
+KNEE_LATER_SHARE = 1 / 3
+
+
 #: ... and the box is at least this near (``ego_scores``' ``near``, 0..1) at the knee.
 KNEE_MIN_NEAR = 0.3
 
@@ -262,8 +269,9 @@ def _on_border(g: pd.DataFrame, width: int) -> np.ndarray:
 def knee_frame(s: pd.DataFrame, fps: float) -> int | None:
     """The first frame at which an approaching box stops growing (two frames in a row growing at less
     than a third of its rate over the previous half second, frames repeating the last one left out of
-    that rate, and not more than ``KNEE_MAX_LATER_GROWTH``
-    in log size over the next half second: a detector's box jumping to a larger one is not it) while it is
+    that rate, and not more than ``KNEE_MAX_LATER_GROWTH`` in log size over the next half second, a detector's box
+    jumping to a larger one being no knee, nor more than ``KNEE_LATER_SHARE`` of the half second's growth at that
+    rate: a box growing on slower is still approaching) while it is
     near (at least ``KNEE_MIN_NEAR``, and half its track's nearest, as for a jolt): the other road user is at
     the bumper. Half its nearest: at 5 fps the half second is two frames, and a car still 0.35 near (its
     nearest 1.0) paused its growth for them (ccd_000031 at half its frame rate: the crash put 2.6 s early
@@ -280,7 +288,8 @@ def knee_frame(s: pd.DataFrame, fps: float) -> int | None:
         prev = g[k - n_prev : k]
         changed = prev[prev != 0.0]  # a resampled clip repeats frames: no growth there (ccd_000340 at 15 fps)
         rate = float(np.median(changed)) if len(changed) else 0.0
-        stays = ls[k + 1 : k + 1 + n_prev].max() - ls[k] < KNEE_MAX_LATER_GROWTH  # not a box jump
+        limit = min(KNEE_MAX_LATER_GROWTH, KNEE_LATER_SHARE * rate * n_prev)  # not a box jump, not slower growth
+        stays = ls[k + 1 : k + 1 + n_prev].max() - ls[k] < limit
         if rate > 0.02 and near[k] >= at_bumper and g[k] < rate / 3 and g[k + 1] < rate / 3 and stays:
             return int(frames[k])
     return None
