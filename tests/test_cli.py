@@ -156,3 +156,12 @@ def test_console_command_runs_blas_on_one_thread_unless_told(given, expected):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
     pools = json.loads(out.stdout)
     assert pools and all(n == expected for n in pools), pools
+
+
+def test_an_ego_speed_out_of_range_or_beside_a_given_camera_is_one_line(tmp_path):
+    video = tmp_path / "clip.mp4"
+    video.write_bytes(b"not read: the options are refused first")
+    out = str(tmp_path / "out")
+    assert_one_line_error(run("extract", str(video), "-o", out, "--ego-speed", "0"), "--ego-speed must be 1-400 km/h")
+    refused = run("extract", str(video), "-o", out, "--ego-speed", "50", "--hfov", "90")
+    assert_one_line_error(refused, "--ego-speed reads an uncalibrated camera's focal length")

@@ -568,3 +568,32 @@ def test_frames_repeated_by_a_higher_frame_rate_give_the_speed_of_the_original(t
     are not measured (``video.repeats.RepeatWatch``): 1.5 %."""
     assert _seq06_speed_error(tmp_path, 1) < 3.0
     assert _seq06_speed_error(tmp_path, 3) < 3.0
+
+
+def test_the_ego_speed_a_user_reads_off_the_overlay_sets_the_scenes_scale(tmp_path):
+    """ccd_000014's GPS overlay reads 57-59 km/h before the crash; from the images alone its speed is ~25 km/h (the
+    focal length of a straight drive is not observable: docs/ego-speed.md). ``extract --ego-speed 58`` reads the
+    focal length from it (the image ego-motion's median speed scales with it, as every distance does): the raw
+    scenario's speed before the crash within 10 % of the overlay, the focal length ~2.3x the self-calibrated one,
+    and the same crash (ego and the lead car, the same frame)."""
+    from deepcrashtest.pipeline.extract import run_extract
+    from deepcrashtest.scenario import Scenario
+
+    video = need(DATA / "crash_ccd" / "ccd_000014.mp4")
+    raws = []
+    for name, speed in (("plain", None), ("given", 58.0)):
+        run_extract(video, tmp_path / name, annotate=False, report=False, ego_speed_kmh=speed)
+        raws.append(Scenario.load(tmp_path / name / "scenario_raw.json"))
+    plain, given = raws
+    crash = given.collision
+    assert crash is not None and plain.collision is not None
+    assert {crash.agent_id, crash.other_id} == {plain.collision.agent_id, plain.collision.other_id}
+    assert crash.time_s == pytest.approx(plain.collision.time_s)
+    t, speed = np.asarray(given.ego.trajectory.t), np.asarray(given.ego.trajectory.speed) * 3.6
+    before = speed[(t > 0.5) & (t < crash.time_s)]
+    assert abs(float(np.median(before)) / 58.0 - 1) < 0.1  # measured 58.3 km/h (plain: 24.8)
+    plain_t, plain_speed = np.asarray(plain.ego.trajectory.t), np.asarray(plain.ego.trajectory.speed) * 3.6
+    assert float(np.median(plain_speed[(plain_t > 0.5) & (plain_t < crash.time_s)])) < 35.0
+    assert 1.8 < given.camera.fy / plain.camera.fy < 2.8  # measured 3265 / 1392 px
+    notes = given.provenance.parameters["self_calibration"]["notes"]
+    assert any("the ego's speed given, 58 km/h" in n for n in notes)

@@ -234,7 +234,9 @@ def scenario_build(
 # --------------------------------------------------------------------------- pipeline stages
 @app.command()
 def extract(
-    video: Path = typer.Argument(..., help="Video file (mp4/mov/avi/mkv) or image folder."),
+    video: Path = typer.Argument(
+        ..., help="Video file (any FFmpeg reads: mp4, mov, avi, mkv, webm, ts, ...) or image folder."
+    ),
     output: Path = typer.Option(..., "-o", "--output", help="Output folder."),
     fps: float | None = typer.Option(None, "--fps", help="Frame rate (required for image folders)."),
     detector: str = typer.Option(DEFAULT_DETECTOR, "--detector", help=DETECTOR_HELP),
@@ -255,6 +257,12 @@ def extract(
     hfov: float | None = typer.Option(None, "--hfov", help="Horizontal field of view, degrees (no YAML)."),
     chessboard: Path | None = typer.Option(None, "--chessboard", help="Folder of 9x6 chessboard photos."),
     camera_height: float | None = typer.Option(None, "--camera-height", help="Camera height above road, m."),
+    ego_speed: float | None = typer.Option(
+        None,
+        "--ego-speed",
+        help="The ego's speed before the crash, km/h, as its GPS overlay or log shows it: sets the scene's metric "
+        "scale (an uncalibrated camera's focal length).",
+    ),
     dashboard_rows: int | None = typer.Option(
         None, "--dashboard-rows", help="Rows of dashboard/bonnet at the bottom to ignore (default: detect)."
     ),
@@ -297,6 +305,10 @@ def extract(
         require_file(camera, "camera file")
     if chessboard is not None and not chessboard.is_dir():
         raise UserError(f"{chessboard}: chessboard folder not found")
+    if ego_speed is not None and (camera or hfov or chessboard):
+        raise UserError(
+            "--ego-speed reads an uncalibrated camera's focal length: --camera, --hfov and --chessboard give it"
+        )
     # the picture inside black bars (area=) comes from the pass's own first frames
     cam = partial(camera_for_video, yaml_path=camera, hfov_deg=hfov, chessboard=chessboard, height_m=camera_height)
     result = run_extract(
@@ -318,6 +330,7 @@ def extract(
         stage2=stage2,
         max_width=max_width,
         lens=lens,
+        ego_speed_kmh=ego_speed,
     )
     emit(result, as_json, extract_summary)
 

@@ -394,6 +394,7 @@ def combine_focal(
     pitch: tuple[float, float, int] | None = None,
     moving: tuple[float, float, int] | None = None,
     level: tuple[float, float, int] | None = None,
+    speed: tuple[float, float, int] | None = None,
 ) -> tuple[float, float, int] | None:
     """Inverse-variance (log) combination of the prior and the estimates -> (f, rel sigma, support).
 
@@ -405,7 +406,8 @@ def combine_focal(
     (:mod:`deepcrashtest.geometry.selfcalib_moving`, parked vehicles included) stands in for the
     parked-vehicle one where that is missing or dropped (they share the parked tracks), at
     :data:`MOVING_MIN_REL` at best; both are dropped when a trusted bounce disagrees. ``level``: the
-    level-camera term of the horizon (:mod:`deepcrashtest.geometry.selfcalib_image`), at its own sigma."""
+    level-camera term of the horizon (:mod:`deepcrashtest.geometry.selfcalib_image`), at its own sigma; ``speed``: the
+    ego's speed the user gave (:func:`focal_from_ego_speed`), at its own sigma."""
     terms = [(math.log(prior), FOCAL_PRIOR_REL)]
     support = 0
     if _trusted_bounce_disagrees(motion, pitch):
@@ -425,11 +427,62 @@ def combine_focal(
         support += rotation[2]
     if level is not None:
         terms.append((math.log(level[0]), level[1]))
+    if speed is not None:
+        terms.append((math.log(speed[0]), speed[1]))
+        support += speed[2]
     if len(terms) == 1:
         return None
     w = np.array([1.0 / r**2 for _, r in terms])
     v = np.array([m for m, _ in terms])
     return math.exp(float(np.sum(w * v) / np.sum(w))), float(1.0 / np.sqrt(np.sum(w))), support
+
+
+#: Relative 1-sigma of the focal length read from the ego's speed the user gave (``extract --ego-speed``): a GPS
+#: speed to +-1-2 km/h, and the median of the image ego-motion's speed readings, which the focal length scales.
+USER_SPEED_REL = 0.05
+#: Speed readings (m/s) under this are the ego standing: they tell nothing of the scale.
+USER_SPEED_MIN_MPS = 1.0
+
+
+def _user_speed(
+    ego: EgoMotion | None, camera: Camera, speed_mps: float | None, scaled_by_height: bool, notes: list[str]
+) -> Any:
+    """A function of the calibrated camera height (m) giving :func:`focal_from_ego_speed`'s term (None without a
+    user's speed, an image ego-motion or a moving ego), its finding said once in ``notes``."""
+    said: list[float] = []
+
+    def term(height_m: float) -> tuple[float, float, int] | None:
+        if speed_mps is None or ego is None or not scaled_by_height:
+            return None
+        found = focal_from_ego_speed(ego, camera, height_m, speed_mps)
+        if height_m not in said:
+            said.append(height_m)
+            notes.append(
+                f"the ego's speed given, {3.6 * speed_mps:.0f} km/h: focal length {found[0]:.0f} px from the image "
+                f"ego-motion's median speed over {found[2]} moving frames at a camera height of {height_m:.2f} m"
+                if found is not None
+                else f"the ego's speed given, {3.6 * speed_mps:.0f} km/h, not used: the video shows the ego standing"
+            )
+        return found
+
+    return term
+
+
+def focal_from_ego_speed(
+    ego: EgoMotion, camera: Camera, height_m: float, speed_mps: float
+) -> tuple[float, float, int] | None:
+    """(focal length px, relative sigma, frames used) that gives image ego-motion the ego's speed the user knows.
+
+    Image ego-motion's metric scale is the road plane's, proportional to focal length x camera height (``ego``
+    measured with ``camera``'s): at the calibrated height ``height_m`` its median speed over the frames where it
+    moves is ``v``, and the focal length ``camera.fy x speed_mps / v`` gives it ``speed_mps``. Road users' distances
+    (box sizes, bottom rows) scale with the same focal length, so the whole scene takes the metric scale. None
+    where the video shows the ego standing (fewer than 3 readings of at least :data:`USER_SPEED_MIN_MPS`)."""
+    moving = ego.speed[np.isfinite(ego.speed) & (ego.speed >= USER_SPEED_MIN_MPS)]
+    if len(moving) < 3 or not speed_mps > 0:
+        return None
+    measured = float(np.median(moving)) * height_m / camera.height_m
+    return camera.fy * speed_mps / measured, USER_SPEED_REL, len(moving)
 
 
 #: 1-sigma (fraction of the image width) of the principal point's column about the image centre
@@ -556,6 +609,7 @@ def self_calibrate(
     size: tuple[int, int],
     ego: EgoMotion | None = None,
     ego_scaled_by_height: bool = False,
+    ego_speed_mps: float | None = None,
 ) -> SelfCalibration:
     """Horizon, camera height and focal length of an uncalibrated camera (see the module docstring).
 
@@ -564,24 +618,33 @@ def self_calibrate(
     metric scale came from ``camera.height_m`` and the camera's focal length (monocular ego-motion: the
     road plane's scale is proportional to focal length x camera height): it cannot calibrate the focal
     length, and ``SelfCalibration.ego_scale`` is the factor (measured over assumed focal x height) that
-    rescales it. What cannot be measured keeps the prior."""
+    rescales it. ``ego_speed_mps``: the ego's speed the user knows (a GPS overlay or log), which image ego-motion
+    scaled by height then reads the focal length from (:func:`focal_from_ego_speed`). What cannot be measured keeps
+    the prior."""
     notes: list[str] = []
+    speed_of = _user_speed(ego, camera, ego_speed_mps, ego_scaled_by_height, notes)
     tracks = undistorted_tracks(tracks, camera, size)  # a lens's distortion known: boxes in its pinhole image
     hh = horizon_and_height(tracks, size)
     cam = camera
     if hh is None:
         few = horizon_from_few_boxes(tracks, size, cam.height_m)
-        if few is None:
+        if few is None and speed_of(cam.height_m) is None:
             notes.append(f"fewer than {MIN_HORIZON_BOXES} uncut vehicle boxes: the camera keeps its priors")
             vh = cam.horizon_v()
             return SelfCalibration(cam, vh, float("nan"), cam.height_m, float("nan"), cam.fy, float("nan"), 0, 0, notes)
-        vh, sig_v, n = few
-        notes.append(
-            f"fewer than {MIN_BOXES} uncut vehicle boxes: horizon from {n} boxes at the prior camera height "
-            f"{cam.height_m:.2f} m (was row {cam.horizon_v():.0f}, {cam.pitch_source}); the height keeps its prior"
-        )
-        focal = combine_focal(cam.fy, None, None, level=_level_term(camera, vh, sig_v, notes))
-        upd: dict[str, Any] = {"pitch_source": "self_calibration", "horizon_sigma_px": sig_v}
+        upd: dict[str, Any] = {}
+        if few is None:  # no horizon from boxes, but the user's speed gives the focal length
+            notes.append(f"fewer than {MIN_HORIZON_BOXES} uncut vehicle boxes: horizon and height keep their priors")
+            vh, sig_v, n = cam.horizon_v(), float("nan"), 0
+        else:
+            vh, sig_v, n = few
+            notes.append(
+                f"fewer than {MIN_BOXES} uncut vehicle boxes: horizon from {n} boxes at the prior camera height "
+                f"{cam.height_m:.2f} m (was row {cam.horizon_v():.0f}, {cam.pitch_source}); the height keeps its prior"
+            )
+            upd = {"pitch_source": "self_calibration", "horizon_sigma_px": sig_v}
+        level = _level_term(camera, vh, sig_v, notes) if n else None
+        focal = combine_focal(cam.fy, None, None, level=level, speed=speed_of(cam.height_m))
         fy, sig_f = cam.fy, float("nan")
         if focal is not None:
             fy, sig_f = focal[0], focal[0] * focal[1]
@@ -619,14 +682,15 @@ def self_calibrate(
                 "focal length estimates (px, relative 1-sigma, support): "
                 + ", ".join(f"{k} {v[0]:.0f} {100 * v[1]:.1f} % {v[2]}" for k, v in sources.items() if v is not None)
             )
-    elif level is not None:  # no ego motion that can calibrate it: the level-camera horizon alone
-        focal = combine_focal(cam.fy, None, None, level=level)
+    elif level is not None or speed_of(hc) is not None:  # no ego motion that can calibrate it: the level-camera
+        focal = combine_focal(cam.fy, None, None, level=level, speed=speed_of(hc))  # horizon, the user's speed
     if focal is not None:
         fy, rel, used = focal
         sig_f = fy * rel
         notes.append(
             f"focal length {fy:.0f} px +- {100 * rel:.0f} %: {used} parked or moving tracks / turn box pairs / "
             f"bounce frames{', the level-camera horizon' if level is not None else ''}"
+            f"{', the ego speed given' if speed_of(hc) is not None else ''}"
         )
     elif camera.intrinsics_source == "default":  # the unknown-dashcam default: its spread is the uncertainty
         sig_f = FOCAL_PRIOR_REL * fy

@@ -95,6 +95,8 @@ class CameraForVideo(Protocol):
 MIN_EXTRACT_SHOT_S = 1.0
 
 
+#: ``extract --ego-speed`` at most (km/h).
+MAX_EGO_SPEED_KMH = 400.0
 #: ``extract --lens``: ``none`` (frames as a pinhole camera's) or ``auto`` (the lens read from straight edges).
 LENS_MODES = ("none", "auto")
 
@@ -120,6 +122,7 @@ def run_extract(
     stage2: Stage2Params | None = None,
     max_width: int | None = DEFAULT_MAX_WIDTH,
     lens: str = "none",
+    ego_speed_kmh: float | None = None,
 ) -> dict[str, Any]:
     """Extract a video in ONE decoding pass: detect + track, ego-motion, lanes, localisation.
 
@@ -147,10 +150,16 @@ def run_extract(
     ``lens``: ``"auto"`` reads a wide-angle lens's radial distortion from the video's straight edges when no
     calibration is given (:mod:`deepcrashtest.geometry.lens`); ``"none"`` (default) takes the frames as a pinhole
     camera's. A given camera's distortion is always used.
+
+    ``ego_speed_kmh``: the ego's speed before the crash as its GPS overlay or log shows it (km/h, about constant over
+    the clip): an uncalibrated camera's focal length is read from it (the image ego-motion's median speed scales with
+    it, and so does every road user's distance), so the scenario takes the video's metric scale. A camera with its
+    own intrinsics keeps them (the speed is not used; the CLI refuses the two together).
     """
     crash_spec = _parse_crash(crash) if crash is not None else None
     max_width = max_width or None  # 0: the frames as stored
-    _check_options(detect_every, max_frames, max_width, lens)
+    _check_options(detect_every, max_frames, max_width, lens, ego_speed_kmh)
+    ego_speed = None if ego_speed_kmh is None else ego_speed_kmh / 3.6
     src_path, out = Path(video), Path(output)
     paths = _output_paths(src_path, out, annotate, geometry, report, force)
     watch = shots and frame_range is None  # cuts are looked for in the same decoding pass
@@ -162,7 +171,7 @@ def run_extract(
             with output_set(out, OUTPUT_NAMES, force) as stage:  # the whole set of one run, or nothing
                 staged = {key: stage / path.name for key, path in paths.items()}
                 args = (src_path, out, staged, det, detect_every, max_frames, fps, False, frame_range, seed, watch)
-                plan = _Pass(*args, max_width=max_width, lens=lens)
+                plan = _Pass(*args, max_width=max_width, lens=lens, ego_speed=ego_speed)
                 plan.imports = imports
                 result = _run_pass(plan, camera, dashboard_rows, geometry, lanes, report, crash_spec, stage2)
     except _Compilation as comp:  # nothing was written: one extraction per shot instead
@@ -171,7 +180,7 @@ def run_extract(
         found = comp.shots or detect_shots(src_path, fps, max_frames)
         options: dict[str, Any] = dict(detector=detector, detect_every=detect_every, fps=fps, annotate=annotate)
         options |= dict(camera=camera, dashboard_rows=dashboard_rows, lanes=lanes, report=report, seed=seed)
-        options |= dict(stage2=stage2, geometry=geometry, max_width=max_width, lens=lens)
+        options |= dict(stage2=stage2, geometry=geometry, max_width=max_width, lens=lens, ego_speed_kmh=ego_speed_kmh)
         if len(found) > 1:
             return _extract_shots(src_path, out, found, force, options, crash_spec)
         return run_extract(src_path, out, force=force, shots=False, crash=crash, max_frames=max_frames, **options)
@@ -365,7 +374,13 @@ def _opencv_threads(n: int) -> Iterator[None]:
         cv2.setNumThreads(before)
 
 
-def _check_options(detect_every: int, max_frames: int | None, max_width: int | None = None, lens: str = "none") -> None:
+def _check_options(
+    detect_every: int,
+    max_frames: int | None,
+    max_width: int | None = None,
+    lens: str = "none",
+    ego_speed_kmh: float | None = None,
+) -> None:
     if detect_every < 1:
         raise UserError(f"--detect-every must be >= 1 (got {detect_every})")
     if max_frames is not None and max_frames < 1:
@@ -374,6 +389,8 @@ def _check_options(detect_every: int, max_frames: int | None, max_width: int | N
         raise UserError(f"--max-width must be at least {MIN_MAX_WIDTH} px, or 0 for full resolution (got {max_width})")
     if lens not in LENS_MODES:
         raise UserError(f"--lens must be one of {', '.join(LENS_MODES)} (got {lens!r})")
+    if ego_speed_kmh is not None and not 1.0 <= ego_speed_kmh <= MAX_EGO_SPEED_KMH:
+        raise UserError(f"--ego-speed must be 1-{MAX_EGO_SPEED_KMH:g} km/h, the ego moving (got {ego_speed_kmh:g})")
 
 
 def _output_paths(
@@ -420,6 +437,8 @@ class _Pass:
     """Frames wider than this (px) are processed scaled down to it (:func:`~deepcrashtest.video.source.open_video`)."""
     lens: str = "none"
     """``"auto"``: the lens's distortion read from the video when no calibration is given (:func:`run_extract`)."""
+    ego_speed: float | None = None
+    """The ego's speed the user knows (m/s), for an uncalibrated camera's focal length (:func:`run_extract`)."""
     motion: GlobalMotion = field(default_factory=GlobalMotion)
     """The camera's global image motion per frame (the ego's jolt, for crash detection)."""
     shot_watch: ShotWatch | None = field(default=None, init=False)
@@ -540,6 +559,7 @@ class _Pass:
             on_frame=on_frame,
             lens=self.lens == "auto",
             frame_times=meta.variable_frame_times,
+            ego_speed=self.ego_speed,
         )
 
 
@@ -677,7 +697,7 @@ def _finish_scenario(
             "fx": round(geo.camera.fx, 1),
             "pitch_rad": round(geo.camera.pitch_rad, 4),
             "pitch_source": geo.camera.pitch_source,
-            "height_m": geo.camera.height_m,
+            "height_m": round(geo.camera.height_m, 3),
         },
         "dashboard_rows": geo.dashboard_rows,
     }

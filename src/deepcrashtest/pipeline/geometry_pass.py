@@ -186,6 +186,7 @@ def extract_geometry(
     on_frame: Callable[[FrameLike, TrackRows, LaneState | None], None] | None = None,
     lens: bool = False,
     frame_times: Callable[[], Sequence[float] | None] | None = None,
+    ego_speed: float | None = None,
 ) -> GeometryResult:
     """Run the geometry stage over one pass of frames (see the module docstring).
 
@@ -194,7 +195,9 @@ def extract_geometry(
     read the lens's radial distortion from the first frames' straight edges (:mod:`deepcrashtest.geometry.lens`).
     ``frame_times``: asked after the last frame, every frame's time (s, by index) where the video's frame rate
     varies (:meth:`deepcrashtest.video.source.VideoMeta.variable_frame_times`), else None: the raw Scenario's
-    ``source.frame_times``, which the monocular filter steps by.
+    ``source.frame_times``, which the monocular filter steps by. ``ego_speed``: the ego's speed (m/s) the user knows
+    (a GPS overlay or log), from which an uncalibrated camera's focal length is read
+    (:func:`deepcrashtest.geometry.selfcalib.focal_from_ego_speed`).
     """
     buffer, rest = _calibration_frames(frames, calib_seconds)
     cam, rows, horizon_source = estimate_camera(
@@ -247,7 +250,7 @@ def extract_geometry(
     if cam.intrinsics_source == "default" and len(tracks):  # no calibration given: the video calibrates it
         from deepcrashtest.geometry.selfcalib import self_calibrate
 
-        calibration = self_calibrate(tracks, cam, size, ego, ego_scaled_by_height=True)
+        calibration = self_calibrate(tracks, cam, size, ego, ego_scaled_by_height=True, ego_speed_mps=ego_speed)
         scale = (calibration.ego_scale, cam.fy / calibration.camera.fy)
         cam = calibration.camera
         horizon_source = cam.pitch_source
