@@ -241,6 +241,7 @@ def odd_other_commands(fz: Fuzz, d: Path, tmp: Path) -> None:
         "--max-frames": INTS,
         "--hfov": FLOATS + ["179.9", "180", "360"],
         "--camera-height": FLOATS,
+        "--ego-speed": FLOATS + ["0.5", "1", "60", "400", "401"],
         "--dashboard-rows": INTS + ["48", "47"],
         "--crash": ["", "-1", "x", "1:ego", "2:ego,ego", "1:7,8", "999999999999", "1:", ":", "1e3"],
         "--detector": ["", "nosuch", "/no/such/model.onnx"],
