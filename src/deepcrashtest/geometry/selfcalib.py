@@ -25,6 +25,7 @@ vehicles also give the **camera height** without any class size (their depth fro
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -446,7 +447,7 @@ USER_SPEED_MIN_MPS = 1.0
 
 def _user_speed(
     ego: EgoMotion | None, camera: Camera, speed_mps: float | None, scaled_by_height: bool, notes: list[str]
-) -> Any:
+) -> Callable[[float], tuple[float, float, int] | None]:
     """A function of the calibrated camera height (m) giving :func:`focal_from_ego_speed`'s term (None without a
     user's speed, an image ego-motion or a moving ego), its finding said once in ``notes``."""
     said: list[float] = []
