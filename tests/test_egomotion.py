@@ -597,3 +597,16 @@ def test_the_ego_speed_a_user_reads_off_the_overlay_sets_the_scenes_scale(tmp_pa
     assert 1.8 < given.camera.fy / plain.camera.fy < 2.8  # measured 3265 / 1392 px
     notes = given.provenance.parameters["self_calibration"]["notes"]
     assert any("the ego's speed given, 58 km/h" in n for n in notes)
+
+
+def test_an_ego_speed_given_for_a_standing_ego_is_not_used_and_said(tmp_path):
+    """dad_000528's ego stands at a junction (its scene does not grow): a speed given for it cannot scale anything;
+    the camera keeps its focal length and the user is told why, in the scenario's warnings."""
+    from deepcrashtest.pipeline.extract import run_extract
+    from deepcrashtest.scenario import Scenario
+
+    video = need(DAD / "dad_000528.mp4")
+    run_extract(video, tmp_path / "out", annotate=False, report=False, max_frames=40, ego_speed_kmh=30.0)
+    raw = Scenario.load(tmp_path / "out" / "scenario_raw.json")
+    assert raw.camera.fy == pytest.approx(640.0)
+    assert any(w.startswith("--ego-speed 30 km/h not used: the video shows the ego standing") for w in raw.warnings)

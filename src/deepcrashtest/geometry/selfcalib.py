@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -79,6 +79,8 @@ class SelfCalibration:
     tracks: int
     notes: list[str]
     ego_scale: float = 1.0
+    #: what the user is told (a speed they gave that could not be used)
+    warnings: list[str] = field(default_factory=list)
 
     def summary(self) -> dict[str, Any]:
         """Plain JSON-able numbers (None where not estimated)."""
@@ -446,10 +448,16 @@ USER_SPEED_MIN_MPS = 1.0
 
 
 def _user_speed(
-    ego: EgoMotion | None, camera: Camera, speed_mps: float | None, scaled_by_height: bool, notes: list[str]
+    ego: EgoMotion | None,
+    camera: Camera,
+    speed_mps: float | None,
+    scaled_by_height: bool,
+    notes: list[str],
+    warnings: list[str],
 ) -> Callable[[float], tuple[float, float, int] | None]:
     """A function of the calibrated camera height (m) giving :func:`focal_from_ego_speed`'s term (None without a
-    user's speed, an image ego-motion or a moving ego), its finding said once in ``notes``."""
+    user's speed, an image ego-motion or a moving ego), its finding said once in ``notes`` (and in ``warnings`` where
+    the speed cannot be used)."""
     said: list[float] = []
 
     def term(height_m: float) -> tuple[float, float, int] | None:
@@ -458,12 +466,17 @@ def _user_speed(
         found = focal_from_ego_speed(ego, camera, height_m, speed_mps)
         if height_m not in said:
             said.append(height_m)
-            notes.append(
-                f"the ego's speed given, {3.6 * speed_mps:.0f} km/h: focal length {found[0]:.0f} px from the image "
-                f"ego-motion's median speed over {found[2]} moving frames at a camera height of {height_m:.2f} m"
-                if found is not None
-                else f"the ego's speed given, {3.6 * speed_mps:.0f} km/h, not used: the video shows the ego standing"
-            )
+            if found is not None:
+                notes.append(
+                    f"the ego's speed given, {3.6 * speed_mps:.0f} km/h: focal length {found[0]:.0f} px from the image "
+                    f"ego-motion's median speed over {found[2]} moving frames at a camera height of {height_m:.2f} m"
+                )
+            else:
+                notes.append(f"the ego's speed given, {3.6 * speed_mps:.0f} km/h, not used: the ego stands")
+                warnings.append(
+                    f"--ego-speed {3.6 * speed_mps:g} km/h not used: the video shows the ego standing (its image "
+                    f"ego-motion under {USER_SPEED_MIN_MPS:g} m/s), which tells nothing of the scale"
+                )
         return found
 
     return term
@@ -623,7 +636,8 @@ def self_calibrate(
     scaled by height then reads the focal length from (:func:`focal_from_ego_speed`). What cannot be measured keeps
     the prior."""
     notes: list[str] = []
-    speed_of = _user_speed(ego, camera, ego_speed_mps, ego_scaled_by_height, notes)
+    warns: list[str] = []
+    speed_of = _user_speed(ego, camera, ego_speed_mps, ego_scaled_by_height, notes, warns)
     tracks = undistorted_tracks(tracks, camera, size)  # a lens's distortion known: boxes in its pinhole image
     hh = horizon_and_height(tracks, size)
     cam = camera
@@ -632,7 +646,8 @@ def self_calibrate(
         if few is None and speed_of(cam.height_m) is None:
             notes.append(f"fewer than {MIN_HORIZON_BOXES} uncut vehicle boxes: the camera keeps its priors")
             vh = cam.horizon_v()
-            return SelfCalibration(cam, vh, float("nan"), cam.height_m, float("nan"), cam.fy, float("nan"), 0, 0, notes)
+            nan = float("nan")
+            return SelfCalibration(cam, vh, nan, cam.height_m, nan, cam.fy, nan, 0, 0, notes, warnings=warns)
         upd: dict[str, Any] = {}
         if few is None:  # no horizon from boxes, but the user's speed gives the focal length
             notes.append(f"fewer than {MIN_HORIZON_BOXES} uncut vehicle boxes: horizon and height keep their priors")
@@ -654,7 +669,7 @@ def self_calibrate(
             upd["focal_sigma_px"] = sig_f
         cam = cam.model_copy(update=upd | {"pitch_rad": math.atan2(cam.cy - vh, fy)})
         scale = fy / camera.fy if ego_scaled_by_height else 1.0
-        return SelfCalibration(cam, vh, sig_v, cam.height_m, float("nan"), fy, sig_f, n, 0, notes, scale)
+        return SelfCalibration(cam, vh, sig_v, cam.height_m, float("nan"), fy, sig_f, n, 0, notes, scale, warns)
     vh, sig_v, hc, bare_h, n = hh
     # the level-camera term takes the bootstrap sigma: its mounting-pitch prior, set from box horizons on
     # cameras of known focal length, already holds the road's departure from one plane
@@ -727,4 +742,4 @@ def self_calibrate(
             "principal point is off the image centre (a cropped frame: ccd_000014's verticals stay parallel, "
             "bench/vertical_lines.py): distances and the ego's speed scale with the focal length"
         )
-    return SelfCalibration(cam, vh, sig_v, hc, sig_h, fy, sig_f, n, used, notes, ego_scale)
+    return SelfCalibration(cam, vh, sig_v, hc, sig_h, fy, sig_f, n, used, notes, ego_scale, warns)

@@ -126,6 +126,8 @@ class SpeedCut:
         if cut_time is not None:
             params["ego_speed_cut_s"] = round(float(cut_time), 4)
         sc = sc.evolve(provenance=sc.provenance.model_copy(update={"parameters": params}))
+        if self.calibration is not None and self.calibration.warnings:
+            sc = sc.evolve(warnings=[*sc.warnings, *self.calibration.warnings])
         return GeometryResult(
             sc, self.camera, ego, self.lanes, self.lane_states, self.dashboard_rows, self.horizon_source,
             self.calibration, self,
