@@ -347,3 +347,28 @@ def test_a_still_picture_stored_before_the_clip_is_not_the_video(dad, tmp_path):
     assert any(named in w and "0 (mjpeg 320x180)" in w for w in m.warnings)
     frames = VideoFrames(path)
     assert (frames.width, frames.height, frames.fps) == (1280, 720, 20.0)
+
+
+def test_frames_by_time_from_a_transport_stream_are_the_frames_decoded_in_order(dad, tmp_path):
+    """A dashcam's MPEG transport stream (``.TS``) has no index: seeking goes by bytes and landed a few frames past
+    the key frame asked for, so the viewer and the report showed a later frame for most requests (26 of 30 random
+    ones on dad_000478 written as MPEG-2 TS) and none near the end ("no frame could be decoded at 4.950 s"). A
+    landing past the requested frame is tried again from further back: every frame asked for is the one decoded in
+    order, the last ones included."""
+    path = tmp_path / "dashcam.ts"
+    with av.open(str(dad)) as src, av.open(str(path), "w") as out:
+        stream = out.add_stream("mpeg2video", rate=20)
+        stream.width, stream.height, stream.pix_fmt = 640, 360, "yuv420p"
+        stream.options = {"q:v": "5"}
+        for frame in src.decode(video=0):
+            image = frame.to_ndarray(width=640, height=360, format="rgb24")
+            for packet in stream.encode(av.VideoFrame.from_ndarray(image, format="rgb24")):
+                out.mux(packet)
+        for packet in stream.encode():
+            out.mux(packet)
+    with open_video(path) as src:
+        in_order = [f.image[:, :, ::-1] for f in src]  # RGB, as VideoFrames gives them
+    frames = VideoFrames(path)
+    asked = [int(k) for k in np.random.default_rng(0).permutation(len(in_order))[:20]] + [99, 98, 0, 97, 50, 49]
+    for k in asked:
+        assert np.array_equal(frames.frame(k), in_order[k]), k

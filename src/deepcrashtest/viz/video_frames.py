@@ -6,6 +6,7 @@ little after the previous one (playback) decodes on from where the last one stop
 
 from __future__ import annotations
 
+import itertools
 import threading
 from pathlib import Path
 from typing import Any
@@ -17,6 +18,8 @@ from deepcrashtest.video.source import display_array, display_size, main_video_s
 
 #: Decode on instead of seeking when the requested time is at most this far ahead (seconds).
 _DECODE_AHEAD_S = 2.0
+#: A seek that lands past the requested frame is tried again this much earlier (s; inf: from the stream's start).
+_SEEK_BACK_S = (0.0, 1.0, 4.0, 16.0, float("inf"))
 
 
 class VideoFrames:
@@ -94,13 +97,37 @@ class VideoFrames:
                 return self._last[1]
             last_t = self._last[0] if self._last is not None else None
             if self._frames is None or last_t is None or not (last_t < t <= last_t + _DECODE_AHEAD_S):
-                self._seek(t)
+                self._seek_before(t)
             img = self._decode_until(t)
             return img
 
-    def _seek(self, t: float) -> None:
+    def _seek_before(self, t: float) -> None:
+        """Seek so that decoding starts at or before the frame shown at ``t`` (s). A container without an index
+        (an MPEG transport stream, a dashcam's ``.TS``) seeks by bytes and may land a few frames past the key frame
+        it was asked for, or past the last one (the decoder then gives nothing until the next key frame): the
+        frame shown would be a later one, or none near the end. Such a landing is tried again from further back
+        (:data:`_SEEK_BACK_S`), at the last from the start."""
+        for back in _SEEK_BACK_S:
+            self._seek(t - back if np.isfinite(back) else None)
+            first = self._next_decoded()
+            if first is not None and (first.time is None or float(first.time) <= t + 0.5 / self.fps):
+                self._frames = itertools.chain([first], self._frames)
+                return
+
+    def _next_decoded(self) -> Any:
+        """The next decoded frame after a seek, or None (nothing decodes from there)."""
+        import av
+
+        try:
+            return next(self._frames, None)
+        except (av.error.FFmpegError, OSError):  # type: ignore[attr-defined]
+            return None
+
+    def _seek(self, t: float | None) -> None:
+        """Seek to the key frame at or before ``t`` (s; None: the stream's start)."""
         tb = self._stream.time_base
-        self._container.seek(int(t / tb) if tb else 0, stream=self._stream, backward=True, any_frame=False)
+        target = int(max(t, 0.0) / tb) if t is not None and tb else 0
+        self._container.seek(target, stream=self._stream, backward=True, any_frame=False)
         self._frames = self._container.decode(self._stream)
         self._last = None
 
