@@ -51,6 +51,8 @@ class VideoFrames:
         start = self._stream.start_time
         self.start_s = float(start * tb) if start is not None and tb is not None else 0.0
         self._lock = threading.Lock()
+        self._times_lock = threading.Lock()
+        self._times: np.ndarray | None = None
         self._frames: Any = None
         self._last: tuple[float, np.ndarray] | None = None
         first = self._first_frame()
@@ -86,19 +88,39 @@ class VideoFrames:
         }
 
     def frame(self, index: int) -> np.ndarray:
-        """The RGB frame number ``index`` (0-based; the video's own timestamps, clamped to the video)."""
-        return self.frame_at(self.start_s + index / self.fps)
+        """The RGB frame number ``index`` (0-based, in the order frames are shown, clamped to the video): at its own
+        timestamp, which the file's packets list (a phone's variable frame rate: frame k is not at k / fps), else at
+        the stream's start + ``index`` / fps."""
+        times = self.frame_times()
+        if times is None:
+            return self.frame_at(self.start_s + index / self.fps)
+        k = min(max(int(index), 0), len(times) - 1)
+        gaps = np.diff(times[max(k - 1, 0) : k + 2])
+        half = 0.5 * float(gaps[gaps > 0].min()) if np.any(gaps > 0) else 0.5 / self.fps
+        return self._decoded_at(float(times[k]), min(half, 0.5 / self.fps))
+
+    def frame_times(self) -> np.ndarray | None:
+        """Every frame's timestamp (s, the stream's clock, in the order shown) from the file's packets (read once,
+        without decoding), or None where a packet has none (the frame's place then comes from the frame rate)."""
+        with self._times_lock:
+            if self._times is None:
+                self._times = _packet_times(self.path, self._stream.index)
+            return self._times if len(self._times) else None
 
     def frame_at(self, t: float) -> np.ndarray:
         """The RGB frame (H, W, 3) uint8 shown at time ``t`` seconds (clamped to the video)."""
         t = min(max(float(t), self.start_s), self.start_s + max(self.duration_s - 0.5 / self.fps, 0.0))
+        return self._decoded_at(t, 0.5 / self.fps)
+
+    def _decoded_at(self, t: float, within: float) -> np.ndarray:
+        """The frame starting at or after ``t - within`` (s), the one the last request decoded if within of it."""
         with self._lock:
-            if self._last is not None and abs(self._last[0] - t) <= 0.5 / self.fps:
+            if self._last is not None and abs(self._last[0] - t) <= within:
                 return self._last[1]
             last_t = self._last[0] if self._last is not None else None
             if self._frames is None or last_t is None or not (last_t < t <= last_t + _DECODE_AHEAD_S):
                 self._seek_before(t)
-            img = self._decode_until(t)
+            img = self._decode_until(t, within)
             return img
 
     def _seek_before(self, t: float) -> None:
@@ -131,13 +153,13 @@ class VideoFrames:
         self._frames = self._container.decode(self._stream)
         self._last = None
 
-    def _decode_until(self, t: float) -> np.ndarray:
-        """Decode forward to the frame nearest ``t``: the first one starting at or after ``t`` - half a frame."""
+    def _decode_until(self, t: float, within: float) -> np.ndarray:
+        """Decode forward to the frame nearest ``t``: the first one starting at or after ``t - within`` (s)."""
         last: Any = None
         for frame in self._frames:
             last = frame
             ft = float(frame.time) if frame.time is not None else 0.0
-            if ft >= t - 0.5 / self.fps:
+            if ft >= t - within:
                 self._last = (ft, self._shown(frame))
                 return self._last[1]
         self._frames = None  # end of stream: the next request seeks
@@ -163,3 +185,20 @@ def jpeg_bytes(rgb: np.ndarray, max_width: int = 960, quality: int = 85) -> byte
     if not ok:  # pragma: no cover - OpenCV always encodes uint8 RGB
         raise RuntimeError("JPEG encoding failed")
     return bytes(buf)
+
+
+def _packet_times(path: Path, index: int) -> np.ndarray:
+    """The presentation times (s, sorted: the order frames are shown) of stream ``index``'s packets in ``path``, read
+    without decoding; empty where a packet has no timestamp or the file cannot be read again."""
+    import av
+
+    try:
+        with av.open(str(path)) as container:
+            stream = container.streams[index]
+            tick = stream.time_base
+            pts = [p.pts for p in container.demux(stream) if p.size]
+    except (av.error.FFmpegError, OSError):  # type: ignore[attr-defined]
+        return np.zeros(0)
+    if not pts or any(p is None for p in pts) or tick is None:
+        return np.zeros(0)
+    return np.sort(np.asarray(pts, dtype=np.int64)) * float(tick)
