@@ -25,7 +25,6 @@ vehicles also give the **camera height** without any class size (their depth fro
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -447,39 +446,33 @@ USER_SPEED_REL = 0.05
 USER_SPEED_MIN_MPS = 1.0
 
 
-def _user_speed(
+def _ego_speed_term(
     ego: EgoMotion | None,
     camera: Camera,
     speed_mps: float | None,
     scaled_by_height: bool,
+    height_m: float,
     notes: list[str],
     warnings: list[str],
-) -> Callable[[float], tuple[float, float, int] | None]:
-    """A function of the calibrated camera height (m) giving :func:`focal_from_ego_speed`'s term (None without a
-    user's speed, an image ego-motion or a moving ego), its finding said once in ``notes`` (and in ``warnings`` where
-    the speed cannot be used)."""
-    said: list[float] = []
-
-    def term(height_m: float) -> tuple[float, float, int] | None:
-        if speed_mps is None or ego is None or not scaled_by_height:
-            return None
-        found = focal_from_ego_speed(ego, camera, height_m, speed_mps)
-        if height_m not in said:
-            said.append(height_m)
-            if found is not None:
-                notes.append(
-                    f"the ego's speed given, {3.6 * speed_mps:.0f} km/h: focal length {found[0]:.0f} px from the image "
-                    f"ego-motion's median speed over {found[2]} moving frames at a camera height of {height_m:.2f} m"
-                )
-            else:
-                notes.append(f"the ego's speed given, {3.6 * speed_mps:.0f} km/h, not used: the ego stands")
-                warnings.append(
-                    f"--ego-speed {3.6 * speed_mps:g} km/h not used: the video shows the ego standing (its image "
-                    f"ego-motion under {USER_SPEED_MIN_MPS:g} m/s), which tells nothing of the scale"
-                )
-        return found
-
-    return term
+) -> tuple[float, float, int] | None:
+    """:func:`focal_from_ego_speed`'s term at the calibrated camera height ``height_m`` (m): None without a user's
+    speed or an image ego-motion scaled by the camera height, or where the ego stands; said in ``notes`` (and in
+    ``warnings`` where the speed cannot be used)."""
+    if speed_mps is None or ego is None or not scaled_by_height:
+        return None
+    found = focal_from_ego_speed(ego, camera, height_m, speed_mps)
+    if found is not None:
+        notes.append(
+            f"the ego's speed given, {3.6 * speed_mps:.0f} km/h: focal length {found[0]:.0f} px from the image "
+            f"ego-motion's median speed over {found[2]} moving frames at a camera height of {height_m:.2f} m"
+        )
+    else:
+        notes.append(f"the ego's speed given, {3.6 * speed_mps:.0f} km/h, not used: the ego stands")
+        warnings.append(
+            f"--ego-speed {3.6 * speed_mps:g} km/h not used: the video shows the ego standing (its image "
+            f"ego-motion under {USER_SPEED_MIN_MPS:g} m/s), which tells nothing of the scale"
+        )
+    return found
 
 
 def focal_from_ego_speed(
@@ -637,19 +630,21 @@ def self_calibrate(
     the prior."""
     notes: list[str] = []
     warns: list[str] = []
-    speed_of = _user_speed(ego, camera, ego_speed_mps, ego_scaled_by_height, notes, warns)
+    image_ego = ego  # the path the user's speed is read against (``ego`` is dropped below where it is the images')
     tracks = undistorted_tracks(tracks, camera, size)  # a lens's distortion known: boxes in its pinhole image
     hh = horizon_and_height(tracks, size)
     cam = camera
     if hh is None:
         few = horizon_from_few_boxes(tracks, size, cam.height_m)
-        if few is None and speed_of(cam.height_m) is None:
-            notes.append(f"fewer than {MIN_HORIZON_BOXES} uncut vehicle boxes: the camera keeps its priors")
-            vh = cam.horizon_v()
-            nan = float("nan")
-            return SelfCalibration(cam, vh, nan, cam.height_m, nan, cam.fy, nan, 0, 0, notes, warnings=warns)
         upd: dict[str, Any] = {}
-        if few is None:  # no horizon from boxes, but the user's speed gives the focal length
+        if few is None:
+            speed = _ego_speed_term(image_ego, camera, ego_speed_mps, ego_scaled_by_height, cam.height_m, notes, warns)
+            if speed is None:
+                notes.append(f"fewer than {MIN_HORIZON_BOXES} uncut vehicle boxes: the camera keeps its priors")
+                vh = cam.horizon_v()
+                nan = float("nan")
+                return SelfCalibration(cam, vh, nan, cam.height_m, nan, cam.fy, nan, 0, 0, notes, warnings=warns)
+            # no horizon from boxes, but the user's speed gives the focal length
             notes.append(f"fewer than {MIN_HORIZON_BOXES} uncut vehicle boxes: horizon and height keep their priors")
             vh, sig_v, n = cam.horizon_v(), float("nan"), 0
         else:
@@ -660,7 +655,9 @@ def self_calibrate(
             )
             upd = {"pitch_source": "self_calibration", "horizon_sigma_px": sig_v}
         level = _level_term(camera, vh, sig_v, notes) if n else None
-        focal = combine_focal(cam.fy, None, None, level=level, speed=speed_of(cam.height_m))
+        if few is not None:  # said after the horizon's notes
+            speed = _ego_speed_term(image_ego, camera, ego_speed_mps, ego_scaled_by_height, cam.height_m, notes, warns)
+        focal = combine_focal(cam.fy, None, None, level=level, speed=speed)
         fy, sig_f = cam.fy, float("nan")
         if focal is not None:
             fy, sig_f = focal[0], focal[0] * focal[1]
@@ -684,6 +681,7 @@ def self_calibrate(
         # rotations were measured with it): parked vehicles and turns on that path give it back unchanged
         notes.append("the ego path was measured from the images with the assumed focal length: it cannot calibrate it")
         ego = None
+    speed = _ego_speed_term(image_ego, camera, ego_speed_mps, ego_scaled_by_height, hc, notes, warns)
     if ego is not None:
         motion = focal_from_motion(tracks, size, cam.cx, ego)
         bounce = focal_from_pitch(tracks, size, ego)
@@ -698,15 +696,15 @@ def self_calibrate(
                 "focal length estimates (px, relative 1-sigma, support): "
                 + ", ".join(f"{k} {v[0]:.0f} {100 * v[1]:.1f} % {v[2]}" for k, v in sources.items() if v is not None)
             )
-    elif level is not None or speed_of(hc) is not None:  # no ego motion that can calibrate it: the level-camera
-        focal = combine_focal(cam.fy, None, None, level=level, speed=speed_of(hc))  # horizon, the user's speed
+    elif level is not None or speed is not None:  # no ego motion that can calibrate it: the level-camera horizon,
+        focal = combine_focal(cam.fy, None, None, level=level, speed=speed)  # the user's speed
     if focal is not None:
         fy, rel, used = focal
         sig_f = fy * rel
         notes.append(
             f"focal length {fy:.0f} px +- {100 * rel:.0f} %: {used} parked or moving tracks / turn box pairs / "
             f"bounce frames{', the level-camera horizon' if level is not None else ''}"
-            f"{', the ego speed given' if speed_of(hc) is not None else ''}"
+            f"{', the ego speed given' if speed is not None else ''}"
         )
     elif camera.intrinsics_source == "default":  # the unknown-dashcam default: its spread is the uncertainty
         sig_f = FOCAL_PRIOR_REL * fy
