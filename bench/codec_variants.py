@@ -26,12 +26,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from fidelity_crashes import DATA, LABELS, ROOT  # the same clips, labels and checkout as the fidelity table
 
-ROOT = Path(__file__).resolve().parents[1]
-DATA = ROOT.parent / "shared" / "data"
-if not DATA.is_dir():
-    DATA = Path("/work/shared/data")
-LABEL_FILES = (ROOT / "bench" / "labels" / "dad_crashes.json", ROOT / "bench" / "labels" / "ccd_crashes.json")
 DEFAULT_CLIPS = "ccd_000031,ccd_000053,ccd_000882,dad_000478,dad_000487,dad_000512,dad_000550"
 ODD_SIZE = (853, 479)
 
@@ -53,8 +49,9 @@ KINDS: dict[str, tuple[str, str, str, dict[str, str], str | None]] = {
 
 
 def all_labels() -> dict[str, dict[str, Any]]:
+    """Every labelled clip's label as written in its file (name -> the JSON object), for writing variants' labels."""
     labels: dict[str, dict[str, Any]] = {}
-    for f in LABEL_FILES:
+    for f in LABELS:
         labels.update(json.loads(f.read_text())["clips"])
     return labels
 
@@ -103,8 +100,7 @@ def extract(video: Path, out: Path) -> dict[str, Any]:
 
 def score(name: str, video: Path, out: Path, labels: Path) -> dict[str, Any]:
     """The fidelity of one extraction against its label (crash reproduced, |dt|, IoU processed / replay)."""
-    sys.path.insert(0, str(ROOT / "src"))
-    from deepcrashtest.pipeline.fidelity import run_fidelity
+    from deepcrashtest.pipeline.fidelity import run_fidelity  # on the path through fidelity_crashes
 
     _, s = run_fidelity(
         out / "scenario.json", out / "fidelity", video=video, tracks=out / "tracks.csv", labels=str(labels),
