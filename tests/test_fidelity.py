@@ -241,6 +241,32 @@ def test_overlay_video_draws_the_replay_over_the_frames(kitti_root, tmp_path):
     assert changed.mean() < 0.2  # the video is still the video
 
 
+def test_the_overlay_says_when_the_replay_has_ended(kitti_root):
+    """A scenario ends at its crash, the video goes on: past the replay's last step the overlay draws no 3D box and
+    says the replay ended there (dad_000487: the boxes vanished 0.15 s after the contact, with no word why)."""
+    import cv2
+
+    from deepcrashtest.datasets.kitti.scenario import scenario_from_kitti
+    from deepcrashtest.eval.fidelity import evaluate_fidelity
+    from deepcrashtest.sim import simulate
+    from deepcrashtest.viz.fidelity_video import FidelityPainter
+
+    folder = need(kitti_root / "image_02" / "0001")
+    sc = scenario_from_kitti(kitti_root, 1)
+    tracks = _label_tracks(kitti_root, 1, 25)
+    sim = simulate(sc, duration=sc.frame_time(15) + 0.01)  # the replay runs to frame 15, the video on to 20
+    painter = FidelityPainter(sc, evaluate_fidelity(sc, tracks, sim), sim)
+    assert painter.replay_ended(sc.frame_time(15)) is None
+    line = painter.replay_ended(sc.frame_time(20))
+    assert line is not None and line.startswith(f"REPLAY ENDED at {sc.video_time(float(sim.times[-1])):.2f}s")
+    empty = tracks.iloc[:0]
+    for frame, ended in ((15, False), (20, True)):
+        image = cv2.imread(str(folder / f"{frame:06d}.png"))
+        changed = np.abs(painter.draw(frame, image, empty).astype(int) - image.astype(int)).max(axis=2) > 60
+        assert changed[90:115].any() == ended  # the line (the labelled contact's line would be above it)
+        assert changed[130:].any() != ended  # the replay's 3D boxes, none once it has ended
+
+
 def test_the_trackers_coasting_after_a_lost_road_user_is_not_counted(yolo_ok):
     """ccd_000340, tracked as extract tracks a 10 fps clip (the detector every other frame): a car far
     ahead is hidden by the minivan that turns into the ego; its track coasts on for frames after its last

@@ -5,7 +5,8 @@ Per frame: the simulated replay's road users as 3D boxes projected into the orig
 tracked boxes as thin grey outlines with their id, the reprojection IoU of each simulated box
 against its tracked box, and a header with the frame, video time and scenario time. From the
 replay's first contact on, its two participants turn red and the contact point is marked; the
-labelled contact (when a label is given) is announced in yellow with the labelled boxes.
+labelled contact (when a label is given) is announced in yellow with the labelled boxes. After the replay's last
+step (the scenario ends at its crash) a line says so, and only the tracked boxes are drawn.
 """
 
 from __future__ import annotations
@@ -88,6 +89,9 @@ class FidelityPainter:
             speed = self.first["relative_speed_mps"] or 0.0
             msg = f"SIM CONTACT {ids} at {self.first['video_time_s']:.2f}s ({speed:.1f} m/s)"
             _text(img, msg, (10, 52), RED, 0.7)
+        ended = self.replay_ended(t)
+        if ended is not None:
+            _text(img, ended, (10, 108), (255, 255, 255), 0.6)
         lab = self.label
         if lab is not None and lab.crash and lab.contact_frame is not None and frame_index >= lab.contact_frame:
             _text(
@@ -103,6 +107,16 @@ class FidelityPainter:
                         x1, y1, x2, y2 = (int(v) for v in p.box)
                         cv2.rectangle(img, (x1, y1), (x2, y2), YELLOW, 2, cv2.LINE_AA)
         return img
+
+    def replay_ended(self, t: float) -> str | None:
+        """The line saying the replay is over at scenario time ``t`` (s), or None while it runs: the scenario ends at
+        its crash (or its last sample), so the video's frames after that have only their tracked boxes."""
+        sim: Any = self.sim
+        if sim is None or not len(sim.times) or t <= float(sim.times[-1]) + 0.5 * float(sim.dt):
+            return None
+        end = float(self.sc.video_time(float(sim.times[-1])))
+        why = "the scenario ends at its crash" if self.sc.collision is not None else "the scenario ends there"
+        return f"REPLAY ENDED at {end:.2f}s ({why}): tracked boxes only"
 
     def _draw_sim(self, img: np.ndarray, t: float, contact_now: bool) -> None:
         import cv2
