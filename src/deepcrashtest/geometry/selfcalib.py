@@ -638,14 +638,6 @@ def self_calibrate(
         few = horizon_from_few_boxes(tracks, size, cam.height_m)
         upd: dict[str, Any] = {}
         if few is None:
-            speed = _ego_speed_term(image_ego, camera, ego_speed_mps, ego_scaled_by_height, cam.height_m, notes, warns)
-            if speed is None:
-                notes.append(f"fewer than {MIN_HORIZON_BOXES} uncut vehicle boxes: the camera keeps its priors")
-                vh = cam.horizon_v()
-                nan = float("nan")
-                return SelfCalibration(cam, vh, nan, cam.height_m, nan, cam.fy, nan, 0, 0, notes, warnings=warns)
-            # no horizon from boxes, but the user's speed gives the focal length
-            notes.append(f"fewer than {MIN_HORIZON_BOXES} uncut vehicle boxes: horizon and height keep their priors")
             vh, sig_v, n = cam.horizon_v(), float("nan"), 0
         else:
             vh, sig_v, n = few
@@ -655,8 +647,13 @@ def self_calibrate(
             )
             upd = {"pitch_source": "self_calibration", "horizon_sigma_px": sig_v}
         level = _level_term(camera, vh, sig_v, notes) if n else None
-        if few is not None:  # said after the horizon's notes
-            speed = _ego_speed_term(image_ego, camera, ego_speed_mps, ego_scaled_by_height, cam.height_m, notes, warns)
+        speed = _ego_speed_term(image_ego, camera, ego_speed_mps, ego_scaled_by_height, cam.height_m, notes, warns)
+        if few is None and speed is None:
+            notes.append(f"fewer than {MIN_HORIZON_BOXES} uncut vehicle boxes: the camera keeps its priors")
+            nan = float("nan")
+            return SelfCalibration(cam, vh, nan, cam.height_m, nan, cam.fy, nan, 0, 0, notes, warnings=warns)
+        if few is None:  # no horizon from boxes, but the user's speed gives the focal length
+            notes.append(f"fewer than {MIN_HORIZON_BOXES} uncut vehicle boxes: horizon and height keep their priors")
         focal = combine_focal(cam.fy, None, None, level=level, speed=speed)
         fy, sig_f = cam.fy, float("nan")
         if focal is not None:
