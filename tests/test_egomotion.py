@@ -570,33 +570,36 @@ def test_frames_repeated_by_a_higher_frame_rate_give_the_speed_of_the_original(t
     assert _seq06_speed_error(tmp_path, 3) < 3.0
 
 
-def test_the_ego_speed_a_user_reads_off_the_overlay_sets_the_scenes_scale(tmp_path):
+def test_the_ego_speed_on_the_overlay_or_given_sets_the_scenes_scale(tmp_path):
     """ccd_000014's GPS overlay reads 57-59 km/h before the crash; from the images alone its speed is ~25 km/h (the
-    focal length of a straight drive is not observable: docs/ego-speed.md). ``extract --ego-speed 58`` reads the
-    focal length from it (the image ego-motion's median speed scales with it, as every distance does): the raw
-    scenario's speed before the crash within 10 % of the overlay, the focal length ~2.3x the self-calibrated one,
-    and the same crash (ego and the lead car, the same frame)."""
+    focal length of a straight drive is not observable: docs/ego-speed.md). ``extract`` reads the speed off the
+    picture ("58KM/H"), as ``extract --ego-speed 58`` gives it, and the focal length from it (the image ego-motion's
+    median speed scales with it, as every distance does): the raw scenario's speed before the crash within 10 % of
+    the overlay, the focal length ~2.3x the self-calibrated one, and the same crash (ego and the lead car, the same
+    frame)."""
     from deepcrashtest.pipeline.extract import run_extract
     from deepcrashtest.scenario import Scenario
 
     video = need(DATA / "crash_ccd" / "ccd_000014.mp4")
     raws = []
-    for name, speed in (("plain", None), ("given", 58.0)):
-        run_extract(video, tmp_path / name, annotate=False, report=False, ego_speed_kmh=speed)
+    for name, speed, overlay in (("images", None, False), ("overlay", None, True), ("given", 58.0, True)):
+        run_extract(video, tmp_path / name, annotate=False, report=False, ego_speed_kmh=speed, overlay_speed=overlay)
         raws.append(Scenario.load(tmp_path / name / "scenario_raw.json"))
-    plain, given = raws
-    crash = given.collision
-    assert crash is not None and plain.collision is not None
-    assert {crash.agent_id, crash.other_id} == {plain.collision.agent_id, plain.collision.other_id}
-    assert crash.time_s == pytest.approx(plain.collision.time_s)
-    t, speed = np.asarray(given.ego.trajectory.t), np.asarray(given.ego.trajectory.speed) * 3.6
-    before = speed[(t > 0.5) & (t < crash.time_s)]
-    assert abs(float(np.median(before)) / 58.0 - 1) < 0.1  # measured 58.3 km/h (plain: 24.8)
+    plain = raws[0]
+    assert plain.collision is not None
     plain_t, plain_speed = np.asarray(plain.ego.trajectory.t), np.asarray(plain.ego.trajectory.speed) * 3.6
-    assert float(np.median(plain_speed[(plain_t > 0.5) & (plain_t < crash.time_s)])) < 35.0
-    assert 1.8 < given.camera.fy / plain.camera.fy < 2.8  # measured 3265 / 1392 px
-    notes = given.provenance.parameters["self_calibration"]["notes"]
-    assert any("the ego's speed given, 58 km/h" in n for n in notes)
+    assert float(np.median(plain_speed[(plain_t > 0.5) & (plain_t < plain.collision.time_s)])) < 35.0
+    for raw, said in zip(raws[1:], ("read off the picture's overlay, 57-59 km/h", "given, 58 km/h"), strict=True):
+        crash = raw.collision
+        assert crash is not None
+        assert {crash.agent_id, crash.other_id} == {plain.collision.agent_id, plain.collision.other_id}
+        assert crash.time_s == pytest.approx(plain.collision.time_s)
+        t, speed = np.asarray(raw.ego.trajectory.t), np.asarray(raw.ego.trajectory.speed) * 3.6
+        before = speed[(t > 0.5) & (t < crash.time_s)]
+        assert abs(float(np.median(before)) / 58.0 - 1) < 0.1  # measured 58.3 km/h both (images only: 24.8)
+        assert 1.8 < raw.camera.fy / plain.camera.fy < 2.8  # measured 3265 / 1392 px
+        notes = raw.provenance.parameters["self_calibration"]["notes"]
+        assert any(f"the ego's speed {said}" in n for n in notes), notes
 
 
 def test_an_ego_speed_given_for_a_standing_ego_is_not_used_and_said(tmp_path):

@@ -263,6 +263,12 @@ def extract(
         help="The ego's speed before the crash, km/h, as its GPS overlay or log shows it: sets the scene's metric "
         "scale (an uncalibrated camera's focal length).",
     ),
+    overlay_speed: bool = typer.Option(
+        True,
+        "--overlay-speed/--no-overlay-speed",
+        help="Without --ego-speed or a calibration: read the ego's speed off the picture where the dashcam burns "
+        "its GPS speed into it ('58KM/H'), and use it as --ego-speed.",
+    ),
     dashboard_rows: int | None = typer.Option(
         None, "--dashboard-rows", help="Rows of dashboard/bonnet at the bottom to ignore (default: detect)."
     ),
@@ -331,6 +337,7 @@ def extract(
         max_width=max_width,
         lens=lens,
         ego_speed_kmh=ego_speed,
+        overlay_speed=overlay_speed,
     )
     emit(result, as_json, extract_summary)
 

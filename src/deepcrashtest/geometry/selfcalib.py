@@ -33,6 +33,7 @@ import pandas as pd
 
 from deepcrashtest.geometry.camera import cut_sides, undistorted_tracks
 from deepcrashtest.geometry.egomotion import EgoMotion
+from deepcrashtest.geometry.known_speed import KnownSpeed, ego_speed_term
 from deepcrashtest.geometry.lens import refocused
 from deepcrashtest.geometry.mono_config import class_size
 from deepcrashtest.geometry.selfcalib_axis import axis_column_from_path, axis_column_from_standing
@@ -409,7 +410,8 @@ def combine_focal(
     parked-vehicle one where that is missing or dropped (they share the parked tracks), at
     :data:`MOVING_MIN_REL` at best; both are dropped when a trusted bounce disagrees. ``level``: the
     level-camera term of the horizon (:mod:`deepcrashtest.geometry.selfcalib_image`), at its own sigma; ``speed``: the
-    ego's speed the user gave (:func:`focal_from_ego_speed`), at its own sigma."""
+    ego's speed known apart from the images (:func:`~deepcrashtest.geometry.known_speed.focal_from_ego_speed`), at
+    its own sigma."""
     terms = [(math.log(prior), FOCAL_PRIOR_REL)]
     support = 0
     if _trusted_bounce_disagrees(motion, pitch):
@@ -437,59 +439,6 @@ def combine_focal(
     w = np.array([1.0 / r**2 for _, r in terms])
     v = np.array([m for m, _ in terms])
     return math.exp(float(np.sum(w * v) / np.sum(w))), float(1.0 / np.sqrt(np.sum(w))), support
-
-
-#: Relative 1-sigma of the focal length read from the ego's speed the user gave (``extract --ego-speed``): a GPS
-#: speed to +-1-2 km/h, and the median of the image ego-motion's speed readings, which the focal length scales.
-USER_SPEED_REL = 0.05
-#: Speed readings (m/s) under this are the ego standing: they tell nothing of the scale.
-USER_SPEED_MIN_MPS = 1.0
-
-
-def _ego_speed_term(
-    ego: EgoMotion | None,
-    camera: Camera,
-    speed_mps: float | None,
-    scaled_by_height: bool,
-    height_m: float,
-    notes: list[str],
-    warnings: list[str],
-) -> tuple[float, float, int] | None:
-    """:func:`focal_from_ego_speed`'s term at the calibrated camera height ``height_m`` (m): None without a user's
-    speed or an image ego-motion scaled by the camera height, or where the ego stands; said in ``notes`` (and in
-    ``warnings`` where the speed cannot be used)."""
-    if speed_mps is None or ego is None or not scaled_by_height:
-        return None
-    found = focal_from_ego_speed(ego, camera, height_m, speed_mps)
-    if found is not None:
-        notes.append(
-            f"the ego's speed given, {3.6 * speed_mps:.0f} km/h: focal length {found[0]:.0f} px from the image "
-            f"ego-motion's median speed over {found[2]} moving frames at a camera height of {height_m:.2f} m"
-        )
-    else:
-        notes.append(f"the ego's speed given, {3.6 * speed_mps:.0f} km/h, not used: the ego stands")
-        warnings.append(
-            f"--ego-speed {3.6 * speed_mps:g} km/h not used: the video shows the ego standing (its image "
-            f"ego-motion under {USER_SPEED_MIN_MPS:g} m/s), which tells nothing of the scale"
-        )
-    return found
-
-
-def focal_from_ego_speed(
-    ego: EgoMotion, camera: Camera, height_m: float, speed_mps: float
-) -> tuple[float, float, int] | None:
-    """(focal length px, relative sigma, frames used) that gives image ego-motion the ego's speed the user knows.
-
-    Image ego-motion's metric scale is the road plane's, proportional to focal length x camera height (``ego``
-    measured with ``camera``'s): at the calibrated height ``height_m`` its median speed over the frames where it
-    moves is ``v``, and the focal length ``camera.fy x speed_mps / v`` gives it ``speed_mps``. Road users' distances
-    (box sizes, bottom rows) scale with the same focal length, so the whole scene takes the metric scale. None
-    where the video shows the ego standing (fewer than 3 readings of at least :data:`USER_SPEED_MIN_MPS`)."""
-    moving = ego.speed[np.isfinite(ego.speed) & (ego.speed >= USER_SPEED_MIN_MPS)]
-    if len(moving) < 3 or not speed_mps > 0:
-        return None
-    measured = float(np.median(moving)) * height_m / camera.height_m
-    return camera.fy * speed_mps / measured, USER_SPEED_REL, len(moving)
 
 
 #: 1-sigma (fraction of the image width) of the principal point's column about the image centre
@@ -616,7 +565,7 @@ def self_calibrate(
     size: tuple[int, int],
     ego: EgoMotion | None = None,
     ego_scaled_by_height: bool = False,
-    ego_speed_mps: float | None = None,
+    known_speed: KnownSpeed | float | None = None,
 ) -> SelfCalibration:
     """Horizon, camera height and focal length of an uncalibrated camera (see the module docstring).
 
@@ -625,11 +574,14 @@ def self_calibrate(
     metric scale came from ``camera.height_m`` and the camera's focal length (monocular ego-motion: the
     road plane's scale is proportional to focal length x camera height): it cannot calibrate the focal
     length, and ``SelfCalibration.ego_scale`` is the factor (measured over assumed focal x height) that
-    rescales it. ``ego_speed_mps``: the ego's speed the user knows (a GPS overlay or log), which image ego-motion
-    scaled by height then reads the focal length from (:func:`focal_from_ego_speed`). What cannot be measured keeps
-    the prior."""
+    rescales it. ``known_speed``: the ego's speed known apart from the images (a user's, m/s, or a
+    :class:`~deepcrashtest.geometry.known_speed.KnownSpeed`: a GPS overlay or log), which image ego-motion scaled by
+    height then reads the focal length from (:func:`~deepcrashtest.geometry.known_speed.focal_from_ego_speed`). What
+    cannot be measured keeps the prior."""
     notes: list[str] = []
     warns: list[str] = []
+    if known_speed is not None and not isinstance(known_speed, KnownSpeed):
+        known_speed = KnownSpeed.constant(known_speed)
     image_ego = ego  # the path the user's speed is read against (``ego`` is dropped below where it is the images')
     tracks = undistorted_tracks(tracks, camera, size)  # a lens's distortion known: boxes in its pinhole image
     hh = horizon_and_height(tracks, size)
@@ -647,7 +599,7 @@ def self_calibrate(
             )
             upd = {"pitch_source": "self_calibration", "horizon_sigma_px": sig_v}
         level = _level_term(camera, vh, sig_v, notes) if n else None
-        speed = _ego_speed_term(image_ego, camera, ego_speed_mps, ego_scaled_by_height, cam.height_m, notes, warns)
+        speed = ego_speed_term(image_ego, camera, known_speed, ego_scaled_by_height, cam.height_m, notes, warns)
         if few is None and speed is None:
             notes.append(f"fewer than {MIN_HORIZON_BOXES} uncut vehicle boxes: the camera keeps its priors")
             nan = float("nan")
@@ -678,7 +630,7 @@ def self_calibrate(
         # rotations were measured with it): parked vehicles and turns on that path give it back unchanged
         notes.append("the ego path was measured from the images with the assumed focal length: it cannot calibrate it")
         ego = None
-    speed = _ego_speed_term(image_ego, camera, ego_speed_mps, ego_scaled_by_height, hc, notes, warns)
+    speed = ego_speed_term(image_ego, camera, known_speed, ego_scaled_by_height, hc, notes, warns)
     if ego is not None:
         motion = focal_from_motion(tracks, size, cam.cx, ego)
         bounce = focal_from_pitch(tracks, size, ego)
@@ -701,7 +653,7 @@ def self_calibrate(
         notes.append(
             f"focal length {fy:.0f} px +- {100 * rel:.0f} %: {used} parked or moving tracks / turn box pairs / "
             f"bounce frames{', the level-camera horizon' if level is not None else ''}"
-            f"{', the ego speed given' if speed is not None else ''}"
+            f"{', the ego speed known' if speed is not None else ''}"
         )
     elif camera.intrinsics_source == "default":  # the unknown-dashcam default: its spread is the uncertainty
         sig_f = FOCAL_PRIOR_REL * fy

@@ -31,11 +31,13 @@ import numpy as np
 from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import atomic_path, check_writable, ensure_output_dir, output_set
 from deepcrashtest.geometry.camera import default_camera, portrait_size, scale_camera
+from deepcrashtest.geometry.known_speed import KnownSpeed
 from deepcrashtest.perception.annotate import Annotator
 from deepcrashtest.perception.detect import DEFAULT_DETECTOR, make_detector
 from deepcrashtest.perception.detections import Detector, in_picture
 from deepcrashtest.perception.global_motion import GlobalMotion  # no pandas: the crash modules load in the background
 from deepcrashtest.perception.lanes import LaneState, draw_lanes
+from deepcrashtest.perception.overlay_speed import OverlaySpeedReader
 from deepcrashtest.perception.track import (
     FrameTracks,
     bridged_records,
@@ -123,6 +125,7 @@ def run_extract(
     max_width: int | None = DEFAULT_MAX_WIDTH,
     lens: str = "none",
     ego_speed_kmh: float | None = None,
+    overlay_speed: bool = True,
 ) -> dict[str, Any]:
     """Extract a video in ONE decoding pass: detect + track, ego-motion, lanes, localisation.
 
@@ -155,6 +158,10 @@ def run_extract(
     the clip): an uncalibrated camera's focal length is read from it (the image ego-motion's median speed scales with
     it, and so does every road user's distance), so the scenario takes the video's metric scale. A camera with its
     own intrinsics keeps them (the speed is not used; the CLI refuses the two together).
+
+    ``overlay_speed``: where neither a speed nor a calibration is given, read the ego's speed off the picture when
+    its dashcam burns its GPS speed into it (:mod:`deepcrashtest.perception.overlay_speed`; a text reader must be
+    installed), and use it as a given speed.
     """
     crash_spec = _parse_crash(crash) if crash is not None else None
     max_width = max_width or None  # 0: the frames as stored
@@ -171,7 +178,7 @@ def run_extract(
             with output_set(out, OUTPUT_NAMES, force) as stage:  # the whole set of one run, or nothing
                 staged = {key: stage / path.name for key, path in paths.items()}
                 args = (src_path, out, staged, det, detect_every, max_frames, fps, False, frame_range, seed, watch)
-                plan = _Pass(*args, max_width=max_width, lens=lens, ego_speed=ego_speed)
+                plan = _Pass(*args, max_width=max_width, lens=lens, ego_speed=ego_speed, overlay_speed=overlay_speed)
                 plan.imports = imports
                 result = _run_pass(plan, camera, dashboard_rows, geometry, lanes, report, crash_spec, stage2)
     except _Compilation as comp:  # nothing was written: one extraction per shot instead
@@ -181,6 +188,7 @@ def run_extract(
         options: dict[str, Any] = dict(detector=detector, detect_every=detect_every, fps=fps, annotate=annotate)
         options |= dict(camera=camera, dashboard_rows=dashboard_rows, lanes=lanes, report=report, seed=seed)
         options |= dict(stage2=stage2, geometry=geometry, max_width=max_width, lens=lens, ego_speed_kmh=ego_speed_kmh)
+        options |= dict(overlay_speed=overlay_speed)
         if len(found) > 1:
             return _extract_shots(src_path, out, found, force, options, crash_spec)
         return run_extract(src_path, out, force=force, shots=False, crash=crash, max_frames=max_frames, **options)
@@ -439,6 +447,8 @@ class _Pass:
     """``"auto"``: the lens's distortion read from the video when no calibration is given (:func:`run_extract`)."""
     ego_speed: float | None = None
     """The ego's speed the user knows (m/s), for an uncalibrated camera's focal length (:func:`run_extract`)."""
+    overlay_speed: bool = True
+    """Read the ego's speed off the picture where no speed and no calibration are given (:func:`run_extract`)."""
     motion: GlobalMotion = field(default_factory=GlobalMotion)
     """The camera's global image motion per frame (the ego's jolt, for crash detection)."""
     shot_watch: ShotWatch | None = field(default=None, init=False)
@@ -535,6 +545,7 @@ class _Pass:
     ) -> GeometryResult:
         """Ego-motion, lanes and localisation over the tracked frames (:mod:`.geometry_pass`)."""
         pending: dict[int, FrameTracks] = {}
+        overlay = self._overlay_reader(cam)
 
         def pairs() -> Iterator[tuple[Any, TrackRows]]:
             for ft in tracked:
@@ -546,6 +557,8 @@ class _Pass:
 
         def on_frame(frame: Any, _trk: TrackRows, lane_state: LaneState | None) -> None:
             self.motion.update(int(frame.index), frame.image)
+            if overlay is not None and overlay.wants(float(frame.time)):
+                overlay.offer(int(frame.index), float(frame.time), frame.image)
             draw(pending.pop(int(frame.index)), lane_state)
 
         return extract_geometry(
@@ -560,7 +573,25 @@ class _Pass:
             lens=self.lens == "auto",
             frame_times=meta.variable_frame_times,
             ego_speed=self.ego_speed,
+            overlay_speed=None if overlay is None else lambda: _known_speed(overlay),
         )
+
+    def _overlay_reader(self, cam: Camera) -> OverlaySpeedReader | None:
+        """The reader of the picture's speed overlay, where one is wanted and a text reader is installed."""
+        if not self.overlay_speed or self.ego_speed is not None or cam.intrinsics_source != "default":
+            return None
+        from deepcrashtest.perception.text import make_text_reader
+
+        reader = make_text_reader()
+        return None if reader is None else OverlaySpeedReader(reader)
+
+
+def _known_speed(overlay: OverlaySpeedReader) -> KnownSpeed | None:
+    """The speeds read off the picture's overlay as a known speed (None: no speed there)."""
+    found = overlay.result()
+    if found is None:
+        return None
+    return KnownSpeed(found.times_s, found.kmh / 3.6, "overlay", found.describe())
 
 
 def _check_dashboard_rows(rows: int | None, meta: VideoMeta) -> None:

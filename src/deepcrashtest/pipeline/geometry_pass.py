@@ -39,6 +39,7 @@ from deepcrashtest.geometry.camera import (
     with_horizon,
 )
 from deepcrashtest.geometry.egomotion import MAX_RATE_HZ, EgoMotion, EgoMotionEstimator, rescaled
+from deepcrashtest.geometry.known_speed import KnownSpeed
 from deepcrashtest.geometry.lens import LensEstimate, estimate_lens, opencv_coefficients
 from deepcrashtest.geometry.localize import Localizer
 from deepcrashtest.perception.lanes import ClassicalLaneDetector, LaneDetector, LaneState, LaneTimelineResult
@@ -189,6 +190,7 @@ def extract_geometry(
     lens: bool = False,
     frame_times: Callable[[], Sequence[float] | None] | None = None,
     ego_speed: float | None = None,
+    overlay_speed: Callable[[], KnownSpeed | None] | None = None,
 ) -> GeometryResult:
     """Run the geometry stage over one pass of frames (see the module docstring).
 
@@ -199,7 +201,8 @@ def extract_geometry(
     varies (:meth:`deepcrashtest.video.source.VideoMeta.variable_frame_times`), else None: the raw Scenario's
     ``source.frame_times``, which the monocular filter steps by. ``ego_speed``: the ego's speed (m/s) the user knows
     (a GPS overlay or log), from which an uncalibrated camera's focal length is read
-    (:func:`deepcrashtest.geometry.selfcalib.focal_from_ego_speed`).
+    (:func:`deepcrashtest.geometry.known_speed.focal_from_ego_speed`). ``overlay_speed``: asked after the last frame
+    where no ``ego_speed`` is given, the ego's speed read off the picture (None: none there), used alike.
     """
     buffer, rest = _calibration_frames(frames, calib_seconds)
     cam, rows, horizon_source = estimate_camera(
@@ -252,7 +255,10 @@ def extract_geometry(
     if cam.intrinsics_source == "default" and len(tracks):  # no calibration given: the video calibrates it
         from deepcrashtest.geometry.selfcalib import self_calibrate
 
-        calibration = self_calibrate(tracks, cam, size, ego, ego_scaled_by_height=True, ego_speed_mps=ego_speed)
+        known = KnownSpeed.constant(ego_speed) if ego_speed is not None else None
+        if known is None and overlay_speed is not None:
+            known = overlay_speed()
+        calibration = self_calibrate(tracks, cam, size, ego, ego_scaled_by_height=True, known_speed=known)
         scale = (calibration.ego_scale, cam.fy / calibration.camera.fy)
         cam = calibration.camera
         horizon_source = cam.pitch_source

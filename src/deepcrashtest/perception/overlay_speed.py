@@ -1,0 +1,192 @@
+"""The ego's speed burned into a dashcam's picture by its GPS ("58KM/H", "006km/h", "35 MPH"), read over a clip.
+
+Many dashcams write their GPS speed into the picture, beside the date and the position; a clip's metric scale is
+otherwise the weakest figure an uncalibrated camera gives (its focal length, :mod:`deepcrashtest.geometry.
+selfcalib`). :class:`OverlaySpeedReader` samples the frames every :data:`SAMPLE_S` seconds: on the first
+:data:`SEARCH_SAMPLES` samples a :class:`~deepcrashtest.perception.text.TextReader` looks for a speed in the top
+and bottom bands of the picture (:data:`BAND`, where dashcams put their overlay; a band is read only where the
+reader's cheap text detection at half size finds a line there); once found, only the speed's
+place is read again on the later samples. :meth:`OverlaySpeedReader.result` keeps readings that agree with their
+neighbours (:data:`MAX_JUMP_KMH`) and returns them as an :class:`OverlaySpeed` (None: no speed in the picture).
+
+A speed is a number of 1-3 digits standing as a word of its own followed by its unit (km/h, kph, mph), so a
+road sign's bare "60" or a clock's digits are never taken. GPS speeds lag the wheels by ~0.5-1 s.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from deepcrashtest.perception.text import TextLine, TextReader
+
+#: Seconds between the frames read.
+SAMPLE_S = 0.5
+#: The first samples searched for a speed (both bands, the whole text reader); none found: the clip has none.
+SEARCH_SAMPLES = 3
+#: Each band's height (fraction of the picture's) at its top and bottom searched for the overlay.
+BAND = 0.16
+#: A reading further than this (km/h) from the median of its 5 neighbours is a misreading (GPS speeds change
+#: by ~1-5 km/h in half a second; a misread digit by 10 or more).
+MAX_JUMP_KMH = 12.0
+#: Readings needed for a speed: a single reading may be a misread sign or caption.
+MIN_READINGS = 3
+#: Readings under this confidence (0-1) are not taken.
+MIN_SCORE = 0.7
+#: The largest speed taken (km/h).
+MAX_KMH = 250.0
+MPH_KMH = 1.609344
+
+_SPEED = re.compile(r"(?<![\d.,:])(\d{1,3})\s?(km\s?/?\s?h|kmh|kph|mph)(?![a-z])", re.IGNORECASE)
+
+
+def parse_speed(text: str) -> tuple[float, str] | None:
+    """(km/h, unit as written: ``"km/h"`` or ``"mph"``) of the one speed in ``text``; None where there is none or
+    more than one."""
+    found = [m for m in _SPEED.finditer(text) if float(m.group(1)) * _factor(m.group(2)) <= MAX_KMH]
+    if len(found) != 1:
+        return None
+    unit = "mph" if found[0].group(2).lower() == "mph" else "km/h"
+    return float(found[0].group(1)) * _factor(unit), unit
+
+
+def _factor(unit: str) -> float:
+    return MPH_KMH if unit.lower() == "mph" else 1.0
+
+
+@dataclass(frozen=True)
+class OverlaySpeed:
+    """The speeds read off a clip's overlay: per reading the video ``frame``, its time ``times_s`` (s) and ``kmh``;
+    ``unit`` as the overlay writes it (``"km/h"`` or ``"mph"``, converted); ``box`` where the speed is written
+    (x1, y1, x2, y2 px of the frames read); ``sample``: one line as read, for the notes."""
+
+    frames: np.ndarray
+    times_s: np.ndarray
+    kmh: np.ndarray
+    unit: str
+    box: tuple[int, int, int, int]
+    sample: str
+
+    def describe(self) -> str:
+        """One line for the notes: how many readings, their range and where they came from."""
+        lo, hi = float(np.min(self.kmh)), float(np.max(self.kmh))
+        span = f"{lo:.0f} km/h" if round(lo) == round(hi) else f"{lo:.0f}-{hi:.0f} km/h"
+        return f"{span}, {len(self.kmh)} readings ({self.sample!r})"
+
+
+@dataclass
+class _Place:
+    """Where the speed is written: the band's first row (px of the frame) and the speed word's box in the band."""
+
+    band_y0: int
+    box: tuple[int, int, int, int]
+
+
+@dataclass
+class OverlaySpeedReader:
+    """Reads a clip's overlay speed from frames offered in order (see the module docstring).
+
+    Call :meth:`wants` with each frame's time and :meth:`offer` the frames it wants (any thread, in order), then
+    :meth:`result`."""
+
+    reader: TextReader
+    sample_s: float = SAMPLE_S
+    _next_s: float | None = None
+    _samples: int = 0
+    _place: _Place | None = None
+    _readings: list[tuple[int, float, float, str]] = field(default_factory=list)
+    _sample_text: str = ""
+
+    def wants(self, time_s: float) -> bool:
+        """Whether the frame at ``time_s`` (s) is to be read (every :data:`SAMPLE_S`; none once the search found
+        nothing)."""
+        if self._place is None and self._samples >= SEARCH_SAMPLES:
+            return False
+        return self._next_s is None or time_s >= self._next_s - 1e-6
+
+    def offer(self, frame: int, time_s: float, image: np.ndarray) -> None:
+        """Read the speed in ``image`` (BGR uint8, the whole frame) at video ``frame`` / ``time_s`` (s)."""
+        self._next_s = time_s + self.sample_s
+        self._samples += 1
+        found = self._read_place(image) if self._place is not None else None
+        if found is None and (self._place is not None or self._samples <= SEARCH_SAMPLES):
+            found = self._search(image)
+        if found is not None:
+            self._readings.append((frame, time_s, *found))
+
+    def _read_place(self, image: np.ndarray) -> tuple[float, str] | None:
+        assert self._place is not None
+        x1, y1, x2, y2 = self._place.box
+        y0 = self._place.band_y0
+        text, score = self.reader.read(image[y0 + y1 : y0 + y2, x1:x2])
+        return parse_speed(text) if score >= MIN_SCORE else None
+
+    def _search(self, image: np.ndarray) -> tuple[float, str] | None:
+        h = image.shape[0]
+        band_h = max(1, int(round(BAND * h)))
+        for y0 in (h - band_h, 0):
+            band = image[y0 : y0 + band_h]
+            half = cv2.resize(band, (max(1, band.shape[1] // 2), max(1, band_h // 2)), interpolation=cv2.INTER_AREA)
+            if not self.reader.detect(half):  # no text there: not worth reading
+                continue
+            for line in self.reader.find(band):
+                speed = parse_speed(line.text) if line.score >= MIN_SCORE else None
+                if speed is not None:
+                    self._place = _Place(y0, _speed_box(line, image.shape[1], band_h))
+                    self._sample_text = line.text
+                    return speed
+        return None
+
+    def result(self) -> OverlaySpeed | None:
+        """The readings that agree with their neighbours, in the overlay's unit of most readings; None where fewer
+        than :data:`MIN_READINGS` are left."""
+        if len(self._readings) < MIN_READINGS or self._place is None:
+            return None
+        units = [r[3] for r in self._readings]
+        unit = max(set(units), key=units.count)
+        rows = [r for r in self._readings if r[3] == unit]
+        kmh = np.array([r[2] for r in rows])
+        keep = np.array([abs(v - np.median(kmh[max(0, i - 2) : i + 3])) <= MAX_JUMP_KMH for i, v in enumerate(kmh)])
+        if keep.sum() < MIN_READINGS:
+            return None
+        rows = [r for r, k in zip(rows, keep, strict=True) if k]
+        x1, y1, x2, y2 = self._place.box
+        y0 = self._place.band_y0
+        return OverlaySpeed(
+            frames=np.array([r[0] for r in rows], dtype=int),
+            times_s=np.array([r[1] for r in rows]),
+            kmh=np.array([r[2] for r in rows]),
+            unit=unit,
+            box=(x1, y0 + y1, x2, y0 + y2),
+            sample=self._sample_text,
+        )
+
+
+def _speed_box(line: TextLine, width: int, band_h: int) -> tuple[int, int, int, int]:
+    """The box (px of the band) to read the speed again: its line's rows (a few px more), from the end of the word
+    before the speed's number (the line's start where there is none) to one glyph past the line's end (a number
+    that grows a digit)."""
+    x1, y1, x2, y2 = line.box
+    pad = max(2, (y2 - y1) // 4)
+    words = line.text.split(" ")
+    left = x1 - pad
+    if line.words and len(words) == len(line.words):
+        number = _number_word(words)
+        if number > 0:  # just after the word before: its last digits are not the speed's
+            left = line.words[number - 1][1] + 1
+    glyph = y2 - y1
+    return max(0, left), max(0, y1 - pad), min(width, x2 + glyph), min(band_h, y2 + pad)
+
+
+def _number_word(words: list[str]) -> int:
+    """The index of the word holding the speed's number (the word with the unit, or the one before it)."""
+    for i, word in enumerate(words):
+        m = _SPEED.search(word)
+        if m is not None:
+            return i
+        if i + 1 < len(words) and re.fullmatch(r"\d{1,3}", word) and _SPEED.match(word + words[i + 1]):
+            return i
+    return 0

@@ -1,0 +1,84 @@
+"""The ego's speed read off a dashcam's GPS overlay (perception/overlay_speed.py, perception/text.py), against the
+speeds read by eye on the shared crash clips (bench/labels/ego_speed_overlays.json)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from conftest import DATA, ROOT, need
+from deepcrashtest.perception.overlay_speed import OverlaySpeed, OverlaySpeedReader, parse_speed
+from deepcrashtest.perception.text import make_text_reader
+from deepcrashtest.video.size import DEFAULT_MAX_WIDTH
+from deepcrashtest.video.source import open_video
+
+LABELS = ROOT / "bench" / "labels" / "ego_speed_overlays.json"
+
+
+@pytest.mark.parametrize(
+    ("text", "speed"),
+    [
+        ("58KM/H", (58.0, "km/h")),
+        ("006km/h", (6.0, "km/h")),
+        ("006km /h", (6.0, "km/h")),
+        ("2012.08.08 09.16.26 044.881000 034.992400 59KM/H", (59.0, "km/h")),
+        ("35 MPH", (35 * 1.609344, "mph")),
+        ("120 kph", (120.0, "km/h")),
+        ("2015-08-21 08:10:32", None),  # a clock
+        ("SPEED LIMIT 60", None),  # a number without its unit
+        ("034.99240058KM/H", None),  # digits run into a coordinate's: not a word of their own
+        ("09:16:58KM/H", None),
+        ("58KM/H 61KM/H", None),  # two speeds: which one?
+        ("999 km/h", None),
+    ],
+)
+def test_a_speed_is_a_number_standing_alone_with_its_unit(text: str, speed: tuple[float, str] | None):
+    got = parse_speed(text)
+    if speed is None:
+        assert got is None
+    else:
+        assert got is not None and got[0] == pytest.approx(speed[0]) and got[1] == speed[1]
+
+
+def _read(video: Path) -> tuple[OverlaySpeed | None, int]:
+    """The overlay speed of ``video`` read as ``extract`` reads it (its frames at extract's size), and how many
+    frames the reader was given."""
+    reader = make_text_reader()
+    if reader is None:
+        pytest.skip("no text reader installed (make setup installs rapidocr_onnxruntime)")
+    overlay = OverlaySpeedReader(reader)
+    offered = 0
+    with open_video(video, max_width=DEFAULT_MAX_WIDTH) as source:
+        for frame in source:
+            if overlay.wants(float(frame.time)):
+                overlay.offer(int(frame.index), float(frame.time), frame.image)
+                offered += 1
+    return overlay.result(), offered
+
+
+@pytest.mark.parametrize("clip", ["ccd_000014", "dad_000528"])
+def test_the_speed_a_dashcam_burns_into_the_picture_is_read_as_labelled(clip: str):
+    """Every 0.5 s of the two shared clips that show their GPS speed: each reading is the speed read by eye at that
+    frame (ccd_000014 57-59 km/h, "58KM/H" among the date and GPS position; dad_000528 a crawl "006km/h" down to
+    "000km/h"), and the place read is the overlay's bottom line."""
+    label = json.loads(LABELS.read_text())["clips"][clip]
+    found, offered = _read(need(DATA / label["video"]))
+    assert found is not None
+    assert len(found.kmh) >= offered - 1  # at most one sample unread
+    truth = {f: r["kmh"] for r in label["readings"] for f in range(r["first_frame"], r["last_frame"] + 1)}
+    checked = [(int(f), float(v)) for f, v in zip(found.frames, found.kmh, strict=True) if int(f) in truth]
+    assert len(checked) >= 8
+    for frame, kmh in checked:
+        assert abs(kmh - truth[frame]) <= 1.0, (frame, kmh, truth[frame])
+    assert found.unit == "km/h" and found.box[1] > 0.8 * 720
+
+
+@pytest.mark.parametrize("video", ["crash_ccd/ccd_000487.mp4", "dashcam_udacity/highway_project_video.mp4"])
+def test_a_clip_without_a_speed_in_its_picture_gives_none(video: str):
+    """ccd_000487's overlay shows a brand, the date and the time, and a channel's caption sits on top; the Udacity
+    highway clip has no overlay: neither gives a speed, and the reader stops looking after its first samples."""
+    found, offered = _read(need(DATA / video))
+    assert found is None
+    assert offered == 3
