@@ -583,8 +583,11 @@ def test_the_ego_speed_on_the_overlay_or_given_sets_the_scenes_scale(tmp_path):
     video = need(DATA / "crash_ccd" / "ccd_000014.mp4")
     raws = []
     for name, speed, overlay in (("images", None, False), ("overlay", None, True), ("given", 58.0, True)):
-        run_extract(video, tmp_path / name, annotate=False, report=False, ego_speed_kmh=speed, overlay_speed=overlay)
+        report = name == "overlay"  # the report says where the speed came from, and plots the readings
+        run_extract(video, tmp_path / name, annotate=False, report=report, ego_speed_kmh=speed, overlay_speed=overlay)
         raws.append(Scenario.load(tmp_path / name / "scenario_raw.json"))
+    html = (tmp_path / "overlay" / "report.html").read_text()
+    assert "the picture&#x27;s GPS overlay: 57-59 km/h, 10 readings" in html
     plain = raws[0]
     assert plain.collision is not None
     plain_t, plain_speed = np.asarray(plain.ego.trajectory.t), np.asarray(plain.ego.trajectory.speed) * 3.6

@@ -26,6 +26,7 @@ LABELS = ROOT / "bench" / "labels" / "ego_speed_overlays.json"
         ("2012.08.08 09.16.26 044.881000 034.992400 59KM/H", (59.0, "km/h")),
         ("35 MPH", (35 * 1.609344, "mph")),
         ("120 kph", (120.0, "km/h")),
+        ("58 км/ч", (58.0, "km/h")),
         ("2015-08-21 08:10:32", None),  # a clock
         ("SPEED LIMIT 60", None),  # a number without its unit
         ("034.99240058KM/H", None),  # digits run into a coordinate's: not a word of their own
@@ -82,3 +83,28 @@ def test_a_clip_without_a_speed_in_its_picture_gives_none(video: str):
     found, offered = _read(need(DATA / video))
     assert found is None
     assert offered == 3
+
+
+def test_the_reader_stops_where_its_place_stops_showing_a_speed():
+    """ccd_000014 with its overlay line painted over from frame 20 on (a text that was no overlay, passed by the
+    camera, behaves alike): the readings before stay, the reader searches again at each miss and gives up after
+    MAX_MISSES + 1 samples in a row, instead of reading every later frame."""
+    from deepcrashtest.perception.overlay_speed import MAX_MISSES
+
+    reader = make_text_reader()
+    if reader is None:
+        pytest.skip("no text reader installed (make setup installs rapidocr_onnxruntime)")
+    overlay = OverlaySpeedReader(reader)
+    offered = []
+    with open_video(need(DATA / "crash_ccd" / "ccd_000014.mp4"), max_width=DEFAULT_MAX_WIDTH) as source:
+        for frame in source:
+            if not overlay.wants(float(frame.time)):
+                continue
+            image = frame.image.copy()
+            if frame.index >= 20:
+                image[image.shape[0] - 60 :] = 40
+            overlay.offer(int(frame.index), float(frame.time), image)
+            offered.append(int(frame.index))
+    found = overlay.result()
+    assert found is not None and found.frames.tolist() == [0, 5, 10, 15]
+    assert offered == [0, 5, 10, 15] + [20 + 5 * k for k in range(MAX_MISSES + 1)]

@@ -10,6 +10,7 @@ fusion (:func:`deepcrashtest.geometry.selfcalib.combine_focal`), and the whole s
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -39,6 +40,15 @@ class KnownSpeed:
     def constant(cls, mps: float) -> KnownSpeed:
         """A speed the user gave (m/s), about constant over the clip."""
         return cls(np.zeros(1), np.array([mps]), "user", f"{3.6 * mps:g} km/h")
+
+    def summary(self) -> dict[str, Any]:
+        """Plain JSON-able figures: the source, what the notes say, and each reading's time (s) and km/h."""
+        return {
+            "source": self.source,
+            "what": self.what,
+            "times_s": [round(float(t), 4) for t in self.times_s],
+            "kmh": [round(3.6 * float(v), 2) for v in self.mps],
+        }
 
     def at(self, times_s: np.ndarray) -> np.ndarray:
         """The speed (m/s) in force at each of ``times_s`` (s)."""

@@ -81,6 +81,8 @@ class SelfCalibration:
     ego_scale: float = 1.0
     #: what the user is told (a speed they gave that could not be used)
     warnings: list[str] = field(default_factory=list)
+    #: the ego's speed known apart from the images that was offered (the user's, the picture's overlay), if any
+    known_speed: KnownSpeed | None = None
 
     def summary(self) -> dict[str, Any]:
         """Plain JSON-able numbers (None where not estimated)."""
@@ -93,7 +95,7 @@ class SelfCalibration:
             "height_m": num(self.height_m, 3), "height_sigma_m": num(self.height_sigma_m, 3),
             "fy": num(self.fy, 1), "fy_sigma": num(self.fy_sigma, 1), "boxes": self.boxes,
             "focal_tracks": self.tracks, "notes": self.notes,
-        }  # fmt: skip
+        } | ({"known_speed": self.known_speed.summary()} if self.known_speed is not None else {})  # fmt: skip
 
 
 def _huber_line(x: np.ndarray, y: np.ndarray, delta: float = 3.0, iters: int = 20) -> tuple[float, float]:
@@ -603,7 +605,9 @@ def self_calibrate(
         if few is None and speed is None:
             notes.append(f"fewer than {MIN_HORIZON_BOXES} uncut vehicle boxes: the camera keeps its priors")
             nan = float("nan")
-            return SelfCalibration(cam, vh, nan, cam.height_m, nan, cam.fy, nan, 0, 0, notes, warnings=warns)
+            return SelfCalibration(
+                cam, vh, nan, cam.height_m, nan, cam.fy, nan, 0, 0, notes, warnings=warns, known_speed=known_speed
+            )
         if few is None:  # no horizon from boxes, but the user's speed gives the focal length
             notes.append(f"fewer than {MIN_HORIZON_BOXES} uncut vehicle boxes: horizon and height keep their priors")
         focal = combine_focal(cam.fy, None, None, level=level, speed=speed)
@@ -615,7 +619,9 @@ def self_calibrate(
             upd["focal_sigma_px"] = sig_f
         cam = cam.model_copy(update=upd | {"pitch_rad": math.atan2(cam.cy - vh, fy)})
         scale = fy / camera.fy if ego_scaled_by_height else 1.0
-        return SelfCalibration(cam, vh, sig_v, cam.height_m, float("nan"), fy, sig_f, n, 0, notes, scale, warns)
+        return SelfCalibration(
+            cam, vh, sig_v, cam.height_m, float("nan"), fy, sig_f, n, 0, notes, scale, warns, known_speed
+        )
     vh, sig_v, hc, bare_h, n = hh
     # the level-camera term takes the bootstrap sigma: its mounting-pitch prior, set from box horizons on
     # cameras of known focal length, already holds the road's departure from one plane
@@ -689,4 +695,4 @@ def self_calibrate(
             "principal point is off the image centre (a cropped frame: ccd_000014's verticals stay parallel, "
             "bench/vertical_lines.py): distances and the ego's speed scale with the focal length"
         )
-    return SelfCalibration(cam, vh, sig_v, hc, sig_h, fy, sig_f, n, used, notes, ego_scale, warns)
+    return SelfCalibration(cam, vh, sig_v, hc, sig_h, fy, sig_f, n, used, notes, ego_scale, warns, known_speed)

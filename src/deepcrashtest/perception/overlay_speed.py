@@ -34,13 +34,15 @@ BAND = 0.16
 MAX_JUMP_KMH = 12.0
 #: Readings needed for a speed: a single reading may be a misread sign or caption.
 MIN_READINGS = 3
+#: Samples in a row whose speed's place reads no speed (and a new search finds none) before the reader stops.
+MAX_MISSES = 3
 #: Readings under this confidence (0-1) are not taken.
 MIN_SCORE = 0.7
 #: The largest speed taken (km/h).
 MAX_KMH = 250.0
 MPH_KMH = 1.609344
 
-_SPEED = re.compile(r"(?<![\d.,:])(\d{1,3})\s?(km\s?/?\s?h|kmh|kph|mph)(?![a-z])", re.IGNORECASE)
+_SPEED = re.compile(r"(?<![\d.,:])(\d{1,3})\s?(km\s?/?\s?h|kmh|kph|mph|км\s?/?\s?ч)(?![a-zа-я])", re.IGNORECASE)
 
 
 def parse_speed(text: str) -> tuple[float, str] | None:
@@ -77,33 +79,39 @@ class OverlaySpeed:
         return f"{span}, {len(self.kmh)} readings ({self.sample!r})"
 
 
-@dataclass
+@dataclass(frozen=True)
 class _Place:
     """Where the speed is written: the band's first row (px of the frame) and the speed word's box in the band."""
 
     band_y0: int
     box: tuple[int, int, int, int]
 
+    def frame_box(self) -> tuple[int, int, int, int]:
+        x1, y1, x2, y2 = self.box
+        return x1, self.band_y0 + y1, x2, self.band_y0 + y2
+
 
 @dataclass
 class OverlaySpeedReader:
     """Reads a clip's overlay speed from frames offered in order (see the module docstring).
 
-    Call :meth:`wants` with each frame's time and :meth:`offer` the frames it wants (any thread, in order), then
-    :meth:`result`."""
+    Call :meth:`wants` with each frame's time and :meth:`offer` the frames it wants, then :meth:`result`. Where the
+    speed's place reads no speed, the bands are searched again (a flash, a wiper); after :data:`MAX_MISSES` misses in
+    a row the reader stops (the text found was no overlay: a sign the camera passed)."""
 
     reader: TextReader
     sample_s: float = SAMPLE_S
     _next_s: float | None = None
     _samples: int = 0
+    _misses: int = 0
     _place: _Place | None = None
-    _readings: list[tuple[int, float, float, str]] = field(default_factory=list)
-    _sample_text: str = ""
+    _readings: list[tuple[int, float, float, str, _Place]] = field(default_factory=list)
+    _texts: dict[_Place, str] = field(default_factory=dict)
 
     def wants(self, time_s: float) -> bool:
         """Whether the frame at ``time_s`` (s) is to be read (every :data:`SAMPLE_S`; none once the search found
-        nothing)."""
-        if self._place is None and self._samples >= SEARCH_SAMPLES:
+        nothing, or the place found stopped reading a speed)."""
+        if self._place is None and self._samples >= SEARCH_SAMPLES or self._misses > MAX_MISSES:
             return False
         return self._next_s is None or time_s >= self._next_s - 1e-6
 
@@ -111,17 +119,19 @@ class OverlaySpeedReader:
         """Read the speed in ``image`` (BGR uint8, the whole frame) at video ``frame`` / ``time_s`` (s)."""
         self._next_s = time_s + self.sample_s
         self._samples += 1
-        found = self._read_place(image) if self._place is not None else None
-        if found is None and (self._place is not None or self._samples <= SEARCH_SAMPLES):
+        found = self._read_place(image, self._place) if self._place is not None else None
+        if found is None:
             found = self._search(image)
-        if found is not None:
-            self._readings.append((frame, time_s, *found))
-
-    def _read_place(self, image: np.ndarray) -> tuple[float, str] | None:
+        if found is None:
+            self._misses += self._place is not None
+            return
+        self._misses = 0
         assert self._place is not None
-        x1, y1, x2, y2 = self._place.box
-        y0 = self._place.band_y0
-        text, score = self.reader.read(image[y0 + y1 : y0 + y2, x1:x2])
+        self._readings.append((frame, time_s, *found, self._place))
+
+    def _read_place(self, image: np.ndarray, place: _Place) -> tuple[float, str] | None:
+        x1, y1, x2, y2 = place.frame_box()
+        text, score = self.reader.read(image[y1:y2, x1:x2])
         return parse_speed(text) if score >= MIN_SCORE else None
 
     def _search(self, image: np.ndarray) -> tuple[float, str] | None:
@@ -136,32 +146,33 @@ class OverlaySpeedReader:
                 speed = parse_speed(line.text) if line.score >= MIN_SCORE else None
                 if speed is not None:
                     self._place = _Place(y0, _speed_box(line, image.shape[1], band_h))
-                    self._sample_text = line.text
+                    self._texts.setdefault(self._place, line.text)
                     return speed
         return None
 
     def result(self) -> OverlaySpeed | None:
-        """The readings that agree with their neighbours, in the overlay's unit of most readings; None where fewer
-        than :data:`MIN_READINGS` are left."""
-        if len(self._readings) < MIN_READINGS or self._place is None:
+        """The readings at the place read most often, in its unit of most readings, that agree with their
+        neighbours; None where fewer than :data:`MIN_READINGS` are left."""
+        if not self._readings:
             return None
-        units = [r[3] for r in self._readings]
-        unit = max(set(units), key=units.count)
-        rows = [r for r in self._readings if r[3] == unit]
+        places = [r[4] for r in self._readings]
+        place = max(dict.fromkeys(places), key=places.count)  # the first found of the most read
+        rows = [r for r in self._readings if r[4] == place]
+        units = [r[3] for r in rows]
+        unit = max(dict.fromkeys(units), key=units.count)
+        rows = [r for r in rows if r[3] == unit]
         kmh = np.array([r[2] for r in rows])
         keep = np.array([abs(v - np.median(kmh[max(0, i - 2) : i + 3])) <= MAX_JUMP_KMH for i, v in enumerate(kmh)])
         if keep.sum() < MIN_READINGS:
             return None
         rows = [r for r, k in zip(rows, keep, strict=True) if k]
-        x1, y1, x2, y2 = self._place.box
-        y0 = self._place.band_y0
         return OverlaySpeed(
             frames=np.array([r[0] for r in rows], dtype=int),
             times_s=np.array([r[1] for r in rows]),
             kmh=np.array([r[2] for r in rows]),
             unit=unit,
-            box=(x1, y0 + y1, x2, y0 + y2),
-            sample=self._sample_text,
+            box=place.frame_box(),
+            sample=self._texts[place],
         )
 
 

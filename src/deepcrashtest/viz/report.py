@@ -260,7 +260,19 @@ def camera_section(sc: Scenario) -> Section:
         ("roll (deg)", math.degrees(c.roll_rad)),
         ("ahead of ego centre (m)", c.forward_offset_m),
     ]
+    known = known_speed(sc)
+    if known is not None:
+        source = "the picture's GPS overlay" if known.get("source") == "overlay" else "given (--ego-speed)"
+        rows.append(("ego speed known apart from the images", f"{source}: {known.get('what', '')}"))
     return Section("Camera and calibration", table(rows))
+
+
+def known_speed(sc: Scenario) -> Mapping[str, Any] | None:
+    """The ego's speed the self-calibration was offered apart from the images (the user's, the picture's overlay):
+    ``source``, ``what``, ``times_s`` (video time, s) and ``kmh``; None where there was none."""
+    calib = sc.provenance.parameters.get("self_calibration")
+    known = calib.get("known_speed") if isinstance(calib, Mapping) else None
+    return known if isinstance(known, Mapping) and known.get("kmh") else None
 
 
 def collision_frame(sc: Scenario | None) -> int | None:
@@ -419,6 +431,10 @@ def motion_section(sc: Scenario, marks: Sequence[tuple[str, float]] = ()) -> Sec
                 if d[i] <= DISTANCE_PLOT_MAX_M:
                     ax_d.annotate(str(v.id), (t[i], d[i]), fontsize=6, color="#333")
                 dmax = max(dmax, float(d.max()))
+    known = known_speed(sc)
+    if known is not None and known.get("source") == "overlay":  # what the picture says, beside what was measured
+        t_known = sc.scenario_time(np.asarray(known["times_s"], dtype=float))
+        ax_v.plot(t_known, known["kmh"], "kx", ms=5, label="ego: the picture's GPS overlay")
     ax_v.set_ylabel("speed (km/h)")
     ax_v.legend(
         fontsize=6 if n > 12 else 7, loc="upper left", bbox_to_anchor=(1.01, 1.0), ncols=1 + n // 16, title="road user"
