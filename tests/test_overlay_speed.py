@@ -27,6 +27,11 @@ LABELS = ROOT / "bench" / "labels" / "ego_speed_overlays.json"
         ("35 MPH", (35 * 1.609344, "mph")),
         ("120 kph", (120.0, "km/h")),
         ("58 км/ч", (58.0, "km/h")),
+        ("92 KM/y", (92.0, "km/h")),  # км/ч as a Latin reader writes it
+        ("92 KM/", (92.0, "km/h")),
+        ("SPEED 92 K M/H", (92.0, "km/h")),  # a wide K's gap read as a space
+        ("057MPH", (57 * 1.609344, "mph")),
+        ("ODO 12 km", None),
         ("2015-08-21 08:10:32", None),  # a clock
         ("SPEED LIMIT 60", None),  # a number without its unit
         ("034.99240058KM/H", None),  # digits run into a coordinate's: not a word of their own
@@ -43,7 +48,7 @@ def test_a_speed_is_a_number_standing_alone_with_its_unit(text: str, speed: tupl
         assert got is not None and got[0] == pytest.approx(speed[0]) and got[1] == speed[1]
 
 
-def _read(video: Path) -> tuple[OverlaySpeed | None, int]:
+def _read(video: Path, max_s: float = 60.0) -> tuple[OverlaySpeed | None, int]:
     """The overlay speed of ``video`` read as ``extract`` reads it (its frames at extract's size), and how many
     frames the reader was given."""
     reader = make_text_reader()
@@ -53,6 +58,8 @@ def _read(video: Path) -> tuple[OverlaySpeed | None, int]:
     offered = 0
     with open_video(video, max_width=DEFAULT_MAX_WIDTH) as source:
         for frame in source:
+            if frame.time > max_s:
+                break
             if overlay.wants(float(frame.time)):
                 overlay.offer(int(frame.index), float(frame.time), frame.image)
                 offered += 1
@@ -80,7 +87,7 @@ def test_the_speed_a_dashcam_burns_into_the_picture_is_read_as_labelled(clip: st
 def test_a_clip_without_a_speed_in_its_picture_gives_none(video: str):
     """ccd_000487's overlay shows a brand, the date and the time, and a channel's caption sits on top; the Udacity
     highway clip has no overlay: neither gives a speed, and the reader stops looking after its first samples."""
-    found, offered = _read(need(DATA / video))
+    found, offered = _read(need(DATA / video), max_s=5.0)
     assert found is None
     assert offered == 3
 
@@ -108,3 +115,43 @@ def test_the_reader_stops_where_its_place_stops_showing_a_speed():
     found = overlay.result()
     assert found is not None and found.frames.tolist() == [0, 5, 10, 15]
     assert offered == [0, 5, 10, 15] + [20 + 5 * k for k in range(MAX_MISSES + 1)]
+
+
+@pytest.fixture(scope="module")
+def highway_frames() -> list:
+    """Four frames 0.5 s apart of the Udacity highway clip (no overlay of its own)."""
+    from itertools import islice
+
+    with open_video(need(DATA / "dashcam_udacity" / "highway_project_video.mp4")) as source:
+        return [f.image for f in islice(source, 48) if f.index % 12 == 0]
+
+
+@pytest.mark.parametrize(
+    ("text", "top", "kmh"),
+    [
+        ("92KM/H", False, 92.0),
+        ("057 MPH", False, 57 * 1.609344),
+        ("92 km/h", True, 92.0),
+        ("SPEED 92 KM/H", False, 92.0),
+        ("92kph", True, 92.0),
+        ("2019/01/05 12:33:10 N55.7512 E37.6184 92KM/H", False, 92.0),
+    ],
+)
+def test_other_dashcams_speed_formats_are_read(highway_frames: list, text: str, top: bool, kmh: float):
+    """Speed overlays as other dashcams write them (units, a label, the top of the picture, a long GPS line), drawn
+    white on black onto a real drive: read at every sample, in km/h."""
+    import cv2
+
+    reader = make_text_reader()
+    if reader is None:
+        pytest.skip("no text reader installed (make setup installs rapidocr_onnxruntime)")
+    overlay = OverlaySpeedReader(reader)
+    for k, frame in enumerate(highway_frames):
+        image = frame.copy()
+        origin = (40, 35 if top else image.shape[0] - 20)
+        cv2.putText(image, text, origin, cv2.FONT_HERSHEY_SIMPLEX, 0.8, (0, 0, 0), 4, cv2.LINE_AA)
+        cv2.putText(image, text, origin, cv2.FONT_HERSHEY_SIMPLEX, 0.8, (255, 255, 255), 2, cv2.LINE_AA)
+        overlay.offer(12 * k, 0.5 * k, image)
+    found = overlay.result()
+    assert found is not None and found.kmh == pytest.approx([kmh] * len(highway_frames))
+    assert (found.box[1] < 100) == top

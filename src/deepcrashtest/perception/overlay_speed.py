@@ -9,7 +9,7 @@ reader's cheap text detection at half size finds a line there); once found, only
 place is read again on the later samples. :meth:`OverlaySpeedReader.result` keeps readings that agree with their
 neighbours (:data:`MAX_JUMP_KMH`) and returns them as an :class:`OverlaySpeed` (None: no speed in the picture).
 
-A speed is a number of 1-3 digits standing as a word of its own followed by its unit (km/h, kph, mph), so a
+A speed is a number of 1-3 digits standing as a word of its own followed by its unit (km/h, kph, mph, км/ч), so a
 road sign's bare "60" or a clock's digits are never taken. GPS speeds lag the wheels by ~0.5-1 s.
 """
 
@@ -42,21 +42,31 @@ MIN_SCORE = 0.7
 MAX_KMH = 250.0
 MPH_KMH = 1.609344
 
-_SPEED = re.compile(r"(?<![\d.,:])(\d{1,3})\s?(km\s?/?\s?h|kmh|kph|mph|км\s?/?\s?ч)(?![a-zа-я])", re.IGNORECASE)
+#: A speed's unit as text readers write it: km/h (kmh, kph; the glyphs may come apart into words), mph, and the
+#: Cyrillic км/ч, whose last glyph a Latin reader writes y, 4, u or drops.
+_UNIT = r"[kк]\s?[mм]\s?/?\s?h|kph|m\s?p\s?h|[kк]\s?[mм]\s?/\s?[чy4u]?"
+_SPEED = re.compile(rf"(?<![\d.,:])(\d{{1,3}})\s?({_UNIT})(?![a-zа-я])", re.IGNORECASE)
 
 
 def parse_speed(text: str) -> tuple[float, str] | None:
     """(km/h, unit as written: ``"km/h"`` or ``"mph"``) of the one speed in ``text``; None where there is none or
     more than one."""
-    found = [m for m in _SPEED.finditer(text) if float(m.group(1)) * _factor(m.group(2)) <= MAX_KMH]
-    if len(found) != 1:
+    found = _speed_match(text)
+    if found is None:
         return None
-    unit = "mph" if found[0].group(2).lower() == "mph" else "km/h"
-    return float(found[0].group(1)) * _factor(unit), unit
+    unit = "mph" if "p" in found.group(2).lower() and "k" not in found.group(2).lower() else "km/h"
+    return float(found.group(1)) * _factor(unit), unit
+
+
+def _speed_match(text: str) -> re.Match[str] | None:
+    """The one speed's match in ``text`` (None: none, or more than one)."""
+    found = [m for m in _SPEED.finditer(text) if float(m.group(1)) * _factor(m.group(2)) <= MAX_KMH]
+    return found[0] if len(found) == 1 else None
 
 
 def _factor(unit: str) -> float:
-    return MPH_KMH if unit.lower() == "mph" else 1.0
+    unit = unit.lower()
+    return MPH_KMH if "p" in unit and "k" not in unit else 1.0
 
 
 @dataclass(frozen=True)
@@ -184,20 +194,10 @@ def _speed_box(line: TextLine, width: int, band_h: int) -> tuple[int, int, int, 
     pad = max(2, (y2 - y1) // 4)
     words = line.text.split(" ")
     left = x1 - pad
-    if line.words and len(words) == len(line.words):
-        number = _number_word(words)
+    found = _speed_match(line.text)
+    if found is not None and line.words and len(words) == len(line.words):
+        number = line.text[: found.start(1)].count(" ")  # the word the speed's number starts
         if number > 0:  # just after the word before: its last digits are not the speed's
             left = line.words[number - 1][1] + 1
     glyph = y2 - y1
     return max(0, left), max(0, y1 - pad), min(width, x2 + glyph), min(band_h, y2 + pad)
-
-
-def _number_word(words: list[str]) -> int:
-    """The index of the word holding the speed's number (the word with the unit, or the one before it)."""
-    for i, word in enumerate(words):
-        m = _SPEED.search(word)
-        if m is not None:
-            return i
-        if i + 1 < len(words) and re.fullmatch(r"\d{1,3}", word) and _SPEED.match(word + words[i + 1]):
-            return i
-    return 0
