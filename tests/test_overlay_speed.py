@@ -155,3 +155,37 @@ def test_other_dashcams_speed_formats_are_read(highway_frames: list, text: str, 
     found = overlay.result()
     assert found is not None and found.kmh == pytest.approx([kmh] * len(highway_frames))
     assert (found.box[1] < 100) == top
+
+
+def test_a_known_speed_that_would_make_no_dashcams_lens_drives_the_ego_instead():
+    """An image ego-motion reading 8 km/h (a snowy road read as a crawl) against an overlay's 90 km/h: the focal
+    length that would reconcile them (11x the assumed 640 px: a 10 deg field of view) is no dashcam's, so the image
+    ego-motion's speed is what is off: no focal length from it, the user is told, and the ego drives at the overlay's
+    speed along its own headings. 30 km/h against the same reading (3.75x: 30 deg, a cropped dashcam clip like
+    ccd_000014's 21 deg) gives the focal length; the readings are matched over the frames where both move."""
+    import numpy as np
+
+    from deepcrashtest.geometry.egomotion import EgoMotion
+    from deepcrashtest.geometry.known_speed import KnownSpeed, ego_speed_term, with_known_speed
+    from deepcrashtest.scenario import Camera
+
+    t = np.arange(50) / 10.0
+    speed = np.full(50, 8.0 / 3.6)
+    speed[:10] = 0.0  # standing at first: not compared
+    yaw = np.linspace(0.0, 0.5, 50)
+    ego = EgoMotion(np.arange(50), t, np.cumsum(speed) / 10, np.zeros(50), yaw, speed, np.zeros(50), np.ones(50, bool))
+    camera = Camera(fx=640.0, fy=640.0, cx=640.0, cy=360.0, height_m=1.3)
+    notes: list[str] = []
+    warnings: list[str] = []
+    overlay = KnownSpeed(np.array([0.0, 0.5, 1.0, 4.5]), np.array([0.0, 0.0, 90.0, 90.0]) / 3.6, "overlay", "90 km/h")
+    assert ego_speed_term(ego, camera, overlay, True, 1.3, notes, warnings, 1280) == (None, True)
+    assert "would make the field of view 10 deg" in notes[-1] and "no dashcam's" in warnings[-1]
+    driven = with_known_speed(ego, overlay)
+    assert driven.speed[-1] == pytest.approx(25.0) and driven.speed[5] == pytest.approx(0.0)
+    steps = np.hypot(np.diff(driven.x), np.diff(driven.y))
+    assert steps[-1] == pytest.approx(2.5) and np.allclose(
+        np.arctan2(np.diff(driven.y), np.diff(driven.x))[20:], 0.5 * (yaw[21:] + yaw[20:-1])
+    )
+    slower = KnownSpeed(overlay.times_s, overlay.mps / 3.0, "overlay", "30 km/h")
+    found, replace_speed = ego_speed_term(ego, camera, slower, True, 1.3, notes, warnings, 1280)
+    assert found is not None and found[0] == pytest.approx(640.0 * 30.0 / 8.0) and found[2] == 40 and not replace_speed

@@ -9,7 +9,8 @@ fusion (:func:`deepcrashtest.geometry.selfcalib.combine_focal`), and the whole s
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -22,6 +23,11 @@ from deepcrashtest.scenario import Camera
 USER_SPEED_REL = 0.05
 #: Speed readings (m/s) under this are the ego standing: they tell nothing of the scale.
 USER_SPEED_MIN_MPS = 1.0
+#: The horizontal fields of view (deg) a known speed may give the camera. Outside them the image ego-motion's speed is
+#: what is off (a snowy or hidden road read as a crawl), not the focal length, and the known speed is not used:
+#: cropped dashcam clips reach ~21 deg (ccd_000014: 3,404 px over 1,280), wide-angle lenses ~150.
+MIN_HFOV_DEG = 15.0
+MAX_HFOV_DEG = 150.0
 
 
 @dataclass(frozen=True)
@@ -74,6 +80,11 @@ def focal_from_ego_speed(
     return camera.fy * float(np.median(along[moving])) / measured, USER_SPEED_REL, int(moving.sum())
 
 
+def hfov_deg(focal_px: float, width_px: float) -> float:
+    """The horizontal field of view (deg) of a pinhole camera of focal length ``focal_px`` over ``width_px``."""
+    return math.degrees(2.0 * math.atan(0.5 * width_px / focal_px))
+
+
 def ego_speed_term(
     ego: EgoMotion | None,
     camera: Camera,
@@ -82,24 +93,55 @@ def ego_speed_term(
     height_m: float,
     notes: list[str],
     warnings: list[str],
-) -> tuple[float, float, int] | None:
-    """:func:`focal_from_ego_speed`'s term at the calibrated camera height ``height_m`` (m): None without a known
-    speed or an image ego-motion scaled by the camera height, or where the ego stands; said in ``notes`` (and in
-    ``warnings`` where a speed the user gave cannot be used)."""
+    width_px: float | None = None,
+) -> tuple[tuple[float, float, int] | None, bool]:
+    """:func:`focal_from_ego_speed`'s term at the calibrated camera height ``height_m`` (m), and whether the image
+    ego-motion's speed is to be replaced by the known one (:func:`with_known_speed`). No term without a known speed
+    or an image ego-motion scaled by the camera height, or where the ego stands. Where the focal length it gives is
+    no dashcam's (a field of view over the image's ``width_px`` outside :data:`MIN_HFOV_DEG` - :data:`MAX_HFOV_DEG`)
+    the image ego-motion's speed is what is off (a road it could not read): no term, and the speed is replaced.
+    Said in ``notes`` (and in ``warnings`` where a speed cannot be used though the ego moves, or the user gave
+    it)."""
     if speed is None or ego is None or not scaled_by_height:
-        return None
+        return None, False
     found = focal_from_ego_speed(ego, camera, height_m, speed)
     given = "given" if speed.source == "user" else "read off the picture's overlay"
+    hfov = hfov_deg(found[0], width_px) if found is not None and width_px else None
+    if found is not None and hfov is not None and not MIN_HFOV_DEG <= hfov <= MAX_HFOV_DEG:
+        notes.append(f"the ego's speed {given}, {speed.what}, not used: it would make the field of view {hfov:.0f} deg")
+        warnings.append(
+            f"the ego's speed {given} ({speed.what}) would make the camera's field of view {hfov:.0f} deg "
+            f"(focal length {found[0]:.0f} px): no dashcam's, so the image ego-motion's speed is what is off (road "
+            "textureless, hidden or blurred): the ego drives at that speed, the road users' distances keep the "
+            "images' scale; check them against the video or give the camera (--camera, --hfov)"
+        )
+        return None, True
     if found is not None:
         notes.append(
             f"the ego's speed {given}, {speed.what}: focal length {found[0]:.0f} px from the image "
             f"ego-motion's median speed over {found[2]} moving frames at a camera height of {height_m:.2f} m"
         )
-        return found
+        return found, False
     notes.append(f"the ego's speed {given}, {speed.what}, not used: the ego stands")
     if speed.source == "user":
         warnings.append(
             f"--ego-speed {speed.what} not used: the video shows the ego standing (its image "
             f"ego-motion under {USER_SPEED_MIN_MPS:g} m/s), which tells nothing of the scale"
         )
-    return None
+    return None, False
+
+
+def with_known_speed(ego: EgoMotion, speed: KnownSpeed) -> EgoMotion:
+    """``ego`` with its speed replaced by the known one (linear between its readings, held before the first and after
+    the last), its path integrated again along its own headings (each step at the mean speed of its frame pair and the
+    middle of its yaw)."""
+    if len(ego.t) == 0:
+        return ego
+    v = np.interp(ego.t, speed.times_s, speed.mps)
+    if len(ego.t) < 2:
+        return replace(ego, speed=v)
+    step = 0.5 * (v[1:] + v[:-1]) * np.diff(ego.t)
+    mid = 0.5 * (ego.yaw[1:] + ego.yaw[:-1])
+    x = ego.x[0] + np.r_[0.0, np.cumsum(step * np.cos(mid))]
+    y = ego.y[0] + np.r_[0.0, np.cumsum(step * np.sin(mid))]
+    return replace(ego, x=x, y=y, speed=v)

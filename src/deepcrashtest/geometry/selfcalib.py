@@ -83,6 +83,9 @@ class SelfCalibration:
     warnings: list[str] = field(default_factory=list)
     #: the ego's speed known apart from the images that was offered (the user's, the picture's overlay), if any
     known_speed: KnownSpeed | None = None
+    #: the image ego-motion's speed is off (:func:`~deepcrashtest.geometry.known_speed.ego_speed_term`): the ego
+    #: drives at ``known_speed`` instead (:func:`~deepcrashtest.geometry.known_speed.with_known_speed`)
+    replace_ego_speed: bool = False
 
     def summary(self) -> dict[str, Any]:
         """Plain JSON-able numbers (None where not estimated)."""
@@ -601,12 +604,14 @@ def self_calibrate(
             )
             upd = {"pitch_source": "self_calibration", "horizon_sigma_px": sig_v}
         level = _level_term(camera, vh, sig_v, notes) if n else None
-        speed = ego_speed_term(image_ego, camera, known_speed, ego_scaled_by_height, cam.height_m, notes, warns)
+        speed, replace_speed = ego_speed_term(
+            image_ego, camera, known_speed, ego_scaled_by_height, cam.height_m, notes, warns, size[0]
+        )
         if few is None and speed is None:
             notes.append(f"fewer than {MIN_HORIZON_BOXES} uncut vehicle boxes: the camera keeps its priors")
             nan = float("nan")
             return SelfCalibration(
-                cam, vh, nan, cam.height_m, nan, cam.fy, nan, 0, 0, notes, warnings=warns, known_speed=known_speed
+                cam, vh, nan, cam.height_m, nan, cam.fy, nan, 0, 0, notes, 1.0, warns, known_speed, replace_speed
             )
         if few is None:  # no horizon from boxes, but the user's speed gives the focal length
             notes.append(f"fewer than {MIN_HORIZON_BOXES} uncut vehicle boxes: horizon and height keep their priors")
@@ -620,7 +625,7 @@ def self_calibrate(
         cam = cam.model_copy(update=upd | {"pitch_rad": math.atan2(cam.cy - vh, fy)})
         scale = fy / camera.fy if ego_scaled_by_height else 1.0
         return SelfCalibration(
-            cam, vh, sig_v, cam.height_m, float("nan"), fy, sig_f, n, 0, notes, scale, warns, known_speed
+            cam, vh, sig_v, cam.height_m, float("nan"), fy, sig_f, n, 0, notes, scale, warns, known_speed, replace_speed
         )
     vh, sig_v, hc, bare_h, n = hh
     # the level-camera term takes the bootstrap sigma: its mounting-pitch prior, set from box horizons on
@@ -636,7 +641,9 @@ def self_calibrate(
         # rotations were measured with it): parked vehicles and turns on that path give it back unchanged
         notes.append("the ego path was measured from the images with the assumed focal length: it cannot calibrate it")
         ego = None
-    speed = ego_speed_term(image_ego, camera, known_speed, ego_scaled_by_height, hc, notes, warns)
+    speed, replace_speed = ego_speed_term(
+        image_ego, camera, known_speed, ego_scaled_by_height, hc, notes, warns, size[0]
+    )
     if ego is not None:
         motion = focal_from_motion(tracks, size, cam.cx, ego)
         bounce = focal_from_pitch(tracks, size, ego)
@@ -695,4 +702,6 @@ def self_calibrate(
             "principal point is off the image centre (a cropped frame: ccd_000014's verticals stay parallel, "
             "bench/vertical_lines.py): distances and the ego's speed scale with the focal length"
         )
-    return SelfCalibration(cam, vh, sig_v, hc, sig_h, fy, sig_f, n, used, notes, ego_scale, warns, known_speed)
+    return SelfCalibration(
+        cam, vh, sig_v, hc, sig_h, fy, sig_f, n, used, notes, ego_scale, warns, known_speed, replace_speed
+    )

@@ -39,7 +39,7 @@ from deepcrashtest.geometry.camera import (
     with_horizon,
 )
 from deepcrashtest.geometry.egomotion import MAX_RATE_HZ, EgoMotion, EgoMotionEstimator, rescaled
-from deepcrashtest.geometry.known_speed import KnownSpeed
+from deepcrashtest.geometry.known_speed import KnownSpeed, with_known_speed
 from deepcrashtest.geometry.lens import LensEstimate, estimate_lens, opencv_coefficients
 from deepcrashtest.geometry.localize import Localizer
 from deepcrashtest.perception.lanes import ClassicalLaneDetector, LaneDetector, LaneState, LaneTimelineResult
@@ -103,7 +103,7 @@ class SpeedCut:
         """The geometry with the ego speeds up to ``crash_time`` (s, video time) smoothed from the readings up
         to it only; None when no speed moves by more than ``min_change`` (m/s)."""
         ego = self._scaled(_ego_result(self.estimator, self.indices, crash_time))
-        if np.max(np.abs(ego.speed - self.ego.speed * self.scale[0]), initial=0.0) <= min_change:
+        if np.max(np.abs(ego.speed - self._scaled(self.ego).speed), initial=0.0) <= min_change:
             return None
         return self.result(ego, crash_time)
 
@@ -136,8 +136,12 @@ class SpeedCut:
 
     def _scaled(self, ego: EgoMotion) -> EgoMotion:
         """``ego`` under the self-calibrated camera: speeds scale with focal length x height, rotations (seen as
-        focal x angle) with the focal length."""
-        return rescaled(ego, *self.scale) if self.calibration is not None else ego
+        focal x angle) with the focal length; the known speed instead where the images' speed is off."""
+        if self.calibration is None:
+            return ego
+        ego = rescaled(ego, *self.scale)
+        known = self.calibration.known_speed
+        return with_known_speed(ego, known) if self.calibration.replace_ego_speed and known is not None else ego
 
 
 def estimate_camera(
