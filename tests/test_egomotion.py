@@ -584,7 +584,7 @@ def test_the_ego_speed_on_the_overlay_or_given_sets_the_scenes_scale(tmp_path):
     raws = []
     for name, speed, overlay in (("images", None, False), ("overlay", None, True), ("given", 58.0, True)):
         report = name == "overlay"  # the report says where the speed came from, and plots the readings
-        run_extract(video, tmp_path / name, annotate=False, report=report, ego_speed_kmh=speed, overlay_speed=overlay)
+        run_extract(video, tmp_path / name, annotate=False, report=report, ego_speed_kmh=speed, overlay=overlay)
         raws.append(Scenario.load(tmp_path / name / "scenario_raw.json"))
     html = (tmp_path / "overlay" / "report.html").read_text()
     assert "the picture&#x27;s GPS overlay: 57-59 km/h, 10 readings" in html

@@ -263,11 +263,11 @@ def extract(
         help="The ego's speed before the crash, km/h, as its GPS overlay or log shows it: sets the scene's metric "
         "scale (an uncalibrated camera's focal length).",
     ),
-    overlay_speed: bool = typer.Option(
+    overlay: bool = typer.Option(
         True,
-        "--overlay-speed/--no-overlay-speed",
-        help="Without --ego-speed or a calibration: read the ego's speed off the picture where the dashcam burns "
-        "its GPS speed into it ('58KM/H'), and use it as --ego-speed.",
+        "--overlay/--no-overlay",
+        help="Read what the dashcam burns into the picture: its GPS speed ('58KM/H'), used as --ego-speed where no "
+        "speed or calibration is given, and its clock, which tells a slow-motion video.",
     ),
     dashboard_rows: int | None = typer.Option(
         None, "--dashboard-rows", help="Rows of dashboard/bonnet at the bottom to ignore (default: detect)."
@@ -337,7 +337,7 @@ def extract(
         max_width=max_width,
         lens=lens,
         ego_speed_kmh=ego_speed,
-        overlay_speed=overlay_speed,
+        overlay=overlay,
     )
     emit(result, as_json, extract_summary)
 

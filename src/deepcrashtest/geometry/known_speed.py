@@ -34,7 +34,7 @@ MAX_HFOV_DEG = 150.0
 class KnownSpeed:
     """The ego's speed known apart from the images: ``mps`` (m/s) from each of ``times_s`` (video time, s) until
     the next reading (the first also before it). ``source``: ``"user"`` (``extract --ego-speed``, one constant) or
-    ``"overlay"`` (read off the picture, :mod:`deepcrashtest.perception.overlay_speed`); ``what``: the speed as the
+    ``"overlay"`` (read off the picture, :mod:`deepcrashtest.perception.overlay`); ``what``: the speed as the
     notes say it."""
 
     times_s: np.ndarray

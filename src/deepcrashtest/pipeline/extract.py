@@ -37,7 +37,7 @@ from deepcrashtest.perception.detect import DEFAULT_DETECTOR, make_detector
 from deepcrashtest.perception.detections import Detector, in_picture
 from deepcrashtest.perception.global_motion import GlobalMotion  # no pandas: the crash modules load in the background
 from deepcrashtest.perception.lanes import LaneState, draw_lanes
-from deepcrashtest.perception.overlay_speed import OverlaySpeedReader
+from deepcrashtest.perception.overlay import OverlayReader
 from deepcrashtest.perception.track import (
     FrameTracks,
     bridged_records,
@@ -48,7 +48,7 @@ from deepcrashtest.perception.track import (
 )
 from deepcrashtest.pipeline.geometry_pass import GeometryResult, TrackRows, cut_at_crash, extract_geometry
 from deepcrashtest.pipeline.threads import Worker, prefetch
-from deepcrashtest.scenario import Camera, VideoSource
+from deepcrashtest.scenario import Camera, Scenario, VideoSource
 from deepcrashtest.trajectory.params import Stage2Params
 from deepcrashtest.ui import status
 from deepcrashtest.ui import track as progress
@@ -125,7 +125,7 @@ def run_extract(
     max_width: int | None = DEFAULT_MAX_WIDTH,
     lens: str = "none",
     ego_speed_kmh: float | None = None,
-    overlay_speed: bool = True,
+    overlay: bool = True,
 ) -> dict[str, Any]:
     """Extract a video in ONE decoding pass: detect + track, ego-motion, lanes, localisation.
 
@@ -159,9 +159,9 @@ def run_extract(
     it, and so does every road user's distance), so the scenario takes the video's metric scale. A camera with its
     own intrinsics keeps them (the speed is not used; the CLI refuses the two together).
 
-    ``overlay_speed``: where neither a speed nor a calibration is given, read the ego's speed off the picture when
-    its dashcam burns its GPS speed into it (:mod:`deepcrashtest.perception.overlay_speed`; a text reader must be
-    installed), and use it as a given speed.
+    ``overlay``: read what the dashcam burns into the picture (:mod:`deepcrashtest.perception.overlay`; a text reader
+    must be installed): its GPS speed, used as a given speed where neither a speed nor a calibration is given, and its
+    clock, which tells a slow-motion or sped-up video (a warning).
     """
     crash_spec = _parse_crash(crash) if crash is not None else None
     max_width = max_width or None  # 0: the frames as stored
@@ -178,7 +178,7 @@ def run_extract(
             with output_set(out, OUTPUT_NAMES, force) as stage:  # the whole set of one run, or nothing
                 staged = {key: stage / path.name for key, path in paths.items()}
                 args = (src_path, out, staged, det, detect_every, max_frames, fps, False, frame_range, seed, watch)
-                plan = _Pass(*args, max_width=max_width, lens=lens, ego_speed=ego_speed, overlay_speed=overlay_speed)
+                plan = _Pass(*args, max_width=max_width, lens=lens, ego_speed=ego_speed, overlay=overlay)
                 plan.imports = imports
                 result = _run_pass(plan, camera, dashboard_rows, geometry, lanes, report, crash_spec, stage2)
     except _Compilation as comp:  # nothing was written: one extraction per shot instead
@@ -188,7 +188,7 @@ def run_extract(
         options: dict[str, Any] = dict(detector=detector, detect_every=detect_every, fps=fps, annotate=annotate)
         options |= dict(camera=camera, dashboard_rows=dashboard_rows, lanes=lanes, report=report, seed=seed)
         options |= dict(stage2=stage2, geometry=geometry, max_width=max_width, lens=lens, ego_speed_kmh=ego_speed_kmh)
-        options |= dict(overlay_speed=overlay_speed)
+        options |= dict(overlay=overlay)
         if len(found) > 1:
             return _extract_shots(src_path, out, found, force, options, crash_spec)
         return run_extract(src_path, out, force=force, shots=False, crash=crash, max_frames=max_frames, **options)
@@ -260,6 +260,7 @@ def _after_pass(
         motion = plan.motion
         geo.scenario, crash_info = crash_for_raw(geo.scenario, df, motion.arrays(), crash_spec, motion.area)
         geo = _cut_at_crash(geo, crash_info)
+        geo.scenario = _with_overlay_clock(geo.scenario, plan.overlay_reader, meta.fps)
     with atomic_path(paths["tracks_csv"], force=force) as tmp:
         df.to_csv(tmp, index=False, float_format="%.3f")
     result = _summary(plan, meta, df, elapsed)
@@ -447,8 +448,10 @@ class _Pass:
     """``"auto"``: the lens's distortion read from the video when no calibration is given (:func:`run_extract`)."""
     ego_speed: float | None = None
     """The ego's speed the user knows (m/s), for an uncalibrated camera's focal length (:func:`run_extract`)."""
-    overlay_speed: bool = True
-    """Read the ego's speed off the picture where no speed and no calibration are given (:func:`run_extract`)."""
+    overlay: bool = True
+    """Read the dashcam's overlay: its speed where no speed and no calibration are given, and its clock
+    (:func:`run_extract`)."""
+    overlay_reader: OverlayReader | None = field(default=None, init=False)
     motion: GlobalMotion = field(default_factory=GlobalMotion)
     """The camera's global image motion per frame (the ego's jolt, for crash detection)."""
     shot_watch: ShotWatch | None = field(default=None, init=False)
@@ -545,7 +548,8 @@ class _Pass:
     ) -> GeometryResult:
         """Ego-motion, lanes and localisation over the tracked frames (:mod:`.geometry_pass`)."""
         pending: dict[int, FrameTracks] = {}
-        overlay = self._overlay_reader(cam)
+        overlay = self.overlay_reader = self._overlay_reader()
+        use_speed = self.ego_speed is None and cam.intrinsics_source == "default"
 
         def pairs() -> Iterator[tuple[Any, TrackRows]]:
             for ft in tracked:
@@ -559,6 +563,8 @@ class _Pass:
             self.motion.update(int(frame.index), frame.image)
             if overlay is not None and overlay.wants(float(frame.time)):
                 overlay.offer(int(frame.index), float(frame.time), frame.image)
+            elif overlay is not None:
+                overlay.see(int(frame.index), float(frame.time), frame.image)
             draw(pending.pop(int(frame.index)), lane_state)
 
         return extract_geometry(
@@ -573,22 +579,50 @@ class _Pass:
             lens=self.lens == "auto",
             frame_times=meta.variable_frame_times,
             ego_speed=self.ego_speed,
-            overlay_speed=None if overlay is None else lambda: _known_speed(overlay),
+            overlay_speed=None if overlay is None or not use_speed else lambda: _known_speed(overlay),
         )
 
-    def _overlay_reader(self, cam: Camera) -> OverlaySpeedReader | None:
-        """The reader of the picture's speed overlay, where one is wanted and a text reader is installed."""
-        if not self.overlay_speed or self.ego_speed is not None or cam.intrinsics_source != "default":
+    def _overlay_reader(self) -> OverlayReader | None:
+        """The reader of the picture's overlay, where one is wanted and a text reader is installed."""
+        if not self.overlay:
             return None
         from deepcrashtest.perception.text import make_text_reader
 
         reader = make_text_reader()
-        return None if reader is None else OverlaySpeedReader(reader)
+        return None if reader is None else OverlayReader(reader)
 
 
-def _known_speed(overlay: OverlaySpeedReader) -> KnownSpeed | None:
+def _with_overlay_clock(sc: Scenario, overlay: OverlayReader | None, fps: float) -> Scenario:
+    """``sc`` with the rate of the picture's clock in its provenance (``overlay_clock``: clock seconds per video
+    second, its 95 % interval, the ticks it rests on) and a warning where the video is clearly not real time (a
+    slow-motion or sped-up video); ``sc`` itself where no clock was read."""
+    clock = overlay.clock() if overlay is not None else None
+    rate = clock.rate() if clock is not None else None
+    if clock is None or rate is None:
+        return sc
+    params = {**sc.provenance.parameters}
+    params["overlay_clock"] = {
+        "rate": round(rate[0], 4),
+        "interval_95": [round(rate[1], 4), round(rate[2], 4)],
+        "ticks": len(clock.ticks_t),
+        "sample": clock.sample,
+    }
+    sc = sc.evolve(provenance=sc.provenance.model_copy(update={"parameters": params}))
+    slow = clock.slow_motion()
+    if slow is None:
+        return sc
+    kind = "slow motion" if slow < 1.0 else "sped up"
+    warning = (
+        f"the picture's clock ({clock.sample!r}) runs {slow:.2f} s per second of video ({rate[1]:.2f}-{rate[2]:.2f}, "
+        f"95 %): {kind}; the scenario's times and speeds follow the video's {fps:g} fps and are off by that factor "
+        f"(--fps {fps / slow:.3g} plays it in real time)"
+    )
+    return sc.evolve(warnings=[*sc.warnings, warning])
+
+
+def _known_speed(overlay: OverlayReader) -> KnownSpeed | None:
     """The speeds read off the picture's overlay as a known speed (None: no speed there)."""
-    found = overlay.result()
+    found = overlay.speed()
     if found is None:
         return None
     return KnownSpeed(found.times_s, found.kmh / 3.6, "overlay", found.describe())

@@ -1,4 +1,4 @@
-"""The ego's speed read off a dashcam's GPS overlay (perception/overlay_speed.py, perception/text.py), against the
+"""The ego's speed and the clock read off a dashcam's overlay (perception/overlay.py, perception/text.py), against the
 speeds read by eye on the shared crash clips (bench/labels/ego_speed_overlays.json)."""
 
 from __future__ import annotations
@@ -6,10 +6,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from conftest import DATA, ROOT, need
-from deepcrashtest.perception.overlay_speed import OverlaySpeed, OverlaySpeedReader, parse_speed
+from deepcrashtest.perception.overlay import OverlayReader, parse_clock, parse_speed
 from deepcrashtest.perception.text import make_text_reader
 from deepcrashtest.video.size import DEFAULT_MAX_WIDTH
 from deepcrashtest.video.source import open_video
@@ -48,22 +49,25 @@ def test_a_speed_is_a_number_standing_alone_with_its_unit(text: str, speed: tupl
         assert got is not None and got[0] == pytest.approx(speed[0]) and got[1] == speed[1]
 
 
-def _read(video: Path, max_s: float = 60.0) -> tuple[OverlaySpeed | None, int]:
-    """The overlay speed of ``video`` read as ``extract`` reads it (its frames at extract's size), and how many
-    frames the reader was given."""
+def _read(video: Path, max_s: float = 60.0, slow: float = 1.0) -> tuple[OverlayReader, int]:
+    """The overlay reader after ``video`` as ``extract`` reads it (its frames at extract's size; each frame's time
+    stretched by ``slow``: the clip re-timed as a slow-motion copy would be), and how many frames it was given."""
     reader = make_text_reader()
     if reader is None:
         pytest.skip("no text reader installed (make setup installs rapidocr_onnxruntime)")
-    overlay = OverlaySpeedReader(reader)
+    overlay = OverlayReader(reader)
     offered = 0
     with open_video(video, max_width=DEFAULT_MAX_WIDTH) as source:
         for frame in source:
-            if frame.time > max_s:
+            time = slow * float(frame.time)
+            if time > max_s:
                 break
-            if overlay.wants(float(frame.time)):
-                overlay.offer(int(frame.index), float(frame.time), frame.image)
+            if overlay.wants(time):
+                overlay.offer(int(frame.index), time, frame.image)
                 offered += 1
-    return overlay.result(), offered
+            else:
+                overlay.see(int(frame.index), time, frame.image)
+    return overlay, offered
 
 
 @pytest.mark.parametrize("clip", ["ccd_000014", "dad_000528"])
@@ -72,7 +76,8 @@ def test_the_speed_a_dashcam_burns_into_the_picture_is_read_as_labelled(clip: st
     frame (ccd_000014 57-59 km/h, "58KM/H" among the date and GPS position; dad_000528 a crawl "006km/h" down to
     "000km/h"), and the place read is the overlay's bottom line."""
     label = json.loads(LABELS.read_text())["clips"][clip]
-    found, offered = _read(need(DATA / label["video"]))
+    overlay, offered = _read(need(DATA / label["video"]))
+    found = overlay.speed()
     assert found is not None
     assert len(found.kmh) >= offered - 1  # at most one sample unread
     truth = {f: r["kmh"] for r in label["readings"] for f in range(r["first_frame"], r["last_frame"] + 1)}
@@ -83,25 +88,79 @@ def test_the_speed_a_dashcam_burns_into_the_picture_is_read_as_labelled(clip: st
     assert found.unit == "km/h" and found.box[1] > 0.8 * 720
 
 
-@pytest.mark.parametrize("video", ["crash_ccd/ccd_000487.mp4", "dashcam_udacity/highway_project_video.mp4"])
-def test_a_clip_without_a_speed_in_its_picture_gives_none(video: str):
-    """ccd_000487's overlay shows a brand, the date and the time, and a channel's caption sits on top; the Udacity
-    highway clip has no overlay: neither gives a speed, and the reader stops looking after its first samples."""
-    found, offered = _read(need(DATA / video), max_s=5.0)
-    assert found is None
-    assert offered == 3
+def test_a_clip_without_a_speed_in_its_picture_gives_none():
+    """ccd_000487's overlay shows a brand, the date and the time, and a channel's caption sits on top: no speed (its
+    small blurred clock digits read too unsteadily to time it: no clock rate either, rather than a wrong one); the
+    Udacity highway clip has no overlay: nothing, and the reader stops looking after its first samples."""
+    overlay, _ = _read(need(DATA / "crash_ccd" / "ccd_000487.mp4"), max_s=5.0)
+    clock = overlay.clock()
+    assert overlay.speed() is None and (clock is None or clock.slow_motion() is None)
+    overlay, offered = _read(need(DATA / "dashcam_udacity" / "highway_project_video.mp4"), max_s=5.0)
+    assert overlay.speed() is None and overlay.clock() is None and offered == 3
+
+
+@pytest.mark.parametrize(
+    ("text", "seconds"),
+    [
+        ("2012.08.08 09.16.26 044.881000", 9 * 3600 + 16 * 60 + 26),
+        ("2015-08-21 08:10:32 006km/h", 8 * 3600 + 10 * 60 + 32),
+        ("GARMIN 05-26-2019 11:45:03", 11 * 3600 + 45 * 60 + 3),
+        ("2012.08.08", None),  # a date
+        ("05-26-2019", None),
+        ("09.1C:28", None),  # a misread digit
+        ("25:10:10", None),
+        ("10:00:00 11:00:00", None),
+    ],
+)
+def test_a_clock_is_hours_minutes_and_seconds_standing_alone(text: str, seconds: int | None):
+    got = parse_clock(text)
+    assert (got is None) if seconds is None else (got == (float(seconds), "s"))
+
+
+def test_a_slow_motion_copy_is_told_by_the_pictures_clock():
+    """ccd_000014's clock (09:16:26 -> 09:16:30 over its 5 s, its digits often misread) runs in real time: the 95 %
+    interval of its rate holds 1; the same frames re-timed at half speed (each frame shown twice as long, a
+    compilation's slow-motion replay) make it run ~0.5 s per video second: told, whereas the images alone show only
+    a slower drive. ccd_000053's clear digits tick exactly every 10 frames at 10 fps."""
+    video = need(DATA / "crash_ccd" / "ccd_000014.mp4")
+    real, _ = _read(video)
+    clock = real.clock()
+    assert clock is not None and clock.slow_motion() is None
+    rate = clock.rate()
+    assert rate is not None and rate[1] <= 1.0 <= rate[2]
+    slow, _ = _read(video, slow=2.0)
+    clock = slow.clock()
+    assert clock is not None
+    assert clock.slow_motion() == pytest.approx(0.5, abs=0.1)
+    assert slow.speed() is not None  # the speed is read all the same
+    clear, _ = _read(need(DATA / "crash_ccd" / "ccd_000053.mp4"))
+    clock = clear.clock()
+    assert clock is not None and clock.rate() == pytest.approx((1.0, 1.0, 1.0))
+    assert np.allclose(np.diff(clock.ticks_t), 1.0)
+
+
+@pytest.mark.parametrize("clip", ["dad_000478", "dad_000493", "dad_000550"])
+def test_the_dad_clips_are_played_slower_than_they_were_filmed(clip: str):
+    """The DAD clips are stored at 20 fps, but their dashcams' clocks tick every ~24-25 frames: footage of ~25 fps
+    played at 0.8x (the dataset's frame-rate caveat, measured). Every speed of their scenarios is ~20 % low."""
+    overlay, _ = _read(need(DATA / "crash_dad" / f"{clip}.mp4"))
+    clock = overlay.clock()
+    assert clock is not None
+    slow = clock.slow_motion()
+    assert slow is not None and 0.75 < slow < 0.85
+    assert 23.0 < float(np.median(np.diff(clock.ticks_t))) * 20.0 < 26.0  # frames per clock second
 
 
 def test_the_reader_stops_where_its_place_stops_showing_a_speed():
     """ccd_000014 with its overlay line painted over from frame 20 on (a text that was no overlay, passed by the
     camera, behaves alike): the readings before stay, the reader searches again at each miss and gives up after
     MAX_MISSES + 1 samples in a row, instead of reading every later frame."""
-    from deepcrashtest.perception.overlay_speed import MAX_MISSES
+    from deepcrashtest.perception.overlay import MAX_MISSES
 
     reader = make_text_reader()
     if reader is None:
         pytest.skip("no text reader installed (make setup installs rapidocr_onnxruntime)")
-    overlay = OverlaySpeedReader(reader)
+    overlay = OverlayReader(reader)
     offered = []
     with open_video(need(DATA / "crash_ccd" / "ccd_000014.mp4"), max_width=DEFAULT_MAX_WIDTH) as source:
         for frame in source:
@@ -112,7 +171,7 @@ def test_the_reader_stops_where_its_place_stops_showing_a_speed():
                 image[image.shape[0] - 60 :] = 40
             overlay.offer(int(frame.index), float(frame.time), image)
             offered.append(int(frame.index))
-    found = overlay.result()
+    found = overlay.speed()
     assert found is not None and found.frames.tolist() == [0, 5, 10, 15]
     assert offered == [0, 5, 10, 15] + [20 + 5 * k for k in range(MAX_MISSES + 1)]
 
@@ -145,14 +204,14 @@ def test_other_dashcams_speed_formats_are_read(highway_frames: list, text: str, 
     reader = make_text_reader()
     if reader is None:
         pytest.skip("no text reader installed (make setup installs rapidocr_onnxruntime)")
-    overlay = OverlaySpeedReader(reader)
+    overlay = OverlayReader(reader)
     for k, frame in enumerate(highway_frames):
         image = frame.copy()
         origin = (40, 35 if top else image.shape[0] - 20)
         cv2.putText(image, text, origin, cv2.FONT_HERSHEY_SIMPLEX, 0.8, (0, 0, 0), 4, cv2.LINE_AA)
         cv2.putText(image, text, origin, cv2.FONT_HERSHEY_SIMPLEX, 0.8, (255, 255, 255), 2, cv2.LINE_AA)
         overlay.offer(12 * k, 0.5 * k, image)
-    found = overlay.result()
+    found = overlay.speed()
     assert found is not None and found.kmh == pytest.approx([kmh] * len(highway_frames))
     assert (found.box[1] < 100) == top
 
@@ -189,3 +248,21 @@ def test_a_known_speed_that_would_make_no_dashcams_lens_drives_the_ego_instead()
     slower = KnownSpeed(overlay.times_s, overlay.mps / 3.0, "overlay", "30 km/h")
     found, replace_speed = ego_speed_term(ego, camera, slower, True, 1.3, notes, warnings, 1280)
     assert found is not None and found[0] == pytest.approx(640.0 * 30.0 / 8.0) and found[2] == 40 and not replace_speed
+
+
+def test_extract_says_when_the_pictures_clock_runs_slower_than_the_video(tmp_path):
+    """``extract`` of dad_000478 (20 fps, its dashcam's clock ticking every ~25 frames): the clock's rate in the raw
+    scenario's provenance and a warning that the video is slow motion, with the frame rate that plays it in real
+    time; the images, frames and crash are what they were."""
+    from deepcrashtest.pipeline.extract import run_extract
+    from deepcrashtest.scenario import Scenario
+
+    if make_text_reader() is None:
+        pytest.skip("no text reader installed (make setup installs rapidocr_onnxruntime)")
+    run_extract(need(DATA / "crash_dad" / "dad_000478.mp4"), tmp_path / "out", annotate=False, report=False)
+    raw = Scenario.load(tmp_path / "out" / "scenario_raw.json")
+    clock = raw.provenance.parameters["overlay_clock"]
+    assert 0.75 < clock["rate"] < 0.85 and clock["interval_95"][1] < 0.95 and clock["ticks"] >= 3
+    said = [w for w in raw.warnings if w.startswith("the picture's clock")]
+    assert len(said) == 1 and "slow motion" in said[0] and "--fps 25 plays it in real time" in said[0], said
+    assert raw.source.fps == 20.0
