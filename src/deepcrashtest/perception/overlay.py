@@ -48,7 +48,7 @@ MAX_MISSES = 3
 #: Readings under this confidence (0-1) are not taken.
 MIN_SCORE = 0.7
 #: The clock is read over the first seconds of video only (enough to tell its rate).
-CLOCK_MAX_S = 30.0
+CLOCK_MAX_S = 10.0
 #: A clock whose rate (clock seconds per video second) is further than this from 1 with 95 % confidence makes the video
 #: a slow-motion or sped-up one (the tick frames are found to the frame where the digits read cleanly).
 CLOCK_RATE_TOL = 0.05
@@ -228,7 +228,9 @@ class OverlayReader:
         place = self._clock.place
         if place is not None and self._clock.active(self._samples, time_s):
             x1, y1, x2, y2 = place.frame_box()
-            self._between.append((frame, time_s, image[y1:y2, x1:x2].copy()))
+            crop = image[y1:y2, x1:x2]
+            if crop.size:
+                self._between.append((frame, time_s, crop.copy()))
 
     def wants(self, time_s: float) -> bool:
         """Whether the frame at ``time_s`` (s) is to be read (every :data:`SAMPLE_S` while a field is searched for
@@ -296,7 +298,10 @@ class OverlayReader:
         self, image: np.ndarray, place: _Place, parse: Callable[[str], tuple[float, str] | None]
     ) -> tuple[float, str] | None:
         x1, y1, x2, y2 = place.frame_box()
-        text, score = self.reader.read(image[y1:y2, x1:x2])
+        crop = image[y1:y2, x1:x2]
+        if crop.size == 0:
+            return None
+        text, score = self.reader.read(crop)
         return parse(text) if score >= MIN_SCORE else None
 
     def _search(self, image: np.ndarray, fields: list[_Field]) -> dict[int, tuple[float, str] | None]:
