@@ -43,8 +43,10 @@ BAND = 0.16
 MAX_JUMP_KMH = 12.0
 #: Readings needed for a speed: a single reading may be a misread sign or caption.
 MIN_READINGS = 3
-#: Samples in a row whose speed's place reads no speed (and a new search finds none) before the reader stops.
+#: Samples in a row whose place reads nothing for a field (and a new search finds none) before it is no longer read.
 MAX_MISSES = 3
+#: Clock readings that fit no running clock (backwards, or far ahead) before the clock is not trusted.
+MAX_CLOCK_MISREADS = 3
 #: Readings under this confidence (0-1) are not taken.
 MIN_SCORE = 0.7
 #: The clock is read over the first seconds of video only (enough to tell its rate).
@@ -140,12 +142,12 @@ class OverlayClock:
     def rate(self) -> tuple[float, float, float] | None:
         """(clock seconds per video second, and its 95 % interval): the Theil-Sen line through the ticks, each at the
         middle of its interval (a misread digit moves one tick, not the line). None with fewer than 3 ticks, ticks
-        spanning under :data:`CLOCK_MIN_SPAN_S` of video, or more than :data:`MAX_MISSES` readings that fit no
+        spanning under :data:`CLOCK_MIN_SPAN_S` of video, or more than :data:`MAX_CLOCK_MISREADS` readings that fit no
         running clock."""
         from scipy.stats import theilslopes
 
         t = self.ticks_t - 0.5 * self.ticks_dt
-        if len(t) < 3 or float(t[-1] - t[0]) < CLOCK_MIN_SPAN_S or self.misreads > MAX_MISSES:
+        if len(t) < 3 or float(t[-1] - t[0]) < CLOCK_MIN_SPAN_S or self.misreads > MAX_CLOCK_MISREADS:
             return None
         fit = theilslopes(self.ticks_s, t, alpha=0.95)
         return float(fit[0]), float(fit[2]), float(fit[3])
