@@ -266,3 +266,37 @@ def test_extract_says_when_the_pictures_clock_runs_slower_than_the_video(tmp_pat
     said = [w for w in raw.warnings if w.startswith("the picture's clock")]
     assert len(said) == 1 and "slow motion" in said[0] and "--fps 25 plays it in real time" in said[0], said
     assert raw.source.fps == 20.0
+
+
+class _BrokenReader:
+    """A text reader plug-in whose model cannot run (every call raises, as a broken model file would)."""
+
+    def detect(self, image: np.ndarray) -> int:
+        raise RuntimeError("model file truncated")
+
+    def find(self, image: np.ndarray) -> list:
+        raise RuntimeError("model file truncated")
+
+    def read(self, image: np.ndarray) -> tuple[str, float]:
+        raise RuntimeError("model file truncated")
+
+
+def test_a_text_reader_that_fails_stops_the_overlay_not_the_extraction(tmp_path, monkeypatch):
+    """The overlay is an extra: a text reader plug-in that raises stops the reading (no speed, no clock, no more
+    frames wanted) and says why; ``extract`` of ccd_000014 still writes its scenario, on the images' scale, with a
+    warning naming the failure."""
+    from deepcrashtest.perception import text
+    from deepcrashtest.pipeline.extract import run_extract
+    from deepcrashtest.scenario import Scenario
+
+    overlay = OverlayReader(_BrokenReader())
+    image = np.zeros((720, 1280, 3), np.uint8)
+    overlay.offer(0, 0.0, image)
+    assert overlay.failed == "RuntimeError: model file truncated"
+    assert not overlay.wants(0.5) and overlay.speed() is None and overlay.clock() is None
+    monkeypatch.setattr(text, "make_text_reader", lambda name="rapidocr": _BrokenReader())
+    video = need(DATA / "crash_ccd" / "ccd_000014.mp4")
+    run_extract(video, tmp_path / "out", annotate=False, report=False, max_frames=30)
+    raw = Scenario.load(tmp_path / "out" / "scenario_raw.json")
+    assert any("text reader failed (RuntimeError: model file truncated)" in w for w in raw.warnings)
+    assert raw.camera.fy < 2000  # the images' scale: no overlay speed

@@ -223,12 +223,14 @@ class OverlayReader:
     _between: list[tuple[int, float, np.ndarray]] = field(default_factory=list)
     _ticks: list[tuple[float, float, float]] = field(default_factory=list)  # time s, clock s, time uncertainty s
     _misreads: int = 0
+    #: why the text reader stopped (None: it did not): nothing is read after a failure, and no result is given
+    failed: str | None = None
 
     def see(self, frame: int, time_s: float, image: np.ndarray) -> None:
         """A frame not read (:meth:`wants` said no): kept as the clock's crop while the clock is read, so that the
         frame its second changes on can be found."""
         place = self._clock.place
-        if place is not None and self._clock.active(self._samples, time_s):
+        if self.failed is None and place is not None and self._clock.active(self._samples, time_s):
             x1, y1, x2, y2 = place.frame_box()
             crop = image[y1:y2, x1:x2]
             if crop.size:
@@ -237,12 +239,20 @@ class OverlayReader:
     def wants(self, time_s: float) -> bool:
         """Whether the frame at ``time_s`` (s) is to be read (every :data:`SAMPLE_S` while a field is searched for
         or read)."""
-        if not any(f.active(self._samples, time_s) for f in (self._speed, self._clock)):
+        if self.failed is not None or not any(f.active(self._samples, time_s) for f in (self._speed, self._clock)):
             return False
         return self._next_s is None or time_s >= self._next_s - 1e-6
 
     def offer(self, frame: int, time_s: float, image: np.ndarray) -> None:
-        """Read the overlay in ``image`` (BGR uint8, the whole frame) at video ``frame`` / ``time_s`` (s)."""
+        """Read the overlay in ``image`` (BGR uint8, the whole frame) at video ``frame`` / ``time_s`` (s). Where the
+        text reader fails (a model it cannot load or run), nothing more is read and :attr:`failed` says why: the
+        overlay is an extra, and the extraction goes on without it."""
+        try:
+            self._offer(frame, time_s, image)
+        except Exception as exc:  # a plug-in's failure: said, not raised
+            self.failed = f"{type(exc).__name__}: {exc}"[:300]
+
+    def _offer(self, frame: int, time_s: float, image: np.ndarray) -> None:
         fields = [f for f in (self._speed, self._clock) if f.active(self._samples, time_s)]
         self._next_s = time_s + self.sample_s
         self._samples += 1
@@ -331,7 +341,7 @@ class OverlayReader:
         """The speed readings at the place read most often, in its unit of most readings, that agree with their
         neighbours; None where fewer than :data:`MIN_READINGS` are left."""
         rows = self._speed.best()
-        if not rows:
+        if not rows or self.failed is not None:
             return None
         kmh = np.array([r[2] for r in rows])
         keep = np.array([abs(v - np.median(kmh[max(0, i - 2) : i + 3])) <= MAX_JUMP_KMH for i, v in enumerate(kmh)])
@@ -350,7 +360,7 @@ class OverlayReader:
 
     def clock(self) -> OverlayClock | None:
         """The clock's ticks; None where it was read fewer than :data:`MIN_READINGS` times."""
-        if len(self._clock.readings) < MIN_READINGS:
+        if len(self._clock.readings) < MIN_READINGS or self.failed is not None:
             return None
         t, sec, dt = (np.array([k[j] for k in self._ticks]) for j in range(3))
         return OverlayClock(t, sec, dt, self._misreads, self._clock.texts[self._clock.readings[0][4]])

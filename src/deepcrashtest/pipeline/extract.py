@@ -595,7 +595,11 @@ class _Pass:
 def _with_overlay_clock(sc: Scenario, overlay: OverlayReader | None, fps: float) -> Scenario:
     """``sc`` with the rate of the picture's clock in its provenance (``overlay_clock``: clock seconds per video
     second, its 95 % interval, the ticks it rests on) and a warning where the video is clearly not real time (a
-    slow-motion or sped-up video); ``sc`` itself where no clock was read."""
+    slow-motion or sped-up video), or where the text reader failed; ``sc`` itself where no clock was read."""
+    if overlay is not None and overlay.failed is not None:
+        return sc.evolve(
+            warnings=[*sc.warnings, f"the picture's overlay was not read: the text reader failed ({overlay.failed})"]
+        )
     clock = overlay.clock() if overlay is not None else None
     rate = clock.rate() if clock is not None else None
     if clock is None or rate is None:
