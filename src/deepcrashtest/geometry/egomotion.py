@@ -875,11 +875,17 @@ def rescaled(ego: EgoMotion, length: float = 1.0, focal_ratio: float = 1.0) -> E
     dyaw = np.diff(ego.yaw) * focal_ratio
     yaw = ego.yaw[0] + np.r_[0.0, np.cumsum(dyaw)]
     step = np.hypot(np.diff(ego.x), np.diff(ego.y)) * length
-    mid = yaw[:-1] + 0.5 * dyaw
-    x = ego.x[0] * length + np.r_[0.0, np.cumsum(step * np.cos(mid))]
-    y = ego.y[0] * length + np.r_[0.0, np.cumsum(step * np.sin(mid))]
+    x, y = path_along(ego.x[0] * length, ego.y[0] * length, step, yaw[:-1] + 0.5 * dyaw)
     tilt = None if ego.tilt is None else ego.tilt * np.array([focal_ratio, 1.0])
     return replace(ego, x=x, y=y, yaw=yaw, speed=ego.speed * length, yaw_rate=ego.yaw_rate * focal_ratio, tilt=tilt)
+
+
+def path_along(x0: float, y0: float, step: np.ndarray, heading: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World x, y (m) of a path from (``x0``, ``y0``) whose k-th step is ``step[k]`` metres long at ``heading[k]``
+    (rad, world frame): one more point than steps."""
+    x = x0 + np.r_[0.0, np.cumsum(step * np.cos(heading))]
+    y = y0 + np.r_[0.0, np.cumsum(step * np.sin(heading))]
+    return x, y
 
 
 def _every_frame(m: EgoMotion, every: list[tuple[int, float]]) -> EgoMotion:

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from deepcrashtest.geometry.egomotion import EgoMotion
+from deepcrashtest.geometry.egomotion import EgoMotion, path_along
 from deepcrashtest.scenario import Camera
 
 #: Relative 1-sigma of the focal length read from a known speed: a GPS speed to +-1-2 km/h, and the median of the
@@ -63,15 +63,14 @@ class KnownSpeed:
 
 
 def focal_from_ego_speed(
-    ego: EgoMotion, camera: Camera, height_m: float, speed: KnownSpeed | float
+    ego: EgoMotion, camera: Camera, height_m: float, known: KnownSpeed
 ) -> tuple[float, float, int] | None:
     """(focal length px, relative sigma, frames used) that gives image ego-motion the known speed.
 
     ``ego`` was measured with ``camera``'s focal length and height; at the calibrated height ``height_m`` its
     median speed over the frames where both it and the known speed move is ``v``, against the known speed's median
     ``s`` over the same frames: the focal length ``camera.fy x s / v`` gives it the known speed. None where the
-    video shows the ego standing (fewer than 3 such frames). ``speed``: a :class:`KnownSpeed` or one m/s figure."""
-    known = speed if isinstance(speed, KnownSpeed) else KnownSpeed.constant(speed)
+    video shows the ego standing (fewer than 3 such frames)."""
     along = known.at(ego.t)
     moving = np.isfinite(ego.speed) & (ego.speed >= USER_SPEED_MIN_MPS) & (along >= USER_SPEED_MIN_MPS)
     if int(moving.sum()) < 3:
@@ -141,7 +140,5 @@ def with_known_speed(ego: EgoMotion, speed: KnownSpeed) -> EgoMotion:
     if len(ego.t) < 2:
         return replace(ego, speed=v)
     step = 0.5 * (v[1:] + v[:-1]) * np.diff(ego.t)
-    mid = 0.5 * (ego.yaw[1:] + ego.yaw[:-1])
-    x = ego.x[0] + np.r_[0.0, np.cumsum(step * np.cos(mid))]
-    y = ego.y[0] + np.r_[0.0, np.cumsum(step * np.sin(mid))]
+    x, y = path_along(float(ego.x[0]), float(ego.y[0]), step, 0.5 * (ego.yaw[1:] + ego.yaw[:-1]))
     return replace(ego, x=x, y=y, speed=v)

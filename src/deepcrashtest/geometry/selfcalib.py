@@ -570,7 +570,7 @@ def self_calibrate(
     size: tuple[int, int],
     ego: EgoMotion | None = None,
     ego_scaled_by_height: bool = False,
-    known_speed: KnownSpeed | float | None = None,
+    known_speed: KnownSpeed | None = None,
 ) -> SelfCalibration:
     """Horizon, camera height and focal length of an uncalibrated camera (see the module docstring).
 
@@ -579,14 +579,12 @@ def self_calibrate(
     metric scale came from ``camera.height_m`` and the camera's focal length (monocular ego-motion: the
     road plane's scale is proportional to focal length x camera height): it cannot calibrate the focal
     length, and ``SelfCalibration.ego_scale`` is the factor (measured over assumed focal x height) that
-    rescales it. ``known_speed``: the ego's speed known apart from the images (a user's, m/s, or a
-    :class:`~deepcrashtest.geometry.known_speed.KnownSpeed`: a GPS overlay or log), which image ego-motion scaled by
-    height then reads the focal length from (:func:`~deepcrashtest.geometry.known_speed.focal_from_ego_speed`). What
-    cannot be measured keeps the prior."""
+    rescales it. ``known_speed``: the ego's speed known apart from the images (the user's, a GPS overlay or log:
+    :class:`~deepcrashtest.geometry.known_speed.KnownSpeed`), which image ego-motion scaled by height then reads the
+    focal length from (:func:`~deepcrashtest.geometry.known_speed.focal_from_ego_speed`). What cannot be measured
+    keeps the prior."""
     notes: list[str] = []
     warns: list[str] = []
-    if known_speed is not None and not isinstance(known_speed, KnownSpeed):
-        known_speed = KnownSpeed.constant(known_speed)
     image_ego = ego  # the path the user's speed is read against (``ego`` is dropped below where it is the images')
     tracks = undistorted_tracks(tracks, camera, size)  # a lens's distortion known: boxes in its pinhole image
     hh = horizon_and_height(tracks, size)
