@@ -132,6 +132,8 @@ def test_a_slow_motion_copy_is_told_by_the_pictures_clock():
     clock = slow.clock()
     assert clock is not None
     assert clock.slow_motion() == pytest.approx(0.5, abs=0.1)
+    assert clock.real_time_fps(5.0) == pytest.approx(10.0, rel=0.1)  # 5 fps play it at half speed: 10 fps filmed
+    assert real.clock().real_time_fps(10.0) is None  # type: ignore[union-attr]
     assert slow.speed() is not None  # the speed is read all the same
     clear, _ = _read(need(DATA / "crash_ccd" / "ccd_000053.mp4"))
     clock = clear.clock()
@@ -149,6 +151,7 @@ def test_the_dad_clips_are_played_slower_than_they_were_filmed(clip: str):
     slow = clock.slow_motion()
     assert slow is not None and 0.75 < slow < 0.85
     assert 23.0 < float(np.median(np.diff(clock.ticks_t))) * 20.0 < 26.0  # frames per clock second
+    assert 24.0 <= clock.real_time_fps(20.0) <= 25.0  # type: ignore[operator]  # the frame rate it was filmed at
 
 
 def test_the_reader_stops_where_its_place_stops_showing_a_speed():
@@ -250,22 +253,71 @@ def test_a_known_speed_that_would_make_no_dashcams_lens_drives_the_ego_instead()
     assert found is not None and found[0] == pytest.approx(640.0 * 30.0 / 8.0) and found[2] == 40 and not replace_speed
 
 
-def test_extract_says_when_the_pictures_clock_runs_slower_than_the_video(tmp_path):
-    """``extract`` of dad_000478 (20 fps, its dashcam's clock ticking every ~25 frames): the clock's rate in the raw
-    scenario's provenance and a warning that the video is slow motion, with the frame rate that plays it in real
-    time; the images, frames and crash are what they were."""
+def test_extract_retimes_a_video_whose_clock_runs_slower_than_its_frame_rate(tmp_path):
+    """``extract`` of dad_000478 (a 20 fps file, its dashcam's clock ticking every ~25 frames) runs at the clock's
+    25 fps: the scenario's frame rate, its provenance (``time_base``: the clock's rate at the file's 20 fps, 0.75-0.85,
+    95 % interval below 0.95) and a warning say so; the crash is found at the same frame, ~0.8x the file's time.
+    ``retime=False`` keeps the file's 20 fps, with the clock's rate in the provenance and a warning giving the
+    ``--fps`` that plays it in real time."""
     from deepcrashtest.pipeline.extract import run_extract
     from deepcrashtest.scenario import Scenario
 
     if make_text_reader() is None:
         pytest.skip("no text reader installed (make setup installs rapidocr_onnxruntime)")
-    run_extract(need(DATA / "crash_dad" / "dad_000478.mp4"), tmp_path / "out", annotate=False, report=False)
-    raw = Scenario.load(tmp_path / "out" / "scenario_raw.json")
+    video = need(DATA / "crash_dad" / "dad_000478.mp4")
+    found = run_extract(video, tmp_path / "clock", annotate=False, report=False)
+    raw = Scenario.load(tmp_path / "clock" / "scenario_raw.json")
+    assert raw.source.fps == 25.0
+    base = raw.provenance.parameters["time_base"]
+    assert base["fps"] == 25.0 and base["file_fps"] == 20.0 and base["source"] == "overlay clock"
+    assert 0.75 < base["clock_rate_at_file_fps"] < 0.85 and base["interval_95"][1] < 0.95
+    said = [w for w in raw.warnings if w.startswith("the picture's clock")]
+    assert len(said) == 1 and "extracted at 25 fps" in said[0] and "--no-retime" in said[0], said
+    kept = run_extract(video, tmp_path / "file", annotate=False, report=False, retime=False)
+    raw = Scenario.load(tmp_path / "file" / "scenario_raw.json")
+    assert raw.source.fps == 20.0 and "time_base" not in raw.provenance.parameters
     clock = raw.provenance.parameters["overlay_clock"]
     assert 0.75 < clock["rate"] < 0.85 and clock["interval_95"][1] < 0.95 and clock["ticks"] >= 3
     said = [w for w in raw.warnings if w.startswith("the picture's clock")]
     assert len(said) == 1 and "slow motion" in said[0] and "--fps 25 plays it in real time" in said[0], said
-    assert raw.source.fps == 20.0
+    crashes = found["crash_detection"], kept["crash_detection"]
+    assert crashes[0]["frame"] == crashes[1]["frame"], crashes
+    assert crashes[0]["video_time_s"] == pytest.approx(0.8 * crashes[1]["video_time_s"], abs=0.01)
+
+
+def test_a_long_slow_motion_video_is_retimed_as_soon_as_its_clock_is_read(tmp_path):
+    """ccd_000053's 50 frames (10 fps, a clock ticking every 10 frames) stored at 4 fps: 12.5 s of video, 0.4x real
+    time. Its clock is read by 10 s into the first pass, which stops there (not after its last frame); the extraction
+    runs again at the camera's 10 fps: a time base of 10 fps (clock rate 0.4 at the file's 4 fps), and the crash
+    detection, whose rules are in seconds, finds the labelled contact (frame 33, bench/labels/ccd_crashes.json) within
+    a frame, as on the original clip; at the file's 4 fps (``retime=False``) it found frame 31."""
+    import av
+
+    from deepcrashtest.datasets.crash_labels import load_crash_labels
+    from deepcrashtest.pipeline.extract import run_extract
+    from deepcrashtest.scenario import Scenario
+
+    if make_text_reader() is None:
+        pytest.skip("no text reader installed (make setup installs rapidocr_onnxruntime)")
+    with av.open(str(need(DATA / "crash_ccd" / "ccd_000053.mp4"))) as src:
+        frames = [f.to_ndarray(format="bgr24") for f in src.decode(video=0)]
+    slow = tmp_path / "slow.mp4"
+    with av.open(str(slow), "w") as out:
+        stream = out.add_stream("libx264", rate=4)
+        stream.height, stream.width = frames[0].shape[:2]
+        stream.pix_fmt, stream.options = "yuv420p", {"crf": "18", "preset": "veryfast"}
+        for img in frames:
+            out.mux(stream.encode(av.VideoFrame.from_ndarray(img, format="bgr24")))
+        out.mux(stream.encode())
+    found = run_extract(slow, tmp_path / "clock", annotate=False, report=False)
+    raw = Scenario.load(tmp_path / "clock" / "scenario_raw.json")
+    base = raw.provenance.parameters["time_base"]
+    assert raw.source.fps == 10.0 and base["fps"] == 10.0 and base["file_fps"] == 4.0, base
+    assert base["clock_rate_at_file_fps"] == pytest.approx(0.4, abs=0.02)
+    label = load_crash_labels(ROOT / "bench" / "labels" / "ccd_crashes.json")["ccd_000053"]
+    crash = found["crash_detection"]
+    assert abs(crash["frame"] - label.contact_frame) <= 1, crash
+    assert crash["video_time_s"] == pytest.approx(crash["frame"] / 10.0)
 
 
 class _BrokenReader:

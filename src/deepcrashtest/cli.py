@@ -269,6 +269,12 @@ def extract(
         help="Read what the dashcam burns into the picture: its GPS speed ('58KM/H'), used as --ego-speed where no "
         "speed or calibration is given, and its clock, which tells a slow-motion video.",
     ),
+    retime: bool = typer.Option(
+        True,
+        "--retime/--no-retime",
+        help="Where the dashcam's clock shows the video is slow motion or sped up (and no --fps is given), extract "
+        "it at the frame rate that plays it in real time; --no-retime keeps the file's, with a warning.",
+    ),
     dashboard_rows: int | None = typer.Option(
         None, "--dashboard-rows", help="Rows of dashboard/bonnet at the bottom to ignore (default: detect)."
     ),
@@ -338,6 +344,7 @@ def extract(
         lens=lens,
         ego_speed_kmh=ego_speed,
         overlay=overlay,
+        retime=retime,
     )
     emit(result, as_json, extract_summary)
 

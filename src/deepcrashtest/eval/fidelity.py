@@ -259,11 +259,12 @@ def _contact(scenario: Scenario, c: dict[str, Any]) -> dict[str, Any]:
 
 
 def labelled_contact_time(scenario: Scenario, label: CrashLabel) -> float:
-    """Video time (s) of the label's contact frame: the frame's own where the video's rate varies
-    (``source.frame_times``), else the label's ``contact_frame / fps`` (0 without a contact frame)."""
-    if scenario.source.frame_times is not None and label.contact_frame is not None:
-        return float(scenario.video_time(scenario.frame_time(label.contact_frame)))
-    return float(label.contact_video_time or 0.0)
+    """Video time (s) of the label's contact frame as the scenario times its frames: the frame's own where the
+    video's rate varies (``source.frame_times``), else ``contact_frame / fps`` at the scenario's frame rate (a video
+    re-timed by its clock runs at another rate than the label's file; 0 without a contact frame)."""
+    if label.contact_frame is None:
+        return 0.0
+    return float(scenario.video_time(scenario.frame_time(label.contact_frame)))
 
 
 def compare_crash(

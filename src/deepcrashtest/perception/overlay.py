@@ -54,6 +54,25 @@ CLOCK_MAX_S = 10.0
 #: A clock whose rate (clock seconds per video second) is further than this from 1 with 95 % confidence makes the video
 #: a slow-motion or sped-up one (the tick frames are found to the frame where the digits read cleanly).
 CLOCK_RATE_TOL = 0.05
+#: The frame rates cameras record at (1/s): a re-timed video takes the one its clock's interval admits.
+RECORDING_RATES = (
+    10.0,
+    12.0,
+    15.0,
+    20.0,
+    24000 / 1001,
+    24.0,
+    25.0,
+    30000 / 1001,
+    30.0,
+    50.0,
+    60000 / 1001,
+    60.0,
+    120.0,
+    240.0,
+)
+#: How close (relative) the clock's frame rate must be to a recording rate to be taken as that rate.
+RECORDING_RATE_SNAP = 0.02
 #: The video time (s) a clock's ticks must span to tell its rate.
 CLOCK_MIN_SPAN_S = 2.0
 #: The largest speed taken (km/h).
@@ -159,6 +178,19 @@ class OverlayClock:
         if found is None or 1.0 - CLOCK_RATE_TOL <= found[2] and found[1] <= 1.0 + CLOCK_RATE_TOL:
             return None
         return found[0]
+
+    def real_time_fps(self, fps: float) -> float | None:
+        """The frame rate (1/s) at which a video stored at ``fps`` plays in real time by this clock, where it is
+        clearly not real time (:meth:`slow_motion`): ``fps / rate`` to 0.1 fps, or a recording rate cameras use
+        (:data:`RECORDING_RATES`) where one lies within the 95 % interval and within :data:`RECORDING_RATE_SNAP` of it
+        (dad_000478's clock ticks every 25 frames of its 20 fps file: 25; dad_000550's every 25 and 24: 24.5). None
+        where the video plays in real time, or the clock cannot tell."""
+        if self.slow_motion() is None:
+            return None
+        rate, lo, hi = self.rate() or (1.0, 1.0, 1.0)
+        real = fps / rate
+        near = [r for r in RECORDING_RATES if fps / hi <= r <= fps / lo and abs(r / real - 1.0) <= RECORDING_RATE_SNAP]
+        return min(near, key=lambda r: abs(r - real)) if near else round(real, 1)
 
 
 @dataclass(frozen=True)

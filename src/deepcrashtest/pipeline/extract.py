@@ -31,13 +31,14 @@ import numpy as np
 from deepcrashtest.errors import UserError
 from deepcrashtest.fileio import atomic_path, check_writable, ensure_output_dir, output_set
 from deepcrashtest.geometry.camera import default_camera, portrait_size, scale_camera
+from deepcrashtest.geometry.egomotion import MAX_RATE_HZ
 from deepcrashtest.geometry.known_speed import KnownSpeed
 from deepcrashtest.perception.annotate import Annotator
 from deepcrashtest.perception.detect import DEFAULT_DETECTOR, make_detector
 from deepcrashtest.perception.detections import Detector, in_picture
 from deepcrashtest.perception.global_motion import GlobalMotion  # no pandas: the crash modules load in the background
 from deepcrashtest.perception.lanes import LaneState, draw_lanes
-from deepcrashtest.perception.overlay import OverlayReader
+from deepcrashtest.perception.overlay import CLOCK_MAX_S, SAMPLE_S, OverlayReader
 from deepcrashtest.perception.track import (
     FrameTracks,
     bridged_records,
@@ -126,6 +127,7 @@ def run_extract(
     lens: str = "none",
     ego_speed_kmh: float | None = None,
     overlay: bool = True,
+    retime: bool = True,
 ) -> dict[str, Any]:
     """Extract a video in ONE decoding pass: detect + track, ego-motion, lanes, localisation.
 
@@ -161,7 +163,12 @@ def run_extract(
 
     ``overlay``: read what the dashcam burns into the picture (:mod:`deepcrashtest.perception.overlay`; a text reader
     must be installed): its GPS speed, used as a given speed where neither a speed nor a calibration is given, and its
-    clock, which tells a slow-motion or sped-up video (a warning).
+    clock, which tells a slow-motion or sped-up video.
+
+    ``retime``: where that clock clearly disagrees with the file's frame rate and no ``fps`` is given, the video is
+    extracted again at the rate that plays it in real time (:meth:`~deepcrashtest.perception.overlay.OverlayClock.\
+real_time_fps`; the DAD clips' 20 fps files hold 25 fps footage): the scenario's times, speeds and crash follow the
+    clock, and its provenance (``time_base``) and warnings say so. ``False``: the file's rate, with a warning.
     """
     crash_spec = _parse_crash(crash) if crash is not None else None
     max_width = max_width or None  # 0: the frames as stored
@@ -171,7 +178,8 @@ def run_extract(
     paths = _output_paths(src_path, out, annotate, geometry, report, force)
     watch = shots and frame_range is None  # cuts are looked for in the same decoding pass
     later = WARM_IMPORTS + REPORT_IMPORTS * report if geometry else ()
-    try:
+
+    def one_pass(fps: float | None, time_base: ClockTimeBase | None) -> dict[str, Any]:
         with _one_blas_thread() as pin_blas:
             imports = _warm_imports(SHOT_IMPORTS * watch + PASS_IMPORTS + later, then=pin_blas)
             det = make_detector(detector)
@@ -179,8 +187,16 @@ def run_extract(
                 staged = {key: stage / path.name for key, path in paths.items()}
                 args = (src_path, out, staged, det, detect_every, max_frames, fps, False, frame_range, seed, watch)
                 plan = _Pass(*args, max_width=max_width, lens=lens, ego_speed=ego_speed, overlay=overlay)
-                plan.imports = imports
+                plan.imports, plan.time_base = imports, time_base
+                plan.retime = retime and fps is None and time_base is None
                 result = _run_pass(plan, camera, dashboard_rows, geometry, lanes, report, crash_spec, stage2)
+        return _final_paths(result, stage, out)
+
+    try:
+        try:
+            return one_pass(fps, None)
+        except _Retime as retimed:  # nothing was written: again at the clock's frame rate
+            return one_pass(retimed.time_base.fps, retimed.time_base)
     except _Compilation as comp:  # nothing was written: one extraction per shot instead
         from deepcrashtest.video.shots import detect_shots
 
@@ -188,11 +204,49 @@ def run_extract(
         options: dict[str, Any] = dict(detector=detector, detect_every=detect_every, fps=fps, annotate=annotate)
         options |= dict(camera=camera, dashboard_rows=dashboard_rows, lanes=lanes, report=report, seed=seed)
         options |= dict(stage2=stage2, geometry=geometry, max_width=max_width, lens=lens, ego_speed_kmh=ego_speed_kmh)
-        options |= dict(overlay=overlay)
+        options |= dict(overlay=overlay, retime=retime)
         if len(found) > 1:
             return _extract_shots(src_path, out, found, force, options, crash_spec)
         return run_extract(src_path, out, force=force, shots=False, crash=crash, max_frames=max_frames, **options)
-    return _final_paths(result, stage, out)
+
+
+@dataclass(frozen=True)
+class ClockTimeBase:
+    """The frame rate ``fps`` (1/s) the picture's clock gives a video stored at ``file_fps``; ``rate``: the clock
+    seconds per second of the file's video and its 95 % interval; ``sample``: the clock as read."""
+
+    fps: float
+    file_fps: float
+    rate: tuple[float, float, float]
+    sample: str
+
+    @property
+    def time_scale(self) -> float:
+        """Frames a second of the clock's time base per frame a second of the file's (> 1: a slow-motion file)."""
+        return self.fps / self.file_fps
+
+    def record(self) -> dict[str, Any]:
+        """The scenario provenance's ``time_base``."""
+        lo, hi = self.rate[1:]
+        record: dict[str, Any] = {"fps": round(self.fps, 3), "file_fps": round(self.file_fps, 3)}
+        record |= {"source": "overlay clock", "clock_rate_at_file_fps": round(self.rate[0], 4)}
+        return record | {"interval_95": [round(lo, 4), round(hi, 4)]}
+
+    def warning(self) -> str:
+        kind = "slow motion" if self.rate[0] < 1.0 else "sped up"
+        return (
+            f"the picture's clock ({self.sample!r}) runs {self.rate[0]:.2f} s per second of the file's video "
+            f"({self.rate[1]:.2f}-{self.rate[2]:.2f}, 95 %: {kind}): extracted at {self.fps:.4g} fps, the clock's "
+            f"real time, not the file's {self.file_fps:g} fps (--fps {self.file_fps:g} or --no-retime keeps the file's)"
+        )
+
+
+class _Retime(Exception):
+    """The picture's clock says the video is not real time: extract again at ``time_base.fps``."""
+
+    def __init__(self, time_base: ClockTimeBase) -> None:
+        super().__init__("time base")
+        self.time_base = time_base
 
 
 class _Compilation(Exception):
@@ -232,6 +286,8 @@ def _run_pass(
         raise UserError(f"{src_path}: no frame could be decoded")
     if plan.shot_watch is not None and len(shots := plan.shot_watch.shots()) > 1:
         raise _Compilation(shots)
+    if geo is not None and plan.retime and (time_base := _clock_time_base(plan.overlay_reader, meta.fps)) is not None:
+        raise _Retime(time_base)
     if geo is not None and meta.scaled_from is not None:  # the file's size beside the frames' (the source's)
         params = {**geo.scenario.provenance.parameters, "frames_scaled_from": list(meta.scaled_from)}
         geo.scenario = geo.scenario.evolve(provenance=geo.scenario.provenance.model_copy(update={"parameters": params}))
@@ -260,7 +316,7 @@ def _after_pass(
         motion = plan.motion
         geo.scenario, crash_info = crash_for_raw(geo.scenario, df, motion.arrays(), crash_spec, motion.area)
         geo = _cut_at_crash(geo, crash_info)
-        geo.scenario = _with_overlay_clock(geo.scenario, plan.overlay_reader, meta.fps)
+        geo.scenario = _with_overlay_clock(geo.scenario, plan.overlay_reader, meta.fps, plan.time_base)
     with atomic_path(paths["tracks_csv"], force=force) as tmp:
         df.to_csv(tmp, index=False, float_format="%.3f")
     result = _summary(plan, meta, df, elapsed)
@@ -452,6 +508,11 @@ class _Pass:
     """Read the dashcam's overlay: its speed where no speed and no calibration are given, and its clock
     (:func:`run_extract`)."""
     overlay_reader: OverlayReader | None = field(default=None, init=False)
+    retime: bool = field(default=False, init=False)
+    """Raise :class:`_Retime` where the picture's clock says the video is not real time: as soon as the clock is read
+    (:data:`~deepcrashtest.perception.overlay.CLOCK_MAX_S` into the video), or after the last frame of a shorter one."""
+    time_base: ClockTimeBase | None = field(default=None, init=False)
+    """The frame rate this pass runs at was read off the picture's clock by a pass before it."""
     motion: GlobalMotion = field(default_factory=GlobalMotion)
     """The camera's global image motion per frame (the ego's jolt, for crash detection)."""
     shot_watch: ShotWatch | None = field(default=None, init=False)
@@ -566,6 +627,10 @@ class _Pass:
             elif overlay is not None:
                 overlay.see(int(frame.index), float(frame.time), frame.image)
             draw(pending.pop(int(frame.index)), lane_state)
+            if self.retime and float(frame.time) > CLOCK_MAX_S + SAMPLE_S:  # the clock is read: a long video that
+                self.retime = False  # is not real time stops here, not after its last frame
+                if (time_base := _clock_time_base(overlay, meta.fps)) is not None:
+                    raise _Retime(time_base)
 
         return extract_geometry(
             pairs(),
@@ -580,6 +645,7 @@ class _Pass:
             frame_times=meta.variable_frame_times,
             ego_speed=self.ego_speed,
             overlay_speed=None if overlay is None or not use_speed else lambda: _known_speed(overlay),
+            measure_rate_hz=MAX_RATE_HZ * (1.0 if self.time_base is None else self.time_base.time_scale),
         )
 
     def _overlay_reader(self) -> OverlayReader | None:
@@ -592,10 +658,28 @@ class _Pass:
         return None if reader is None else OverlayReader(reader)
 
 
-def _with_overlay_clock(sc: Scenario, overlay: OverlayReader | None, fps: float) -> Scenario:
+def _clock_time_base(overlay: OverlayReader | None, fps: float) -> ClockTimeBase | None:
+    """The frame rate the picture's clock gives a video stored at ``fps``, where it clearly is not ``fps``."""
+    clock = overlay.clock() if overlay is not None else None
+    real = clock.real_time_fps(fps) if clock is not None else None
+    rate = clock.rate() if clock is not None else None
+    if clock is None or real is None or rate is None:
+        return None
+    return ClockTimeBase(real, fps, rate, clock.sample)
+
+
+def _with_overlay_clock(
+    sc: Scenario, overlay: OverlayReader | None, fps: float, time_base: ClockTimeBase | None = None
+) -> Scenario:
     """``sc`` with the rate of the picture's clock in its provenance (``overlay_clock``: clock seconds per video
     second, its 95 % interval, the ticks it rests on) and a warning where the video is clearly not real time (a
-    slow-motion or sped-up video), or where the text reader failed; ``sc`` itself where no clock was read."""
+    slow-motion or sped-up video), or where the text reader failed; ``sc`` itself where no clock was read.
+    ``time_base``: the frame rate ``fps`` was read off the clock by a pass before (``time_base`` in the provenance,
+    and a warning)."""
+    if time_base is not None:
+        params = {**sc.provenance.parameters, "time_base": time_base.record()}
+        prov = sc.provenance.model_copy(update={"parameters": params})
+        sc = sc.evolve(provenance=prov, warnings=[*sc.warnings, time_base.warning()])
     if overlay is not None and overlay.failed is not None:
         return sc.evolve(
             warnings=[*sc.warnings, f"the picture's overlay was not read: the text reader failed ({overlay.failed})"]
@@ -619,7 +703,7 @@ def _with_overlay_clock(sc: Scenario, overlay: OverlayReader | None, fps: float)
     warning = (
         f"the picture's clock ({clock.sample!r}) runs {slow:.2f} s per second of video ({rate[1]:.2f}-{rate[2]:.2f}, "
         f"95 %): {kind}; the scenario's times and speeds follow the video's {fps:g} fps and are off by that factor "
-        f"(--fps {fps / slow:.3g} plays it in real time)"
+        f"(--fps {clock.real_time_fps(fps) or fps / slow:.4g} plays it in real time)"
     )
     return sc.evolve(warnings=[*sc.warnings, warning])
 

@@ -195,6 +195,7 @@ def extract_geometry(
     frame_times: Callable[[], Sequence[float] | None] | None = None,
     ego_speed: float | None = None,
     overlay_speed: Callable[[], KnownSpeed | None] | None = None,
+    measure_rate_hz: float = MAX_RATE_HZ,
 ) -> GeometryResult:
     """Run the geometry stage over one pass of frames (see the module docstring).
 
@@ -207,6 +208,8 @@ def extract_geometry(
     (a GPS overlay or log), from which an uncalibrated camera's focal length is read
     (:func:`deepcrashtest.geometry.known_speed.focal_from_ego_speed`). ``overlay_speed``: asked after the last frame
     where no ``ego_speed`` is given, the ego's speed read off the picture (None: none there), used alike.
+    ``measure_rate_hz``: ego-motion and lanes measure at most this many frames a second of the frames' times (a video
+    re-timed by its clock keeps the stored frames' cadence: ``MAX_RATE_HZ`` x its frame rate / the file's).
     """
     buffer, rest = _calibration_frames(frames, calib_seconds)
     cam, rows, horizon_source = estimate_camera(
@@ -218,7 +221,9 @@ def extract_geometry(
         lens_est = estimate_lens([f.image for f, _ in buffer], size[1] - rows if rows else None, seed=seed)
         if lens_est.used:
             cam = cam.model_copy(update={"distortion": opencv_coefficients(lens_est.lam, size, cam.fx)})
-    ego_est = EgoMotionEstimator(cam, mask_bottom_rows=rows, max_width=max_width, seed=seed)
+    ego_est = EgoMotionEstimator(
+        cam, mask_bottom_rows=rows, max_width=max_width, seed=seed, max_rate_hz=measure_rate_hz
+    )
     lane_det: LaneDetector | None = lane_detector or (
         ClassicalLaneDetector(cam, mask_bottom_rows=rows, seed=seed) if lanes else None
     )
@@ -226,7 +231,7 @@ def extract_geometry(
     indices: list[int] = []
     all_tracks: list[pd.DataFrame] = []
     all_rows: list[tuple[object, ...]] = []
-    lane_rate = _RateGate(MAX_RATE_HZ)  # lanes on as many frames a second as ego-motion measures
+    lane_rate = _RateGate(measure_rate_hz)  # lanes on as many frames a second as ego-motion measures
     last_lanes: LaneState | None = None
 
     with ThreadPoolExecutor(1, thread_name_prefix="lanes") as pool:

@@ -226,13 +226,24 @@ def category_listing(sc: Scenario) -> str:
     return ", ".join(f"{label.get(k, k)}: {counts[k]}" for k in order if k in counts) or "-"
 
 
+def _frame_rate(sc: Scenario) -> Any:
+    """The source's frame rate as the report says it: where it varies, and where the dashcam's clock re-timed it."""
+    s = sc.source
+    if s.frame_times is not None:
+        return f"variable (frames' own times), mean {s.fps:.3f}"
+    base = sc.provenance.parameters.get("time_base")
+    if isinstance(base, dict) and base.get("source") == "overlay clock":
+        return f"{s.fps:g}, the dashcam's clock's real time (the file says {base.get('file_fps')})"
+    return s.fps
+
+
 def source_section(sc: Scenario) -> Section:
     """Facts about the source video (or label file) the scenario came from."""
     s = sc.source
     rows: list[tuple[str, Any]] = [
         ("kind", s.kind),
         ("file", Path(s.path).name),
-        ("frame rate (fps)", s.fps if s.frame_times is None else f"variable (frames' own times), mean {s.fps:.3f}"),
+        ("frame rate (fps)", _frame_rate(sc)),
         ("frames", s.frame_count),
         ("length (s)", sc.video_time(sc.frame_time(s.frame_count))),
         ("scenario time of frame 0 (s)", sc.frame_time(0)),
