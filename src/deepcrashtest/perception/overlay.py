@@ -71,8 +71,9 @@ RECORDING_RATES = (
     120.0,
     240.0,
 )
-#: How close (relative) the clock's frame rate must be to a recording rate to be taken as that rate.
-RECORDING_RATE_SNAP = 0.02
+#: A recording rate within the clock's interval is taken where its distance to the clock's frame rate is at most this
+#: share of the next nearest one's (else the clock's own rate).
+RECORDING_RATE_CLEAR = 0.75
 #: The video time (s) a clock's ticks must span to tell its rate.
 CLOCK_MIN_SPAN_S = 2.0
 #: The largest speed taken (km/h).
@@ -181,16 +182,19 @@ class OverlayClock:
 
     def real_time_fps(self, fps: float) -> float | None:
         """The frame rate (1/s) at which a video stored at ``fps`` plays in real time by this clock, where it is
-        clearly not real time (:meth:`slow_motion`): ``fps / rate`` to 0.1 fps, or a recording rate cameras use
-        (:data:`RECORDING_RATES`) where one lies within the 95 % interval and within :data:`RECORDING_RATE_SNAP` of it
-        (dad_000478's clock ticks every 25 frames of its 20 fps file: 25; dad_000550's every 25 and 24: 24.5). None
-        where the video plays in real time, or the clock cannot tell."""
+        clearly not real time (:meth:`slow_motion`): the rate cameras record at (:data:`RECORDING_RATES`) within the
+        95 % interval nearest to ``fps / rate``, where it is clearly the nearest (:data:`RECORDING_RATE_CLEAR`), else
+        ``fps / rate`` to 0.1 fps. dad_000478's clock ticks every 25 frames of its 20 fps file: 25; dad_000550's
+        every 25 and 24: 24.5 (24 and 25 as near); dad_000528's reads 26.8 in an interval of 24-33: 25. None where the
+        video plays in real time, or the clock cannot tell."""
         if self.slow_motion() is None:
             return None
         rate, lo, hi = self.rate() or (1.0, 1.0, 1.0)
         real = fps / rate
-        near = [r for r in RECORDING_RATES if fps / hi <= r <= fps / lo and abs(r / real - 1.0) <= RECORDING_RATE_SNAP]
-        return min(near, key=lambda r: abs(r - real)) if near else round(real, 1)
+        near = sorted((abs(r - real), r) for r in RECORDING_RATES if fps / hi <= r <= fps / lo)
+        if near and (len(near) == 1 or near[0][0] <= RECORDING_RATE_CLEAR * near[1][0]):
+            return near[0][1]
+        return round(real, 1)
 
 
 @dataclass(frozen=True)
