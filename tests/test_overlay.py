@@ -320,6 +320,32 @@ def test_a_long_slow_motion_video_is_retimed_as_soon_as_its_clock_is_read(tmp_pa
     assert crash["video_time_s"] == pytest.approx(crash["frame"] / 10.0)
 
 
+def test_a_clock_followed_by_text_is_read_again_without_the_next_words_glyph():
+    """dad_000512's overlay line "2015/09/18 - 07:53:27 -VicoTag7: Vico-WF1" (found at full size): the clock's box read
+    again ends a quarter glyph past its seconds (``_Field.room``), not a whole glyph, which took in the "-V" after it
+    (read "07:53:27-1": no clock). Every 10th frame's crop then reads a running clock, 07:53:27 -> 07:53:30."""
+    from deepcrashtest.perception.overlay import BAND, _clock_match, _value_box
+
+    reader = make_text_reader()
+    if reader is None:
+        pytest.skip("no text reader installed (make setup installs rapidocr_onnxruntime)")
+    with open_video(need(DATA / "crash_dad" / "dad_000512.mp4"), max_width=DEFAULT_MAX_WIDTH) as source:
+        frames = [f.image for f in source if f.index % 10 == 0]
+    band_h = int(round(BAND * frames[0].shape[0]))
+    y0 = frames[0].shape[0] - band_h
+    line = next(x for x in reader.find(frames[1][y0:]) if parse_clock(x.text) is not None)
+
+    def clocks(room: float) -> list[float | None]:
+        x1, y1, x2, y2 = _value_box(line, _clock_match, frames[0].shape[1], band_h, room)
+        read = [reader.read(img[y0 + y1 : y0 + y2, x1:x2]) for img in frames]
+        return [(parse_clock(text) or (None,))[0] if score >= 0.7 else None for text, score in read]
+
+    tight = clocks(0.25)
+    assert None not in tight and tight[0] == 28407.0 and tight[-1] == 28410.0, tight
+    assert all(b - a in (0.0, 1.0) for a, b in zip(tight, tight[1:], strict=False))
+    assert clocks(1.0).count(None) >= len(frames) // 2  # the whole glyph after it: most crops read no clock
+
+
 class _BrokenReader:
     """A text reader plug-in whose model cannot run (every call raises, as a broken model file would)."""
 

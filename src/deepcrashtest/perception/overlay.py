@@ -217,6 +217,9 @@ class _Field:
     match: Callable[[str], re.Match[str] | None]
     parse: Callable[[str], tuple[float, str] | None]
     until_s: float = math.inf
+    room: float = 1.0
+    """Glyphs of room after the value's word in its box read again (a speed may grow a digit; a clock never does,
+    and a glyph of the text after it, ``07:53:27 -V`` read as ``07:53:27-1``, is no clock)."""
     place: _Place | None = None
     misses: int = 0
     readings: list[tuple[int, float, float, str, _Place]] = field(default_factory=list)
@@ -254,7 +257,7 @@ class OverlayReader:
     _next_s: float | None = None
     _samples: int = 0
     _speed: _Field = field(default_factory=lambda: _Field(_speed_match, parse_speed))
-    _clock: _Field = field(default_factory=lambda: _Field(_clock_match, parse_clock, CLOCK_MAX_S))
+    _clock: _Field = field(default_factory=lambda: _Field(_clock_match, parse_clock, CLOCK_MAX_S, room=0.25))
     #: the clock's crops of the frames seen since its last reading (frame, time s, crop), where a tick is looked for
     _between: list[tuple[int, float, np.ndarray]] = field(default_factory=list)
     _ticks: list[tuple[float, float, float]] = field(default_factory=list)  # time s, clock s, time uncertainty s
@@ -366,7 +369,7 @@ class OverlayReader:
                 for f in fields:
                     value = f.parse(line.text) if line.score >= MIN_SCORE and found.get(id(f)) is None else None
                     if value is not None:
-                        f.place = _Place(y0, _value_box(line, f.match, image.shape[1], band_h))
+                        f.place = _Place(y0, _value_box(line, f.match, image.shape[1], band_h, f.room))
                         f.texts.setdefault(f.place, line.text)
                         found[id(f)] = value
             if all(found.get(id(f)) is not None for f in fields):
@@ -403,14 +406,14 @@ class OverlayReader:
 
 
 def _value_box(
-    line: TextLine, match: Callable[[str], re.Match[str] | None], width: int, band_h: int
+    line: TextLine, match: Callable[[str], re.Match[str] | None], width: int, band_h: int, room: float = 1.0
 ) -> tuple[int, int, int, int]:
     """The box (px of the band) to read a field again: its line's rows (a few px more), from the end of the word
-    before the field's value (the line's start where there is none) to one glyph past the end of the word the value
-    ends in (the line's end where the glyphs are not placed): a number that grows a digit stays inside."""
+    before the field's value (the line's start where there is none) to ``room`` glyphs past the end of the word the
+    value ends in (the line's end where the glyphs are not placed): a number that grows a digit stays inside."""
     x1, y1, x2, y2 = line.box
     pad = max(2, (y2 - y1) // 4)
-    glyph = y2 - y1
+    glyph = round(room * (y2 - y1))
     words = line.text.split(" ")
     left, right = x1 - pad, x2 + glyph
     found = match(line.text)
