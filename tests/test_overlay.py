@@ -258,9 +258,14 @@ def test_extract_retimes_a_video_whose_clock_runs_slower_than_its_frame_rate(tmp
     25 fps: the scenario's frame rate, its provenance (``time_base``: the clock's rate at the file's 20 fps, 0.75-0.85,
     95 % interval below 0.95) and a warning say so; the crash is found at the same frame, ~0.8x the file's time.
     ``retime=False`` keeps the file's 20 fps, with the clock's rate in the provenance and a warning giving the
-    ``--fps`` that plays it in real time."""
+    ``--fps`` that plays it in real time. The fidelity overlay video of the re-timed scenario plays at 25 fps."""
+    import av
+    import pandas as pd
+
+    from deepcrashtest.eval.fidelity import evaluate_fidelity
     from deepcrashtest.pipeline.extract import run_extract
     from deepcrashtest.scenario import Scenario
+    from deepcrashtest.viz.fidelity_video import write_fidelity_video
 
     if make_text_reader() is None:
         pytest.skip("no text reader installed (make setup installs rapidocr_onnxruntime)")
@@ -273,6 +278,11 @@ def test_extract_retimes_a_video_whose_clock_runs_slower_than_its_frame_rate(tmp
     assert 0.75 < base["clock_rate_at_file_fps"] < 0.85 and base["interval_95"][1] < 0.95
     said = [w for w in raw.warnings if w.startswith("the picture's clock")]
     assert len(said) == 1 and "extracted at 25 fps" in said[0] and "--no-retime" in said[0], said
+    tracks = pd.read_csv(tmp_path / "clock" / "tracks.csv")  # the overlay video plays at the clock's rate too
+    overlay = write_fidelity_video(raw, evaluate_fidelity(raw, tracks), None, video, tracks, tmp_path / "f.mp4", None,
+                                   max_frames=3)  # fmt: skip
+    with av.open(overlay["path"]) as c:
+        assert float(c.streams.video[0].average_rate) == 25.0 and c.streams.video[0].frames == 3
     kept = run_extract(video, tmp_path / "file", annotate=False, report=False, retime=False)
     raw = Scenario.load(tmp_path / "file" / "scenario_raw.json")
     assert raw.source.fps == 20.0 and "time_base" not in raw.provenance.parameters

@@ -154,8 +154,11 @@ class FidelityPainter:
 
 
 def _folder_fps(video: str | Path, scenario: Scenario) -> float | None:
-    """An image folder has no frame rate of its own: the scenario's (frame numbers are the file numbers)."""
-    return scenario.source.fps if Path(video).is_dir() else None
+    """The frame rate ``video`` is read at: the scenario's for an image folder (no frame rate of its own; frame numbers
+    are the file numbers) and for a video ``extract`` re-timed by its clock (``provenance.parameters.time_base``: the
+    overlay plays in real time, as the annotated video does), else the file's own (None)."""
+    retimed = isinstance(scenario.provenance.parameters.get("time_base"), dict)
+    return scenario.source.fps if Path(video).is_dir() or retimed else None
 
 
 def write_fidelity_video(
