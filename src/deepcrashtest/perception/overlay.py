@@ -176,9 +176,7 @@ class OverlayClock:
         """The video's speed against real time (clock seconds per video second) where it is clearly not real time
         (its 95 % interval further than :data:`CLOCK_RATE_TOL` from 1); None where it is, or cannot be told."""
         found = self.rate()
-        if found is None or 1.0 - CLOCK_RATE_TOL <= found[2] and found[1] <= 1.0 + CLOCK_RATE_TOL:
-            return None
-        return found[0]
+        return found[0] if found is not None and _not_real_time(found) else None
 
     def real_time_fps(self, fps: float) -> float | None:
         """The frame rate (1/s) at which a video stored at ``fps`` plays in real time by this clock, where it is
@@ -187,14 +185,20 @@ class OverlayClock:
         ``fps / rate`` to 0.1 fps. dad_000478's clock ticks every 25 frames of its 20 fps file: 25; dad_000550's
         every 25 and 24: 24.5 (24 and 25 as near); dad_000528's reads 26.8 in an interval of 24-33: 25. None where the
         video plays in real time, or the clock cannot tell."""
-        if self.slow_motion() is None:
+        found = self.rate()
+        if found is None or not _not_real_time(found):
             return None
-        rate, lo, hi = self.rate() or (1.0, 1.0, 1.0)
+        rate, lo, hi = found
         real = fps / rate
         near = sorted((abs(r - real), r) for r in RECORDING_RATES if fps / hi <= r <= fps / lo)
         if near and (len(near) == 1 or near[0][0] <= RECORDING_RATE_CLEAR * near[1][0]):
             return near[0][1]
         return round(real, 1)
+
+
+def _not_real_time(rate: tuple[float, float, float]) -> bool:
+    """Whether a clock's rate (and its 95 % interval) lies further than :data:`CLOCK_RATE_TOL` from 1."""
+    return rate[2] < 1.0 - CLOCK_RATE_TOL or rate[1] > 1.0 + CLOCK_RATE_TOL
 
 
 @dataclass(frozen=True)
@@ -413,14 +417,14 @@ def _value_box(
     value ends in (the line's end where the glyphs are not placed): a number that grows a digit stays inside."""
     x1, y1, x2, y2 = line.box
     pad = max(2, (y2 - y1) // 4)
-    glyph = round(room * (y2 - y1))
+    after = round(room * (y2 - y1))  # px past the value's last word
     words = line.text.split(" ")
-    left, right = x1 - pad, x2 + glyph
+    left, right = x1 - pad, x2 + after
     found = match(line.text)
     if found is not None and line.words and len(words) == len(line.words):
         first = line.text[: found.start(1)].count(" ")  # the word the value starts in
         last = line.text[: max(found.end() - 1, 0)].count(" ")  # and the one it ends in
         if first > 0:  # just after the word before: its last digits are not the value's
             left = line.words[first - 1][1] + 1
-        right = line.words[last][1] + glyph
+        right = line.words[last][1] + after
     return max(0, left), max(0, y1 - pad), min(width, right), min(band_h, y2 + pad)

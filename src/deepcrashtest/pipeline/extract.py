@@ -193,7 +193,7 @@ real_time_fps`; the DAD clips' 20 fps files hold 25 fps footage): the scenario's
                 args = (src_path, out, staged, det, detect_every, max_frames, fps, False, frame_range, seed, watch)
                 plan = _Pass(*args, max_width=max_width, lens=lens, ego_speed=ego_speed, overlay=overlay)
                 plan.imports, plan.time_base, plan.loaded = imports, time_base, loaded
-                plan.retime = retime and fps is None and time_base is None
+                plan.retime = retime and fps is None  # a pass again runs at the clock's fps
                 result = _run_pass(plan, camera, dashboard_rows, geometry, lanes, report, crash_spec, stage2)
         return _final_paths(result, stage, out)
 
@@ -684,9 +684,10 @@ def _clock_time_base(overlay: OverlayReader | None, fps: float) -> ClockTimeBase
     """The frame rate the picture's clock gives a video stored at ``fps``, where it clearly is not ``fps``."""
     clock = overlay.clock() if overlay is not None else None
     real = clock.real_time_fps(fps) if clock is not None else None
-    rate = clock.rate() if clock is not None else None
-    if clock is None or real is None or rate is None:
+    if clock is None or real is None:
         return None
+    rate = clock.rate()
+    assert rate is not None  # a real-time frame rate rests on it
     return ClockTimeBase(real, fps, rate, clock.sample)
 
 

@@ -153,7 +153,7 @@ class FidelityPainter:
                 cv2.drawMarker(img, (int(uv[0]), int(uv[1])), RED, cv2.MARKER_TILTED_CROSS, 28, 3, cv2.LINE_AA)
 
 
-def _folder_fps(video: str | Path, scenario: Scenario) -> float | None:
+def _read_fps(video: str | Path, scenario: Scenario) -> float | None:
     """The frame rate ``video`` is read at: the scenario's for an image folder (no frame rate of its own; frame numbers
     are the file numbers) and for a video ``extract`` re-timed by its clock (``provenance.parameters.time_base``: the
     overlay plays in real time, as the annotated video does), else the file's own (None)."""
@@ -176,7 +176,7 @@ def write_fidelity_video(
     painter = FidelityPainter(scenario, result, sim, label)
     by_frame = _by_frame(tracks)
     empty = tracks.iloc[:0]
-    with open_video(video, _folder_fps(video, scenario), scenario.source.width) as src:
+    with open_video(video, _read_fps(video, scenario), scenario.source.width) as src:
         meta = src.meta
         with VideoWriter(output, meta.fps, meta.width, meta.height, force=force) as writer:
             for frame in src:
@@ -198,7 +198,7 @@ def render_frames(
     want = set(frames)
     by_frame = _by_frame(tracks)
     paths = []
-    with open_video(video, _folder_fps(video, painter.sc), painter.sc.source.width) as src:
+    with open_video(video, _read_fps(video, painter.sc), painter.sc.source.width) as src:
         for frame in src:
             if frame.index in want:
                 p = out / f"fidelity_{frame.index:04d}.png"
